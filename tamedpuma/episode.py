@@ -1,0 +1,126 @@
+"""The one control loop: controller -> simulator -> recorders.
+
+Per control step k (period Δt):
+
+1. read the simulator's truth (joint state, link poses, body spheres, contacts, clearance);
+2. time the whole controller step ``q̈_k = controller.step(obs_k)`` (kinematics included) [ms];
+3. hand a :class:`StepRecord` to every recorder (streams; nothing is held back to the end);
+4. stop if the goal is reached (``stop_on_success``) or the step limit is hit, else apply q̈_k.
+
+The loop knows neither the method nor the file formats. It returns the run's
+:class:`~tamedpuma.metrics.RunMetrics`, computed from the same per-step values that were recorded.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from tamedpuma.metrics import RunMetrics, orientation_error, run_metrics
+from tamedpuma.recording.records import Recorder, RunInfo, StepRecord
+from tamedpuma.sim import Simulator
+from tamedpuma.types import Controller, Scenario
+
+#: Clearance logged when the scene has no obstacle [m] (JSON has no infinity).
+NO_OBSTACLE_CLEARANCE = 1.0e3
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """metrics: the run's scalars; stop_reason: 'success', 'max_steps' or 'nonfinite_command';
+    trajectory: per-step arrays q (T, 7) [rad], ee_position (T, 3) [m], t (T,) [s]."""
+
+    metrics: RunMetrics
+    stop_reason: str
+    t: np.ndarray
+    q: np.ndarray
+    ee_position: np.ndarray
+
+
+def run_episode(
+    scenario: Scenario,
+    controller: Controller,
+    sim: Simulator,
+    recorders: Sequence[Recorder] = (),
+    info: RunInfo | None = None,
+    stop_on_success: bool = True,
+) -> EpisodeResult:
+    """Run one episode of ``scenario`` driven by ``controller`` in ``sim``, streaming to
+    ``recorders`` (opened with ``info``, closed with ``complete=False`` if interrupted)."""
+    spec = sim.spec
+    ee_index = spec.link_names.index(spec.ee_link)
+    obs = sim.reset(scenario)
+    controller.reset(scenario)
+    for rec in recorders:
+        rec.open(info)
+    log: dict[str, list] = {k: [] for k in ("t", "q", "ee_p", "ee_q", "goal_p", "goal_q", "clear",
+                                            "contact", "ground", "ms")}
+    complete = False
+    stop_reason = "max_steps"
+    try:
+        for k in range(scenario.max_steps):
+            link_pos, link_quat = sim.link_poses()
+            centers = sim.body_sphere_centers(link_pos, link_quat)
+            contacts = sim.contacts(centers)
+            ee_p, ee_q = link_pos[ee_index], link_quat[ee_index]
+            pos_err = float(np.linalg.norm(ee_p - obs.goal_position))
+
+            start = time.perf_counter()
+            command = controller.step(obs)
+            compute_ms = (time.perf_counter() - start) * 1e3
+            qdd = np.asarray(command.qdd, dtype=float)
+
+            clearance = contacts.sphere_clearance
+            scalars = {
+                "compute_time_ms": compute_ms,
+                "clearance_m": clearance if math.isfinite(clearance) else NO_OBSTACLE_CLEARANCE,
+                "position_error_m": pos_err,
+                "orientation_error_rad": float(orientation_error(ee_q, obs.goal_quaternion)),
+                "obstacle_contact": float(contacts.obstacle_contact),
+                "ground_contact": float(contacts.ground_contact),
+                **{name: float(v) for name, v in command.scalars.items()},
+            }
+            record = StepRecord(
+                step=k, t=obs.t, q=obs.q, qd=obs.qd, qdd_cmd=qdd,
+                link_positions=link_pos, link_quaternions=link_quat,
+                ee_position=ee_p, ee_quaternion=ee_q, body_sphere_centers=centers,
+                obstacle_centers=obs.obstacle_centers, obstacle_radii=obs.obstacle_radii,
+                goal_position=obs.goal_position, goal_quaternion=obs.goal_quaternion,
+                scalars=scalars,
+            )
+            for rec in recorders:
+                rec.write(record)
+            for key, value in (("t", obs.t), ("q", obs.q), ("ee_p", ee_p), ("ee_q", ee_q),
+                               ("goal_p", obs.goal_position), ("goal_q", obs.goal_quaternion),
+                               ("clear", clearance), ("contact", contacts.obstacle_contact),
+                               ("ground", contacts.ground_contact), ("ms", compute_ms)):
+                log[key].append(value)
+
+            if not np.all(np.isfinite(qdd)) or qdd.shape != (spec.dof,):
+                stop_reason = "nonfinite_command"
+                break
+            if stop_on_success and pos_err <= scenario.goal_tolerance:
+                stop_reason = "success"
+                break
+            obs = sim.step(qdd)
+        complete = True
+    finally:
+        metrics = None
+        if log["t"]:
+            metrics = run_metrics(
+                t=np.array(log["t"]), ee_position=np.array(log["ee_p"]),
+                ee_quaternion=np.array(log["ee_q"]), goal_position=np.array(log["goal_p"]),
+                goal_quaternion=np.array(log["goal_q"]), clearance=np.array(log["clear"]),
+                obstacle_contact=np.array(log["contact"]), ground_contact=np.array(log["ground"]),
+                q=np.array(log["q"]), q_min=spec.q_min, q_max=spec.q_max,
+                compute_ms=np.array(log["ms"]), tolerance=scenario.goal_tolerance)
+        summary = {"stop_reason": stop_reason if complete else "interrupted",
+                   **(metrics.as_dict() if metrics else {})}
+        for rec in recorders:
+            rec.close(complete=complete, summary=summary)
+    return EpisodeResult(metrics=metrics, stop_reason=stop_reason, t=np.array(log["t"]),
+                         q=np.array(log["q"]), ee_position=np.array(log["ee_p"]))

@@ -1,0 +1,98 @@
+"""Damped least-squares inverse kinematics for an end-effector pose (position and orientation).
+
+Iterates ``q ← clip(q + Jᵀ(J Jᵀ + λ² I)⁻¹ e, q_min + m, q_max − m)`` with the 6-D pose error
+``e = [p_g − p; log(R_g Rᵀ)]`` [m, rad] in the world frame until ‖e‖ is below the tolerance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tamedpuma.kinematics import Kinematics
+
+
+def rotation_error(rot: np.ndarray, goal_rot: np.ndarray) -> np.ndarray:
+    """World-frame rotation vector ω [rad] with exp([ω]×) R = R_g (the log map of R_g Rᵀ)."""
+    rel = goal_rot @ rot.T
+    cos = np.clip((np.trace(rel) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    axis = np.array([rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]])
+    if angle < 1e-9:
+        return 0.5 * axis
+    if np.pi - angle < 1e-6:  # near π: axis from the symmetric part
+        sym = (rel + np.eye(3)) / 2.0
+        axis = sym[:, int(np.argmax(np.diag(sym)))]
+        return angle * axis / np.linalg.norm(axis)
+    return angle * axis / (2.0 * np.sin(angle))
+
+
+def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = np.asarray(quat, dtype=float) / np.linalg.norm(quat)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """q: solution [rad]; position_error [m]; orientation_error [rad]; iterations; converged."""
+
+    q: np.ndarray
+    position_error: float
+    orientation_error: float
+    iterations: int
+    converged: bool
+
+
+def _dls(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tolerance, max_iterations):
+    zeros = np.zeros(kin.spec.dof)
+    err = np.full(6, np.inf)
+    it = 0
+    for it in range(1, max_iterations + 1):
+        state = kin.evaluate(q, zeros)
+        err = np.concatenate([position - state.ee_position,
+                              rotation_error(state.ee_rotation, goal_rot)])
+        if np.linalg.norm(err) < tolerance:
+            break
+        jac = state.ee_jacobian
+        step = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(6), err)
+        q = np.clip(q + step, lo, hi)
+    return q, err, it
+
+
+def solve_pose_ik(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
+                  q_init: np.ndarray, damping: float = 1e-2, tolerance: float = 1e-5,
+                  max_iterations: int = 300, margin: float = 0.05, restarts: int = 16,
+                  seed: int = 0) -> IKResult:
+    """Joint configuration reaching the pose (position [m], quaternion (x, y, z, w)).
+
+    Starts from ``q_init``; if that does not converge (a local minimum at the joint limits), from
+    up to ``restarts`` seeded random configurations, keeping the first that converges (or the
+    smallest error). Deterministic for a given seed.
+    """
+    spec = kin.spec
+    position = np.asarray(position, dtype=float)
+    goal_rot = quat_to_matrix(quaternion)
+    lo, hi = spec.q_min + margin, spec.q_max - margin
+    rng = np.random.default_rng(seed)
+    starts = [np.clip(np.asarray(q_init, dtype=float), lo, hi)]
+    starts += [rng.uniform(lo, hi) for _ in range(restarts)]
+    best = None
+    total = 0
+    for start in starts:
+        q, err, it = _dls(kin, position, goal_rot, start, lo, hi, damping, tolerance,
+                          max_iterations)
+        total += it
+        if best is None or np.linalg.norm(err) < np.linalg.norm(best[1]):
+            best = (q, err)
+        if np.linalg.norm(err) < tolerance:
+            break
+    q, err = best
+    return IKResult(q=q, position_error=float(np.linalg.norm(err[:3])),
+                    orientation_error=float(np.linalg.norm(err[3:])), iterations=total,
+                    converged=bool(np.linalg.norm(err) < tolerance))

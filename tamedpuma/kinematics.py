@@ -1,0 +1,215 @@
+"""Robot kinematics on pinocchio: FK, frame Jacobians, J̇q̇ and collision-sphere kinematics.
+
+One :class:`Kinematics` object wraps a pinocchio model built from the robot's URDF (the same file the
+simulator loads). Its single per-step call, :meth:`Kinematics.evaluate`, runs the forward kinematics
+once and returns everything a controller needs as a frozen :class:`KinematicState`:
+
+- end-effector position p [m], rotation R, quaternion (x, y, z, w);
+- the 6×7 frame Jacobian ``J = [J_v; J_ω]`` in the world-aligned frame at the end-effector origin,
+  so that ``[ṗ; ω] = J q̇``;
+- the curvature term ``J̇ q̇`` [m/s², rad/s²] (pinocchio's classical frame acceleration at q̈ = 0),
+  so that ``[p̈; ω̇] = J q̈ + J̇ q̇``;
+- for every collision sphere i: centre c_i [m], Jacobian ``J_i = ∂c_i/∂q`` (3×7) and ``J̇_i q̇``,
+  batched as arrays of shape (k, 3), (k, 3, 7), (k, 3).
+
+numpy and pinocchio only.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from tamedpuma.errors import ConfigError
+
+
+def default_urdf_path() -> str:
+    """Path of ``pybullet_data``'s ``kuka_iiwa/model.urdf`` (kinematically the authors' iiwa14)."""
+    import pybullet_data  # data files only; no simulator import
+
+    return os.path.join(pybullet_data.getDataPath(), "kuka_iiwa", "model.urdf")
+
+
+@dataclass(frozen=True)
+class BodySphere:
+    """A collision sphere rigidly attached to a link: centre = link origin + R_link · offset [m]."""
+
+    link: str
+    radius: float
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """Robot data from config.
+
+    q_min, q_max: joint position limits [rad]; qd_max: joint speed limits [rad/s];
+    ee_link: end-effector frame (its origin is the task point); spheres: collision spheres;
+    link_names: the links whose poses are logged (base first).
+    """
+
+    urdf_path: str
+    joint_names: tuple[str, ...]
+    link_names: tuple[str, ...]
+    ee_link: str
+    q_min: np.ndarray
+    q_max: np.ndarray
+    qd_max: np.ndarray
+    spheres: tuple[BodySphere, ...]
+
+    def __post_init__(self):
+        n = len(self.joint_names)
+        for name in ("q_min", "q_max", "qd_max"):
+            arr = np.array(getattr(self, name), dtype=float)
+            if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+                raise ConfigError(f"robot.{name} must be {n} finite numbers, got {arr.tolist()}")
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        if np.any(self.q_min >= self.q_max):
+            raise ConfigError("robot.q_min must be below robot.q_max for every joint")
+        if np.any(self.qd_max <= 0):
+            raise ConfigError("robot.qd_max must be positive")
+
+    @property
+    def dof(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def sphere_radii(self) -> np.ndarray:
+        return np.array([s.radius for s in self.spheres])
+
+
+def robot_spec_from_config(cfg) -> RobotSpec:
+    """Build a :class:`RobotSpec` from the ``robot`` config group (a mapping)."""
+    urdf = cfg.get("urdf") or default_urdf_path()
+    if not os.path.isfile(urdf):
+        raise ConfigError(f"robot.urdf: no such file: {urdf}")
+    spheres = tuple(
+        BodySphere(link=str(s["link"]), radius=float(s["radius"]),
+                   offset=tuple(float(v) for v in s.get("offset", (0.0, 0.0, 0.0))))
+        for s in cfg["spheres"]
+    )
+    return RobotSpec(
+        urdf_path=urdf,
+        joint_names=tuple(cfg["joint_names"]),
+        link_names=tuple(cfg["link_names"]),
+        ee_link=str(cfg["ee_link"]),
+        q_min=np.array(cfg["q_min"], dtype=float),
+        q_max=np.array(cfg["q_max"], dtype=float),
+        qd_max=np.array(cfg["qd_max"], dtype=float),
+        spheres=spheres,
+    )
+
+
+@dataclass(frozen=True)
+class KinematicState:
+    """Kinematics at one (q, q̇); world frame, metres and radians.
+
+    ee_position (3,); ee_rotation (3, 3); ee_quaternion (4,) (x, y, z, w);
+    ee_jacobian (6, 7) rows [v; ω]; ee_jdqd (6,) = J̇q̇;
+    sphere_centers (k, 3); sphere_jacobians (k, 3, 7); sphere_jdqd (k, 3); sphere_radii (k,).
+    """
+
+    ee_position: np.ndarray
+    ee_rotation: np.ndarray
+    ee_quaternion: np.ndarray
+    ee_jacobian: np.ndarray
+    ee_jdqd: np.ndarray
+    sphere_centers: np.ndarray
+    sphere_jacobians: np.ndarray
+    sphere_jdqd: np.ndarray
+    sphere_radii: np.ndarray
+
+
+_WORLD = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+class Kinematics:
+    """Pinocchio model of a :class:`RobotSpec`; collision spheres are extra operational frames."""
+
+    def __init__(self, spec: RobotSpec):
+        self.spec = spec
+        try:
+            model = pin.buildModelFromUrdf(spec.urdf_path)
+        except Exception as exc:  # pinocchio raises plain exceptions for bad files
+            raise ConfigError(f"cannot load URDF {spec.urdf_path}: {exc}") from exc
+        names = [model.names[i] for i in range(1, model.njoints)]
+        if tuple(names) != spec.joint_names:
+            raise ConfigError(f"robot.joint_names {spec.joint_names} do not match URDF {names}")
+        self.link_ids = tuple(self._frame_id(model, n) for n in spec.link_names)
+        self.ee_id = self._frame_id(model, spec.ee_link)
+        sphere_ids = []
+        for i, s in enumerate(spec.spheres):
+            parent = model.frames[self._frame_id(model, s.link)]
+            placement = parent.placement * pin.SE3(np.eye(3), np.array(s.offset, dtype=float))
+            frame = pin.Frame(f"body_sphere_{i}", parent.parentJoint, placement,
+                              pin.FrameType.OP_FRAME)
+            sphere_ids.append(model.addFrame(frame, False))
+        self.sphere_ids = tuple(sphere_ids)
+        self.model = model
+        self.data = model.createData()
+        self._zeros = np.zeros(model.nv)
+        self._radii = spec.sphere_radii
+        self._radii.setflags(write=False)
+
+    @staticmethod
+    def _frame_id(model, name: str) -> int:
+        if not model.existFrame(name):
+            raise ConfigError(f"link {name!r} is not in the URDF")
+        return model.getFrameId(name)
+
+    def _forward(self, q: np.ndarray, qd: np.ndarray) -> None:
+        pin.forwardKinematics(self.model, self.data, q, qd, self._zeros)
+        pin.computeJointJacobians(self.model, self.data, q)
+        pin.updateFramePlacements(self.model, self.data)
+
+    def evaluate(self, q: np.ndarray, qd: np.ndarray) -> KinematicState:
+        """All controller kinematics at (q [rad], q̇ [rad/s]) from one forward pass."""
+        q = np.asarray(q, dtype=float)
+        qd = np.asarray(qd, dtype=float)
+        self._forward(q, qd)
+        model, data = self.model, self.data
+        ee = data.oMf[self.ee_id]
+        jac = pin.getFrameJacobian(model, data, self.ee_id, _WORLD)
+        acc = pin.getFrameClassicalAcceleration(model, data, self.ee_id, _WORLD)
+        k = len(self.sphere_ids)
+        centers = np.empty((k, 3))
+        jacs = np.empty((k, 3, model.nv))
+        jdqd = np.empty((k, 3))
+        for i, fid in enumerate(self.sphere_ids):
+            centers[i] = data.oMf[fid].translation
+            jacs[i] = pin.getFrameJacobian(model, data, fid, _WORLD)[:3]
+            jdqd[i] = pin.getFrameClassicalAcceleration(model, data, fid, _WORLD).linear
+        rot = ee.rotation.copy()
+        return KinematicState(
+            ee_position=ee.translation.copy(),
+            ee_rotation=rot,
+            ee_quaternion=pin.Quaternion(rot).coeffs().copy(),
+            ee_jacobian=np.array(jac),
+            ee_jdqd=np.concatenate([acc.linear, acc.angular]),
+            sphere_centers=centers,
+            sphere_jacobians=jacs,
+            sphere_jdqd=jdqd,
+            sphere_radii=self._radii,
+        )
+
+    def link_poses(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Poses of ``spec.link_names`` at q: positions (L, 3) [m], quaternions (L, 4) (x,y,z,w)."""
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        pos = np.array([self.data.oMf[i].translation for i in self.link_ids])
+        quat = np.array([pin.Quaternion(self.data.oMf[i].rotation).coeffs() for i in self.link_ids])
+        return pos, quat
+
+    def ee_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """End-effector position (3,) [m] and quaternion (4,) (x, y, z, w) at q."""
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        pose = self.data.oMf[self.ee_id]
+        return pose.translation.copy(), pin.Quaternion(pose.rotation).coeffs().copy()
+
+    def sphere_centers(self, q: np.ndarray) -> np.ndarray:
+        """Collision-sphere centres at q: (k, 3) [m]."""
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        return np.array([self.data.oMf[i].translation for i in self.sphere_ids]).reshape(-1, 3)

@@ -1,0 +1,31 @@
+"""The control methods. Each lives in ``tamedpuma/methods/<name>.py`` and exposes
+
+    make(cfg: Mapping, kinematics: Kinematics) -> Controller
+
+where ``cfg`` is the plain content of ``conf/method/<name>.yaml``. Methods never import the
+simulator; they see only :class:`~tamedpuma.types.Observation` and return
+:class:`~tamedpuma.types.Command`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from collections.abc import Mapping
+
+from tamedpuma.errors import ConfigError
+from tamedpuma.kinematics import Kinematics
+from tamedpuma.types import Controller
+
+
+def available() -> list[str]:
+    """Names of the methods found in this package."""
+    return sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_"))
+
+
+def make(name: str, cfg: Mapping, kinematics: Kinematics) -> Controller:
+    """Build the controller of method ``name`` from its config."""
+    if name not in available():
+        raise ConfigError(f"unknown method {name!r}; choose one of {available()}")
+    module = importlib.import_module(f"tamedpuma.methods.{name}")
+    return module.make(cfg, kinematics)

@@ -1,0 +1,52 @@
+"""A damped attractor in joint space: the simplest real controller of the episode loop.
+
+At reset, damped least-squares IK finds a target configuration q* for the scenario's goal pose
+(starting from q0). Each step::
+
+    q̈ = −k (q − q*) − d q̇          [rad/s²]
+
+with stiffness k [1/s²] and damping d [1/s] (critically damped for d = 2√k). No obstacle avoidance.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+
+import numpy as np
+
+from tamedpuma.ik import solve_pose_ik
+from tamedpuma.kinematics import Kinematics
+from tamedpuma.types import Command, Observation, Scenario
+
+log = logging.getLogger(__name__)
+
+
+class JointAttractor:
+    """q̈ = −k (q − q*) − d q̇ towards the IK solution q* of the goal pose."""
+
+    def __init__(self, kinematics: Kinematics, stiffness: float, damping: float):
+        if not (stiffness > 0 and damping > 0):
+            raise ValueError("joint_attractor stiffness and damping must be positive")
+        self.kinematics = kinematics
+        self.stiffness = stiffness
+        self.damping = damping
+        self.q_target = np.zeros(kinematics.spec.dof)
+
+    def reset(self, scenario: Scenario) -> None:
+        result = solve_pose_ik(self.kinematics, scenario.goal.position,
+                               scenario.goal.quaternion, scenario.q0)
+        if not result.converged:
+            log.warning("IK for the goal pose did not converge (position error %.3g m, "
+                        "orientation error %.3g rad)", result.position_error,
+                        result.orientation_error)
+        self.q_target = result.q
+
+    def step(self, obs: Observation) -> Command:
+        error = obs.q - self.q_target
+        qdd = -self.stiffness * error - self.damping * obs.qd
+        return Command(qdd=qdd, scalars={"joint_error_rad": float(np.linalg.norm(error))})
+
+
+def make(cfg: Mapping, kinematics: Kinematics) -> JointAttractor:
+    return JointAttractor(kinematics, float(cfg["stiffness"]), float(cfg["damping"]))
