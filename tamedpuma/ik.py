@@ -53,7 +53,7 @@ def _dls(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tolerance, max
     zeros = np.zeros(kin.spec.dof)
     err = np.full(6, np.inf)
     it = 0
-    for it in range(1, max_iterations + 1):
+    for it in range(1, max_iterations + 1):  # noqa: B007 (count returned)
         state = kin.evaluate(q, zeros)
         err = np.concatenate([position - state.ee_position,
                               rotation_error(state.ee_rotation, goal_rot)])

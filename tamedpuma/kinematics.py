@@ -1,8 +1,9 @@
 """Robot kinematics on pinocchio: FK, frame Jacobians, J̇q̇ and collision-sphere kinematics.
 
-One :class:`Kinematics` object wraps a pinocchio model built from the robot's URDF (the same file the
-simulator loads). Its single per-step call, :meth:`Kinematics.evaluate`, runs the forward kinematics
-once and returns everything a controller needs as a frozen :class:`KinematicState`:
+One :class:`Kinematics` object wraps a pinocchio model built from the robot's URDF (the same
+file the simulator loads). Its single per-step call, :meth:`Kinematics.evaluate`, runs the
+forward kinematics once and returns everything a controller needs as a frozen
+:class:`KinematicState`:
 
 - end-effector position p [m], rotation R, quaternion (x, y, z, w);
 - the 6×7 frame Jacobian ``J = [J_v; J_ω]`` in the world-aligned frame at the end-effector origin,

@@ -63,7 +63,7 @@ class Simulator:
 
     # -- set-up -----------------------------------------------------------------------------
     def reset(self, scenario: Scenario) -> Observation:
-        """Build the world for ``scenario`` (robot at q0 at rest) and return the first observation."""
+        """Build the world for ``scenario`` (robot at q0, at rest); return the first observation."""
         if len(scenario.q0) != self.spec.dof:
             raise ValueError(f"q0 has {len(scenario.q0)} joints, robot has {self.spec.dof}")
         c = self._client
@@ -187,7 +187,7 @@ class Simulator:
 
     # -- queries ----------------------------------------------------------------------------
     def link_poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """World poses of ``spec.link_names``: positions (L, 3) [m], quaternions (L, 4) (x,y,z,w)."""
+        """World poses of ``spec.link_names``: positions (L, 3) [m], quaternions (L, 4) xyzw."""
         c = self._client
         movable = [i for i in self._link_idx if i >= 0]
         states = pb.getLinkStates(self._robot, movable, computeForwardKinematics=True,

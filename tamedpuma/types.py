@@ -136,7 +136,8 @@ class Command:
     """A controller's output for one step.
 
     qdd: (7,) desired joint acceleration [rad/s²]; the simulator commands the joint velocity
-    ``clip(q̇ + q̈ Δt, ±q̇_max)``. scalars: the method's internals for the log (energies, α, β, ψ, ...).
+    ``clip(q̇ + q̈ Δt, ±q̇_max)``. scalars: the method's internals for the log
+    (energies, α, β, ψ, ...).
     """
 
     qdd: np.ndarray
