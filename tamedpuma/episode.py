@@ -120,7 +120,13 @@ def run_episode(
                 compute_ms=np.array(log["ms"]), tolerance=scenario.goal_tolerance)
         summary = {"stop_reason": stop_reason if complete else "interrupted",
                    **(metrics.as_dict() if metrics else {})}
-        for rec in recorders:
-            rec.close(complete=complete, summary=summary)
+        close_errors = []
+        for rec in recorders:  # close every file, even if one recorder fails
+            try:
+                rec.close(complete=complete, summary=summary)
+            except Exception as exc:  # re-raised below, after the others are closed
+                close_errors.append(exc)
+        if close_errors and complete:
+            raise close_errors[0]
     return EpisodeResult(metrics=metrics, stop_reason=stop_reason, t=np.array(log["t"]),
                          q=np.array(log["q"]), ee_position=np.array(log["ee_p"]))

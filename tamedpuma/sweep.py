@@ -60,8 +60,10 @@ def build(cfg: DictConfig) -> Built:
     from tamedpuma import methods
     from tamedpuma.kinematics import Kinematics, robot_spec_from_config
     from tamedpuma.scenarios import scenario_from_config
+    from tamedpuma.schema import validate
     from tamedpuma.sim import SimConfig
 
+    validate(cfg)
     try:
         plain = OmegaConf.to_container(cfg, resolve=True)
         spec = robot_spec_from_config(plain["robot"])

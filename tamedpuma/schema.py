@@ -1,0 +1,103 @@
+"""Typed schemas of the fixed config groups (robot, scenario, sim, recorder and the top level).
+
+``validate(cfg)`` merges each group into its schema with OmegaConf, so a wrong type or an unknown
+key is reported with the key's name (``robot.limit_margin: Value 'abc' ... Float``). Method and
+task groups are open: each method validates its own keys in its ``make``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from omegaconf import MISSING, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from tamedpuma.errors import ConfigError
+
+
+@dataclass
+class SphereSchema:
+    link: str = MISSING
+    radius: float = MISSING
+    offset: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclass
+class RobotSchema:
+    name: str = MISSING
+    urdf: Any = None
+    joint_names: list[str] = MISSING
+    link_names: list[str] = MISSING
+    ee_link: str = MISSING
+    q_min: list[float] = MISSING
+    q_max: list[float] = MISSING
+    qd_max: list[float] = MISSING
+    limit_tolerance: float = 1e-4
+    limit_margin: float = 1e-3
+    spheres: list[SphereSchema] = MISSING
+
+
+@dataclass
+class GoalSchema:
+    position: list[float] = MISSING
+    quaternion: list[float] = MISSING
+    velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclass
+class ObstacleSchema:
+    center: list[float] = MISSING
+    radius: float = MISSING
+    velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclass
+class ScenarioSchema:
+    name: str = MISSING
+    q0: list[float] = MISSING
+    goal: GoalSchema = field(default_factory=GoalSchema)
+    obstacles: list[ObstacleSchema] = field(default_factory=list)
+    dt: float = 0.02
+    max_steps: int = 2000
+    goal_tolerance: float = 0.05
+
+
+@dataclass
+class SimSchema:
+    gui: bool = False
+    substep: float = 0.001
+    gravity: float = 9.81
+    max_joint_force: float = 500.0
+    ground: bool = True
+
+
+@dataclass
+class RecorderSchema:
+    mcap: bool = True
+    rerun: bool = True
+    flush_every: int = 100
+
+
+_GROUPS = {"robot": RobotSchema, "scenario": ScenarioSchema, "sim": SimSchema,
+           "recorder": RecorderSchema}
+_TOP = {"seed": int, "output_root": str, "stop_on_success": bool}
+
+
+def validate(cfg) -> None:
+    """Raise :class:`ConfigError` naming the key if a fixed group has a wrong type or key."""
+    for group, schema in _GROUPS.items():
+        if group not in cfg:
+            continue
+        try:
+            OmegaConf.merge(OmegaConf.structured(schema), cfg[group])
+        except OmegaConfBaseException as exc:
+            key = getattr(exc, "full_key", None) or "?"
+            message = str(exc).splitlines()[0]
+            raise ConfigError(f"{group}.{key}: {message}") from None
+    for key, kind in _TOP.items():
+        if key in cfg:
+            value = cfg[key]
+            ok = isinstance(value, kind) and not (kind is int and isinstance(value, bool))
+            if not ok:
+                raise ConfigError(f"{key} must be {kind.__name__}, got {value!r}")

@@ -1,0 +1,62 @@
+"""Scenario configs: parsing, validation and start clamping."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from tamedpuma.config import load_group
+from tamedpuma.errors import ScenarioError
+from tamedpuma.scenarios import clamp_start, scenario_from_config
+
+POURING_STARTS_PAST_LIMIT = [  # experiments.md: pouring #2, #3 (also #7, #8)
+    [-0.06968, -2.0944, 1.25021, 1.91157, -0.902882, 0.387756, 1.26118],
+    [0.487286, -2.0944, 1.46101, 1.53229, -0.980283, 0.194411, 1.53735],
+]
+
+
+def _default_cfg():
+    cfg = load_group("scenario", "default")
+    task = load_group("task", "tomato")
+    cfg["goal"]["position"] = task["goal_position"]
+    cfg["goal"]["quaternion"] = task["goal_quaternion"]
+    return cfg
+
+
+def test_default_scenario_parses(robot_spec):
+    sc = scenario_from_config(_default_cfg(), robot_spec, task="tomato")
+    assert sc.q0.shape == (7,) and len(sc.obstacles) == 2
+    np.testing.assert_allclose(sc.obstacles.at(1.0), sc.obstacles.centers)
+    assert abs(np.linalg.norm(sc.goal.quaternion) - 1) < 1e-12
+
+
+@pytest.mark.parametrize("q0", POURING_STARTS_PAST_LIMIT)
+def test_paper_starts_past_a_limit_are_clamped_inside_with_a_warning(robot_spec, q0, caplog):
+    with caplog.at_level(logging.WARNING):
+        q = clamp_start(np.array(q0), robot_spec, tolerance=1e-4, margin=1e-3)
+    assert np.all(q > robot_spec.q_min) and np.all(q < robot_spec.q_max)
+    assert q[1] == pytest.approx(robot_spec.q_min[1] + 1e-3)
+    np.testing.assert_array_equal(np.delete(q, 1), np.delete(q0, 1))
+    assert "outside joint 2's limit" in caplog.text
+
+
+def test_start_far_outside_the_limits_is_an_error(robot_spec):
+    q0 = np.zeros(7)
+    q0[3] = 2.2
+    with pytest.raises(ScenarioError, match="outside joint 4's limits"):
+        clamp_start(q0, robot_spec, tolerance=1e-4, margin=1e-3)
+
+
+@pytest.mark.parametrize("bad", [
+    {"q0": [0.0] * 6},
+    {"q0": [0.0, float("nan"), 0, 0, 0, 0, 0]},
+    {"obstacles": [{"center": [0, 0], "radius": 0.05}]},
+    {"obstacles": [{"center": [0, 0, 1], "radius": 0.0}]},
+    {"goal": {"position": [0, 0, 1], "quaternion": [0, 0, 0, 0]}},
+])
+def test_invalid_scenarios_raise_scenario_error(robot_spec, bad):
+    cfg = {**_default_cfg(), **bad}
+    with pytest.raises(ScenarioError):
+        scenario_from_config(cfg, robot_spec, task="tomato")

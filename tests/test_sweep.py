@@ -1,0 +1,98 @@
+"""``python -m tamedpuma.sweep`` as a user runs it: files, printed paths, one-line errors, kills."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tamedpuma.recording import read_mcap
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _sweep(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "tamedpuma.sweep", *args], cwd=REPO,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_one_episode_writes_its_files_and_says_where(tmp_path):
+    proc = _sweep(f"output_root={tmp_path}")
+    assert proc.returncode == 0, proc.stderr
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert f"run folder: {run_dir}" in proc.stdout
+    for name in ("episode.mcap", "episode.rrd", "summary.json", ".hydra/config.yaml"):
+        assert (run_dir / name).is_file(), name
+        if not name.startswith("."):
+            assert str(run_dir / name) in proc.stdout
+    summary = json.loads((run_dir / "summary.json").read_text())
+    log = read_mcap(run_dir / "episode.mcap")
+    assert log.complete and log.n_steps == summary["steps"]
+    assert "method:" in log.config_yaml and "joint_attractor" in log.config_yaml
+
+
+def _error_line(proc):
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2, proc.stderr
+    assert lines and lines[-1].startswith("error: "), proc.stderr
+    assert "Traceback" not in proc.stderr
+    return lines[-1]
+
+
+@pytest.mark.parametrize("override, expected", [
+    ("no_such_option=1", "no_such_option"),
+    ("method=no_such_method", "no_such_method"),
+    ("task=no_such_task", "no_such_task"),
+    ("scenario.q0=[0,1", "malformed override"),
+    ("robot.limit_margin=abc", "limit_margin"),
+    ("scenario.q0=[0,0,0,2.5,0,0,0]", "outside joint 4's limits"),
+])
+def test_user_mistakes_give_one_line_errors(tmp_path, override, expected):
+    line = _error_line(_sweep(f"output_root={tmp_path}", override))
+    assert expected in line
+
+
+def test_unwritable_output_folder_is_a_one_line_error(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    line = _error_line(_sweep(f"output_root={blocker}/runs"))
+    assert "not writable" in line
+
+
+def test_start_just_past_a_limit_is_clamped_with_a_warning(tmp_path):
+    proc = _sweep(f"output_root={tmp_path}", "recorder=none", "scenario.max_steps=5",
+                  "scenario.q0=[0,-2.0944,0,-1,0,0,0]")
+    assert proc.returncode == 0, proc.stderr
+    assert "outside joint 2's limit" in proc.stdout + proc.stderr
+
+
+def test_a_killed_run_leaves_a_readable_log_marked_incomplete(tmp_path):
+    # a long episode (no success stop), killed after its first flushes
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tamedpuma.sweep", f"output_root={tmp_path}",
+         "stop_on_success=false", "recorder.flush_every=20", "recorder.rerun=false"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    active = None
+    while time.time() < deadline and active is None:
+        time.sleep(0.2)
+        found = list(tmp_path.glob("*/episode.mcap.active"))
+        if found and found[0].stat().st_size > 20_000:
+            active = found[0]
+    assert active is not None, "the run never wrote its log"
+    os.kill(proc.pid, signal.SIGTERM)
+    proc.communicate(timeout=60)
+    assert proc.returncode != 0
+    run_dir = active.parent
+    files = list(run_dir.glob("episode.mcap*"))
+    assert len(files) == 1
+    log = read_mcap(files[0])
+    assert not log.complete
+    assert 20 <= log.n_steps < 2000
+    assert list(log.joints.index) == list(range(log.n_steps))
