@@ -57,7 +57,7 @@ def run_episode(
     controller.reset(scenario)
     for rec in recorders:
         rec.open(info)
-    log: dict[str, list] = {k: [] for k in ("t", "q", "ee_p", "ee_q", "goal_p", "goal_q", "clear",
+    log: dict[str, list] = {k: [] for k in ("t", "q", "ee_p", "pos_err", "rot_err", "clear",
                                             "contact", "ground", "ms")}
     complete = False
     stop_reason = "max_steps"
@@ -68,6 +68,7 @@ def run_episode(
             contacts = sim.contacts(centers)
             ee_p, ee_q = link_pos[ee_index], link_quat[ee_index]
             pos_err = float(np.linalg.norm(ee_p - obs.goal_position))
+            rot_err = float(orientation_error(ee_q, obs.goal_quaternion))
 
             start = time.perf_counter()
             command = controller.step(obs)
@@ -79,7 +80,7 @@ def run_episode(
                 "compute_time_ms": compute_ms,
                 "clearance_m": clearance if math.isfinite(clearance) else NO_OBSTACLE_CLEARANCE,
                 "position_error_m": pos_err,
-                "orientation_error_rad": float(orientation_error(ee_q, obs.goal_quaternion)),
+                "orientation_error_rad": rot_err,
                 "obstacle_contact": float(contacts.obstacle_contact),
                 "ground_contact": float(contacts.ground_contact),
                 **{name: float(v) for name, v in command.scalars.items()},
@@ -94,9 +95,8 @@ def run_episode(
             )
             for rec in recorders:
                 rec.write(record)
-            for key, value in (("t", obs.t), ("q", obs.q), ("ee_p", ee_p), ("ee_q", ee_q),
-                               ("goal_p", obs.goal_position), ("goal_q", obs.goal_quaternion),
-                               ("clear", clearance), ("contact", contacts.obstacle_contact),
+            for key, value in (("t", obs.t), ("q", obs.q), ("ee_p", ee_p), ("pos_err", pos_err),
+                               ("rot_err", rot_err), ("clear", clearance), ("contact", contacts.obstacle_contact),
                                ("ground", contacts.ground_contact), ("ms", compute_ms)):
                 log[key].append(value)
 
@@ -112,9 +112,8 @@ def run_episode(
         metrics = None
         if log["t"]:
             metrics = run_metrics(
-                t=np.array(log["t"]), ee_position=np.array(log["ee_p"]),
-                ee_quaternion=np.array(log["ee_q"]), goal_position=np.array(log["goal_p"]),
-                goal_quaternion=np.array(log["goal_q"]), clearance=np.array(log["clear"]),
+                t=np.array(log["t"]), position_error=np.array(log["pos_err"]),
+                orientation_error=np.array(log["rot_err"]), clearance=np.array(log["clear"]),
                 obstacle_contact=np.array(log["contact"]), ground_contact=np.array(log["ground"]),
                 q=np.array(log["q"]), q_min=spec.q_min, q_max=spec.q_max,
                 compute_ms=np.array(log["ms"]), tolerance=scenario.goal_tolerance)

@@ -52,10 +52,8 @@ class RunMetrics:
 
 def run_metrics(
     t: np.ndarray,
-    ee_position: np.ndarray,
-    ee_quaternion: np.ndarray,
-    goal_position: np.ndarray,
-    goal_quaternion: np.ndarray,
+    position_error: np.ndarray,
+    orientation_error: np.ndarray,
     clearance: np.ndarray,
     obstacle_contact: np.ndarray,
     ground_contact: np.ndarray,
@@ -67,14 +65,15 @@ def run_metrics(
     orientation_tolerance: float = 0.2,
     limit_tolerance: float = 1e-6,
 ) -> RunMetrics:
-    """Metrics of one run from per-step arrays (T steps): t (T,) [s], positions (T, 3) [m],
-    quaternions (T, 4), clearance (T,) [m], contact flags (T,), q (T, 7) [rad], compute_ms (T,)."""
+    """Metrics of one run from per-step arrays (T steps): t (T,) [s], end-effector position
+    error to the goal (T,) [m], orientation error (T,) [rad], clearance (T,) [m], contact flags
+    (T,), q (T, 7) [rad], compute_ms (T,). Works on live arrays and on arrays read from a log."""
     t = np.asarray(t, dtype=float)
     n = len(t)
     if n == 0:
         raise ValueError("a run with no steps has no metrics")
-    pos_err = np.linalg.norm(np.asarray(ee_position) - np.asarray(goal_position), axis=1)
-    rot_err = orientation_error(ee_quaternion, goal_quaternion)
+    pos_err = np.asarray(position_error, dtype=float)
+    rot_err = np.asarray(orientation_error, dtype=float)
     clearance = np.asarray(clearance, dtype=float)
     contact = np.asarray(obstacle_contact, dtype=bool)
     collision = (clearance < 0) | contact

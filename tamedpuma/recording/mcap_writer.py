@@ -1,0 +1,247 @@
+"""MCAP recorder (Foxglove schemas), crash-safe: ``<path>.active`` while running, ``<path>`` after.
+
+Layout of a file written by :class:`McapRecorder` (all times are simulated time, log_time [ns]):
+
+===============  =======================  ===================================================
+topic            schema                   content per step
+===============  =======================  ===================================================
+/joint_states    foxglove.JointStates     q [rad] → position, qd [rad/s] → velocity,
+                                          qdd_cmd [rad/s²] → acceleration
+/tf              foxglove.FrameTransforms world → each link (simulator truth)
+/ee_pose         foxglove.PoseInFrame     end-effector pose in ``world``
+/scene           foxglove.SceneUpdate     entities ``obstacles``, ``goal``, ``body_spheres``
+/scalars         JSON schema              {"step", "t", <every scalar>}
+===============  =======================  ===================================================
+
+Metadata records: ``tamedpuma.run_info`` (the :class:`RunInfo` fields), ``tamedpuma.config``
+(``yaml``), and on close ``tamedpuma.summary`` (``complete``: "true"/"false", ``summary_json``).
+Attachments: ``config.yaml`` and the URDF (``model.urdf``).
+
+Crash safety: the file is written as ``<path>.active`` and renamed on :meth:`McapRecorder.close`.
+Every ``flush_every`` steps the current chunk is finished and flushed to disk, so a killed run
+leaves a ``.active`` file that :func:`tamedpuma.recording.read_mcap` reads up to its last flush.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+
+import foxglove
+from foxglove.channels import (
+    FrameTransformsChannel,
+    JointStatesChannel,
+    PoseInFrameChannel,
+    SceneUpdateChannel,
+)
+from foxglove.mcap import MCAPWriteOptions
+from foxglove.messages import (
+    Color,
+    FrameTransform,
+    FrameTransforms,
+    JointState,
+    JointStates,
+    Pose,
+    PoseInFrame,
+    Quaternion,
+    SceneEntity,
+    SceneUpdate,
+    SpherePrimitive,
+    Timestamp,
+    Vector3,
+)
+
+from .records import RunInfo, StepRecord
+
+WORLD_FRAME = "world"
+ACTIVE_SUFFIX = ".active"
+META_RUN_INFO = "tamedpuma.run_info"
+META_CONFIG = "tamedpuma.config"
+META_SUMMARY = "tamedpuma.summary"
+ATTACH_CONFIG = "config.yaml"
+ATTACH_URDF = "model.urdf"
+GOAL_MARKER_RADIUS = 0.03  # [m], display only
+
+_OBSTACLE_COLOR = dict(r=0.85, g=0.2, b=0.2, a=0.6)
+_GOAL_COLOR = dict(r=0.1, g=0.8, b=0.2, a=0.9)
+_BODY_COLOR = dict(r=0.2, g=0.4, b=0.9, a=0.25)
+_IDENTITY = dict(x=0.0, y=0.0, z=0.0, w=1.0)
+
+
+def active_path(path: str | os.PathLike) -> Path:
+    """The in-progress name of a log: ``<path>.active``."""
+    return Path(f"{os.fspath(path)}{ACTIVE_SUFFIX}")
+
+
+def _stamp(t: float) -> tuple[int, Timestamp]:
+    """Simulated time t [s] as (log_time [ns], foxglove Timestamp)."""
+    ns = int(round(t * 1e9))
+    return ns, Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
+
+
+def _spheres(centers, radii, color: dict) -> list[SpherePrimitive]:
+    """Sphere primitives; size = diameter per axis [m]."""
+    out = []
+    for (x, y, z), r in zip(centers.tolist(), radii.tolist()):
+        d = 2.0 * r
+        out.append(SpherePrimitive(
+            pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion(**_IDENTITY)),
+            size=Vector3(x=d, y=d, z=d), color=Color(**color)))
+    return out
+
+
+class McapRecorder:
+    """Write one episode to an MCAP file that Foxglove opens (see the module docstring).
+
+    path: final file name (``.mcap``). flush_every: finish and flush the current chunk every this
+    many steps (bounds what a killed run loses). compression: "zstd", "lz4" or None.
+    overwrite: replace an existing ``path`` or ``<path>.active``; otherwise :meth:`open` raises
+    FileExistsError (an ``.active`` file is an interrupted run: recover or delete it first).
+
+    Scalars that are not finite (NaN, ±inf) are written as JSON ``null`` (strict JSON, so
+    Foxglove parses them) and read back as NaN.
+    """
+
+    def __init__(self, path: str | os.PathLike, flush_every: int = 100,
+                 compression: str | None = "zstd", overwrite: bool = False):
+        if flush_every < 1:
+            raise ValueError(f"flush_every must be >= 1, got {flush_every}")
+        self.path = Path(path)
+        self.active_path = active_path(path)
+        self.flush_every = int(flush_every)
+        self._compression = {
+            "zstd": foxglove.mcap.MCAPCompression.Zstd,
+            "lz4": foxglove.mcap.MCAPCompression.Lz4,
+            None: None,
+        }[compression]
+        self.overwrite = bool(overwrite)
+        self._writer = None
+        self._info: RunInfo | None = None
+        self._count = 0
+
+    # -- Recorder protocol -------------------------------------------------------------------
+
+    def open(self, info: RunInfo) -> None:
+        """Create ``<path>.active``, the channels, and write the run metadata and attachments."""
+        if self._writer is not None:
+            raise RuntimeError("McapRecorder is already open")
+        for existing in (self.path, self.active_path):
+            if existing.exists() and not self.overwrite:
+                raise FileExistsError(f"{existing} exists (pass overwrite=True to replace it)")
+        self.path.unlink(missing_ok=True)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._info = info
+        self._ctx = foxglove.Context()  # private context: recorders never see each other's data
+        options = MCAPWriteOptions(compression=self._compression, profile="",
+                                   chunk_size=4 * 1024 * 1024)
+        self._writer = foxglove.open_mcap(self.active_path, allow_overwrite=True,
+                                          context=self._ctx, writer_options=options)
+        self._joints = JointStatesChannel("/joint_states", context=self._ctx)
+        self._tf = FrameTransformsChannel("/tf", context=self._ctx)
+        self._ee = PoseInFrameChannel("/ee_pose", context=self._ctx)
+        self._scene = SceneUpdateChannel("/scene", context=self._ctx)
+        self._scalars = foxglove.Channel(
+            "/scalars", context=self._ctx,
+            schema={"type": "object", "title": "tamedpuma.Scalars",
+                    "properties": {"step": {"type": "integer"}, "t": {"type": "number"}},
+                    "additionalProperties": {"type": ["number", "null"]}})
+        self._count = 0
+
+        meta = info.metadata()
+        meta["created_unix_s"] = repr(time.time())
+        self._writer.write_metadata(META_RUN_INFO, meta)
+        self._writer.write_metadata(META_CONFIG, {"yaml": info.config_yaml or "# (empty)"})
+        now = time.time_ns()
+        self._writer.attach(log_time=0, create_time=now, name=ATTACH_CONFIG,
+                            media_type="application/yaml", data=info.config_yaml.encode())
+        urdf = Path(info.urdf_path)
+        if urdf.is_file():
+            self._writer.attach(log_time=0, create_time=now, name=ATTACH_URDF,
+                                media_type="application/xml", data=urdf.read_bytes())
+        else:
+            warnings.warn(f"URDF {urdf} not found: not embedded in {self.path.name}",
+                          stacklevel=2)
+        self._writer.flush()
+
+    def write(self, rec: StepRecord) -> None:
+        """Log one step on every channel; flush every ``flush_every`` steps."""
+        info = self._info
+        if self._writer is None or info is None:
+            raise RuntimeError("McapRecorder.write before open")
+        ns, stamp = _stamp(rec.t)
+
+        self._joints.log(JointStates(timestamp=stamp, joints=[
+            JointState(name=n, position=p, velocity=v, acceleration=a)
+            for n, p, v, a in zip(info.joint_names, rec.q.tolist(), rec.qd.tolist(),
+                                  rec.qdd_cmd.tolist())]), log_time=ns)
+
+        self._tf.log(FrameTransforms(transforms=[
+            FrameTransform(timestamp=stamp, parent_frame_id=WORLD_FRAME, child_frame_id=name,
+                           translation=Vector3(x=p[0], y=p[1], z=p[2]),
+                           rotation=Quaternion(x=o[0], y=o[1], z=o[2], w=o[3]))
+            for name, p, o in zip(info.link_names, rec.link_positions.tolist(),
+                                  rec.link_quaternions.tolist())]), log_time=ns)
+
+        p, o = rec.ee_position.tolist(), rec.ee_quaternion.tolist()
+        self._ee.log(PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=Pose(
+            position=Vector3(x=p[0], y=p[1], z=p[2]),
+            orientation=Quaternion(x=o[0], y=o[1], z=o[2], w=o[3]))), log_time=ns)
+
+        g, go = rec.goal_position.tolist(), rec.goal_quaternion.tolist()
+        d = 2 * GOAL_MARKER_RADIUS
+        goal = SpherePrimitive(
+            pose=Pose(position=Vector3(x=g[0], y=g[1], z=g[2]),
+                      orientation=Quaternion(x=go[0], y=go[1], z=go[2], w=go[3])),
+            size=Vector3(x=d, y=d, z=d), color=Color(**_GOAL_COLOR))
+        self._scene.log(SceneUpdate(entities=[
+            SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id="obstacles",
+                        spheres=_spheres(rec.obstacle_centers, rec.obstacle_radii,
+                                         _OBSTACLE_COLOR)),
+            SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id="goal", spheres=[goal]),
+            SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id="body_spheres",
+                        spheres=_spheres(rec.body_sphere_centers, info.body_sphere_radii,
+                                         _BODY_COLOR)),
+        ]), log_time=ns)
+
+        scalars = {"step": int(rec.step), "t": float(rec.t)}
+        for k, v in rec.scalars.items():
+            v = float(v)
+            scalars[k] = v if math.isfinite(v) else None
+        self._scalars.log(json.dumps(scalars).encode(), log_time=ns)
+
+        self._count += 1
+        if self._count % self.flush_every == 0:
+            self._writer.flush()
+
+    def close(self, complete: bool, summary: Mapping[str, object]) -> None:
+        """Write the summary metadata, finish the file and rename it to ``path``.
+
+        complete: False if the episode was interrupted. summary: JSON-serialisable values
+        (non-serialisable ones are stored as their ``str``).
+        """
+        if self._writer is None:
+            return
+        try:
+            self._writer.write_metadata(META_SUMMARY, {
+                "complete": "true" if complete else "false",
+                "steps": str(self._count),
+                "summary_json": json.dumps(dict(summary), default=_jsonable),
+            })
+        finally:
+            self._writer.close()
+            self._writer = None
+            for ch in (self._joints, self._tf, self._ee, self._scene, self._scalars):
+                ch.close()
+            os.replace(self.active_path, self.path)
+
+
+def _jsonable(value):
+    """JSON fallback for summary values: numpy scalars and arrays, else ``str``."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)

@@ -1,0 +1,145 @@
+"""What a recorder receives: one :class:`RunInfo` per episode, one :class:`StepRecord` per step.
+
+numpy only. Units: metres, radians, seconds. Quaternions are (x, y, z, w) in the world frame.
+Arrays are stored as float64 numpy arrays (shape-checked, not copied when already float64).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+#: The KUKA iiwa joint and link names of ``pybullet_data/kuka_iiwa/model.urdf``.
+IIWA_JOINT_NAMES: tuple[str, ...] = tuple(f"lbr_iiwa_joint_{i}" for i in range(1, 8))
+IIWA_LINK_NAMES: tuple[str, ...] = tuple(f"lbr_iiwa_link_{i}" for i in range(0, 8))
+
+
+def _array(value, shape: tuple[int | None, ...], name: str) -> np.ndarray:
+    """``value`` as a float64 array of ``shape`` (None = any length); ValueError otherwise."""
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    return arr
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """Static description of one recorded episode.
+
+    run_id: unique id of the run; method, task, scenario_name, seed: what was run;
+    config_yaml: the resolved Hydra config (YAML text); urdf_path: robot URDF file;
+    joint_names: the 7 actuated joints (``lbr_iiwa_joint_1..7``);
+    link_names: the L links whose poses each :class:`StepRecord` carries (``lbr_iiwa_link_0..7``);
+    body_sphere_radii: (k,) collision-sphere radii on the robot body [m]; dt: control period [s].
+    """
+
+    run_id: str
+    method: str
+    task: str
+    scenario_name: str
+    seed: int
+    config_yaml: str
+    urdf_path: str
+    joint_names: tuple[str, ...] = IIWA_JOINT_NAMES
+    link_names: tuple[str, ...] = IIWA_LINK_NAMES
+    body_sphere_radii: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    dt: float = 0.02
+
+    def __post_init__(self):
+        object.__setattr__(self, "joint_names", tuple(self.joint_names))
+        object.__setattr__(self, "link_names", tuple(self.link_names))
+        radii = _array(np.ravel(self.body_sphere_radii), (None,), "body_sphere_radii")
+        object.__setattr__(self, "body_sphere_radii", radii)
+        if len(self.joint_names) != 7:
+            raise ValueError(f"joint_names must name 7 joints, got {self.joint_names}")
+        if not self.dt > 0:
+            raise ValueError(f"dt must be positive, got {self.dt}")
+
+    def metadata(self) -> dict[str, str]:
+        """The fields as a flat string map (MCAP metadata); config_yaml is left out (stored apart).
+
+        Tuples and arrays are JSON lists.
+        """
+        return {
+            "run_id": self.run_id,
+            "method": self.method,
+            "task": self.task,
+            "scenario_name": self.scenario_name,
+            "seed": str(int(self.seed)),
+            "urdf_path": str(self.urdf_path),
+            "joint_names": json.dumps(list(self.joint_names)),
+            "link_names": json.dumps(list(self.link_names)),
+            "body_sphere_radii": json.dumps([float(r) for r in self.body_sphere_radii]),
+            "dt": repr(float(self.dt)),
+        }
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """Everything logged for one control step (simulator truth at the start of the step).
+
+    step: control step index; t: simulated time [s];
+    q, qd: (7,) joint positions [rad] and velocities [rad/s]; qdd_cmd: (7,) commanded joint
+    acceleration [rad/s²];
+    link_positions: (L, 3) [m] and link_quaternions: (L, 4) (x, y, z, w) world poses of the links
+    named in :attr:`RunInfo.link_names`;
+    ee_position: (3,) [m]; ee_quaternion: (4,) end-effector pose in the world frame;
+    body_sphere_centers: (k, 3) [m] robot collision-sphere centres (radii in :class:`RunInfo`);
+    obstacle_centers: (n, 3) [m]; obstacle_radii: (n,) [m] (n may change between steps);
+    goal_position: (3,) [m]; goal_quaternion: (4,);
+    scalars: name -> value (``compute_time_ms`` [ms], ``clearance_m`` [m] and the method's
+    internals: energies, alpha, beta, psi, ...). Keys are constant within a run.
+    """
+
+    step: int
+    t: float
+    q: np.ndarray
+    qd: np.ndarray
+    qdd_cmd: np.ndarray
+    link_positions: np.ndarray
+    link_quaternions: np.ndarray
+    ee_position: np.ndarray
+    ee_quaternion: np.ndarray
+    body_sphere_centers: np.ndarray
+    obstacle_centers: np.ndarray
+    obstacle_radii: np.ndarray
+    goal_position: np.ndarray
+    goal_quaternion: np.ndarray
+    scalars: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self):
+        s = object.__setattr__
+        s(self, "q", _array(self.q, (7,), "q"))
+        s(self, "qd", _array(self.qd, (7,), "qd"))
+        s(self, "qdd_cmd", _array(self.qdd_cmd, (7,), "qdd_cmd"))
+        s(self, "link_positions", _array(self.link_positions, (None, 3), "link_positions"))
+        n_links = len(self.link_positions)
+        s(self, "link_quaternions", _array(self.link_quaternions, (n_links, 4), "link_quaternions"))
+        s(self, "ee_position", _array(self.ee_position, (3,), "ee_position"))
+        s(self, "ee_quaternion", _array(self.ee_quaternion, (4,), "ee_quaternion"))
+        s(self, "body_sphere_centers",
+          _array(np.reshape(self.body_sphere_centers, (-1, 3)), (None, 3), "body_sphere_centers"))
+        s(self, "obstacle_centers",
+          _array(np.reshape(self.obstacle_centers, (-1, 3)), (None, 3), "obstacle_centers"))
+        n_obs = len(self.obstacle_centers)
+        s(self, "obstacle_radii", _array(np.ravel(self.obstacle_radii), (n_obs,), "obstacle_radii"))
+        s(self, "goal_position", _array(self.goal_position, (3,), "goal_position"))
+        s(self, "goal_quaternion", _array(self.goal_quaternion, (4,), "goal_quaternion"))
+
+
+class Recorder(Protocol):
+    """A passive sink for one episode: ``open`` once, ``write`` every step, ``close`` once.
+
+    ``close(complete=False, ...)`` marks an interrupted episode (Ctrl-C, SIGTERM, an error);
+    ``summary`` holds the run's end result (JSON-serialisable values: success, steps, reason...).
+    """
+
+    def open(self, info: RunInfo) -> None: ...
+
+    def write(self, rec: StepRecord) -> None: ...
+
+    def close(self, complete: bool, summary: Mapping[str, object]) -> None: ...

@@ -1,0 +1,322 @@
+"""Recording layer: MCAP and Rerun round trips, crash safety, corrupt files (synthetic data)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from tamedpuma.errors import LogError
+from tamedpuma.recording import (
+    IIWA_JOINT_NAMES,
+    IIWA_LINK_NAMES,
+    McapRecorder,
+    RerunRecorder,
+    RunInfo,
+    StepRecord,
+    active_path,
+    make_recorders,
+    read_mcap,
+    read_rrd_joints,
+    read_rrd_scalars,
+    recover_mcap,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+K_BODY = 6
+
+
+def _urdf(tmp_path: Path) -> Path:
+    """A 7-joint chain with the iiwa's joint and link names and primitive geometry."""
+    links = "".join(
+        f'<link name="lbr_iiwa_link_{i}"><visual><geometry><cylinder radius="0.05" '
+        f'length="0.15"/></geometry></visual></link>' for i in range(8))
+    joints = "".join(
+        f'<joint name="lbr_iiwa_joint_{i}" type="revolute"><parent link="lbr_iiwa_link_{i - 1}"/>'
+        f'<child link="lbr_iiwa_link_{i}"/><origin xyz="0 0 0.15" rpy="0 0 0"/>'
+        f'<axis xyz="0 {i % 2} {(i + 1) % 2}"/><limit lower="-3" upper="3" effort="1" '
+        f'velocity="1"/></joint>' for i in range(1, 8))
+    path = tmp_path / "robot.urdf"
+    path.write_text(f'<?xml version="1.0"?><robot name="lbr_iiwa">{links}{joints}</robot>')
+    return path
+
+
+def _info(urdf: Path, run_id: str = "run-1") -> RunInfo:
+    return RunInfo(run_id=run_id, method="tamedpuma", task="pick", scenario_name="clutter",
+                   seed=7, config_yaml="method:\n  name: tamedpuma\nseed: 7\n",
+                   urdf_path=str(urdf), body_sphere_radii=np.linspace(0.05, 0.1, K_BODY),
+                   dt=0.02)
+
+
+def _record(i: int) -> StepRecord:
+    rng = np.random.default_rng(i)
+    quats = rng.normal(size=(8, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    n_obs = 1 + i % 3  # the obstacle count may change between steps
+    return StepRecord(
+        step=i, t=0.02 * i, q=rng.uniform(-2, 2, 7), qd=rng.normal(size=7),
+        qdd_cmd=rng.normal(size=7), link_positions=rng.normal(size=(8, 3)),
+        link_quaternions=quats, ee_position=rng.normal(size=3), ee_quaternion=quats[-1],
+        body_sphere_centers=rng.normal(size=(K_BODY, 3)),
+        obstacle_centers=rng.normal(size=(n_obs, 3)), obstacle_radii=rng.uniform(0.05, 0.2, n_obs),
+        goal_position=[0.5, 0.0, 0.5], goal_quaternion=[0.0, 0.0, 0.0, 1.0],
+        scalars={"compute_time_ms": float(rng.uniform()), "clearance_m": float(rng.normal()),
+                 "alpha": float(i)})
+
+
+def _write_mcap(path: Path, urdf: Path, n: int, **kw) -> list[StepRecord]:
+    recs = [_record(i) for i in range(n)]
+    rec = McapRecorder(path, **kw)
+    rec.open(_info(urdf))
+    for r in recs:
+        rec.write(r)
+    rec.close(complete=True, summary={"success": True, "steps": n, "reason": "goal"})
+    return recs
+
+
+@pytest.fixture(scope="module")
+def mcap_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("mcap")
+    urdf = _urdf(tmp)
+    path = tmp / "episode.mcap"
+    recs = _write_mcap(path, urdf, 250, flush_every=100)
+    return path, urdf, recs
+
+
+def test_records_validate_shapes():
+    with pytest.raises(ValueError, match="q must have shape"):
+        StepRecord(**{**_record(0).__dict__, "q": np.zeros(6)})
+    with pytest.raises(ValueError, match="obstacle_radii"):
+        StepRecord(**{**_record(0).__dict__, "obstacle_radii": np.zeros(7)})
+    assert IIWA_JOINT_NAMES[0] == "lbr_iiwa_joint_1" and len(IIWA_LINK_NAMES) == 8
+
+
+def test_mcap_round_trip(mcap_run):
+    path, urdf, recs = mcap_run
+    assert path.is_file() and not active_path(path).exists()
+    log = read_mcap(path)
+    assert log.complete and log.read_error is None
+    assert log.summary == {"success": True, "steps": 250, "reason": "goal"}
+    assert log.n_steps == len(log.ee) == len(log.scalars) == 250
+    assert list(log.joints.index) == list(range(250))
+
+    q = np.array([r.q for r in recs])
+    qd = np.array([r.qd for r in recs])
+    qdd = np.array([r.qdd_cmd for r in recs])
+    np.testing.assert_array_equal(log.joints[[f"q_{i}" for i in range(7)]].to_numpy(), q)
+    np.testing.assert_array_equal(log.joints[[f"qd_{i}" for i in range(7)]].to_numpy(), qd)
+    np.testing.assert_array_equal(log.joints[[f"qdd_cmd_{i}" for i in range(7)]].to_numpy(), qdd)
+    np.testing.assert_array_equal(log.joints["t"].to_numpy(), [r.t for r in recs])
+    np.testing.assert_array_equal(log.ee[["x", "y", "z"]].to_numpy(),
+                                  [r.ee_position for r in recs])
+    np.testing.assert_array_equal(log.ee[["qx", "qy", "qz", "qw"]].to_numpy(),
+                                  [r.ee_quaternion for r in recs])
+    for name in ("compute_time_ms", "clearance_m", "alpha"):
+        np.testing.assert_array_equal(log.scalars[name].to_numpy(),
+                                      [r.scalars[name] for r in recs])
+
+    obs = log.obstacles
+    assert list(obs.columns) == ["step", "t", "id", "x", "y", "z", "radius"]
+    assert len(obs) == sum(len(r.obstacle_radii) for r in recs)
+    np.testing.assert_array_equal(obs[["x", "y", "z"]].to_numpy(),
+                                  np.concatenate([r.obstacle_centers for r in recs]))
+    np.testing.assert_allclose(obs["radius"].to_numpy(),
+                               np.concatenate([r.obstacle_radii for r in recs]), rtol=1e-15)
+
+    assert log.config_yaml == _info(urdf).config_yaml
+    assert log.urdf == urdf.read_text()
+    assert log.info["run_id"] == "run-1" and log.info["seed"] == 7 and log.info["dt"] == 0.02
+    assert log.info["joint_names"] == list(IIWA_JOINT_NAMES)
+
+
+def test_mcap_schemas_and_index(mcap_run):
+    path, _, _ = mcap_run
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    names = {s.name for s in summary.schemas.values()}
+    assert {"foxglove.JointStates", "foxglove.FrameTransforms", "foxglove.SceneUpdate",
+            "foxglove.PoseInFrame"} <= names
+    topics = {c.topic for c in summary.channels.values()}
+    assert topics == {"/joint_states", "/tf", "/ee_pose", "/scene", "/scalars"}
+    assert set(summary.statistics.channel_message_counts.values()) == {250}
+    assert len(summary.chunk_indexes) >= 3  # flushed every 100 steps
+
+
+_KILLED_WRITER = textwrap.dedent("""
+    import os, signal, sys
+    sys.path.insert(0, {repo!r}); sys.path.insert(0, {tests!r})
+    from test_recording import _info, _record
+    from tamedpuma.recording import McapRecorder, RerunRecorder
+    from pathlib import Path
+    recs = [McapRecorder({path!r}, flush_every=100), RerunRecorder({rrd!r}, batch=50)]
+    for rec in recs:
+        rec.open(_info(Path({urdf!r})))
+    for i in range(230):
+        for rec in recs:
+            rec.write(_record(i))
+    os.kill(os.getpid(), signal.SIGKILL)
+""")
+
+
+def test_killed_writer_leaves_readable_active_file(tmp_path):
+    urdf = _urdf(tmp_path)
+    path, rrd = tmp_path / "episode.mcap", tmp_path / "episode.rrd"
+    script = _KILLED_WRITER.format(repo=str(REPO), tests=str(REPO / "tests"), path=str(path),
+                                   rrd=str(rrd), urdf=str(urdf))
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, timeout=60)
+    assert proc.returncode == -9, proc.stderr.decode()[-2000:]
+    assert not path.exists() and active_path(path).is_file()
+
+    with pytest.raises(LogError, match="interrupted run"):
+        read_mcap(path)
+    log = read_mcap(active_path(path))
+    assert not log.complete and log.summary == {}
+    assert 200 <= log.n_steps <= 230
+    assert "unfinished chunk" in log.read_error
+    np.testing.assert_array_equal(log.joints.index, np.arange(log.n_steps))
+    np.testing.assert_array_equal(log.joints[[f"q_{i}" for i in range(7)]].to_numpy(),
+                                  [_record(i).q for i in range(log.n_steps)])
+    assert log.config_yaml and log.info["run_id"] == "run-1"
+
+    fixed = tmp_path / "recovered.mcap"
+    copied = recover_mcap(active_path(path), fixed)
+    assert copied >= 5 * 200
+    with open(fixed, "rb") as f:  # a valid, indexed file now
+        assert make_reader(f).get_summary().statistics.message_count == copied
+    again = read_mcap(fixed)
+    assert not again.complete and again.n_steps == log.n_steps
+    assert again.urdf == urdf.read_text()
+
+    # Rerun: same convention; every batch sent before the kill is readable.
+    assert not rrd.exists() and active_path(rrd).is_file()
+    with pytest.raises(LogError, match="interrupted run"):
+        read_rrd_joints(rrd)
+    joints = read_rrd_joints(active_path(rrd))
+    assert 200 <= len(joints) <= 230
+    np.testing.assert_array_equal(joints[list(IIWA_JOINT_NAMES)].to_numpy(),
+                                  [_record(i).q for i in range(len(joints))])
+
+
+def test_truncated_and_corrupt_files(mcap_run, tmp_path):
+    path, _, _ = mcap_run
+    data = path.read_bytes()
+
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    log = read_mcap(cut)
+    assert not log.complete and log.read_error is not None
+    assert 0 < log.n_steps < 250
+
+    flipped = bytearray(data)
+    mid = len(data) // 2
+    flipped[mid: mid + 64] = bytes(64)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(flipped))
+    log = read_mcap(bad)  # stops at the damaged chunk, no traceback
+    assert not log.complete and log.n_steps < 250
+
+    for name, content in [("empty.mcap", b""), ("tiny.mcap", data[:20]),
+                          ("junk.mcap", b"not an mcap file at all" * 10)]:
+        p = tmp_path / name
+        p.write_bytes(content)
+        with pytest.raises(LogError, match="no readable data"):
+            read_mcap(p)
+        with pytest.raises(LogError):
+            recover_mcap(p, tmp_path / f"fixed-{name}")
+    with pytest.raises(LogError, match="not found"):
+        read_mcap(tmp_path / "missing.mcap")
+
+
+def test_rerun_round_trip(tmp_path):
+    urdf = _urdf(tmp_path)
+    path = tmp_path / "episode.rrd"
+    recs = [_record(i) for i in range(120)]
+    rec = RerunRecorder(path, batch=50)
+    rec.open(_info(urdf))
+    for r in recs:
+        rec.write(r)
+    rec.close(complete=True, summary={"success": True})
+
+    joints = read_rrd_joints(path)
+    assert list(joints.index) == list(range(120))
+    np.testing.assert_array_equal(joints[list(IIWA_JOINT_NAMES)].to_numpy(),
+                                  [r.q for r in recs])
+    np.testing.assert_allclose(joints["t"].to_numpy(), [r.t for r in recs], atol=1e-9)
+    scalars = read_rrd_scalars(path)
+    np.testing.assert_array_equal(scalars["alpha"].to_numpy(), np.arange(120.0))
+
+    rerun = shutil.which("rerun", path=os.path.dirname(sys.executable)) or "rerun"
+    proc = subprocess.run([rerun, "rrd", "verify", str(path)], capture_output=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr.decode()[-2000:]
+
+    with pytest.raises(LogError, match="not found"):
+        read_rrd_joints(tmp_path / "missing.rrd")
+    junk = tmp_path / "junk.rrd"
+    junk.write_bytes(b"not an rrd file" * 10)
+    with pytest.raises(LogError, match="unreadable"):
+        read_rrd_joints(junk)
+    with pytest.raises(FileExistsError):
+        RerunRecorder(path).open(_info(urdf))
+
+
+def test_existing_files_are_not_clobbered(mcap_run, tmp_path):
+    path, urdf, _ = mcap_run
+    with pytest.raises(FileExistsError):
+        McapRecorder(path).open(_info(urdf))
+    target = tmp_path / "again.mcap"
+    active_path(target).write_bytes(b"stale")
+    with pytest.raises(FileExistsError, match="overwrite=True"):
+        McapRecorder(target).open(_info(urdf))
+    rec = McapRecorder(target, overwrite=True)
+    rec.open(_info(urdf))
+    rec.write(_record(0))
+    rec.close(complete=False, summary={"reason": "interrupted", "n": np.int64(1),
+                                       "v": np.array([1.0, 2.0])})
+    log = read_mcap(target)
+    assert not log.complete and log.n_steps == 1 and not active_path(target).exists()
+    assert log.summary == {"reason": "interrupted", "n": 1, "v": [1.0, 2.0]}
+
+
+def test_non_finite_scalars_are_null_in_json(tmp_path):
+    urdf = _urdf(tmp_path)
+    path = tmp_path / "nan.mcap"
+    rec = McapRecorder(path)
+    rec.open(_info(urdf))
+    base = _record(0)
+    rec.write(StepRecord(**{**base.__dict__, "scalars": {"clearance_m": float("inf"),
+                                                         "alpha": float("nan")}}))
+    rec.close(complete=True, summary={})
+    with open(path, "rb") as f:
+        data = [m.data for _, c, m in make_reader(f).iter_messages(topics=["/scalars"])]
+    assert b"null" in data[0] and b"Infinity" not in data[0] and b"NaN" not in data[0]
+    log = read_mcap(path)
+    assert np.isnan(log.scalars["clearance_m"].iloc[0]) and np.isnan(log.scalars["alpha"].iloc[0])
+
+
+@pytest.mark.skipif(importlib.util.find_spec("pybullet_data") is None,
+                    reason="pybullet_data not installed")
+def test_rerun_loads_kuka_urdf(tmp_path):
+    spec = importlib.util.find_spec("pybullet_data")
+    urdf = Path(spec.submodule_search_locations[0]) / "kuka_iiwa" / "model.urdf"
+    path = tmp_path / "kuka.rrd"
+    (mcap_rec, rerun_rec) = make_recorders(["mcap", "rerun"], tmp_path)
+    assert isinstance(rerun_rec, RerunRecorder) and isinstance(mcap_rec, McapRecorder)
+    rec = RerunRecorder(path)
+    rec.open(_info(urdf))
+    for i in range(3):
+        rec.write(_record(i))
+    rec.close(complete=False, summary={"reason": "interrupted"})
+    from rerun.chunk import RrdReader
+
+    entities = RrdReader(path).stream().collect().summary()
+    assert "/world/lbr_iiwa/visual_geometries/lbr_iiwa_link_7" in entities  # meshes loaded
+    assert "Asset3D:blob" in entities
+    assert len(read_rrd_joints(path)) == 3
