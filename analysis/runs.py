@@ -1,0 +1,68 @@
+"""Load every run below a folder from its MCAP log alone: one row of metrics per run.
+
+The metrics are recomputed from the logged per-step values with the same function the episode
+loop uses (:func:`tamedpuma.metrics.run_metrics`); ``summary.json`` is not read.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from tamedpuma.errors import LogError
+from tamedpuma.metrics import run_metrics
+from tamedpuma.recording import read_mcap
+
+log = logging.getLogger(__name__)
+
+
+def find_logs(root: str | Path) -> list[Path]:
+    """Every ``episode.mcap`` (finished) or ``episode.mcap.active`` (killed) below ``root``."""
+    root = Path(root)
+    return sorted(root.rglob("episode.mcap")) + sorted(root.rglob("episode.mcap.active"))
+
+
+def run_row(path: str | Path) -> tuple[dict, np.ndarray]:
+    """Metrics of one logged run and its end-effector path (T, 3) [m]."""
+    run = read_mcap(path)
+    cfg = yaml.safe_load(run.config_yaml) or {}
+    robot = cfg.get("robot", {})
+    scenario = cfg.get("scenario", {})
+    sc = run.scalars
+    q = run.joints[[f"q_{i}" for i in range(7)]].to_numpy()
+    metrics = run_metrics(
+        t=sc["t"].to_numpy(), position_error=sc["position_error_m"].to_numpy(),
+        orientation_error=sc["orientation_error_rad"].to_numpy(),
+        clearance=sc["clearance_m"].to_numpy(), obstacle_contact=sc["obstacle_contact"].to_numpy(),
+        ground_contact=sc["ground_contact"].to_numpy(), q=q,
+        q_min=np.array(robot.get("q_min", [-np.inf] * 7)),
+        q_max=np.array(robot.get("q_max", [np.inf] * 7)),
+        compute_ms=sc["compute_time_ms"].to_numpy(),
+        tolerance=float(scenario.get("goal_tolerance", 0.05)))
+    row = {"path": str(path), "run_id": run.info.get("run_id"), "method": run.info.get("method"),
+           "task": run.info.get("task"), "scenario": run.info.get("scenario_name"),
+           "seed": run.info.get("seed"), "n_obstacles": len(scenario.get("obstacles") or []),
+           "complete": run.complete, **metrics.as_dict()}
+    return row, run.ee[["x", "y", "z"]].to_numpy()
+
+
+def load_runs(root: str | Path) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
+    """All runs below ``root``: a metrics frame (one row per run) and the paths by run path.
+    Unreadable logs are skipped with a warning (and counted in the frame's ``attrs``)."""
+    rows, paths, skipped = [], {}, []
+    for path in find_logs(root):
+        try:
+            row, ee = run_row(path)
+        except (LogError, KeyError) as exc:
+            log.warning("skipping %s: %s", path, exc)
+            skipped.append(str(path))
+            continue
+        rows.append(row)
+        paths[row["path"]] = ee
+    frame = pd.DataFrame(rows)
+    frame.attrs["skipped"] = skipped
+    return frame, paths

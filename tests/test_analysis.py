@@ -1,0 +1,65 @@
+"""Analysis from logs alone: path difference, per-run metrics and Table 1 from MCAP files."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis.path_difference import path_difference, resample_by_arc_length
+from analysis.runs import load_runs
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _curve(n):
+    s = np.linspace(0, 1, n) ** 2  # non-uniform speed along the path
+    return np.stack([np.cos(3 * s), np.sin(3 * s), s], axis=1)
+
+
+def test_resampling_is_equally_spaced_in_arc_length():
+    r = resample_by_arc_length(_curve(400), 50)
+    gaps = np.linalg.norm(np.diff(r, axis=0), axis=1)
+    assert gaps.std() / gaps.mean() < 0.01
+    np.testing.assert_allclose(r[[0, -1]], _curve(400)[[0, -1]])
+
+
+def test_path_difference_ignores_speed_and_measures_offsets():
+    a = _curve(300)
+    assert path_difference(a, _curve(1000)) < 1e-3  # same path, other timing
+    assert path_difference(a, a + [0.0, 0.0, 0.1]) == pytest.approx(0.1)
+    assert path_difference(a, a[::-1]) > 0.1  # same points, opposite direction
+
+
+def _sweep(*args):
+    proc = subprocess.run([sys.executable, "-m", "tamedpuma.sweep", "recorder=mcap", *args],
+                          cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_table1_is_rebuilt_from_the_logs_alone(tmp_path):
+    _sweep(f"output_root={tmp_path}/runs", "scenario=free")
+    _sweep(f"output_root={tmp_path}/runs", "scenario=default")
+    for summary in (tmp_path / "runs").rglob("summary.json"):
+        summary.unlink()  # the analysis must not need them
+    runs, paths = load_runs(tmp_path / "runs")
+    assert len(runs) == 2 and set(runs["n_obstacles"]) == {0, 2}
+    assert runs["complete"].all() and runs["success"].all()
+    proc = subprocess.run([sys.executable, "-m", "analysis.tables", str(tmp_path / "runs"),
+                           "--out", str(tmp_path / "tables")], cwd=REPO, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    csv = pd.read_csv(tmp_path / "tables" / "runs.csv")
+    assert len(csv) == 2
+    table = (tmp_path / "tables" / "table1.md").read_text()
+    assert "joint_attractor" in table and "1.00" in table
+
+
+def test_table1_on_an_empty_folder_is_a_one_line_error(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "analysis.tables", str(tmp_path)], cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and proc.stderr.startswith("error: ")
