@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
+from dataclasses import replace
 
 import numpy as np
 
@@ -107,3 +108,67 @@ def scenario_from_config(cfg: Mapping, spec: RobotSpec, *, task: str, seed: int 
         raise ScenarioError(f"scenario config is missing the key {exc}") from exc
     except ValueError as exc:
         raise ScenarioError(f"invalid scenario: {exc}") from exc
+
+
+def with_clutter(scenario: Scenario, count: int, radius: float, low, high, keep_out: np.ndarray,
+                 min_distance: float, rng: np.random.Generator,
+                 max_tries: int = 200_000) -> Scenario:
+    """Add ``count`` static sphere obstacles of ``radius`` [m], uniform in the box
+    [low, high] [m], each at least ``min_distance`` [m] (surface to point) from every point of
+    ``keep_out`` (e.g. the start's body spheres, the end effector's start and the goal) and not
+    overlapping the scenario's own obstacles. Seeded by ``rng``: same seed, same clutter."""
+    if count <= 0:
+        return scenario
+    low, high = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
+    own = scenario.obstacles
+    keep_out = np.asarray(keep_out, dtype=float).reshape(-1, 3)
+    chosen: list[np.ndarray] = []
+    tries = 0
+    while len(chosen) < count:
+        batch = rng.uniform(low, high, size=(max(64, 2 * (count - len(chosen))), 3))
+        tries += len(batch)
+        d_keep = np.linalg.norm(batch[:, None] - keep_out[None], axis=-1).min(axis=1)
+        ok = d_keep - radius >= min_distance
+        if len(own):
+            gap = (np.linalg.norm(batch[:, None] - own.centers[None], axis=-1)
+                   - radius - own.radii[None])
+            ok &= gap.min(axis=1) > 0
+        chosen.extend(batch[ok][: count - len(chosen)])
+        if tries > max_tries and len(chosen) < count:
+            raise ScenarioError(f"cannot place {count} clutter obstacles of radius {radius} m in "
+                                f"the box {low.tolist()}..{high.tolist()}: only {len(chosen)} fit")
+    centers = np.concatenate([own.centers, np.array(chosen)])
+    radii = np.concatenate([own.radii, np.full(count, radius)])
+    vels = np.concatenate([own.velocities, np.zeros((count, 3))])
+    return replace(scenario, obstacles=Obstacles(centers, radii, vels))
+
+
+def without_obstacles(scenario: Scenario) -> Scenario:
+    """The same scenario with no obstacle (for path differences to PUMA)."""
+    return replace(scenario, obstacles=Obstacles.empty())
+
+
+def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
+    """The run's scenario from a whole resolved run config (plain mapping): the ``scenario``
+    group checked against the ``task`` group, then ``without_obstacles`` and ``clutter``
+    (seeded by ``seed``, kept clear of the start's body spheres, end effector and goal)."""
+    sc_cfg, task = cfg["scenario"], cfg["task"]["name"]
+    if sc_cfg.get("task") not in (None, task):
+        raise ScenarioError(f"scenario {sc_cfg['name']!r} belongs to task {sc_cfg['task']!r}, "
+                            f"not {task!r}: add task={sc_cfg['task']}")
+    robot = cfg["robot"]
+    scenario = scenario_from_config(sc_cfg, spec, task=task, seed=int(cfg.get("seed", 0)),
+                                    limit_tolerance=float(robot["limit_tolerance"]),
+                                    limit_margin=float(robot["limit_margin"]))
+    if cfg.get("without_obstacles"):
+        scenario = without_obstacles(scenario)
+    clutter = cfg.get("clutter") or {}
+    if int(clutter.get("count", 0)) > 0:
+        keep_out = np.concatenate([kinematics.sphere_centers(scenario.q0),
+                                   kinematics.ee_pose(scenario.q0)[0][None],
+                                   scenario.goal.position[None]])
+        scenario = with_clutter(scenario, int(clutter["count"]), float(clutter["radius"]),
+                                clutter["low"], clutter["high"], keep_out,
+                                float(clutter["min_distance"]),
+                                np.random.default_rng([int(cfg.get("seed", 0)), 7919]))
+    return scenario

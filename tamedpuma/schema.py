@@ -55,6 +55,7 @@ class ObstacleSchema:
 @dataclass
 class ScenarioSchema:
     name: str = MISSING
+    task: Any = None  # if set, the task group must match
     q0: list[float] = MISSING
     goal: GoalSchema = field(default_factory=GoalSchema)
     obstacles: list[ObstacleSchema] = field(default_factory=list)
@@ -79,9 +80,18 @@ class RecorderSchema:
     flush_every: int = 100
 
 
+@dataclass
+class ClutterSchema:
+    count: int = 0
+    radius: float = 0.05
+    low: list[float] = field(default_factory=lambda: [-1.2, -1.2, 0.05])
+    high: list[float] = field(default_factory=lambda: [1.2, 1.2, 1.4])
+    min_distance: float = 0.1
+
+
 _GROUPS = {"robot": RobotSchema, "scenario": ScenarioSchema, "sim": SimSchema,
-           "recorder": RecorderSchema}
-_TOP = {"seed": int, "output_root": str, "stop_on_success": bool}
+           "recorder": RecorderSchema, "clutter": ClutterSchema}
+_TOP = {"seed": int, "output_root": str, "stop_on_success": bool, "without_obstacles": bool}
 
 
 def validate(cfg) -> None:

@@ -59,7 +59,7 @@ def build(cfg: DictConfig) -> Built:
     missing key, bad number) becomes a :class:`ConfigError` with a one-line message."""
     from tamedpuma import methods
     from tamedpuma.kinematics import Kinematics, robot_spec_from_config
-    from tamedpuma.scenarios import scenario_from_config
+    from tamedpuma.scenarios import build_scenario
     from tamedpuma.schema import validate
     from tamedpuma.sim import SimConfig
 
@@ -67,11 +67,9 @@ def build(cfg: DictConfig) -> Built:
     try:
         plain = OmegaConf.to_container(cfg, resolve=True)
         spec = robot_spec_from_config(plain["robot"])
-        scenario = scenario_from_config(plain["scenario"], spec, task=cfg.task.name,
-                                        seed=int(cfg.seed),
-                                        limit_tolerance=float(cfg.robot.limit_tolerance),
-                                        limit_margin=float(cfg.robot.limit_margin))
-        controller = methods.make(cfg.method.name, plain["method"], Kinematics(spec))
+        kinematics = Kinematics(spec)
+        scenario = build_scenario(plain, spec, kinematics)
+        controller = methods.make(cfg.method.name, plain["method"], kinematics)
         sim_config = SimConfig(**plain["sim"])
     except TamedPumaError:
         raise

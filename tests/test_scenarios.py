@@ -60,3 +60,52 @@ def test_invalid_scenarios_raise_scenario_error(robot_spec, bad):
     cfg = {**_default_cfg(), **bad}
     with pytest.raises(ScenarioError):
         scenario_from_config(cfg, robot_spec, task="tomato")
+
+
+def _run_cfg(**top):
+    cfg = {"robot": load_group("robot", "iiwa14"), "task": load_group("task", "tomato"),
+           "scenario": _default_cfg(), "seed": 0, "without_obstacles": False,
+           "clutter": {"count": 0, "radius": 0.05, "low": [-1.2, -1.2, 0.05],
+                       "high": [1.2, 1.2, 1.4], "min_distance": 0.1}}
+    cfg.update(top)
+    return cfg
+
+
+def test_clutter_is_seeded_and_keeps_clear_of_start_and_goal(robot_spec, kinematics):
+    from tamedpuma.scenarios import build_scenario
+
+    cfg = _run_cfg()
+    cfg["clutter"]["count"] = 300
+    a = build_scenario(cfg, robot_spec, kinematics)
+    b = build_scenario(cfg, robot_spec, kinematics)
+    c = build_scenario({**cfg, "seed": 1}, robot_spec, kinematics)
+    assert len(a.obstacles) == 302
+    np.testing.assert_array_equal(a.obstacles.centers, b.obstacles.centers)
+    assert not np.array_equal(a.obstacles.centers, c.obstacles.centers)
+    extra = a.obstacles.centers[2:]
+    keep = np.concatenate([kinematics.sphere_centers(a.q0), a.goal.position[None]])
+    assert (np.linalg.norm(extra[:, None] - keep[None], axis=-1) - 0.05 >= 0.1).all()
+    assert np.all(extra >= [-1.2, -1.2, 0.05]) and np.all(extra <= [1.2, 1.2, 1.4])
+
+
+def test_without_obstacles_and_task_mismatch(robot_spec, kinematics):
+    from tamedpuma.scenarios import build_scenario
+
+    assert len(build_scenario(_run_cfg(without_obstacles=True), robot_spec, kinematics)
+               .obstacles) == 0
+    cfg = _run_cfg()
+    cfg["scenario"] = {**cfg["scenario"], "task": "pouring"}
+    with pytest.raises(ScenarioError, match="belongs to task 'pouring'"):
+        build_scenario(cfg, robot_spec, kinematics)
+
+
+@pytest.mark.parametrize("task", ["tomato", "pouring"])
+def test_all_table1_scenarios_load(robot_spec, task):
+    from tamedpuma.config import CONF_DIR
+
+    files = sorted((CONF_DIR / "scenario" / task).glob("*.yaml"))
+    assert len(files) == 15
+    for f in files:
+        cfg = load_group("scenario", f"{task}/{f.stem}")
+        sc = scenario_from_config(cfg, robot_spec, task=task)
+        assert 1 <= len(sc.obstacles) <= 2 and sc.name == f"{task}_{f.stem}"
