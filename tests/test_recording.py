@@ -92,8 +92,8 @@ def mcap_run(tmp_path_factory):
 
 
 def test_records_validate_shapes():
-    with pytest.raises(ValueError, match="q must have shape"):
-        StepRecord(**{**_record(0).__dict__, "q": np.zeros(6)})
+    with pytest.raises(ValueError, match="qd must have shape"):
+        StepRecord(**{**_record(0).__dict__, "q": np.zeros(6)})  # 6 positions, 7 velocities
     with pytest.raises(ValueError, match="obstacle_radii"):
         StepRecord(**{**_record(0).__dict__, "obstacle_radii": np.zeros(7)})
     assert IIWA_JOINT_NAMES[0] == "lbr_iiwa_joint_1" and len(IIWA_LINK_NAMES) == 8

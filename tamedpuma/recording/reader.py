@@ -174,7 +174,8 @@ def read_mcap(path: str | os.PathLike) -> RunLog:
     scalars = scalars.drop(columns="log_time").astype({"step": int}).set_index("step")
     scalars = scalars.astype(float)  # JSON null (a non-finite scalar) -> NaN
 
-    joints = _joints_frame(topics, factory, step_of, t_of)
+    info = _parse_info(scan.metadata.get(META_RUN_INFO, {}))
+    joints = _joints_frame(topics, factory, step_of, t_of, len(info.get("joint_names") or "7" * 7))
     ee = _ee_frame(topics, factory, step_of, t_of)
     obstacles = _obstacles_frame(topics, factory, step_of, t_of)
 
@@ -185,7 +186,7 @@ def read_mcap(path: str | os.PathLike) -> RunLog:
     urdf = scan.attachments.get(ATTACH_URDF)
     return RunLog(
         path=str(path),
-        info=_parse_info(scan.metadata.get(META_RUN_INFO, {})),
+        info=info,
         config_yaml=scan.metadata.get(META_CONFIG, {}).get("yaml", ""),
         urdf=urdf.data.decode() if urdf is not None else "",
         complete=complete,
@@ -196,9 +197,9 @@ def read_mcap(path: str | os.PathLike) -> RunLog:
     )
 
 
-def _joints_frame(topics, factory, step_of: dict, t_of: dict) -> pd.DataFrame:
-    cols = (["t"] + [f"q_{i}" for i in range(7)] + [f"qd_{i}" for i in range(7)]
-            + [f"qdd_cmd_{i}" for i in range(7)])
+def _joints_frame(topics, factory, step_of: dict, t_of: dict, n: int = 7) -> pd.DataFrame:
+    cols = (["t"] + [f"q_{i}" for i in range(n)] + [f"qd_{i}" for i in range(n)]
+            + [f"qdd_cmd_{i}" for i in range(n)])
     if "/joint_states" not in topics:
         return pd.DataFrame(columns=cols, index=pd.Index([], name="step", dtype=int))
     times, decoded = _decoded(topics["/joint_states"], factory)

@@ -32,7 +32,7 @@ class RunInfo:
 
     run_id: unique id of the run; method, task, scenario_name, seed: what was run;
     config_yaml: the resolved Hydra config (YAML text); urdf_path: robot URDF file;
-    joint_names: the 7 actuated joints (``lbr_iiwa_joint_1..7``);
+    joint_names: the actuated joints (7 for the iiwa: ``lbr_iiwa_joint_1..7``);
     link_names: the L links whose poses each :class:`StepRecord` carries (``lbr_iiwa_link_0..7``);
     body_sphere_radii: (k,) collision-sphere radii on the robot body [m]; dt: control period [s].
     """
@@ -54,8 +54,8 @@ class RunInfo:
         object.__setattr__(self, "link_names", tuple(self.link_names))
         radii = _array(np.ravel(self.body_sphere_radii), (None,), "body_sphere_radii")
         object.__setattr__(self, "body_sphere_radii", radii)
-        if len(self.joint_names) != 7:
-            raise ValueError(f"joint_names must name 7 joints, got {self.joint_names}")
+        if not self.joint_names:
+            raise ValueError("joint_names must name at least one joint")
         if not self.dt > 0:
             raise ValueError(f"dt must be positive, got {self.dt}")
 
@@ -83,7 +83,7 @@ class StepRecord:
     """Everything logged for one control step (simulator truth at the start of the step).
 
     step: control step index; t: simulated time [s];
-    q, qd: (7,) joint positions [rad] and velocities [rad/s]; qdd_cmd: (7,) commanded joint
+    q, qd: (n,) joint positions [rad] and velocities [rad/s]; qdd_cmd: (n,) commanded joint
     acceleration [rad/s²];
     link_positions: (L, 3) [m] and link_quaternions: (L, 4) (x, y, z, w) world poses of the links
     named in :attr:`RunInfo.link_names`;
@@ -113,9 +113,10 @@ class StepRecord:
 
     def __post_init__(self):
         s = object.__setattr__
-        s(self, "q", _array(self.q, (7,), "q"))
-        s(self, "qd", _array(self.qd, (7,), "qd"))
-        s(self, "qdd_cmd", _array(self.qdd_cmd, (7,), "qdd_cmd"))
+        s(self, "q", _array(self.q, (None,), "q"))
+        n = len(self.q)
+        s(self, "qd", _array(self.qd, (n,), "qd"))
+        s(self, "qdd_cmd", _array(self.qdd_cmd, (n,), "qdd_cmd"))
         s(self, "link_positions", _array(self.link_positions, (None, 3), "link_positions"))
         n_links = len(self.link_positions)
         s(self, "link_quaternions", _array(self.link_quaternions, (n_links, 4), "link_quaternions"))
