@@ -31,7 +31,7 @@ NO_OBSTACLE_CLEARANCE = 1.0e3
 
 @dataclass(frozen=True)
 class EpisodeResult:
-    """metrics: the run's scalars; stop_reason: 'success', 'max_steps' or 'nonfinite_command';
+    """metrics: the run's scalars; stop_reason: 'goal_reached', 'max_steps' or 'nonfinite_command';
     trajectory: per-step arrays q (T, 7) [rad], ee_position (T, 3) [m], t (T,) [s]."""
 
     metrics: RunMetrics
@@ -96,7 +96,8 @@ def run_episode(
             for rec in recorders:
                 rec.write(record)
             for key, value in (("t", obs.t), ("q", obs.q), ("ee_p", ee_p), ("pos_err", pos_err),
-                               ("rot_err", rot_err), ("clear", clearance), ("contact", contacts.obstacle_contact),
+                               ("rot_err", rot_err), ("clear", clearance),
+                               ("contact", contacts.obstacle_contact),
                                ("ground", contacts.ground_contact), ("ms", compute_ms)):
                 log[key].append(value)
 
@@ -104,7 +105,7 @@ def run_episode(
                 stop_reason = "nonfinite_command"
                 break
             if stop_on_success and pos_err <= scenario.goal_tolerance:
-                stop_reason = "success"
+                stop_reason = "goal_reached"
                 break
             obs = sim.step(qdd)
         complete = True

@@ -19,7 +19,7 @@ import numpy as np
 import pybullet as pb
 
 from tamedpuma.kinematics import RobotSpec
-from tamedpuma.types import Observation, Scenario
+from tamedpuma.types import Contacts, Observation, Scenario
 
 
 @dataclass(frozen=True)
@@ -32,20 +32,6 @@ class SimConfig:
     gravity: float = 9.81
     max_joint_force: float = 500.0
     ground: bool = True
-
-
-@dataclass(frozen=True)
-class Contacts:
-    """Contact and clearance at one instant.
-
-    sphere_clearance: min over (body sphere i, obstacle j) of ‖c_i − o_j‖ − r_i − r_j [m]
-    (inf without obstacles); obstacle_contact: PyBullet reports a robot–obstacle contact;
-    ground_contact: a robot link other than the base touches the ground plane.
-    """
-
-    sphere_clearance: float
-    obstacle_contact: bool
-    ground_contact: bool
 
 
 class Simulator:

@@ -144,6 +144,20 @@ class Command:
     scalars: Mapping[str, float] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class Contacts:
+    """Contact and clearance at one instant.
+
+    sphere_clearance: min over (body sphere i, obstacle j) of ‖c_i − o_j‖ − r_i − r_j [m]
+    (inf without obstacles); obstacle_contact: PyBullet reports a robot–obstacle contact;
+    ground_contact: a robot link other than the base touches the ground plane.
+    """
+
+    sphere_clearance: float
+    obstacle_contact: bool
+    ground_contact: bool
+
+
 class Controller(Protocol):
     """A method: ``reset`` once per episode, then ``step`` once per control period."""
 
