@@ -1,0 +1,168 @@
+"""Drake backend: ``InverseKinematics`` with ``AddMinimumDistanceLowerBoundConstraint`` (SNOPT).
+
+The robot is Drake's ``MultibodyPlant`` parsed from the same URDF (meshes stripped: the collision
+model is ours), with the robot's body spheres registered as collision geometry on their links.
+Each obstacle is a sphere on a body welded to a ``FixedOffsetFrame`` of the world; the frame's pose
+is a context parameter, so moving obstacles are updated per solve without rebuilding anything and
+without adding decision variables (7 positions only). Robot-robot and obstacle-obstacle pairs are
+filtered, so the minimum-distance constraint is exactly ``min_ij d_ij(q) ≥ d_min`` over the
+(body sphere, obstacle) pairs. One plant is built per (robot, obstacle radii) and cached.
+
+Drake's minimum-distance constraint is a smoothed penalty that is feasible iff every pair is beyond
+its bound; the bound passed to Drake is ``d_min + options['drake_margin']`` (default 1e-4 m) so that
+SNOPT's feasibility tolerance cannot leave a pair below d_min. SNOPT reports no iteration count
+through Drake: ``iterations`` is the number of objective evaluations.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from tamedpuma.errors import ConfigError
+
+from .problem import IKProblem, IKResult, robot_key
+
+_PYDRAKE: list = []  # the imported pydrake.all, once (an optional, heavy dependency: ~1 s)
+
+
+def available() -> bool:
+    """Whether Drake is installed (without importing it)."""
+    return importlib.util.find_spec("pydrake") is not None
+
+
+def _pydrake():
+    if not _PYDRAKE:
+        if not available():
+            raise ConfigError("ik backend 'drake' needs Drake: pip install drake "
+                              "(or choose the slsqp backend)")
+        import pydrake.all
+
+        _PYDRAKE.append(pydrake.all)
+    return _PYDRAKE[0]
+
+
+@dataclass
+class _World:
+    diagram: object
+    context: object
+    plant: object
+    plant_context: object
+    position_index: np.ndarray
+    ee_frame: object
+    obstacle_frames: list
+
+
+_WORLDS: dict = {}
+
+
+def _strip_geometry(urdf_text: str) -> str:
+    text = re.sub(r"<visual>.*?</visual>", "", urdf_text, flags=re.S)
+    return re.sub(r"<collision>.*?</collision>", "", text, flags=re.S)
+
+
+def _build(kinematics, radii: tuple[float, ...]) -> _World:
+    pd = _pydrake()
+    spec = kinematics.spec
+    builder = pd.DiagramBuilder()
+    plant, scene_graph = pd.AddMultibodyPlantSceneGraph(builder, 0.0)
+    with open(spec.urdf_path) as f:
+        robot = pd.Parser(plant).AddModelsFromString(_strip_geometry(f.read()), "urdf")[0]
+    base = plant.GetFrameByName(spec.link_names[0], robot)
+    plant.WeldFrames(plant.world_frame(), base)
+    friction = pd.CoulombFriction()
+    robot_geoms = [
+        plant.RegisterCollisionGeometry(plant.GetBodyByName(s.link, robot),
+                                        pd.RigidTransform(np.array(s.offset)), pd.Sphere(s.radius),
+                                        f"body_sphere_{i}", friction)
+        for i, s in enumerate(spec.spheres)]
+    obstacle_frames, obstacle_geoms = [], []
+    for j, r in enumerate(radii):
+        instance = plant.AddModelInstance(f"obstacle_{j}")
+        body = plant.AddRigidBody(f"obstacle_{j}", instance,
+                                  pd.SpatialInertia.SolidSphereWithMass(1.0, r))
+        frame = plant.AddFrame(pd.FixedOffsetFrame(f"obstacle_frame_{j}", plant.world_frame(),
+                                                   pd.RigidTransform()))
+        plant.WeldFrames(frame, body.body_frame())
+        obstacle_geoms.append(plant.RegisterCollisionGeometry(
+            body, pd.RigidTransform(), pd.Sphere(r), f"obstacle_{j}", friction))
+        obstacle_frames.append(frame)
+    plant.Finalize()
+    manager = scene_graph.collision_filter_manager()
+    manager.Apply(pd.CollisionFilterDeclaration().ExcludeWithin(pd.GeometrySet(robot_geoms)))
+    if len(obstacle_geoms) > 1:
+        manager.Apply(pd.CollisionFilterDeclaration().ExcludeWithin(
+            pd.GeometrySet(obstacle_geoms)))
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    index = np.array([plant.GetJointByName(n, robot).position_start() for n in spec.joint_names])
+    if plant.num_positions() != spec.dof:
+        raise ConfigError(f"drake plant has {plant.num_positions()} positions, expected {spec.dof}")
+    return _World(diagram, context, plant, plant_context, index,
+                  plant.GetFrameByName(spec.ee_link, robot), obstacle_frames)
+
+
+def _world(kinematics, radii: np.ndarray) -> _World:
+    key = (robot_key(kinematics), tuple(float(r) for r in radii))
+    if key not in _WORLDS:
+        if len(_WORLDS) >= 8:
+            _WORLDS.pop(next(iter(_WORLDS)))
+        _WORLDS[key] = _build(kinematics, key[1])
+    return _WORLDS[key]
+
+
+def warm_up(kinematics, radii: np.ndarray) -> None:
+    """Import Drake and build (cache) the plant for these obstacle radii, outside the timed loop."""
+    _world(kinematics, np.asarray(radii, float))
+
+
+def solve(problem: IKProblem) -> IKResult:
+    """Solve ``problem`` with Drake's InverseKinematics and SNOPT (module docstring)."""
+    pd = _pydrake()
+    start = time.perf_counter()
+    world = _world(problem.kinematics, problem.obstacle_radii)
+    plant, pctx, idx = world.plant, world.plant_context, world.position_index
+    for frame, center in zip(world.obstacle_frames, problem.obstacle_centers):
+        frame.SetPoseInParentFrame(pctx, pd.RigidTransform(center))
+    q_full = np.zeros(plant.num_positions())
+    q_full[idx] = np.clip(problem.q_start, problem.q_lower, problem.q_upper)
+    plant.SetPositions(pctx, q_full)
+
+    ik = pd.InverseKinematics(plant, pctx, with_joint_limits=False)
+    prog = ik.get_mutable_prog()
+    qv = ik.q()[idx]
+    prog.AddBoundingBoxConstraint(problem.q_lower, problem.q_upper, qv)
+    if problem.n_obstacles:
+        margin = float(problem.options.get("drake_margin", 1e-4))
+        influence = float(problem.options.get("drake_influence", 0.05))
+        ik.AddMinimumDistanceLowerBoundConstraint(problem.d_min + margin, influence)
+    ik.AddPositionCost(plant.world_frame(), problem.target_position, world.ee_frame, np.zeros(3),
+                       problem.position_weight * np.eye(3))
+    if problem.target_rotation is not None and problem.orientation_weight > 0:
+        ik.AddOrientationCost(plant.world_frame(), pd.RotationMatrix(problem.target_rotation),
+                              world.ee_frame, pd.RotationMatrix(), problem.orientation_weight)
+    prog.AddQuadraticErrorCost(problem.regularization_weight * np.eye(len(idx)),
+                               problem.q_ref, qv)
+    counter = [0]
+
+    def _count(x):  # zero cost, counts evaluations (float or AutoDiff input)
+        counter[0] += 1
+        return 0.0 * x[0]
+
+    prog.AddCost(_count, vars=qv[:1])
+    options = pd.SolverOptions()
+    solver = pd.SnoptSolver()
+    options.SetOption(solver.id(), "Major iterations limit", int(problem.max_iterations))
+    result = solver.Solve(prog, q_full, options)
+    q = result.GetSolution(ik.q())[idx]
+    info = result.get_solver_details().info
+    elapsed = (time.perf_counter() - start) * 1e3
+    return IKResult(q=np.asarray(q, float), success=bool(result.is_success()),
+                    message=f"SNOPT info {info}: {result.get_solution_result().name}",
+                    iterations=counter[0], max_violation=float("nan"),
+                    min_distance=float("nan"), backend="drake", solve_time_ms=elapsed)
