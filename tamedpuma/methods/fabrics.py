@@ -1,0 +1,103 @@
+"""Vanilla geometric Fabrics (method.md sections 2 and 4): the paper's ``Fabrics`` baseline.
+
+Avoidance leaves (body spheres × obstacles, joint limits, optional ground) + goal attractor
+(position and orientation) + speed control, as a :class:`~tamedpuma.types.Controller`.
+Select it with ``method=fabrics``; its gains are the ``fabric:`` block of the composed method config
+(``conf/fabric/default.yaml``; missing keys take :class:`~tamedpuma.fabrics.FabricGains` defaults).
+
+Every step logs to ``Command.scalars``: ``energy_fabric`` (H of the avoidance fabric's energy),
+``energy_execution`` (‖q̇‖² [rad²/s²]), ``potential`` (goal ψ), ``alpha_geometry`` (α_G),
+``alpha_0``, ``alpha_psi``, ``alpha_ex`` (energization coefficients [1/s]), ``eta``, ``beta``
+(damping [1/s]), ``min_clearance`` [m] (body spheres vs obstacles; absent without obstacles),
+``ground_clearance`` [m] (only with the ground leaf), ``n_clamped`` (obstacle/ground barrier
+distances clamped at the margin: penetration), ``n_limit_clamped`` (joint-limit distances clamped:
+a state on or past a limit), ``goal_distance`` [m] and ``orientation_error`` [m].
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Mapping
+
+import numpy as np
+
+from tamedpuma.errors import ConfigError
+from tamedpuma.fabrics import Fabric, FabricGains, quaternion_to_rotation
+from tamedpuma.types import Command, Observation, Scenario
+
+_KEYS = {"name", "fabric", "defaults"}  # defaults: Hydra's list, when loaded without Hydra
+
+
+class FabricsController:
+    """The vanilla Fabrics method on one robot (see the module docstring).
+
+    gains: :class:`FabricGains`; kinematics: a :class:`~tamedpuma.kinematics.Kinematics` whose
+    ``spec`` supplies the joint limits; its body spheres are the avoidance spheres.
+    """
+
+    def __init__(self, gains: FabricGains, kinematics):
+        self.gains = gains
+        self.kinematics = kinematics
+        spec = kinematics.spec
+        self.fabric = Fabric(gains, spec.q_min, spec.q_max)
+        self._goal_key: bytes | None = None
+        self._goal_rotation = np.eye(3)
+        self._warned: set[str] = set()
+
+    def reset(self, scenario: Scenario) -> None:
+        """Start an episode: forget warnings and the cached goal; warn if q0 is on/past a limit."""
+        self._warned.clear()
+        self._goal_key = None
+        spec = self.kinematics.spec
+        q0 = np.asarray(scenario.q0, dtype=float)
+        margin = self.gains.barrier_margin
+        if np.any(q0 < spec.q_min + margin) or np.any(q0 > spec.q_max - margin):
+            self._warn("limit", f"start q0 {q0.tolist()} is within {margin} rad of or past a "
+                                "joint limit: its barrier is clamped at the margin")
+
+    def _warn(self, key: str, message: str) -> None:
+        if key not in self._warned:
+            self._warned.add(key)
+            warnings.warn(f"fabrics: {message}", RuntimeWarning, stacklevel=3)
+
+    def _rotation(self, quaternion: np.ndarray) -> np.ndarray:
+        key = np.asarray(quaternion, dtype=float).tobytes()
+        if key != self._goal_key:
+            self._goal_rotation = quaternion_to_rotation(quaternion)
+            self._goal_key = key
+        return self._goal_rotation
+
+    def step(self, obs: Observation) -> Command:
+        """One control step: q̈ [rad/s²] from the observation (simulator truth)."""
+        state = self.kinematics.evaluate(obs.q, obs.qd)
+        qdd, diag = self.fabric.evaluate(
+            state, obs.q, obs.qd, obs.obstacle_centers, obs.obstacle_radii,
+            obs.obstacle_velocities, obs.goal_position, self._rotation(obs.goal_quaternion))
+        if diag.n_limit_clamped:
+            self._warn("limit", f"step {obs.step}: {diag.n_limit_clamped} joint-limit distances "
+                                "below the margin were clamped")
+        if diag.n_clamped:
+            self._warn("penetration", f"step {obs.step}: {diag.n_clamped} body sphere barrier "
+                                      "distances below the margin (penetration) were clamped")
+        scalars = diag.as_scalars()
+        for key in ("min_clearance", "ground_clearance"):
+            if not math.isfinite(scalars[key]):
+                del scalars[key]
+        return Command(qdd=qdd, scalars=scalars)
+
+
+def gains_from_config(cfg: Mapping | None) -> FabricGains:
+    """:class:`FabricGains` from a method config (``name`` and a ``fabric:`` block of gains)."""
+    cfg = dict(cfg or {})
+    unknown = sorted(set(cfg) - _KEYS)
+    if unknown:
+        raise ConfigError(f"unknown keys {unknown} in method fabrics; known: {sorted(_KEYS)}")
+    if cfg.get("name", "fabrics") != "fabrics":
+        raise ConfigError(f"method config is for {cfg['name']!r}, not 'fabrics'")
+    return FabricGains.from_mapping(cfg.get("fabric"))
+
+
+def make(cfg: Mapping, kinematics) -> FabricsController:
+    """The method registry's constructor: ``cfg`` is the plain-dict ``conf/method/fabrics.yaml``."""
+    return FabricsController(gains_from_config(cfg), kinematics)
