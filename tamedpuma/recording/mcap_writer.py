@@ -78,6 +78,16 @@ def active_path(path: str | os.PathLike) -> Path:
     return Path(f"{os.fspath(path)}{ACTIVE_SUFFIX}")
 
 
+def prepare_output(path: Path, active: Path, overwrite: bool) -> None:
+    """Make room for a new log at ``path`` (written as ``active`` until closed): refuse to
+    replace an existing file unless ``overwrite``; create the parent folder."""
+    for existing in (path, active):
+        if existing.exists() and not overwrite:
+            raise FileExistsError(f"{existing} exists (pass overwrite=True to replace it)")
+    path.unlink(missing_ok=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+
 def _stamp(t: float) -> tuple[int, Timestamp]:
     """Simulated time t [s] as (log_time [ns], foxglove Timestamp)."""
     ns = int(round(t * 1e9))
@@ -130,11 +140,7 @@ class McapRecorder:
         """Create ``<path>.active``, the channels, and write the run metadata and attachments."""
         if self._writer is not None:
             raise RuntimeError("McapRecorder is already open")
-        for existing in (self.path, self.active_path):
-            if existing.exists() and not self.overwrite:
-                raise FileExistsError(f"{existing} exists (pass overwrite=True to replace it)")
-        self.path.unlink(missing_ok=True)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        prepare_output(self.path, self.active_path, self.overwrite)
         self._info = info
         self._ctx = foxglove.Context()  # private context: recorders never see each other's data
         options = MCAPWriteOptions(compression=self._compression, profile="",

@@ -31,7 +31,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 from rerun.urdf import UrdfTree
 
-from .mcap_writer import active_path
+from .mcap_writer import active_path, prepare_output
 from .records import RunInfo, StepRecord
 
 WORLD_FRAME = "world"
@@ -88,11 +88,7 @@ class RerunRecorder:
         """Start streaming to ``path``; log the URDF, frames, styles and run properties (static)."""
         if self._rec is not None:
             raise RuntimeError("RerunRecorder is already open")
-        for existing in (self.path, self.active_path):
-            if existing.exists() and not self.overwrite:
-                raise FileExistsError(f"{existing} exists (pass overwrite=True to replace it)")
-        self.path.unlink(missing_ok=True)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        prepare_output(self.path, self.active_path, self.overwrite)
         self._info = info
         rec = rr.RecordingStream(self.application_id, recording_id=info.run_id)
         rec.save(self.active_path, default_blueprint=default_blueprint())
