@@ -105,7 +105,7 @@ def robot_spec_from_config(cfg) -> RobotSpec:
     )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class KinematicState:
     """Kinematics at one (q, q̇); world frame, metres and radians.
 
@@ -162,40 +162,43 @@ class Kinematics:
             raise ConfigError(f"link {name!r} is not in the URDF")
         return model.getFrameId(name)
 
-    def _forward(self, q: np.ndarray, qd: np.ndarray) -> None:
-        pin.forwardKinematics(self.model, self.data, q, qd, self._zeros)
-        pin.computeJointJacobians(self.model, self.data, q)
-        pin.updateFramePlacements(self.model, self.data)
-
     def evaluate(self, q: np.ndarray, qd: np.ndarray) -> KinematicState:
-        """All controller kinematics at (q [rad], q̇ [rad/s]) from one forward pass."""
+        """All controller kinematics at (q [rad], q̇ [rad/s]) from one forward pass.
+
+        Per frame one pinocchio call each for the placement, the Jacobian and the classical
+        acceleration; every returned array is fresh (pinocchio's placements are views into its
+        data and are copied; its Jacobians and accelerations are already new arrays).
+        """
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
-        self._forward(q, qd)
         model, data = self.model, self.data
-        ee = data.oMf[self.ee_id]
-        jac = pin.getFrameJacobian(model, data, self.ee_id, _WORLD)
-        acc = pin.getFrameClassicalAcceleration(model, data, self.ee_id, _WORLD)
-        k = len(self.sphere_ids)
-        centers = np.empty((k, 3))
-        jacs = np.empty((k, 3, model.nv))
-        jdqd = np.empty((k, 3))
-        for i, fid in enumerate(self.sphere_ids):
-            centers[i] = data.oMf[fid].translation
-            jacs[i] = pin.getFrameJacobian(model, data, fid, _WORLD)[:3]
-            jdqd[i] = pin.getFrameClassicalAcceleration(model, data, fid, _WORLD).linear
-        rot = ee.rotation.copy()
+        pin.forwardKinematics(model, data, q, qd, self._zeros)
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        oMf, ids = data.oMf, self.sphere_ids
+        jacobian, acceleration = pin.getFrameJacobian, pin.getFrameClassicalAcceleration
+        ee = oMf[self.ee_id]
+        pose = pin.SE3ToXYZQUAT(ee)  # fresh (7,): position, quaternion (x, y, z, w)
         return KinematicState(
-            ee_position=ee.translation.copy(),
-            ee_rotation=rot,
-            ee_quaternion=pin.Quaternion(rot).coeffs().copy(),
-            ee_jacobian=np.array(jac),
-            ee_jdqd=np.concatenate([acc.linear, acc.angular]),
-            sphere_centers=centers,
-            sphere_jacobians=jacs,
-            sphere_jdqd=jdqd,
+            ee_position=pose[:3],
+            ee_rotation=ee.rotation.copy(),
+            ee_quaternion=pose[3:],
+            ee_jacobian=jacobian(model, data, self.ee_id, _WORLD),
+            ee_jdqd=acceleration(model, data, self.ee_id, _WORLD).vector,  # [linear; angular]
+            sphere_centers=np.array([oMf[i].translation for i in ids]).reshape(-1, 3),
+            sphere_jacobians=np.array([jacobian(model, data, i, _WORLD)[:3] for i in ids]
+                                      ).reshape(-1, 3, model.nv),
+            sphere_jdqd=np.array([acceleration(model, data, i, _WORLD).linear for i in ids]
+                                 ).reshape(-1, 3),
             sphere_radii=self._radii,
         )
+
+    def link_position_jacobian(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        """Origin (3,) [m] and its 3×n position Jacobian of ``link`` at the q of the last
+        :meth:`evaluate` call (no new forward pass)."""
+        fid = self._frame_id(self.model, link)
+        jac = pin.getFrameJacobian(self.model, self.data, fid, _WORLD)[:3]
+        return self.data.oMf[fid].translation.copy(), np.array(jac)
 
     def link_poses(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Poses of ``spec.link_names`` at q: positions (L, 3) [m], quaternions (L, 4) (x,y,z,w)."""

@@ -19,7 +19,6 @@ numpy only; every function works elementwise on arrays of task variables.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -74,60 +73,6 @@ def barrier_leaf(x, xd, gains: BarrierGains):
     if gains.geometry_directional:
         hx = hx * (xd < 0)
     return m, m * hx, (-gains.energy_exponent / x) * H, H
-
-
-@dataclass(frozen=True)
-class BarrierBatch:
-    """Per-element gains of a concatenation of barrier leaves (arrays of length P), so that one
-    :func:`barrier_batch` call evaluates every leaf (obstacle pairs, joint limits, ground) at once.
-
-    Fields as :class:`BarrierGains`, pre-negated for the kernel: ``neg_energy_exponent = −p_L``,
-    ``neg_geometry_gain = −k_h``, ``neg_geometry_exponent = −p_h``; ``energy_free`` /
-    ``geometry_free`` are True where the term is *not* directional.
-    """
-
-    energy_gain: np.ndarray
-    neg_energy_exponent: np.ndarray
-    energy_free: np.ndarray
-    neg_geometry_gain: np.ndarray
-    neg_geometry_exponent: np.ndarray
-    geometry_free: np.ndarray
-
-    @classmethod
-    def of(cls, parts) -> BarrierBatch:
-        """Concatenate ``[(BarrierGains, count), …]`` into one batch."""
-        def cat(fn, dtype=float):
-            return np.concatenate([np.full(n, fn(g), dtype=dtype) for g, n in parts])
-        return cls(
-            energy_gain=cat(lambda g: g.energy_gain),
-            neg_energy_exponent=cat(lambda g: -g.energy_exponent),
-            energy_free=cat(lambda g: not g.energy_directional, bool),
-            neg_geometry_gain=cat(lambda g: -g.geometry_gain),
-            neg_geometry_exponent=cat(lambda g: -g.geometry_exponent),
-            geometry_free=cat(lambda g: not g.geometry_directional, bool),
-        )
-
-
-def barrier_batch(x, xd, batch: BarrierBatch):
-    """:func:`barrier_leaf` for a :class:`BarrierBatch`: per-element gains, one pass.
-
-    x (P,) > 0, xd (P,). Returns ``(m, f, f_L, H)`` (P,) each, as :func:`barrier_leaf`.
-    """
-    neg = xd < 0
-    xd2 = xd * xd
-    H = x ** batch.neg_energy_exponent
-    H *= batch.energy_gain
-    H *= neg | batch.energy_free
-    m = H + H
-    H *= xd2
-    f = x ** batch.neg_geometry_exponent
-    f *= batch.neg_geometry_gain
-    f *= neg | batch.geometry_free
-    f *= xd2
-    f *= m
-    f_l = batch.neg_energy_exponent * H
-    f_l /= x
-    return m, f, f_l, H
 
 
 def base_energy(qd, gains: FabricGains):

@@ -1,7 +1,9 @@
 """The assembled joint-space fabric: avoidance leaves, goal forcing, energization and speed control.
 
 :class:`Fabric` holds only gains and robot limits; nothing depends on the obstacle count, which is
-run-time data of every call (no build step, nothing rebuilt when it changes). Per call:
+run-time data of every call (no build step, nothing rebuilt when it changes; the only per-count
+state is a cache of preallocated work buffers, :class:`~tamedpuma.fabrics.fused.Workspace`, one per
+(spheres, obstacles) layout, allocated on first use in well under a millisecond). Per call:
 
 1. avoidance (the unforced fabric, method.md §2): base ``(m_b I, 0)`` plus the pullback of every
    barrier leaf spec ``(M_L, M_L h)`` (body sphere × obstacle pairs, joint limits, optional ground)
@@ -12,6 +14,11 @@ run-time data of every call (no build step, nothing rebuilt when it changes). Pe
 3. ``q̈_G = −M⁻¹ f`` and ``q̈_F = −(M + M_ψ)⁻¹ (f + f_ψ)`` in one batched solve;
 4. speed control (:mod:`tamedpuma.fabrics.speed`): ``q̈ = q̈_F − (α_ex + β) q̇``.
 
+Steps 1-3 run as a fixed, small number of numpy calls on one design matrix of all leaf rows
+(:mod:`~tamedpuma.fabrics.fused`); :meth:`Fabric.forcing` and the functions of
+:mod:`~tamedpuma.fabrics.leaves` and :mod:`~tamedpuma.fabrics.energy` are the same maths leaf by
+leaf (the tests check one against the other).
+
 TamedPUMA's FPM and CPM reuse step 1 (:meth:`Fabric.avoidance`),
 :meth:`AvoidanceFabric.acceleration` and :func:`tamedpuma.fabrics.energy.energize` /
 :meth:`AvoidanceFabric.alpha`.
@@ -20,20 +27,23 @@ numpy only.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from tamedpuma.fabrics.energy import BarrierBatch, attractor_blocks, barrier_batch
+from tamedpuma.fabrics.energy import attractor_blocks
+from tamedpuma.fabrics.fused import Workspace, orientation_maps
 from tamedpuma.fabrics.gains import FabricGains
-from tamedpuma.fabrics.leaves import (
-    goal_errors,
-    ground_plane,
-    pull_sphere_pairs,
-    sphere_obstacle_pairs,
-)
+from tamedpuma.fabrics.leaves import goal_errors
 from tamedpuma.fabrics.spec import FabricError, Spec, solve_acceleration
 from tamedpuma.fabrics.speed import speed_terms
+
+try:  # the LAPACK gesv gufunc behind np.linalg.solve, without its Python wrapper
+    from numpy.linalg._umath_linalg import solve1 as _solve
+except ImportError:  # pragma: no cover - other numpy layouts
+    _solve = None
+_min = np.minimum.reduce
 
 
 @dataclass(slots=True)
@@ -134,19 +144,44 @@ def quaternion_to_rotation(quat) -> np.ndarray:
 class Fabric:
     """Geometric fabric of one robot (see the module docstring).
 
-    gains: :class:`FabricGains`; q_min, q_max: (n,) joint limits [rad].
+    gains: :class:`FabricGains`; q_min, q_max: (n,) joint limits [rad]. Calls share its work
+    buffers: use one Fabric per thread. Returned arrays are always fresh.
     """
 
     def __init__(self, gains: FabricGains, q_min, q_max):
         self.gains = gains
         self.q_min = np.array(q_min, dtype=float)
         self.q_max = np.array(q_max, dtype=float)
-        n = self._n = self.q_min.shape[0]
-        self._base = gains.base_metric * np.eye(n)
+        self._n = self.q_min.shape[0]
         axes = list(gains.orientation_axes) if gains.orientation_weight > 0 else []
+        self._axes = axes
         self._offsets = gains.orientation_offset * np.eye(3)[axes]
+        self._tx, self._tb = orientation_maps(axes, gains.orientation_offset)
         self._weight_list = [gains.goal_weight] + [gains.orientation_weight] * len(axes)
-        self._batches: dict[tuple[int, int], BarrierBatch] = {}  # per (spheres, obstacles)
+        self._workspaces: dict[tuple[int, int], Workspace] = {}  # per (spheres, obstacles)
+
+    def _workspace(self, k: int, m: int) -> Workspace:
+        """The buffers of the layout (k spheres, m obstacles): built on first use (cheap; no
+        geometry is built, only arrays), then reused."""
+        ws = self._workspaces.get((k, m))
+        if ws is None:
+            if len(self._workspaces) > 64:
+                self._workspaces.clear()
+            ws = self._workspaces[(k, m)] = Workspace(self.gains, k, m, self._n,
+                                                      len(self._axes), self.q_min, self.q_max)
+        return ws
+
+    def _barriers(self, state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities):
+        """Fill a workspace's barrier rows; returns (workspace, H_{L_e}, n_clamped, n_limit)."""
+        ws = self._workspace(state.sphere_centers.shape[0], obstacle_centers.shape[0])
+        n_clamped, n_limit = ws.barrier_rows(state, q, qd, obstacle_centers, obstacle_radii,
+                                             obstacle_velocities, self.gains)
+        return ws, ws.barrier_kernel(), n_clamped, n_limit
+
+    @staticmethod
+    def _clearances(ws) -> tuple[float, float]:
+        clearance = float(ws.clear.min()) if ws.P else np.inf
+        return clearance, (ws.ground_clearance if ws.ground else np.inf)
 
     def avoidance(self, state, q, qd, obstacle_centers, obstacle_radii,
                   obstacle_velocities) -> AvoidanceFabric:
@@ -154,69 +189,16 @@ class Fabric:
 
         state: a KinematicState at (q, q̇) (body spheres used); q, qd (n,) [rad], [rad/s];
         obstacle_centers (m, 3) [m], obstacle_radii (m,) [m], obstacle_velocities (m, 3) [m/s].
+        Every leaf is a row block of :mod:`~tamedpuma.fabrics.fused`'s design matrix.
         """
-        g = self.gains
-        J = state.sphere_jacobians
-        pairs = sphere_obstacle_pairs(state.sphere_centers, J, state.sphere_jdqd,
-                                      state.sphere_radii, qd, obstacle_centers, obstacle_radii,
-                                      obstacle_velocities, g.barrier_margin)
-        k, n_obs = pairs.x.shape
-        P = k * n_obs
+        ws, energy, n_clamped, n_limit = self._barriers(
+            state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities)
+        mf = ws.avoidance_system()
         n = self._n
-        L = P + 2 * n  # pairs, then lower and upper joint limits, then (optional) ground
-        size = L + (k if g.ground_enabled else 0)
-        # All barrier leaves in one batch: x and ẋ of every pair, limit and ground distance.
-        X = np.empty((2, size))
-        x, xd = X
-        x[:P] = pairs.x.reshape(-1)
-        xd[:P] = pairs.xd.reshape(-1)
-        np.subtract(q, self.q_min, out=x[P:P + n])
-        np.subtract(self.q_max, q, out=x[P + n:L])
-        xd[P:P + n] = qd
-        np.negative(qd, out=xd[P + n:L])
-        n_limit_clamped = 0
-        if x[P:L].min() < g.barrier_margin:
-            n_limit_clamped = int(np.count_nonzero(x[P:L] < g.barrier_margin))
-            np.maximum(x[P:L], g.barrier_margin, out=x[P:L])
-        n_clamped = pairs.n_clamped
-        ground_clearance = np.inf
-        if g.ground_enabled:
-            gr = ground_plane(state.sphere_centers, J, state.sphere_jdqd, state.sphere_radii, qd,
-                              g.ground_height, g.barrier_margin)
-            x[L:] = gr.x
-            xd[L:] = gr.xd
-            n_clamped += gr.n_clamped
-            ground_clearance = float(gr.clearance.min())
-        batch = self._batches.get((k, n_obs))
-        if batch is None:  # per-element gains of this layout (cheap; no geometry is built)
-            if len(self._batches) > 64:
-                self._batches.clear()
-            parts = [(g.obstacle, P), (g.joint_limit, 2 * n)]
-            if g.ground_enabled:
-                parts.append((g.ground, k))
-            batch = self._batches[(k, n_obs)] = BarrierBatch.of(parts)
-        m, f, f_l, h = barrier_batch(x, xd, batch)
-        # pairs: pulled through the sphere Jacobians, aggregated per sphere
-        mp = m[:P].reshape(k, n_obs)
-        mj = mp * pairs.jdqd
-        M, F = pull_sphere_pairs(mp, f[:P].reshape(k, n_obs) + mj,
-                                 f_l[:P].reshape(k, n_obs) + mj, pairs.u, J)
-        # joint limits: Jacobian rows +e_j (lower) and −e_j (upper), J̇q̇ = 0
-        M += self._base
-        M.reshape(-1)[:: n + 1] += m[P:P + n] + m[P + n:L]
-        F[0] += f[P:P + n] - f[P + n:L]
-        F[1] += f_l[P:P + n] - f_l[P + n:L]
-        if g.ground_enabled:
-            mg = m[L:]
-            mgj = mg * gr.jdqd
-            M += gr.rows.T @ (mg[:, None] * gr.rows)
-            F[0] += (f[L:] + mgj) @ gr.rows
-            F[1] += (f_l[L:] + mgj) @ gr.rows
-        energy = float(h.sum()) + 0.5 * g.base_metric * float(qd @ qd)
-        clearance = float(pairs.clearance.min()) if P else np.inf
-        return AvoidanceFabric(M=M, forces=F, energy=energy,
-                               min_clearance=clearance, ground_clearance=ground_clearance,
-                               n_clamped=n_clamped, n_limit_clamped=n_limit_clamped)
+        clearance, ground = self._clearances(ws)
+        return AvoidanceFabric(M=mf[:, :n].copy(), forces=mf[:, n:].T.copy(), energy=energy,
+                               min_clearance=clearance, ground_clearance=ground,
+                               n_clamped=n_clamped, n_limit_clamped=n_limit)
 
     def forcing(self, state, qd, goal_position, goal_rotation) -> Forcing:
         """The goal attractor pulled into joint space (see :class:`Forcing`).
@@ -245,33 +227,38 @@ class Fabric:
         non-finite input or output (never a silent zero acceleration).
         """
         g = self.gains
-        av = self.avoidance(state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities)
-        fo = self.forcing(state, qd, goal_position, goal_rotation)
+        ws, energy, n_clamped, n_limit = self._barriers(
+            state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities)
+        psi, r = ws.goal_rows(state, qd, goal_position, goal_rotation, g, self._tx, self._tb,
+                              self._weight_list)
+        ws.systems()  # Ms[0] = [M | f | f_L | …], Ms[1] = [M + M_ψ | f + f_ψ | …]
+        # q̈_G = −M⁻¹f and q̈_F = −(M + M_ψ)⁻¹(f + f_ψ) in one batched solve. M is SPD (base
+        # metric m_b > 0 plus PSD leaves), so never singular; non-finite input gives NaN here,
+        # which reaches every dot product below and is reported once.
+        if _solve is not None:
+            _solve(ws.Msys, ws.rhs, out=ws.sol)  # sol = −[q̈_G, q̈_F]
+        else:  # pragma: no cover - other numpy layouts
+            ws.sol[:] = -solve_acceleration(ws.Msys, ws.rhs)
         n = self._n
-        Ms = np.empty((2, n, n))
-        rhs = np.empty((2, n))
-        Ms[0] = av.M
-        np.add(av.M, fo.M, out=Ms[1])
-        rhs[0] = av.forces[0]
-        np.add(rhs[0], fo.f, out=rhs[1])
-        # q̈_G = −M⁻¹f and q̈_F = −(M + M_ψ)⁻¹(f + f_ψ) in one batched solve
-        sol = solve_acceleration(Ms, rhs)
-        # dot products with q̇: q̇ᵀf, q̇ᵀf_L, q̇ᵀq̈_G, q̇ᵀq̈_F, q̇ᵀMq̇, ‖q̇‖²
-        qf, qfl = (av.forces @ qd).tolist()
-        qg, qF = (sol @ qd).tolist()
-        qMq = float((av.M @ qd) @ qd)
-        speed_sq = float(qd @ qd)
+        ws.qd_col[:] = qd
+        # q̇ᵀ[M | f | f_L | −q̈_G | −q̈_F | q̇]: q̇ᵀM, q̇ᵀf, q̇ᵀf_L, −q̇ᵀq̈_G, −q̇ᵀq̈_F, ‖q̇‖²
+        dots = qd @ ws.dots
+        qMq = float(dots[:n] @ qd)
+        qf, qfl, neg_qg, neg_qF, speed_sq = dots[n:].tolist()
         # α_G = q̇ᵀ(M q̈_G + f_L)/(q̇ᵀMq̇ + ε) = q̇ᵀ(f_L − f)/(q̇ᵀMq̇ + ε), since M q̈_G = −f.
         alpha_g = (qfl - qf) / (qMq + g.energization_eps)
-        sp = speed_terms(speed_sq, qg, qF, alpha_g, fo.goal_distance, g)
-        qdd = sol[1] - (sp.alpha_ex + sp.beta) * qd
-        if not np.isfinite(qdd).all():
+        sp = speed_terms(speed_sq, -neg_qg, -neg_qF, alpha_g, r[0], g)
+        c = sp.alpha_ex + sp.beta
+        # q̇ᵀq̈_F finite ⇒ every component of q̈_F finite (NaN·0 = ∞·0 = NaN)
+        if not (math.isfinite(neg_qF) and math.isfinite(c)):
             raise FabricError("fabric acceleration is not finite (non-finite input?)")
+        qdd = np.subtract(qd * -c, ws.sol_forced)  # q̈ = q̈_F − (α_ex + β) q̇
+        clearance = float(_min(ws.clear_flat)) if ws.P else np.inf
+        ground = ws.ground_clearance if ws.ground else np.inf
         diag = FabricDiagnostics(
-            energy_fabric=av.energy, energy_execution=speed_sq, potential=fo.potential,
+            energy_fabric=energy, energy_execution=speed_sq, potential=psi,
             alpha_geometry=alpha_g, alpha_0=sp.alpha_0, alpha_psi=sp.alpha_psi,
-            alpha_ex=sp.alpha_ex, eta=sp.eta, beta=sp.beta, min_clearance=av.min_clearance,
-            ground_clearance=av.ground_clearance, n_clamped=av.n_clamped,
-            n_limit_clamped=av.n_limit_clamped, goal_distance=fo.goal_distance,
-            orientation_error=fo.orientation_error)
+            alpha_ex=sp.alpha_ex, eta=sp.eta, beta=sp.beta, min_clearance=clearance,
+            ground_clearance=ground, n_clamped=n_clamped, n_limit_clamped=n_limit,
+            goal_distance=r[0], orientation_error=sum(r[1:]))
         return qdd, diag

@@ -1,0 +1,313 @@
+"""The fabric's hot path: every leaf as rows of one design matrix, in preallocated buffers.
+
+Same maths as :mod:`~tamedpuma.fabrics.leaves`, :mod:`~tamedpuma.fabrics.energy` and
+:func:`~tamedpuma.fabrics.spec.pull_rows` (which stay the readable reference, and are what the tests
+check this against), rearranged so that one evaluation is a fixed, small number of numpy calls
+whatever the obstacle count (at 2 obstacles the time is per-call overhead, not arithmetic).
+
+Every leaf is a set of one-dimensional task variables p with a Jacobian row ``a_p`` (n,), a scalar
+metric ``m_p`` and a pulled force; their pullback is ``Σ_p m_p a_p a_pᵀ`` and ``Σ_p a_p b_p``
+(method.md §2). Rows of the design matrix ``Z`` (R, n + 2) are ``[a_p | h_p + (J̇q̇)_p | κ_p +
+(J̇q̇)_p]``, so that with ``C = diag(m) Z``:
+
+    Zᵀ C = [Σ m a aᵀ | Σ a m (h + J̇q̇) | Σ a m (κ + J̇q̇)] = [M | f | f_L]
+
+since a barrier leaf's geometry force is ``f_p = m_p h_p`` and its energy force
+``f_{L,p} = −p_L H_p / x_p = m_p κ_p`` with ``κ_p = −p_L ẋ_p² / (2 x_p)`` (``H = ½ m ẋ²``).
+One matrix product therefore gives the metric and both pulled forces. Row blocks, in order:
+
+- ``P = k·m`` sphere × obstacle pairs (rows ``u_ijᵀ J_i``, see
+  :func:`~tamedpuma.fabrics.leaves.sphere_obstacle_pairs`);
+- ``n`` lower and ``n`` upper joint limits (rows ``±e_j``, constant, ``J̇q̇ = 0``);
+- ``n`` base rows ``e_j`` with the constant metric ``m_b`` (``x = 1``, ``ẋ = q̇_j``): the base energy
+  ``½ m_b ‖q̇‖²`` as a barrier leaf with exponents 0 and no geometry, so that the kernel also returns
+  its energy;
+- ``k`` ground rows ``(J_i)_z`` (only with the ground leaf);
+- ``3K`` goal-attractor rows (K = 1 + number of orientation axes), metric ``g_k`` per block and
+  force column ``J̇q̇ + ∇ψ`` (``f_ψ = Σ g Jᵀ(J̇q̇ + ∇ψ)``). The product over the barrier and base
+  rows gives the unforced ``[M | f | f_L]``, the product over all rows the forced
+  ``[M + M_ψ | f + f_ψ]`` (or, with many pairs, the goal rows' product added to the former).
+
+A :class:`Workspace` holds the buffers and their views for one layout (k spheres, m obstacles);
+:class:`~tamedpuma.fabrics.fabric.Fabric` caches one per layout. Not thread-safe (one per Fabric).
+numpy only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tamedpuma.fabrics.energy import attractor_blocks
+from tamedpuma.fabrics.gains import FabricGains
+
+_SKEW = np.zeros((3, 3, 3))  # skew(v).ravel() = v @ _SKEW.reshape(3, 9)
+_SKEW[0, 1, 2], _SKEW[0, 2, 1] = -1.0, 1.0
+_SKEW[1, 0, 2], _SKEW[1, 2, 0] = 1.0, -1.0
+_SKEW[2, 0, 1], _SKEW[2, 1, 0] = -1.0, 1.0
+_SKEW = _SKEW.reshape(3, 9)
+_min, _sum = np.minimum.reduce, np.add.reduce  # without the ndarray-method wrappers
+
+
+def orientation_maps(axes, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """Constant linear maps of ``R.ravel()`` (row-major rotation entries) for the orientation
+    vectors ``x_k = R a_k``, ``a_k = offset · e_{axes[k]}``: returns ``T_x`` (9, 3A) with
+    ``R.ravel() @ T_x = [x_1; …; x_A]`` and ``T_B`` (3A, 3, 9) with ``T_B @ R.ravel()`` the
+    stack of ``−[x_k]×`` (3A, 3), the Jacobian map ``J_k = −[x_k]× J_ω``."""
+    A = len(axes)
+    tx = np.zeros((9, 3 * A))
+    for k, ax in enumerate(axes):
+        for c in range(3):
+            tx[3 * c + ax, 3 * k + c] = offset
+    # −[x]× entries are linear in x: −skew(x).ravel() = −x @ _SKEW
+    tb = np.zeros((9, 9 * A))
+    for k in range(A):
+        tb[:, 9 * k:9 * k + 9] = -tx[:, 3 * k:3 * k + 3] @ _SKEW
+    return tx, tb.T.reshape(3 * A, 3, 9)
+
+
+class Workspace:
+    """Buffers and views of one layout: k body spheres, m obstacles, n joints, K goal blocks,
+    optional ground rows (see the module docstring for the row layout)."""
+
+    def __init__(self, gains: FabricGains, k: int, m: int, n: int, n_axes: int, q_min, q_max):
+        g = gains
+        ground = k if g.ground_enabled else 0
+        P = self.P = k * m
+        L = self.L = P + 3 * n  # end of pairs, limits and base rows
+        Rb = self.Rb = L + ground  # barrier-like rows (kernel length)
+        K = self.K = 1 + n_axes
+        R = Rb + 3 * K
+        self.k, self.m, self.n = k, m, n
+        self.ground = bool(ground)
+        # design matrix Z = [a | h + J̇q̇ | κ + J̇q̇]; constant parts written once
+        Z = self.Z = np.zeros((R, n + 2))
+        eye = np.eye(n)
+        Z[P:P + n, :n] = eye
+        Z[P + n:P + 2 * n, :n] = -eye
+        Z[P + 2 * n:L, :n] = eye
+        self.Zp = Z[:P, :n].reshape(k, m, n)
+        self.ZbT = Z[:Rb, :n].T
+        self.Zg_all = Z[Rb:]
+        self.Zg_ori_h = Z[Rb + 3:, n]
+        self.Y_ori = Z[Rb + 3:, n + 1].reshape(n_axes, 3)  # ω × x_k (column otherwise unused)
+        self.Zg_h = Z[Rb:, n]
+        if ground:
+            self.Zground = Z[L:Rb, :n]
+        self.C = np.empty((R, n + 2))
+        self.ZT, self.C_sys = Z[:, :n].T, self.C[:, :n + 1]
+        self.split = Rb > 256
+        self.ZgT, self.Cg = Z[Rb:, :n].T, self.C[Rb:, :n + 1]
+        self.Cb = self.C[:Rb]
+        # barrier kernel inputs/outputs: x, ẋ, J̇q̇ of every barrier-like row
+        X = self.X = np.empty((2, Rb))
+        X[0, P + 2 * n:L] = 1.0  # base rows: x = 1 (x^0 = 1; no geometry, κ = 0)
+        self.x, self.xd = X[0], X[1]
+        self.x_lo, self.x_hi = X[0, P:P + n], X[0, P + n:P + 2 * n]
+        self.xd_lo, self.xd_hi = X[1, P:P + n], X[1, P + n:P + 2 * n]
+        self.xd_base = X[1, P + 2 * n:L]
+        if ground:
+            self.x_gr, self.xd_gr = X[0, L:Rb], X[1, L:Rb]
+        self.jd = np.zeros(Rb)
+        self.jdp = self.jd[:P].reshape(k, m)
+        if ground:
+            self.jd_gr = self.jd[L:Rb]
+        self.q_min, self.q_max = np.array(q_min, dtype=float), np.array(q_max, dtype=float)
+        # Per-row kernel constants, three rows each: energy, geometry and energy-force terms
+        # ``[2 k_L s_L x^{−p_L}, −k_h s_h x^{−p_h}, −(p_L/2) x^{−1}]`` (times ẋ²: 2H, h, κ).
+        # s(ẋ) = [ẋ < threshold] with threshold 0 (directional) or +inf (always on).
+        parts = [(g.obstacle, P), (g.joint_limit, 2 * n), (None, n)]
+        if ground:
+            parts.append((g.ground, ground))
+        cols = []
+        for bg, count in parts:
+            if bg is None:  # base rows: m = m_b, H = ½ m_b q̇², no geometry, no energy force
+                col = ((0.0, g.base_metric, np.inf), (0.0, 0.0, np.inf), (0.0, 0.0, np.inf))
+            else:
+                col = ((-bg.energy_exponent, 2.0 * bg.energy_gain,
+                        0.0 if bg.energy_directional else np.inf),
+                       (-bg.geometry_exponent, -bg.geometry_gain,
+                        0.0 if bg.geometry_directional else np.inf),
+                       (-1.0, -0.5 * bg.energy_exponent, np.inf))
+            cols.append(np.repeat(np.array(col)[:, :, None], count, axis=2))
+        negexp, gain, threshold = np.concatenate(cols, axis=2).transpose(1, 0, 2)
+        self.negexp, self.gain, self.threshold = negexp.copy(), gain.copy(), threshold.copy()
+        self.S = np.empty((3, Rb), dtype=bool)
+        self.xd2 = np.empty(Rb)
+        # W[:, :Rb]: kernel rows (W[0] = m); goal rows: W[0] = g_k, W[1] = ratio c_k (∇ψ = c e)
+        W = self.W = np.empty((3, R))
+        self.Wb = W[:, :Rb]
+        self.m_col = W[0][:, None]
+        self.Wg = W[:2, Rb:].reshape(2, K, 3)
+        self.ratio_rows = W[1, Rb:]
+        self.T = np.empty((3, Rb))
+        self.T0, self.T12 = self.T[0], self.T[1:]
+        self.Zb_hl = Z[:Rb, n:].T  # (2, Rb) view: columns h + J̇q̇ and κ + J̇q̇
+        # pair scratch, component first (contiguous over the pairs): Y = [d, v, a] (3, 3, k, m),
+        # G the Gram entries (2, 3, k, m)
+        self.Y = np.empty((3, 3, k, m))
+        self.d, self.v, self.a = self.Y[0], self.Y[1], self.Y[2]
+        self.Y2 = self.Y[:2]
+        self.G = np.empty((2, 3, k, m))
+        self.dd, self.dv, self.da = self.G[0, 0], self.G[0, 1], self.G[0, 2]
+        self.vv = self.G[1, 1]
+        self.inv_d = np.empty((k, m))
+        self.dist = np.empty((k, m))
+        self.big_r = np.empty((k, m))
+        self.inv_r = np.empty((k, m))
+        self.w = np.empty((k, m))
+        self.clear = self.G[0, 0]  # written over d·d once ‖d‖ is known
+        self.clear_flat = self.clear.reshape(-1)
+        self.xp, self.xdp = self.X[0, :P].reshape(k, m), self.X[1, :P].reshape(k, m)
+        self.s = np.empty((k, m))
+        self.t = np.empty((k, m))
+        self.U = np.empty((3, k, m))
+        self.Ut = self.U.transpose(1, 2, 0)
+        # goal scratch
+        self.E = np.empty(3 * K)
+        self.E_pos, self.E_ori = self.E[:3], self.E[3:]
+        self.EK = self.E.reshape(K, 3)
+        self.dR = np.empty((3, 3))
+        self.dR9 = self.dR.reshape(9)
+        # [J | J̇q̇ | ω] of the end effector (ω in the angular rows) and the block map
+        # B = diag(I₃, B_1 … B_A) (3K, 6): goal rows [a | J̇q̇ | ·] = B @ ext (ω × x_k = B_k ω)
+        self.ext = np.zeros((6, n + 2))
+        self.ext_J, self.ext_a = self.ext[:, :n], self.ext[:, n]
+        self.ext_Jw, self.omega = self.ext[3:, :n], self.ext[3:, n + 1]
+        self.Bfull = np.zeros((3 * K, 6))
+        self.Bfull[:3, :3] = np.eye(3)
+        self.B = self.Bfull[3:, 3:]
+        self.om_skew = np.empty(9)
+        self.om_skewT = self.om_skew.reshape(3, 3).T
+        self.curv = np.empty((n_axes, 3))
+        self.curv_flat = self.curv.reshape(-1)
+        self.gscratch = np.empty(3 * K)
+        self.blocks = np.kron(np.eye(K), np.ones((3, 1)))  # (3K, K): Σ over each block's rows
+        self.gk = np.empty(2 * K)  # [g_1 … g_K, c_1 … c_K]
+        self.gk_rows = self.gk.reshape(2, K, 1)
+        # outputs: [M | f | f_L] of the fabric, [M_ψ | f_ψ] of the goal, and the stacked systems
+        # Ms[0] = [M | f | f_L | M⁻¹f | (M + M_ψ)⁻¹(f + f_ψ) | q̇] so that one product q̇ᵀMs[0]
+        # gives every dot product speed control needs; Ms[1, :, :n+1] = [M + M_ψ | f + f_ψ]
+        self.Ms = np.empty((2, n, n + 5))
+        self.Mf0 = self.Ms[0, :, :n + 2]
+        self.Mf1 = self.Ms[1, :, :n + 1]
+        self.Mf0_sys = self.Ms[0, :, :n + 1]
+        self.Msys, self.rhs = self.Ms[:, :, :n], self.Ms[:, :, n]
+        self.sol = self.Ms[0, :, n + 2:n + 4].T  # (2, n): M⁻¹f, (M + M_ψ)⁻¹(f + f_ψ)
+        self.sol_forced = self.Ms[0, :, n + 3]
+        self.qd_col = self.Ms[0, :, n + 4]
+        self.dots = self.Ms[0]
+
+    def barrier_rows(self, state, q, qd, obs_centers, obs_radii, obs_velocities,
+                     g: FabricGains) -> tuple[int, int]:
+        """Fill x, ẋ, J̇q̇ and the Jacobian rows of the pairs, limits, base and ground rows.
+
+        Returns ``(n_clamped, n_limit_clamped)`` (distances below the margin, clamped up to it).
+        """
+        J = state.sphere_jacobians
+        # pairs (leaves.sphere_obstacle_pairs): d = c_i − o_j, v = J_i q̇ − ȯ_j, a = J̇_i q̇
+        np.subtract(state.sphere_centers.T[:, :, None], obs_centers.T[:, None, :], out=self.d)
+        np.subtract((J @ qd).T[:, :, None], obs_velocities.T[:, None, :], out=self.v)
+        self.a[...] = state.sphere_jdqd.T[:, :, None]
+        np.einsum("adkm,bdkm->abkm", self.Y2, self.Y, out=self.G)  # d·d, d·v, d·a; v·v, …
+        np.maximum(self.dd, 1e-24, out=self.dd)
+        np.power(self.dd, -0.5, out=self.inv_d)  # 1/‖d‖
+        np.multiply(self.dd, self.inv_d, out=self.dist)  # ‖d‖
+        np.add(state.sphere_radii[:, None], obs_radii, out=self.big_r)  # R = r_i + r_j
+        np.divide(1.0, self.big_r, out=self.inv_r)
+        np.subtract(self.dist, self.big_r, out=self.clear)  # ‖d‖ − R (over d·d, now unused)
+        np.multiply(self.inv_d, self.inv_r, out=self.w)  # 1/(‖d‖R)
+        np.multiply(self.clear, self.inv_r, out=self.xp)  # x = ‖d‖/R − 1
+        np.multiply(self.dv, self.w, out=self.xdp)  # ẋ = νᵀv/R
+        # J̇q̇ = (νᵀa + (‖v‖² − (νᵀv)²)/‖d‖)/R = (dᵀa + ‖v‖² − (νᵀv)²)/(‖d‖R)
+        np.add(self.da, self.vv, out=self.s)
+        np.multiply(self.dv, self.inv_d, out=self.t)
+        self.t *= self.t
+        self.s -= self.t
+        np.multiply(self.s, self.w, out=self.jdp)
+        np.multiply(self.d, self.w, out=self.U)  # u = ν/R: pair row uᵀJ_i
+        np.matmul(self.Ut, J, out=self.Zp)
+        # joint limits [q − q_min, q_max − q] with ẋ [q̇, −q̇], base rows ẋ = q̇ (flat 1-d calls
+        # are cheaper than one broadcast call)
+        np.subtract(q, self.q_min, out=self.x_lo)
+        np.subtract(self.q_max, q, out=self.x_hi)
+        self.xd_lo[:] = qd
+        np.negative(qd, out=self.xd_hi)
+        self.xd_base[:] = qd
+        n_clamped = 0
+        if self.ground:
+            Jz = J[:, 2, :]
+            np.subtract(state.sphere_centers[:, 2], state.sphere_radii, out=self.x_gr)
+            self.x_gr -= g.ground_height
+            np.matmul(Jz, qd, out=self.xd_gr)
+            self.jd_gr[:] = state.sphere_jdqd[:, 2]
+            self.Zground[:] = Jz
+            self.ground_clearance = float(self.x_gr.min())
+        x, margin = self.x, g.barrier_margin
+        n_limit = 0
+        if _min(x) < margin:  # rare: penetration or a start on/past a limit
+            P, L, n = self.P, self.L, self.n
+            n_clamped = int(np.count_nonzero(x[:P] < margin) + np.count_nonzero(x[L:] < margin))
+            n_limit = int(np.count_nonzero(x[P:L - n] < margin))  # not the base rows
+            np.maximum(x, margin, out=x)
+        return n_clamped, n_limit
+
+    def barrier_kernel(self) -> float:
+        """Metric, geometry and energy columns of every barrier-like row (energy.barrier_leaf):
+        ``m = 2 k_L s_L x^{−p_L}``, ``h = −k_h s_h ẋ² x^{−p_h}``, ``κ = −p_L ẋ²/(2x)``, as
+        one power, two products with per-row constants and one product with ẋ² for all three.
+        Returns the energy ``Σ H = ½ Σ m ẋ²``."""
+        x, xd = self.x, self.xd
+        np.less(xd, self.threshold, out=self.S)  # s(ẋ)
+        Wb = self.Wb
+        np.power(x, self.negexp, out=Wb)
+        Wb *= self.gain
+        Wb *= self.S  # Wb = [m, −k_h s_h x^{−p_h}, −p_L/(2x)]
+        xd2 = np.multiply(xd, xd, out=self.xd2)
+        np.multiply(Wb, xd2, out=self.T)  # [m ẋ² = 2H, h, κ]
+        np.add(self.T12, self.jd, out=self.Zb_hl)
+        return 0.5 * float(_sum(self.T0))
+
+    def goal_rows(self, state, qd, goal_position, goal_rotation, g: FabricGains, tx, tb,
+                  weights):
+        """Fill the goal-attractor rows (leaves.goal_errors, energy.attractor_blocks): Jacobian
+        rows, ``J̇q̇ + ∇ψ`` and the metric g_k of every row. Returns ``(ψ, [‖e_k‖])``.
+
+        Position block: ``e = p − p_g``, rows ``J_v``, ``J̇q̇_v``. Orientation block k:
+        ``e_k = (R − R_g) a_k``, rows ``B_k J_ω`` with ``B_k = −[x_k]×``, ``x_k = R a_k``, and
+        ``J̇q̇_k = B_k (J̇q̇)_ω + ω × (ω × x_k)``, ``ω = J_ω q̇`` (``ω × x_k = B_k ω``).
+        """
+        R = state.ee_rotation
+        self.ext_J[...] = state.ee_jacobian
+        self.ext_a[...] = state.ee_jdqd
+        np.matmul(self.ext_Jw, qd, out=self.omega)
+        np.matmul(tb, R.reshape(9), out=self.B)
+        np.matmul(self.Bfull, self.ext, out=self.Zg_all)
+        np.matmul(self.omega, _SKEW, out=self.om_skew)
+        np.matmul(self.Y_ori, self.om_skewT, out=self.curv)  # ω × (ω × x_k)
+        self.Zg_ori_h += self.curv_flat
+        # errors and the attractor's potential, gradient ratio c_k (∇ψ_k = c_k e_k), metric g_k
+        np.subtract(state.ee_position, goal_position, out=self.E_pos)
+        np.subtract(R, goal_rotation, out=self.dR)
+        np.matmul(self.dR9, tx, out=self.E_ori)
+        np.multiply(self.E, self.E, out=self.gscratch)
+        psi, r, ratio, gm = attractor_blocks((self.gscratch @ self.blocks).tolist(), g, weights)
+        self.gk[:] = gm + ratio
+        self.Wg[:] = self.gk_rows
+        np.multiply(self.ratio_rows, self.E, out=self.gscratch)
+        self.Zg_h += self.gscratch
+        return psi, r
+
+    def systems(self) -> None:
+        """``Ms[0] = [M | f | f_L]`` (the fabric) and ``Ms[1, :, :n+1] = [M + M_ψ | f + f_ψ]``."""
+        np.multiply(self.m_col, self.Z, out=self.C)
+        np.matmul(self.ZbT, self.Cb, out=self.Mf0)
+        if self.split:  # many pairs: add the goal product rather than redo the barrier one
+            np.matmul(self.ZgT, self.Cg, out=self.Mf1)
+            self.Mf1 += self.Mf0_sys
+        else:  # few rows: one product over all rows (barrier, base and goal) is one call less
+            np.matmul(self.ZT, self.C_sys, out=self.Mf1)
+
+    def avoidance_system(self) -> np.ndarray:
+        """Fresh ``[M | f | f_L]`` (n, n + 2) of the fabric alone (barrier and base rows)."""
+        np.multiply(self.m_col[:self.Rb], self.Z[:self.Rb], out=self.Cb)
+        return self.ZbT @ self.Cb
