@@ -45,7 +45,8 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray]:
         tolerance=float(scenario.get("goal_tolerance", 0.05)))
     row = {"path": str(path), "run_id": run.info.get("run_id"), "method": run.info.get("method"),
            "task": run.info.get("task"), "scenario": run.info.get("scenario_name"),
-           "seed": run.info.get("seed"), "n_obstacles": int(run.obstacles["id"].nunique()) if len(run.obstacles) else 0,
+           "seed": run.info.get("seed"),
+           "n_obstacles": int(run.obstacles["id"].nunique()) if len(run.obstacles) else 0,
            "complete": run.complete, **metrics.as_dict()}
     return row, run.ee[["x", "y", "z"]].to_numpy()
 
