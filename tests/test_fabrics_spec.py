@@ -132,4 +132,5 @@ def test_the_fabrics_package_imports_numpy_only():
             for name in names:
                 assert name.split(".")[0] in allowed, f"{path.name} imports {name}"
                 if name.startswith("tamedpuma."):
-                    assert name in ("tamedpuma.errors",) or name.startswith("tamedpuma.fabrics")
+                    assert name in ("tamedpuma.errors", "tamedpuma.rotations") or name.startswith(
+                        "tamedpuma.fabrics")

@@ -38,6 +38,7 @@ from tamedpuma.fabrics.gains import FabricGains
 from tamedpuma.fabrics.leaves import goal_errors
 from tamedpuma.fabrics.spec import FabricError, Spec, solve_acceleration
 from tamedpuma.fabrics.speed import speed_terms
+from tamedpuma.rotations import quat_to_matrix
 
 try:  # the LAPACK gesv gufunc behind np.linalg.solve, without its Python wrapper
     from numpy.linalg._umath_linalg import solve1 as _solve
@@ -131,14 +132,7 @@ class FabricDiagnostics:
         return {k: float(v) for k, v in asdict(self).items()}
 
 
-def quaternion_to_rotation(quat) -> np.ndarray:
-    """Rotation matrix (3, 3) of a quaternion (x, y, z, w) (normalised first)."""
-    x, y, z, w = np.asarray(quat, dtype=float) / np.linalg.norm(quat)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+quaternion_to_rotation = quat_to_matrix  # re-exported for the fabrics API
 
 
 class Fabric:

@@ -49,10 +49,10 @@ from typing import Protocol
 import numpy as np
 
 from tamedpuma.errors import CheckpointError, ConfigError
-from tamedpuma.ik import quat_to_matrix, rotation_error
 from tamedpuma.ik_solvers import BACKENDS, IKProblem, solve_ik, warm_up
 from tamedpuma.kinematics import Kinematics
 from tamedpuma.modulation import modulate
+from tamedpuma.rotations import quat_to_matrix, rotation_error
 from tamedpuma.types import Command, Observation, Scenario
 
 log = logging.getLogger(__name__)
