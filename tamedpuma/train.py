@@ -74,7 +74,10 @@ def evaluate_checkpoint(path: str, overrides: list[str]) -> dict:
     if demos.data_hash != meta.data_hash:
         raise ConfigError(f"the configured demonstrations ({demos.source}) differ from the "
                           "checkpoint's training data (hash mismatch)")
-    eval_cfg = evaluation.EvalConfig(**cfg["puma"].get("eval", {}))
+    eval_kw = dict(cfg["puma"].get("eval", {}))
+    stored = (meta.report.get("evaluation") or {}).get("convergence") or {}
+    eval_kw.update({k: stored[k] for k in ("pos_tol", "ang_tol") if k in stored})
+    eval_cfg = evaluation.EvalConfig(**eval_kw)
     report = {"checkpoint": path, "evaluation": evaluation.evaluate(net, demos, meta.workspace,
                                                                     eval_cfg)}
     return report
@@ -93,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps(report, indent=2))
             return 0
         cfg = compose("train", argv)
+        cfg["command"] = " ".join(["python -m tamedpuma.train", *argv])
         from .puma import pipeline
 
         report = pipeline.run(cfg, log=lambda m: print(m, file=sys.stderr))

@@ -1,0 +1,145 @@
+"""Checkpoints: everything inference needs, saved with ``torch.save`` and loaded strictly.
+
+Contents (format ``tamedpuma.puma``, version ``FORMAT_VERSION``): the state spec, network sizes,
+weights (including the normalisation buffers), the normalisation constants in readable form, the
+model step Δt [s], the goal convention and the task's nominal goal, the data unit, the workspace,
+the resolved training config, the sha256 of the training data and its source, and the evaluation
+report. Loading uses ``torch.load(weights_only=True)`` (no code execution) and rejects, with a
+one-line :class:`CheckpointError`, a missing file, a corrupt file, another format or version, a
+missing key, a missing/unexpected parameter or a parameter of the wrong shape.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from ..errors import CheckpointError
+from .network import NetConfig, PumaNet, StateSpec
+from .training import Workspace
+
+FORMAT = "tamedpuma.puma"
+FORMAT_VERSION = 1
+REQUIRED_KEYS = ("format", "format_version", "spec", "network", "state_dict", "normalisation",
+                 "dt", "goal_convention", "goal", "unit", "workspace", "config", "data_hash",
+                 "data_source", "report")
+
+
+@dataclass(frozen=True)
+class Meta:
+    """Everything but the weights: Δt [s], conventions, provenance."""
+
+    dt: float
+    goal_convention: str
+    goal: dict
+    unit: str
+    workspace: Workspace
+    config: dict
+    data_hash: str
+    data_source: str
+    report: dict
+
+
+def _plain(obj):
+    """JSON-like Python values only (numpy scalars/arrays → float/list), for weights_only loads."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if obj is None or isinstance(obj, str):
+        return str(obj) if obj is not None else None
+    for kind in (bool, int, float):  # also numpy scalars (np.float64 subclasses float)
+        if isinstance(obj, kind):
+            return kind(obj)
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    return str(obj)
+
+
+def save(path: str | Path, net: PumaNet, meta: Meta) -> Path:
+    """Write a checkpoint (parent folders are created)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ws = meta.workspace
+    payload = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "spec": dataclasses.asdict(net.spec),
+        "network": dataclasses.asdict(net.cfg),
+        "state_dict": {k: v.detach().clone() for k, v in net.state_dict().items()},
+        "normalisation": {k: getattr(net, k).tolist() for k in ("pos_scale", "vel_scale",
+                                                                 "out_scale")},
+        "dt": float(meta.dt),
+        "goal_convention": meta.goal_convention,
+        "goal": _plain(meta.goal),
+        "unit": meta.unit,
+        "workspace": _plain({"low": ws.low, "high": ws.high, "max_angle": float(ws.max_angle)}),
+        "config": _plain(meta.config),
+        "data_hash": meta.data_hash,
+        "data_source": meta.data_source,
+        "report": _plain(meta.report),
+    }
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+    return path
+
+
+def _fail(path, msg) -> CheckpointError:
+    return CheckpointError(f"checkpoint {path}: {msg}")
+
+
+def load(path: str | Path) -> tuple[PumaNet, Meta]:
+    """Load strictly; the network is returned in eval mode with its goal output cached."""
+    path = Path(path)
+    if not path.is_file():
+        raise _fail(path, "file not found")
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # corrupt, truncated or not a torch file
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()] or [type(exc).__name__]
+        why = next((ln for ln in lines if "Unsupported global" in ln), lines[0])
+        raise _fail(path, f"unreadable or unsafe ({why[:160]})") from None
+    if not isinstance(ck, dict) or ck.get("format") != FORMAT:
+        fmt = ck.get("format") if isinstance(ck, dict) else type(ck).__name__
+        raise _fail(path, f"not a PUMA checkpoint (format {fmt!r})")
+    if ck.get("format_version") != FORMAT_VERSION:
+        raise _fail(path, f"format version {ck.get('format_version')!r} is not supported "
+                          f"(expected {FORMAT_VERSION}); retrain or convert it")
+    missing = [k for k in REQUIRED_KEYS if k not in ck]
+    if missing:
+        raise _fail(path, f"missing key(s) {', '.join(missing)}")
+    try:
+        spec = StateSpec(**ck["spec"])
+        cfg = NetConfig(**ck["network"])
+        ws = ck["workspace"]
+        workspace = Workspace(tuple(ws["low"]), tuple(ws["high"]), float(ws["max_angle"]))
+        norm = ck["normalisation"]
+        net = PumaNet(spec, cfg, norm["pos_scale"], norm["vel_scale"], norm["out_scale"])
+    except Exception as exc:
+        raise _fail(path, f"invalid header ({type(exc).__name__}: {exc})") from None
+    sd = ck["state_dict"]
+    want = net.state_dict()
+    if not isinstance(sd, dict):
+        raise _fail(path, "state_dict is not a dict")
+    lost = sorted(set(want) - set(sd))
+    extra = sorted(set(sd) - set(want))
+    if lost:
+        raise _fail(path, f"missing parameter(s) {', '.join(lost[:5])}")
+    if extra:
+        raise _fail(path, f"unexpected parameter(s) {', '.join(extra[:5])}")
+    for k, v in want.items():
+        if not isinstance(sd[k], torch.Tensor) or tuple(sd[k].shape) != tuple(v.shape):
+            got = tuple(sd[k].shape) if isinstance(sd[k], torch.Tensor) else type(sd[k]).__name__
+            raise _fail(path, f"parameter {k} has shape {got}, expected {tuple(v.shape)}")
+        if not torch.all(torch.isfinite(sd[k])):
+            raise _fail(path, f"parameter {k} is not finite")
+    net.load_state_dict(sd, strict=True)
+    net.eval()
+    net.cache_goal()
+    meta = Meta(float(ck["dt"]), str(ck["goal_convention"]), ck["goal"], str(ck["unit"]),
+                workspace, ck["config"], str(ck["data_hash"]), str(ck["data_source"]), ck["report"])
+    return net, meta

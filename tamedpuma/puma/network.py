@@ -1,0 +1,171 @@
+"""The PUMA network ``ẍ = φ_θ(ρ_θ(x, ẋ))`` (or ``ẋ = φ_θ(ρ_θ(x))`` for a first-order primitive).
+
+State relative to the goal: position ``e = p − p_g`` ∈ Rⁿ [m, or the data's unit], optionally the
+orientation ``ζ ⊗ ζ_g⁻¹`` ∈ S³ (x, y, z, w), and for a second-order primitive the velocity
+``(ė, ω)`` (ω world-frame [rad/s]). The output lives in the tangent space: ``(ë, ω̇)`` [m/s², rad/s²]
+(second order) or ``(ė, ω)`` (first order).
+
+The orientation enters the network as the 9 entries of its rotation matrix R(ζ): smooth, the same
+for ζ and −ζ, and without the discontinuity at 180° that a sign-canonicalised quaternion input has
+(we measured rollouts trapped at 180° with a w ≥ 0 quaternion input).
+
+Architecture (after Pérez-Dattari et al., PUMA, MIT licence; re-written here):
+encoder ρ = 3 linear layers with LayerNorm + GELU between them, output the latent y;
+decoder φ = LayerNorm, 2 hidden GELU layers, a linear output, scaled by the data's maximum
+|acceleration| (or |velocity|). Inputs are normalised by constants stored as buffers (so they are
+saved and strictly checked with the weights).
+
+Injective encoder: with ``skip`` = c > 0 the latent is ``y = [ρ_net(f), c f]`` (f the normalised
+input), so ``‖y − y_g‖ ≥ c ‖f − f_g‖``: condition (2) of the stability theorem
+(``ρ(x) = y_g ⇒ x = x_g``) holds by construction and the latent distance is radially unbounded
+(the LayerNorm layers alone saturate far from the data, so a diverging rollout could otherwise
+keep a shrinking latent distance; we measured exactly that failure).
+
+Goal equilibrium: with ``pin_goal`` the output is ``s ⊙ (φ(ρ(x, ẋ)) − φ(ρ(x_g, 0)))`` so that
+``f(x_g, 0) = 0`` exactly, whatever the weights (the goal is an equilibrium by construction;
+its stability is what the triplet loss trains).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from . import manifold
+
+
+@dataclass(frozen=True)
+class StateSpec:
+    """The space of a primitive: ``n_pos`` position dims, optional S³ part, order 1 or 2."""
+
+    n_pos: int
+    orientation: bool
+    order: int
+
+    def __post_init__(self):
+        if self.n_pos < 1 or self.order not in (1, 2):
+            raise ValueError(f"invalid state spec {self}")
+
+    @property
+    def tangent_dim(self) -> int:
+        """Dimension of a velocity or acceleration: n_pos (+ 3 for ω)."""
+        return self.n_pos + (3 if self.orientation else 0)
+
+    @property
+    def input_dim(self) -> int:
+        return self.n_pos + (9 if self.orientation else 0) + (
+            self.tangent_dim if self.order == 2 else 0)
+
+
+@dataclass(frozen=True)
+class NetConfig:
+    """Widths of the network: hidden ``width``, latent ``latent_dim``."""
+
+    width: int = 128
+    latent_dim: int = 64
+    pin_goal: bool = True
+    skip: float = 1.0
+
+
+class PumaNet(nn.Module):
+    """Encoder ρ and decoder φ with input/output normalisation (see module docstring)."""
+
+    def __init__(self, spec: StateSpec, cfg: NetConfig, pos_scale, vel_scale, out_scale):
+        super().__init__()
+        self.spec, self.cfg = spec, cfg
+        w, z = cfg.width, cfg.latent_dim
+        self.encoder = nn.Sequential(
+            nn.Linear(spec.input_dim, w), nn.LayerNorm(w), nn.GELU(),
+            nn.Linear(w, w), nn.LayerNorm(w), nn.GELU(),
+            nn.Linear(w, z),
+        )
+        zd = z + (spec.input_dim if cfg.skip > 0 else 0)
+        self.decoder = nn.Sequential(
+            nn.LayerNorm(zd),
+            nn.Linear(zd, w), nn.GELU(),
+            nn.Linear(w, w), nn.GELU(),
+            nn.Linear(w, spec.tangent_dim),
+        )
+        self.register_buffer("pos_scale", torch.as_tensor(pos_scale, dtype=torch.float32))
+        self.register_buffer("vel_scale", torch.as_tensor(vel_scale, dtype=torch.float32))
+        self.register_buffer("out_scale", torch.as_tensor(out_scale, dtype=torch.float32))
+        self._goal_out: torch.Tensor | None = None
+
+    # --- pieces -------------------------------------------------------------------------
+
+    def features(self, pos, quat, vel) -> torch.Tensor:
+        """Normalised network input ``[e/s_p, vec R(ζ), ẋ/s_v]``."""
+        parts = [pos / self.pos_scale]
+        if self.spec.orientation:
+            parts.append(manifold.quat_to_matrix(quat).flatten(-2))
+        if self.spec.order == 2:
+            parts.append(vel / self.vel_scale)
+        return torch.cat(parts, dim=-1)
+
+    def encode(self, pos, quat=None, vel=None) -> torch.Tensor:
+        """Latent ``y = ρ(x, ẋ)`` (vel None means ẋ = 0 for a second-order net)."""
+        if self.spec.order == 2 and vel is None:
+            vel = pos.new_zeros(pos.shape[:-1] + (self.spec.tangent_dim,))
+        f = self.features(pos, quat, vel)
+        y = self.encoder(f)
+        return torch.cat((y, self.cfg.skip * f), dim=-1) if self.cfg.skip > 0 else y
+
+    def goal_state(self, batch_shape=(), like: torch.Tensor | None = None):
+        """The goal ``(0, identity, 0)`` as tensors."""
+        kw = {"dtype": like.dtype if like is not None else torch.float32}
+        pos = torch.zeros(*batch_shape, self.spec.n_pos, **kw)
+        quat = None
+        if self.spec.orientation:
+            quat = torch.zeros(*batch_shape, 4, **kw)
+            quat[..., 3] = 1.0
+        vel = None
+        if self.spec.order == 2:
+            vel = torch.zeros(*batch_shape, self.spec.tangent_dim, **kw)
+        return pos, quat, vel
+
+    def goal_latent(self) -> torch.Tensor:
+        """``y_g = ρ(x_g, 0)`` (1, latent)."""
+        return self.encode(*self.goal_state((1,)))
+
+    def cache_goal(self) -> None:
+        """Freeze ``φ(ρ(x_g, 0))`` for inference (the weights do not change any more)."""
+        with torch.no_grad():
+            self._goal_out = self.decoder(self.goal_latent())
+
+    # --- forward ------------------------------------------------------------------------
+
+    def forward(self, pos, quat=None, vel=None) -> torch.Tensor:
+        """Acceleration (order 2) or velocity (order 1) in physical units, shape (..., tangent)."""
+        out = self.decoder(self.encode(pos, quat, vel))
+        if self.cfg.pin_goal:
+            if self.training or self._goal_out is None:
+                goal_out = self.decoder(self.goal_latent())
+            else:
+                goal_out = self._goal_out
+            out = out - goal_out
+        return out * self.out_scale
+
+    def train(self, mode: bool = True):
+        self._goal_out = None
+        return super().train(mode)
+
+
+def potential(net: PumaNet, pos: torch.Tensor, quat: torch.Tensor | None):
+    """``ψ = ‖ρ(x_g, 0) − ρ(x, 0)‖²`` and its gradient, batched (B, ·).
+
+    Returns ``(ψ (B,), ∂ψ/∂e (B, n), ∂ψ/∂δθ (B, 3) | None)``; the orientation gradient is taken
+    w.r.t. a small world-frame rotation δθ applied as ``ζ ← exp(δθ) ⊗ ζ`` [1/rad].
+    """
+    with torch.enable_grad():
+        pos = pos.detach().clone().requires_grad_(True)
+        inputs = [pos]
+        if quat is not None:
+            dtheta = torch.zeros(quat.shape[:-1] + (3,), dtype=quat.dtype, requires_grad=True)
+            quat = manifold.quat_mul(manifold.quat_exp(dtheta), quat.detach())
+            inputs.append(dtheta)
+        yg = net.goal_latent().detach()
+        psi = ((net.encode(pos, quat) - yg) ** 2).sum(-1)
+        grads = torch.autograd.grad(psi.sum(), inputs)
+    return psi.detach(), grads[0], (grads[1] if len(grads) > 1 else None)

@@ -1,0 +1,156 @@
+"""Trained primitives for the controllers: world frame, physical units, numpy in and out.
+
+``load_primitive(path)`` returns a :class:`PosePrimitive` (second order on R³ × S³) or a
+:class:`VectorPrimitive` (Rⁿ, first or second order; e.g. the first-order R³ position model of
+Modulation-IK, or 2-D LASA models). Every call converts the world-frame state to the goal-relative
+state the network was trained on (goal convention ``final_pose``: ``e = p − p_g``,
+``ζ_rel = ζ ⊗ ζ_g⁻¹``; velocities are unchanged: ``ζ̇_rel = ½ ω ⊗ ζ_rel`` for a fixed goal) and runs
+a float64 numpy copy of the network (``fastnet``; ≈ 10× faster than torch for one state, and
+checked against it); no module is built per call. Angular velocities are
+world-frame ω [rad/s]: the network works with ω natively, so no quaternion-derivative conversion
+happens at all on this path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import CheckpointError
+from . import checkpoint
+from .checkpoint import Meta
+from .fastnet import FastNet
+from .network import PumaNet
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product (x, y, z, w) of (..., 4) arrays, numpy only (fast for one state)."""
+    ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack((aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz), axis=-1)
+
+
+def _relative_quat(quat, goal_quat) -> np.ndarray:
+    q = np.asarray(quat, dtype=np.float64)
+    g = np.asarray(goal_quat, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    g = g / np.linalg.norm(g, axis=-1, keepdims=True)
+    g = g * np.array([-1.0, -1.0, -1.0, 1.0])
+    return _qmul(q, g)
+
+
+class _Base:
+    def __init__(self, net: PumaNet, meta: Meta):
+        self.net, self.meta = net, meta
+        self.spec = net.spec
+        self.dt = meta.dt  # model step [s] used in training; the ODE is in physical time
+        net.eval()
+        net.cache_goal()
+        for p in net.parameters():
+            p.requires_grad_(False)
+        self.fast = FastNet(net)
+
+    @property
+    def goal(self) -> dict:
+        """The task's nominal goal stored at training time ({'position', 'quaternion'})."""
+        return self.meta.goal
+
+
+class PosePrimitive(_Base):
+    """Second-order primitive on R³ × S³ (end-effector position and orientation)."""
+
+    def acceleration(self, p, quat_xyzw, v, omega, goal_p, goal_quat):
+        """``(a (3,) [m/s²], α (3,) [rad/s²])`` world frame, at pose (p [m], ζ) and twist
+        (v [m/s], ω [rad/s], world frame) for the goal (goal_p [m], goal_quat (x, y, z, w))."""
+        a = self.acceleration_batch(np.reshape(p, (1, 3)), np.reshape(quat_xyzw, (1, 4)),
+                                    np.reshape(v, (1, 3)), np.reshape(omega, (1, 3)),
+                                    goal_p, goal_quat)
+        return a[0][0], a[1][0]
+
+    def acceleration_batch(self, p, quat, v, omega, goal_p, goal_quat):
+        """Batched :meth:`acceleration`: inputs (B, 3)/(B, 4); returns two (B, 3) arrays."""
+        e = np.asarray(p, np.float64) - np.asarray(goal_p, np.float64)
+        q = _relative_quat(quat, goal_quat)
+        vel = np.concatenate((np.asarray(v, np.float64), np.asarray(omega, np.float64)), axis=-1)
+        out = self.fast.forward(e, q, vel)
+        return out[:, :3], out[:, 3:]
+
+    def potential(self, p, quat, goal_p, goal_quat):
+        """``(ψ, ∂ψ/∂p (3,), ∂ψ/∂θ (3,))`` with ``ψ = ‖ρ(x_g, 0) − ρ(x, 0)‖²``.
+
+        ∂ψ/∂θ is w.r.t. a small world-frame rotation δθ applied as ``ζ ← exp(δθ) ⊗ ζ``, so a
+        joint-space gradient is ``∂ψ/∂q = ∂ψ/∂p · J_v + ∂ψ/∂θ · J_ω``.
+        """
+        psi, gp, gt = self.potential_batch(np.reshape(p, (1, 3)), np.reshape(quat, (1, 4)),
+                                           goal_p, goal_quat)
+        return float(psi[0]), gp[0], gt[0]
+
+    def potential_batch(self, p, quat, goal_p, goal_quat):
+        e = np.asarray(p, np.float64) - np.asarray(goal_p, np.float64)
+        q = _relative_quat(quat, goal_quat)
+        return self.fast.potential(e, q)
+
+    def latent(self, p, quat, v, omega, goal_p, goal_quat) -> np.ndarray:
+        """The encoder's latent ``y = ρ(x, ẋ)`` of one state."""
+        e = np.reshape(np.asarray(p, np.float64) - goal_p, (1, 3))
+        q = _relative_quat(np.reshape(quat, (1, 4)), goal_quat)
+        vel = np.concatenate((np.ravel(v), np.ravel(omega)))[None]
+        return self.fast.encode(e, q, vel)[0]
+
+
+class VectorPrimitive(_Base):
+    """Primitive on Rⁿ: first order (``velocity``) or second order (``acceleration``)."""
+
+    def _rel(self, x, goal):
+        x = np.asarray(x, np.float64)
+        return x - (0.0 if goal is None else np.asarray(goal, np.float64))
+
+    def velocity(self, x, goal=None) -> np.ndarray:
+        """First order: ``ẋ = f(x − x_g)`` [unit/s]; x (n,) or (B, n)."""
+        if self.spec.order != 1:
+            raise CheckpointError("velocity() needs a first-order primitive; this one is second "
+                                  "order (use acceleration)")
+        e = self._rel(x, goal)
+        return self.fast.forward(np.atleast_2d(e)).reshape(e.shape)
+
+    def acceleration(self, x, xd, goal=None) -> np.ndarray:
+        """Second order: ``ẍ = f(x − x_g, ẋ)`` [unit/s²]; x, xd (n,) or (B, n)."""
+        if self.spec.order != 2:
+            raise CheckpointError("acceleration() needs a second-order primitive; this one is "
+                                  "first order (use velocity)")
+        e = self._rel(x, goal)
+        xd = np.atleast_2d(np.asarray(xd, np.float64))
+        return self.fast.forward(np.atleast_2d(e), None, xd).reshape(e.shape)
+
+    def potential(self, x, goal=None):
+        """``(ψ, ∂ψ/∂x)`` with ``ψ = ‖ρ(x_g, 0) − ρ(x, 0)‖²``; x (n,) or (B, n)."""
+        e = self._rel(x, goal)
+        psi, g, _ = self.fast.potential(np.atleast_2d(e))
+        return (float(psi[0]), g[0]) if e.ndim == 1 else (psi, g)
+
+
+Primitive = PosePrimitive | VectorPrimitive
+
+
+def wrap(net: PumaNet, meta: Meta) -> PosePrimitive | VectorPrimitive:
+    """The right primitive class for a network's state spec."""
+    if net.spec.orientation:
+        if net.spec.n_pos != 3 or net.spec.order != 2:
+            raise CheckpointError(f"unsupported pose primitive {net.spec}")
+        return PosePrimitive(net, meta)
+    return VectorPrimitive(net, meta)
+
+
+def load_primitive(path: str | Path, threads: int | None = 1) -> PosePrimitive | VectorPrimitive:
+    """Load a checkpoint strictly (see ``checkpoint.load``) and wrap it for inference.
+
+    ``threads``: torch intra-op threads for inference (1 is fastest for one state); None keeps it.
+    """
+    if threads is not None:
+        torch.set_num_threads(threads)
+    return wrap(*checkpoint.load(path))
