@@ -1,0 +1,101 @@
+"""TamedPUMA, Compatible Potential Method (paper eq. 10 and appendix; Ratliff et al. 2023,
+Theorem III.5):
+
+    q̈ = energize_{L_e}[h + f_θ^C] + γ,
+    γ = −(q̇ q̇ᵀ / (q̇ᵀ M q̇ + ε)) ∂ψ/∂q − β q̇,                                     [rad/s²]
+
+with the compatible potential ψ(x) = k_ψ ‖ρ_θ(x_g, 0) − ρ_θ(x, 0)‖² at the *current* state and
+∂ψ/∂q = (∂ψ/∂x) J. The scale k_ψ > 0 (``potential_scale``) keeps ψ compatible; with β it sets
+the speed along the path: energization removes f_θ^C's component along q̇, so the speed comes from
+ψ alone (steady speed ≈ k_ψ |∂ψ/∂q · u| / (β uᵀMu) along the direction u), while f_θ^C's normal
+component steers. PUMA's path is reproduced when that speed is close to PUMA's own.
+Energization conserves H_{L_e}; γ makes the total energy H = H_{L_e} + ψ decrease as
+dH/dt = −β q̇ᵀ M q̇ (static obstacles), so the system converges to the zero set of f_θ^C for
+β > 0.
+
+``variant: original`` reproduces the authors' public code instead, for comparison: no
+energization, β = 0, and the regulator scaled by 0.05: ``q̈ = h + f_θ^C − 0.05 (q̇q̇ᵀ/(q̇ᵀMq̇)) ∂ψ``
+(we keep ψ squared, at the current state, with the correct quaternion Jacobian: those were bugs).
+Scalars: ``psi`` (ψ), ``psi_rate`` (∂ψ/∂q · q̇ [1/s]), ``dissipation`` (β q̇ᵀMq̇, the predicted
+−dH/dt), ``energy_fabric`` (H_{L_e}),
+``energy_total`` (H_{L_e} + ψ), ``alpha``, ``beta``, ``min_clearance`` [m], ``n_clamped``,
+``n_limit_clamped``, ``task_acc_norm``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from tamedpuma.errors import ConfigError
+from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.methods._learned import load_task, null_objective
+from tamedpuma.methods.fpm import fabric_scalars
+from tamedpuma.methods.puma import PumaController
+from tamedpuma.types import Command, Observation, Scenario
+
+VARIANTS = ("paper", "original")
+
+
+class CpmController:
+    """CPM on one robot. beta: damping β [1/s] (> 0 for the convergence guarantee);
+    eps: ε [(rad/s)²] of the regulator's denominator; variant: 'paper' or 'original';
+    regulator_scale: factor on the ψ term (1 in the paper, 0.05 in the original code)."""
+
+    def __init__(self, puma: PumaController, fabric: Fabric, beta: float, eps: float = 1e-6,
+                 variant: str = "paper", regulator_scale: float = 1.0,
+                 potential_scale: float = 1.0):
+        if variant not in VARIANTS:
+            raise ConfigError(f"cpm variant must be one of {VARIANTS}, got {variant!r}")
+        if variant == "paper" and not beta > 0:
+            raise ConfigError(f"cpm needs beta > 0 for convergence, got {beta}")
+        self.puma, self.fabric = puma, fabric
+        self.kinematics = puma.kinematics
+        self.beta, self.eps, self.variant = beta, eps, variant
+        self.regulator_scale = regulator_scale
+        if not potential_scale > 0:
+            raise ConfigError(f"cpm potential_scale must be positive, got {potential_scale}")
+        self.potential_scale = potential_scale
+
+    def reset(self, scenario: Scenario) -> None:
+        self.puma.reset(scenario)
+
+    def step(self, obs: Observation) -> Command:
+        q, qd = obs.q, obs.qd
+        state = self.kinematics.evaluate(q, qd)
+        av = self.fabric.avoidance(state, q, qd, obs.obstacle_centers, obs.obstacle_radii,
+                                   obs.obstacle_velocities)
+        qdd_c, xdd = self.puma.joint_acceleration(state, obs)
+        psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
+        psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
+        h_plus_f = av.acceleration() + qdd_c
+        Mqd = av.M @ qd
+        regulator = -self.regulator_scale * qd * (qd @ dpsi) / (qd @ Mqd + self.eps)
+        if self.variant == "paper":
+            alpha = av.alpha(qd, h_plus_f, self.eps)
+            qdd = h_plus_f - alpha * qd + regulator - self.beta * qd
+        else:  # the authors' code: no energization, no damping
+            alpha = 0.0
+            qdd = h_plus_f + regulator
+        return Command(qdd=qdd, scalars={
+            **fabric_scalars(av), "psi": psi, "psi_rate": float(dpsi @ qd),
+            "dissipation": float(self.beta * (qd @ Mqd)),
+            "energy_total": float(av.energy + psi), "alpha": float(alpha),
+            "beta": self.beta, "task_acc_norm": float(np.linalg.norm(xdd))})
+
+
+def make(cfg: Mapping, kinematics) -> CpmController:
+    task = load_task(cfg)
+    puma = PumaController(task, kinematics, float(cfg.get("pinv_damping", 0.01)),
+                          null_objective(cfg.get("null_space")))
+    gains = FabricGains.from_mapping(cfg.get("fabric"))
+    fabric = Fabric(gains, kinematics.spec.q_min, kinematics.spec.q_max)
+    variant = str(cfg.get("variant", "paper"))
+    scale = float(cfg.get("potential_scale", 1.0))
+    if variant == "original":
+        return CpmController(puma, fabric, beta=0.0, eps=float(cfg.get("eps", 1e-6)),
+                             variant=variant, regulator_scale=0.05)
+    return CpmController(puma, fabric, beta=float(cfg["beta"]), eps=float(cfg.get("eps", 1e-6)),
+                         variant=variant, regulator_scale=float(cfg.get("regulator_scale", 1.0)),
+                         potential_scale=scale)

@@ -1,0 +1,126 @@
+"""The learned motion primitive seen from joint space: task-space adapters and the pullback.
+
+A PUMA primitive lives in a task space T (end-effector pose on R³×S³ for the arm; the plane for the
+point robot). Per control step the TamedPUMA methods need, at (q, q̇):
+
+- the desired task acceleration ``ẍ_d = f_θ^T(x, ẋ)`` with the task Jacobian J and ``J̇q̇``;
+- its pullback to joint space (paper eq. 8, method.md §4), with a damped pseudo-inverse
+  ``J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹`` and a secondary objective in the null space ``N = I − J⁺J``::
+
+      q̈_C = J⁺ (ẍ_d − J̇q̇) + N q̈_null                      [rad/s²]
+
+- the compatible potential ψ(x) = ‖ρ(x_g, 0) − ρ(x, 0)‖² and ``∂ψ/∂q = (∂ψ/∂x) J`` (paper eq. 11).
+
+Adapters take a primitive object (duck-typed) so tests can use analytic stand-ins:
+:class:`PoseTask` wants ``acceleration(p, quat, v, ω, goal_p, goal_quat) -> (a, α)`` and
+``potential(p, quat, goal_p, goal_quat) -> (ψ, ∂ψ/∂p, ∂ψ/∂θ)`` (∂θ: world-frame rotation);
+:class:`PlanarTask` wants ``acceleration(x, ẋ, goal)`` and ``potential(x, goal) -> (ψ, ∂ψ/∂x)``.
+numpy only (the primitive may use torch inside).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tamedpuma.kinematics import KinematicState
+
+
+@dataclass(frozen=True)
+class TaskAcceleration:
+    """xdd (m,) desired task acceleration; J (m, n) task Jacobian; jdqd (m,) = J̇q̇."""
+
+    xdd: np.ndarray
+    J: np.ndarray
+    jdqd: np.ndarray
+
+
+class PoseTask:
+    """End-effector pose (position and orientation) task for a pose primitive; m = 6 rows
+    [v; ω] of the world-aligned frame Jacobian."""
+
+    def __init__(self, primitive):
+        self.primitive = primitive
+
+    def acceleration(self, state: KinematicState, qd: np.ndarray, goal_position: np.ndarray,
+                     goal_quaternion: np.ndarray) -> TaskAcceleration:
+        twist = state.ee_jacobian @ qd
+        a, alpha = self.primitive.acceleration(state.ee_position, state.ee_quaternion, twist[:3],
+                                               twist[3:], goal_position, goal_quaternion)
+        return TaskAcceleration(np.concatenate([a, alpha]), state.ee_jacobian, state.ee_jdqd)
+
+    def potential(self, state: KinematicState, goal_position: np.ndarray,
+                  goal_quaternion: np.ndarray) -> tuple[float, np.ndarray]:
+        """ψ and ∂ψ/∂q = ∂ψ/∂p · J_v + ∂ψ/∂θ · J_ω (n,)."""
+        psi, d_p, d_theta = self.primitive.potential(state.ee_position, state.ee_quaternion,
+                                                     goal_position, goal_quaternion)
+        jac = state.ee_jacobian
+        return float(psi), d_p @ jac[:3] + d_theta @ jac[3:]
+
+
+class PlanarTask:
+    """End-effector position in the plane (x, y) for an R² primitive (the point robot)."""
+
+    def __init__(self, primitive, dims: int = 2):
+        self.primitive = primitive
+        self.dims = dims
+
+    def acceleration(self, state: KinematicState, qd: np.ndarray, goal_position: np.ndarray,
+                     goal_quaternion: np.ndarray) -> TaskAcceleration:
+        d = self.dims
+        J = state.ee_jacobian[:d]
+        xdd = self.primitive.acceleration(state.ee_position[:d], J @ qd, goal_position[:d])
+        return TaskAcceleration(np.asarray(xdd, dtype=float), J, state.ee_jdqd[:d])
+
+    def potential(self, state: KinematicState, goal_position: np.ndarray,
+                  goal_quaternion: np.ndarray) -> tuple[float, np.ndarray]:
+        d = self.dims
+        psi, grad = self.primitive.potential(state.ee_position[:d], goal_position[:d])
+        return float(psi), np.asarray(grad, dtype=float) @ state.ee_jacobian[:d]
+
+
+def damped_pseudo_inverse(J: np.ndarray, damping: float) -> np.ndarray:
+    """``J⁺ = Jᵀ (J Jᵀ + λ² I)⁻¹`` (n, m), by a linear solve; λ = damping."""
+    m = J.shape[0]
+    return np.linalg.solve(J @ J.T + damping**2 * np.eye(m), J).T
+
+
+def pull_to_joints(task: TaskAcceleration, damping: float,
+                   qdd_null: np.ndarray | None = None) -> np.ndarray:
+    """``q̈ = J⁺(ẍ_d − J̇q̇) + (I − J⁺J) q̈_null`` [rad/s²]."""
+    pinv = damped_pseudo_inverse(task.J, damping)
+    qdd = pinv @ (task.xdd - task.jdqd)
+    if qdd_null is not None:
+        qdd = qdd + qdd_null - pinv @ (task.J @ qdd_null)
+    return qdd
+
+
+@dataclass(frozen=True)
+class NullSpaceObjective:
+    """Secondary "elbow up" objective: attract a link origin to a point [m]:
+    ``q̈_null = k J_linkᵀ (p* − p_link) − d q̇`` (stiffness k [1/s²], damping d [1/s])."""
+
+    link: str
+    target: tuple[float, float, float]
+    stiffness: float
+    damping: float
+
+    def acceleration(self, kinematics, qd: np.ndarray) -> np.ndarray:
+        p, J = kinematics.link_position_jacobian(self.link)
+        return self.stiffness * J.T @ (np.asarray(self.target) - p) - self.damping * qd
+
+
+class LinearTaskPrimitive:
+    """Analytic stand-in for a trained R^d primitive (tests, examples): the critically damped
+    ``ẍ = −k (x − x_g) − d ẋ`` with the compatible potential ``ψ = ‖x − x_g‖²``."""
+
+    def __init__(self, stiffness: float = 1.0, damping: float = 2.0):
+        self.stiffness, self.damping = stiffness, damping
+
+    def acceleration(self, x, xd, goal):
+        return -self.stiffness * (np.asarray(x) - goal) - self.damping * np.asarray(xd)
+
+    def potential(self, x, goal):
+        e = np.asarray(x) - goal
+        return float(e @ e), 2.0 * e
