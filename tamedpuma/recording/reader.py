@@ -344,5 +344,9 @@ def read_rrd_scalars(path: str | os.PathLike) -> pd.DataFrame:
 
 
 def read_rrd_joints(path: str | os.PathLike) -> pd.DataFrame:
-    """The ``/joints/<joint>`` positions [rad] of a ``.rrd``: index step; columns t, joint names."""
-    return read_rrd_series(path, "/joints")
+    """The ``/joints/<joint>`` positions [rad] of a ``.rrd``: index step; columns t, joint names.
+
+    Steps with a missing joint value (the last, partly written batch of a killed run) are left
+    out, so every row is a whole configuration."""
+    joints = read_rrd_series(path, "/joints")
+    return joints.dropna(subset=[c for c in joints.columns if c != "t"])
