@@ -209,6 +209,7 @@ class RerunRecorder:
         for name in recs[0].scalars:
             values = np.array([float(r.scalars.get(name, np.nan)) for r in recs])
             send(f"/metrics/{name}", rr.Scalars.columns(scalars=values))
+        stream.flush()  # on disk before the next batch: a killed run loses < batch steps
 
     def _send_path(self, stream, steps, times, ee) -> None:
         """EE path: strip b covers steps [b·B, (b+1)·B] (B = PATH_BLOCK), so strips join up and
