@@ -101,3 +101,24 @@ def test_cpm_original_variant_is_selectable_and_differs():
     a = run_episode(sc, original, PointMassWorld(SPEC), stop_on_success=False)
     b = run_episode(sc, _controllers()["cpm"], PointMassWorld(SPEC), stop_on_success=False)
     assert not np.allclose(a.q, b.q)
+
+
+def test_cpm_matched_damping_follows_puma_and_still_dissipates():
+    """β(q, q̇) = max(β, r − α): CPM reproduces PUMA's path where that motion loses energy, and
+    H = H_{L_e} + ψ still falls at the logged rate β(q, q̇) q̇ᵀMq̇ ≥ β q̇ᵀMq̇."""
+    kin = PointKinematics(SPEC)
+    puma = PumaController(PlanarTask(LinearTaskPrimitive(1.0, 2.0)), kin)
+    matched = CpmController(puma, _fabric(), beta=0.5, potential_scale=5.0, damping="matched")
+    ref = _run("puma", obstacles=False)
+    run = run_episode(point_scenario(obstacles=False), matched, PointMassWorld(SPEC))
+    assert run.metrics.success
+    assert path_difference(run.ee_position, ref.ee_position) <= 0.02
+    dt = 0.001
+    sc = point_scenario(obstacles=True, max_steps=6000, dt=dt)
+    rows = _scalars(CpmController(puma, _fabric(), beta=0.5, potential_scale=5.0,
+                                  damping="matched"), sc, PointMassWorld(SPEC))
+    energy = np.array([r["energy_total"] for r in rows])
+    dissipation = np.array([r["dissipation"] for r in rows])
+    assert all(r["beta"] >= 0.5 for r in rows)
+    predicted = -np.sum(0.5 * (dissipation[1:] + dissipation[:-1])) * dt
+    assert energy[-1] - energy[0] == pytest.approx(predicted, rel=0.05)

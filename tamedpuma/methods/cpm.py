@@ -13,6 +13,13 @@ Energization conserves H_{L_e}; γ makes the total energy H = H_{L_e} + ψ decre
 dH/dt = −β q̇ᵀ M q̇ (static obstacles), so the system converges to the zero set of f_θ^C for
 β > 0.
 
+``damping: matched`` uses the state-dependent damping β(q, q̇) = max(β, r − α) ≥ β > 0, with
+r = −q̇ᵀ∂ψ/(q̇ᵀMq̇ + ε) the regulator's coefficient and α the energization coefficient: then
+q̈ = h + f_θ^C exactly whenever that motion loses energy at least at the rate β q̇ᵀMq̇, and the
+arm brakes along q̇ otherwise. dH/dt = −β(q, q̇) q̇ᵀMq̇ ≤ −β q̇ᵀMq̇ keeps the convergence
+argument; the speed along the path is then PUMA's own wherever the potential is strong enough
+(k_ψ large), so CPM follows PUMA's paths. ``damping: constant`` is the paper's literal β.
+
 ``variant: original`` reproduces the authors' public code instead, for comparison: no
 energization, β = 0, and the regulator scaled by 0.05: ``q̈ = h + f_θ^C − 0.05 (q̇q̇ᵀ/(q̇ᵀMq̇)) ∂ψ``
 (we keep ψ squared, at the current state, with the correct quaternion Jacobian: those were bugs).
@@ -45,7 +52,7 @@ class CpmController:
 
     def __init__(self, puma: PumaController, fabric: Fabric, beta: float, eps: float = 1e-6,
                  variant: str = "paper", regulator_scale: float = 1.0,
-                 potential_scale: float = 1.0):
+                 potential_scale: float = 1.0, damping: str = "constant"):
         if variant not in VARIANTS:
             raise ConfigError(f"cpm variant must be one of {VARIANTS}, got {variant!r}")
         if variant == "paper" and not beta > 0:
@@ -57,6 +64,9 @@ class CpmController:
         if not potential_scale > 0:
             raise ConfigError(f"cpm potential_scale must be positive, got {potential_scale}")
         self.potential_scale = potential_scale
+        if damping not in ("constant", "matched"):
+            raise ConfigError(f"cpm damping must be 'constant' or 'matched', got {damping!r}")
+        self.matched = damping == "matched"
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
@@ -72,17 +82,21 @@ class CpmController:
         h_plus_f = av.acceleration() + qdd_c
         Mqd = av.M @ qd
         regulator = -self.regulator_scale * qd * (qd @ dpsi) / (qd @ Mqd + self.eps)
+        beta = self.beta
         if self.variant == "paper":
             alpha = av.alpha(qd, h_plus_f, self.eps)
-            qdd = h_plus_f - alpha * qd + regulator - self.beta * qd
+            if self.matched:  # β = max(β_min, r − α): exactly h + f_C whenever that dissipates
+                r = -self.regulator_scale * (qd @ dpsi) / (qd @ Mqd + self.eps)
+                beta = max(self.beta, r - alpha)
+            qdd = h_plus_f - alpha * qd + regulator - beta * qd
         else:  # the authors' code: no energization, no damping
             alpha = 0.0
             qdd = h_plus_f + regulator
         return Command(qdd=qdd, scalars={
             **fabric_scalars(av), "psi": psi, "psi_rate": float(dpsi @ qd),
-            "dissipation": float(self.beta * (qd @ Mqd)),
+            "dissipation": float(beta * (qd @ Mqd)),
             "energy_total": float(av.energy + psi), "alpha": float(alpha),
-            "beta": self.beta, "task_acc_norm": float(np.linalg.norm(xdd))})
+            "beta": float(beta), "task_acc_norm": float(np.linalg.norm(xdd))})
 
 
 def make(cfg: Mapping, kinematics) -> CpmController:
@@ -98,4 +112,4 @@ def make(cfg: Mapping, kinematics) -> CpmController:
                              variant=variant, regulator_scale=0.05)
     return CpmController(puma, fabric, beta=float(cfg["beta"]), eps=float(cfg.get("eps", 1e-6)),
                          variant=variant, regulator_scale=float(cfg.get("regulator_scale", 1.0)),
-                         potential_scale=scale)
+                         potential_scale=scale, damping=str(cfg.get("damping", "constant")))
