@@ -36,9 +36,8 @@ from collections.abc import Mapping
 import numpy as np
 
 from tamedpuma.errors import ConfigError
-from tamedpuma.fabrics import Fabric, FabricGains
-from tamedpuma.methods._learned import load_task, null_objective
-from tamedpuma.methods.fpm import fabric_scalars
+from tamedpuma.fabrics import Fabric
+from tamedpuma.methods.fpm import avoidance_at, fabric_scalars, puma_and_fabric
 from tamedpuma.methods.puma import PumaController
 from tamedpuma.types import Command, Observation, Scenario
 
@@ -72,10 +71,8 @@ class CpmController:
         self.puma.reset(scenario)
 
     def step(self, obs: Observation) -> Command:
-        q, qd = obs.q, obs.qd
-        state = self.kinematics.evaluate(q, qd)
-        av = self.fabric.avoidance(state, q, qd, obs.obstacle_centers, obs.obstacle_radii,
-                                   obs.obstacle_velocities)
+        qd = obs.qd
+        state, av = avoidance_at(self.kinematics, self.fabric, obs)
         qdd_c, xdd = self.puma.joint_acceleration(state, obs)
         psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
         psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
@@ -100,16 +97,12 @@ class CpmController:
 
 
 def make(cfg: Mapping, kinematics) -> CpmController:
-    task = load_task(cfg)
-    puma = PumaController(task, kinematics, float(cfg.get("pinv_damping", 0.01)),
-                          null_objective(cfg.get("null_space")))
-    gains = FabricGains.from_mapping(cfg.get("fabric"))
-    fabric = Fabric(gains, kinematics.spec.q_min, kinematics.spec.q_max)
+    puma, fabric = puma_and_fabric(cfg, kinematics)
     variant = str(cfg.get("variant", "paper"))
-    scale = float(cfg.get("potential_scale", 1.0))
     if variant == "original":
         return CpmController(puma, fabric, beta=0.0, eps=float(cfg.get("eps", 1e-6)),
                              variant=variant, regulator_scale=0.05)
     return CpmController(puma, fabric, beta=float(cfg["beta"]), eps=float(cfg.get("eps", 1e-6)),
                          variant=variant, regulator_scale=float(cfg.get("regulator_scale", 1.0)),
-                         potential_scale=scale, damping=str(cfg.get("damping", "constant")))
+                         potential_scale=float(cfg.get("potential_scale", 1.0)),
+                         damping=str(cfg.get("damping", "constant")))

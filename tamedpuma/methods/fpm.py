@@ -31,6 +31,22 @@ def fabric_scalars(av) -> dict[str, float]:
             "n_clamped": float(av.n_clamped), "n_limit_clamped": float(av.n_limit_clamped)}
 
 
+def avoidance_at(kinematics, fabric: Fabric, obs: Observation):
+    """(kinematic state, avoidance fabric) at the observation: one kinematics pass."""
+    state = kinematics.evaluate(obs.q, obs.qd)
+    av = fabric.avoidance(state, obs.q, obs.qd, obs.obstacle_centers, obs.obstacle_radii,
+                          obs.obstacle_velocities)
+    return state, av
+
+
+def puma_and_fabric(cfg: Mapping, kinematics) -> tuple[PumaController, Fabric]:
+    """The pulled PUMA policy and the avoidance fabric of an fpm/cpm config."""
+    puma = PumaController(load_task(cfg), kinematics, float(cfg.get("pinv_damping", 0.01)),
+                          null_objective(cfg.get("null_space")))
+    gains = FabricGains.from_mapping(cfg.get("fabric"))
+    return puma, Fabric(gains, kinematics.spec.q_min, kinematics.spec.q_max)
+
+
 class FpmController:
     """FPM on one robot: ``fabric`` (a :class:`Fabric`) for avoidance, ``puma`` for forcing."""
 
@@ -42,10 +58,8 @@ class FpmController:
         self.puma.reset(scenario)
 
     def step(self, obs: Observation) -> Command:
-        q, qd = obs.q, obs.qd
-        state = self.kinematics.evaluate(q, qd)
-        av = self.fabric.avoidance(state, q, qd, obs.obstacle_centers, obs.obstacle_radii,
-                                   obs.obstacle_velocities)
+        qd = obs.qd
+        state, av = avoidance_at(self.kinematics, self.fabric, obs)
         h = av.acceleration()
         alpha = av.alpha(qd, h, self.fabric.gains.energization_eps)
         qdd_c, xdd = self.puma.joint_acceleration(state, obs)
@@ -55,7 +69,4 @@ class FpmController:
 
 
 def make(cfg: Mapping, kinematics) -> FpmController:
-    puma = PumaController(load_task(cfg), kinematics, float(cfg.get("pinv_damping", 0.01)),
-                          null_objective(cfg.get("null_space")))
-    gains = FabricGains.from_mapping(cfg.get("fabric"))
-    return FpmController(puma, Fabric(gains, kinematics.spec.q_min, kinematics.spec.q_max))
+    return FpmController(*puma_and_fabric(cfg, kinematics))
