@@ -1,0 +1,59 @@
+"""FPM and CPM on the default scenarios with the real trained models (issue: "TamedPUMA FPM and
+CPM"). Skipped unless `runs/puma/<task>/puma.pt` exists (train it first, see README)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.path_difference import path_difference
+from tamedpuma.config import load_group
+from tamedpuma.episode import run_episode
+from tamedpuma.methods import make
+from tamedpuma.scenarios import scenario_from_config
+from tamedpuma.sim import Simulator
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+
+
+def _method_cfg(name, task):
+    from tamedpuma.train import compose
+
+    cfg = compose("sweep", [f"method={name}", f"task={task}"])
+    return cfg["method"]
+
+
+def _scenario(spec, task, obstacles):
+    cfg = load_group("scenario", "default")
+    t = load_group("task", task)
+    cfg["goal"].update(position=t["goal_position"], quaternion=t["goal_quaternion"])
+    if not obstacles:
+        cfg["obstacles"] = []
+    return scenario_from_config(cfg, spec, task=task)
+
+
+@pytest.mark.parametrize("task", ["tomato", "pouring"])
+def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, robot_spec,
+                                                                     kinematics):
+    if not (REPO / "runs" / "puma" / task / "puma.pt").is_file():
+        pytest.skip(f"no trained model at runs/puma/{task}/puma.pt")
+    paths = {}
+    for name in ("puma", "fpm", "cpm"):
+        controller = make(name, _method_cfg(name, task), kinematics)
+        with Simulator(robot_spec) as sim:
+            free = run_episode(_scenario(robot_spec, task, False), controller, sim)
+        paths[name] = free.ee_position
+        assert free.metrics.success
+        if name == "puma":
+            continue
+        assert path_difference(free.ee_position, paths["puma"]) <= 0.02
+        with Simulator(robot_spec) as sim:
+            run = run_episode(_scenario(robot_spec, task, True), controller, sim)
+        m = run.metrics
+        assert m.success and not m.collided and m.min_clearance_m > 0
+        assert m.joint_limit_violation_steps == 0
+        assert np.all(np.abs(run.q) <= robot_spec.q_max)
