@@ -11,11 +11,9 @@ from __future__ import annotations
 
 import json
 import sys
-from pathlib import Path
 
+from .config import CONF_DIR
 from .errors import ConfigError, TamedPumaError
-
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 
 def _one_line(exc: BaseException) -> str:
