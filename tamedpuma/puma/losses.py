@@ -1,6 +1,6 @@
 """PUMA losses: multi-step imitation, triplet stability, ψ-compatibility and boundary.
 
-``ℓ = ℓ_IL + λ ℓ_stable + λ_ψ ℓ_compat + λ_b ℓ_boundary``.
+``ℓ = ℓ_IL + λ ℓ_stable + λ_ψ ℓ_compat + λ_p ℓ_path + λ_b ℓ_boundary``.
 
 - ``ℓ_IL``: from a demonstration state x_k, roll the network out W steps of Δt (closed loop) and
   take the mean squared error against x_{k+1..k+W}: positions divided by the position scale, all
@@ -10,6 +10,11 @@
   Euclidean; r = 0 is the original triplet loss, r > 0 asks for an exponential decrease.
 - ``ℓ_compat``: the potential ψ(x) = ‖ρ(x_g, 0) − ρ(x, 0)‖² must decrease along f(x, 0) at rest,
   i.e. ``−∂ψᵀ f(x, 0) > 0``; enforced as a hinge on a finite step of length ε along f(x, 0)/‖f‖.
+- ``ℓ_path``: ψ must also fall along the demonstrations themselves (consecutive samples x_k,
+  x_{k+1} of a window): ``mean max(0, m + d(y_g, ρ(x_{k+1}, 0)) − d(y_g, ρ(x_k, 0)))``.
+  Compatibility at rest says nothing about a moving state; this term makes the potential that CPM
+  dissipates fall along the demonstrated (and so PUMA's) paths, so ψ does not rise while CPM
+  follows them.
 - ``ℓ_boundary``: squared distance of rollout positions outside the workspace box (normalised).
 """
 
@@ -84,3 +89,10 @@ def compat_loss(net: PumaNet, pos, quat, eps: float, margin: float) -> torch.Ten
     d0 = (net.encode(pos, quat) - yg).norm(dim=-1)
     d1 = (net.encode(pos2, quat2) - yg).norm(dim=-1)
     return torch.relu(margin + d1 - d0).mean()
+
+
+def path_potential_loss(net: PumaNet, pos, quat, margin: float) -> torch.Tensor:
+    """Hinge ``max(0, m + d(y_g, ρ(x_{k+1}, 0)) − d(y_g, ρ(x_k, 0)))`` over demonstration windows
+    ``pos (B, W+1, n)``, ``quat (B, W+1, 4) | None``; samples resting on the goal give m."""
+    d = (net.encode(pos, quat) - net.goal_latent()).norm(dim=-1)  # (B, W+1)
+    return torch.relu(margin + d[:, 1:] - d[:, :-1]).mean()

@@ -81,6 +81,8 @@ class TrainConfig:
     squared_hinge: bool = False
     compat_weight: float = 0.1
     compat_eps: float = 0.01
+    path_weight: float = 0.0
+    sample_pad: float = 0.0
     boundary_weight: float = 0.0
     vel_weight: float = 0.1
     grad_clip: float = 1.0
@@ -142,10 +144,18 @@ def _padded(demos: Demonstrations, window: int, orientation: bool):
 def _random_starts(rng, ws: Workspace, spec: StateSpec, cfg: TrainConfig, vel_scale):
     """Stability starts: workspace samples; velocities zero for half, else within ±½ max speed.
 
+    With ``sample_pad`` > 0 the positions come from the box enlarged by that fraction of its size
+    on each side, so the field just outside the evaluated workspace is trained too (rollouts from
+    its corners otherwise leave it into untrained space and may run away).
+
     A fraction ``near_goal_fraction`` is shrunk towards the goal by a log-uniform factor in
     [1e-3, 1] (positions, rotation angles and velocities), so the goal's neighbourhood is trained.
     """
     b = cfg.stability_batch
+    if cfg.sample_pad > 0:
+        lo, hi = np.asarray(ws.low), np.asarray(ws.high)
+        pad = cfg.sample_pad * (hi - lo)
+        ws = Workspace(tuple(lo - pad), tuple(hi + pad), ws.max_angle)
     pos, quat = ws.sample(rng, b, spec.orientation)
     vel = None
     if spec.order == 2:
@@ -256,6 +266,10 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
         if cfg.persist > 0:
             chain = tuple(None if s is None else s.detach() for s in last)
         loss = l_il + cfg.stability_weight * l_st + cfg.boundary_weight * l_b
+        l_p = torch.zeros(())
+        if cfg.path_weight > 0:
+            l_p = losses.path_potential_loss(net, target[0], target[1], cfg.margin)
+            loss = loss + cfg.path_weight * l_p
         l_c = torch.zeros(())
         if cfg.compat_weight > 0:
             l_c = losses.compat_loss(net, pos0, quat0, cfg.compat_eps, cfg.margin)
@@ -268,7 +282,7 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
         sched.step()
         if it % cfg.log_every == 0 or it == cfg.iterations - 1:
             rec = {"it": it, "loss": loss.item(), "il": l_il.item(), "stable": l_st.item(),
-                   "compat": l_c.item(), "boundary": l_b.item()}
+                   "compat": l_c.item(), "path": l_p.item(), "boundary": l_b.item()}
             history.append(rec)
             if bar is not None:
                 bar.set_postfix(il=f"{rec['il']:.2e}", st=f"{rec['stable']:.2e}",
