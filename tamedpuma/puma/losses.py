@@ -10,11 +10,12 @@
   Euclidean; r = 0 is the original triplet loss, r > 0 asks for an exponential decrease.
 - ``ℓ_compat``: the potential ψ(x) = ‖ρ(x_g, 0) − ρ(x, 0)‖² must decrease along f(x, 0) at rest,
   i.e. ``−∂ψᵀ f(x, 0) > 0``; enforced as a hinge on a finite step of length ε along f(x, 0)/‖f‖.
-- ``ℓ_path``: ψ must also fall along the demonstrations themselves (consecutive samples x_k,
-  x_{k+1} of a window): ``mean max(0, m + d(y_g, ρ(x_{k+1}, 0)) − d(y_g, ρ(x_k, 0)))``.
-  Compatibility at rest says nothing about a moving state; this term makes the potential that CPM
-  dissipates fall along the demonstrated (and so PUMA's) paths, so ψ does not rise while CPM
-  follows them.
+- ``ℓ_path``: ψ must also fall along paths, not only at rest: over consecutive states x_k, x_{k+1}
+  of the demonstration windows and of the stability rollouts that started at rest (the model's
+  own paths from anywhere in the workspace), ``mean max(0, m + d(y_g, ρ(x_{k+1}, 0)) −
+  d(y_g, ρ(x_k, 0)))``, the states held fixed (only the potential is shaped). Compatibility at
+  rest says nothing about a moving state; this term makes the potential that CPM dissipates fall
+  along PUMA's paths, so ψ does not rise while CPM follows them.
 - ``ℓ_boundary``: squared distance of rollout positions outside the workspace box (normalised).
 """
 
@@ -48,22 +49,13 @@ def _hinge(x: torch.Tensor, squared: bool) -> torch.Tensor:
     return (h * h).mean() if squared else h.mean()
 
 
-def stability_loss(net: PumaNet, state0, dt: float, horizon: int, margin: float,
-                   squared: bool = False, low=None, high=None,
-                   rate: float = 0.0):
-    """Triplet loss over a rollout of ``horizon`` steps; also the boundary loss and last state.
+def stability_terms(net, states, dt, margin, squared=False, low=None, high=None, rate=0.0):
+    """The triplet hinge and boundary terms over a list of rollout states.
 
     ``max(0, m + d_{t+1} − (1 − r Δt) d_t)``: with ``rate`` r [1/s] > 0 the latent distance must
     also shrink by a fraction r Δt per step (exponential decrease), which keeps the hinge active
     near the goal where the absolute margin m alone is either trivial or unattainable.
     """
-    states = dynamics.rollout(net, state0, dt, horizon)
-    stable, boundary = stability_terms(net, states, dt, margin, squared, low, high, rate)
-    return stable, boundary, states[-1]
-
-
-def stability_terms(net, states, dt, margin, squared=False, low=None, high=None, rate=0.0):
-    """The triplet hinge and boundary terms over a list of rollout states."""
     pos, quat, vel = dynamics.stack(states)
     y = net.encode(pos, quat, vel)
     dist = (y - net.goal_latent()).norm(dim=-1)  # (B, T+1)
@@ -91,8 +83,15 @@ def compat_loss(net: PumaNet, pos, quat, eps: float, margin: float) -> torch.Ten
     return torch.relu(margin + d1 - d0).mean()
 
 
-def path_potential_loss(net: PumaNet, pos, quat, margin: float) -> torch.Tensor:
-    """Hinge ``max(0, m + d(y_g, ρ(x_{k+1}, 0)) − d(y_g, ρ(x_k, 0)))`` over demonstration windows
-    ``pos (B, W+1, n)``, ``quat (B, W+1, 4) | None``; samples resting on the goal give m."""
-    d = (net.encode(pos, quat) - net.goal_latent()).norm(dim=-1)  # (B, W+1)
+def path_potential_loss(net: PumaNet, pos, quat, margin: float, rows=None) -> torch.Tensor:
+    """Hinge ``max(0, m + d(y_g, ρ(x_{k+1}, 0)) − d(y_g, ρ(x_k, 0)))`` along paths
+    ``pos (B, T, n)``, ``quat (B, T, 4) | None`` (detached: only ρ is shaped); samples resting on
+    the goal give m. ``rows`` (B,) bool: only those paths count (none: zero)."""
+    pos = pos.detach()
+    quat = quat.detach() if quat is not None else None
+    if rows is not None:
+        if not bool(rows.any()):
+            return pos.new_zeros(())
+        pos, quat = pos[rows], (quat[rows] if quat is not None else None)
+    d = (net.encode(pos, quat) - net.goal_latent()).norm(dim=-1)  # (B, T)
     return torch.relu(margin + d[:, 1:] - d[:, :-1]).mean()

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from ..errors import ConfigError
-from . import losses, manifold
+from . import dynamics, losses, manifold
 from .data import Demonstrations
 from .network import NetConfig, PumaNet, StateSpec
 
@@ -221,7 +221,7 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
     high = torch.as_tensor(ws.high, dtype=torch.float32)
     dt = demos.dt
     history: list[dict] = []
-    chain = None
+    chain = chain_rest = None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -255,20 +255,27 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
         l_il = losses.imitation_loss(net, target, dt, cfg.vel_weight)
 
         pos0, quat0, vel0 = _random_starts(rng, ws, spec, cfg, net.vel_scale.numpy())
+        rest = (torch.all(vel0 == 0, dim=-1) if vel0 is not None
+                else torch.ones(len(pos0), dtype=torch.bool))  # rollouts that started at rest
         if chain is not None:  # continue earlier rollouts (long horizons at no extra cost)
             keep = _keep(rng, chain, cfg.persist, low, high)
             pos0 = torch.where(keep, chain[0], pos0)
             quat0 = torch.where(keep, chain[1], quat0) if quat0 is not None else None
             vel0 = torch.where(keep, chain[2], vel0) if vel0 is not None else None
-        l_st, l_b, last = losses.stability_loss(
-            net, (pos0, quat0, vel0), dt, cfg.stability_horizon, cfg.margin, cfg.squared_hinge,
+            rest = torch.where(keep[:, 0], chain_rest, rest)
+        states = dynamics.rollout(net, (pos0, quat0, vel0), dt, cfg.stability_horizon)
+        l_st, l_b = losses.stability_terms(
+            net, states, dt, cfg.margin, cfg.squared_hinge,
             low if cfg.boundary_weight > 0 else None, high, cfg.decay_rate)
         if cfg.persist > 0:
-            chain = tuple(None if s is None else s.detach() for s in last)
+            chain = tuple(None if s is None else s.detach() for s in states[-1])
+            chain_rest = rest
         loss = l_il + cfg.stability_weight * l_st + cfg.boundary_weight * l_b
         l_p = torch.zeros(())
         if cfg.path_weight > 0:
-            l_p = losses.path_potential_loss(net, target[0], target[1], cfg.margin)
+            own = dynamics.stack(states)
+            l_p = (losses.path_potential_loss(net, target[0], target[1], cfg.margin)
+                   + losses.path_potential_loss(net, own[0], own[1], cfg.margin, rest))
             loss = loss + cfg.path_weight * l_p
         l_c = torch.zeros(())
         if cfg.compat_weight > 0:
