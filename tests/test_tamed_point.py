@@ -122,3 +122,21 @@ def test_cpm_matched_damping_follows_puma_and_still_dissipates():
     assert all(r["beta"] >= 0.5 for r in rows)
     predicted = -np.sum(0.5 * (dissipation[1:] + dissipation[:-1])) * dt
     assert energy[-1] - energy[0] == pytest.approx(predicted, rel=0.05)
+
+
+@pytest.mark.parametrize("semi_implicit", [True, False])
+def test_cpm_stiff_damping_never_reverses_the_velocity(semi_implicit):
+    """β Δt = 4 (β = 200 /s at 50 Hz): the explicit step q̇ += Δt(… − β q̇) overshoots and flips
+    q̇ every step; the semi-implicit step (the default) only slows the arm down."""
+    kin = PointKinematics(SPEC)
+    puma = PumaController(PlanarTask(LinearTaskPrimitive(1.0, 2.0)), kin)
+    cpm = CpmController(puma, _fabric(), beta=200.0, semi_implicit=semi_implicit)
+    rows = _scalars(cpm, point_scenario(obstacles=False, max_steps=60, dt=0.02),
+                    PointMassWorld(SPEC))
+    qd = np.array([r["qd"] for r in rows])[1:]
+    reversals = int(np.sum(np.einsum("ij,ij->i", qd[1:], qd[:-1]) < 0))
+    psi = np.array([r["psi"] for r in rows])
+    if semi_implicit:
+        assert reversals == 0 and np.all(np.diff(psi) <= 1e-9 * psi[0]) and psi[-1] < psi[0]
+    else:
+        assert reversals > 10

@@ -20,6 +20,22 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 
+class _PsiSpy:
+    """Wraps a controller and keeps the ψ it logs at every step."""
+
+    def __init__(self, controller):
+        self.controller, self.psi = controller, []
+
+    def reset(self, scenario):
+        self.psi = []
+        self.controller.reset(scenario)
+
+    def step(self, obs):
+        command = self.controller.step(obs)
+        self.psi.append(command.scalars.get("psi", np.nan))
+        return command
+
+
 def _method_cfg(name, task):
     from tamedpuma.train import compose
 
@@ -43,11 +59,15 @@ def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, robot_
         pytest.skip(f"no trained model at runs/puma/{task}/puma.pt")
     paths = {}
     for name in ("puma", "fpm", "cpm"):
-        controller = make(name, _method_cfg(name, task), kinematics)
+        controller = _PsiSpy(make(name, _method_cfg(name, task), kinematics))
         with Simulator(robot_spec) as sim:
             free = run_episode(_scenario(robot_spec, task, False), controller, sim)
         paths[name] = free.ee_position
         assert free.metrics.success
+        if name == "cpm":  # without obstacles ψ never rises (float32 network: relative 1e-6)
+            psi = np.asarray(controller.psi)
+            assert np.all(np.isfinite(psi)) and psi[-1] < 0.01 * psi[0]
+            assert np.max(np.diff(psi)) <= 1e-6 * psi[0]
         if name == "puma":
             continue
         assert path_difference(free.ee_position, paths["puma"]) <= 0.02

@@ -20,6 +20,13 @@ arm brakes along q̇ otherwise. dH/dt = −β(q, q̇) q̇ᵀMq̇ ≤ −β q̇�
 argument; the speed along the path is then PUMA's own wherever the potential is strong enough
 (k_ψ large), so CPM follows PUMA's paths. ``damping: constant`` is the paper's literal β.
 
+Discretisation (``semi_implicit``, default): over one control period Δt the law is
+q̈ = a + c q̇ with a = h + f_θ^C and c = r − α − β ≤ 0 (the regulator, energization and damping
+all act along q̇); the velocity-proportional part is taken implicitly,
+q̇⁺ = (q̇ + Δt a)/(1 − Δt c), a first-order step like the explicit one but without its flip of q̇
+whenever |c| Δt > 2 (α ~ ‖a‖/‖q̇‖ is large at low speed; matched β reaches 100 /s), which made
+the arm chatter and moved it by numerical noise rather than by the law.
+
 ``variant: original`` reproduces the authors' public code instead, for comparison: no
 energization, β = 0, and the regulator scaled by 0.05: ``q̈ = h + f_θ^C − 0.05 (q̇q̇ᵀ/(q̇ᵀMq̇)) ∂ψ``
 (we keep ψ squared, at the current state, with the correct quaternion Jacobian: those were bugs).
@@ -51,7 +58,8 @@ class CpmController:
 
     def __init__(self, puma: PumaController, fabric: Fabric, beta: float, eps: float = 1e-6,
                  variant: str = "paper", regulator_scale: float = 1.0,
-                 potential_scale: float = 1.0, damping: str = "constant"):
+                 potential_scale: float = 1.0, damping: str = "constant",
+                 semi_implicit: bool = True):
         if variant not in VARIANTS:
             raise ConfigError(f"cpm variant must be one of {VARIANTS}, got {variant!r}")
         if variant == "paper" and not beta > 0:
@@ -66,9 +74,12 @@ class CpmController:
         if damping not in ("constant", "matched"):
             raise ConfigError(f"cpm damping must be 'constant' or 'matched', got {damping!r}")
         self.matched = damping == "matched"
+        self.semi_implicit = semi_implicit
+        self.dt = 0.02
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
+        self.dt = float(scenario.dt)
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
@@ -78,14 +89,20 @@ class CpmController:
         psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
         h_plus_f = av.acceleration() + qdd_c
         Mqd = av.M @ qd
-        regulator = -self.regulator_scale * qd * (qd @ dpsi) / (qd @ Mqd + self.eps)
+        r_coef = -self.regulator_scale * (qd @ dpsi) / (qd @ Mqd + self.eps)
+        regulator = r_coef * qd
         beta = self.beta
         if self.variant == "paper":
             alpha = av.alpha(qd, h_plus_f, self.eps)
             if self.matched:  # β = max(β_min, r − α): exactly h + f_C whenever that dissipates
-                r = -self.regulator_scale * (qd @ dpsi) / (qd @ Mqd + self.eps)
-                beta = max(self.beta, r - alpha)
-            qdd = h_plus_f - alpha * qd + regulator - beta * qd
+                beta = max(self.beta, r_coef - alpha)
+            c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇
+            if self.semi_implicit and c < 0.0:
+                # the velocity-proportional part taken implicitly over the control period:
+                # q̇⁺ = (q̇ + Δt (h + f)) / (1 − Δt c); it damps, never reverses q̇ when |c| Δt > 1
+                qdd = ((qd + self.dt * h_plus_f) / (1.0 - self.dt * c) - qd) / self.dt
+            else:
+                qdd = h_plus_f + c * qd
         else:  # the authors' code: no energization, no damping
             alpha = 0.0
             qdd = h_plus_f + regulator
@@ -105,4 +122,5 @@ def make(cfg: Mapping, kinematics) -> CpmController:
     return CpmController(puma, fabric, beta=float(cfg["beta"]), eps=float(cfg.get("eps", 1e-6)),
                          variant=variant, regulator_scale=float(cfg.get("regulator_scale", 1.0)),
                          potential_scale=float(cfg.get("potential_scale", 1.0)),
-                         damping=str(cfg.get("damping", "constant")))
+                         damping=str(cfg.get("damping", "constant")),
+                         semi_implicit=bool(cfg.get("semi_implicit", True)))
