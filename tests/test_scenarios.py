@@ -109,3 +109,26 @@ def test_all_table1_scenarios_load(robot_spec, task):
         cfg = load_group("scenario", f"{task}/{f.stem}")
         sc = scenario_from_config(cfg, robot_spec, task=task)
         assert 1 <= len(sc.obstacles) <= 2 and sc.name == f"{task}_{f.stem}"
+
+
+@pytest.mark.parametrize("task", ["tomato", "pouring"])
+def test_task_workspace_covers_every_scenario_start(robot_spec, kinematics, task):
+    """PUMA is trained (stability, compatibility) only inside the task's workspace; a start
+    outside it met an untrained, incompatible field (CPM stalled on tomato 12 and 13)."""
+    from tamedpuma.rotations import quat_to_matrix
+
+    ws = load_group("task", task)["workspace"]
+    low, high = np.array(ws["position_low"]), np.array(ws["position_high"])
+    names = ["default"] + [f"{task}/{i:02d}" for i in range(15)]
+    for name in names:
+        cfg = load_group("scenario", name)
+        if name == "default":
+            t = load_group("task", task)
+            cfg["goal"].update(position=t["goal_position"], quaternion=t["goal_quaternion"])
+        sc = scenario_from_config(cfg, robot_spec, task=task)
+        state = kinematics.evaluate(sc.q0, np.zeros(robot_spec.dof))
+        e = state.ee_position - sc.goal.position
+        assert np.all(e > low) and np.all(e < high), (name, e)
+        rel = quat_to_matrix(sc.goal.quaternion).T @ quat_to_matrix(state.ee_quaternion)
+        angle = np.arccos(np.clip((np.trace(rel) - 1.0) / 2.0, -1.0, 1.0))
+        assert angle < ws["max_angle"], (name, angle)
