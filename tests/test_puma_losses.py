@@ -54,7 +54,8 @@ def test_padded_stability_starts_leave_the_box_evenly():
     ws = training.Workspace((0.0, -1.0), (2.0, 1.0))
     cfg = training.TrainConfig(stability_batch=4000, sample_pad=0.1)
     spec = StateSpec(2, False, 2)
-    pos, _, _ = training._random_starts(np.random.default_rng(0), ws, spec, cfg, np.ones(2))
+    pos, _, _ = training._random_starts(np.random.default_rng(0), ws.padded(cfg.sample_pad), spec,
+                                        cfg, np.ones(2))
     pos = pos.numpy()
     assert np.all(pos >= [-0.2, -1.2]) and np.all(pos <= [2.2, 1.2])
     outside = np.any((pos < ws.low) | (pos > ws.high), axis=1).mean()

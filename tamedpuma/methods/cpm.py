@@ -23,9 +23,9 @@ argument; the speed along the path is then PUMA's own wherever the potential is 
 Discretisation (``semi_implicit``, default): over one control period Δt the law is
 q̈ = a + c q̇ with a = h + f_θ^C and c = r − α − β ≤ 0 (the regulator, energization and damping
 all act along q̇); the velocity-proportional part is taken implicitly,
-q̇⁺ = (q̇ + Δt a)/(1 − Δt c), a first-order step like the explicit one but without its flip of q̇
-whenever |c| Δt > 2 (α ~ ‖a‖/‖q̇‖ is large at low speed; matched β reaches 100 /s), which made
-the arm chatter and moved it by numerical noise rather than by the law.
+q̇⁺ = (q̇ + Δt a)/(1 − Δt c), a first-order step like the explicit one, which instead flips q̇
+whenever |c| Δt > 1 and amplifies it beyond 2 (α ~ ‖a‖/‖q̇‖ is large at low speed; matched β
+reaches 100 /s): the arm chattered and moved by numerical noise rather than by the law.
 
 ``variant: original`` reproduces the authors' public code instead, for comparison: no
 energization, β = 0, and the regulator scaled by 0.05: ``q̈ = h + f_θ^C − 0.05 (q̇q̇ᵀ/(q̇ᵀMq̇)) ∂ψ``
@@ -89,8 +89,7 @@ class CpmController:
         psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
         h_plus_f = av.acceleration() + qdd_c
         Mqd = av.M @ qd
-        r_coef = -self.regulator_scale * (qd @ dpsi) / (qd @ Mqd + self.eps)
-        regulator = r_coef * qd
+        r_coef = -self.regulator_scale * (qd @ dpsi) / (qd @ Mqd + self.eps)  # regulator: r q̇
         beta = self.beta
         if self.variant == "paper":
             alpha = av.alpha(qd, h_plus_f, self.eps)
@@ -99,13 +98,13 @@ class CpmController:
             c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇
             if self.semi_implicit and c < 0.0:
                 # the velocity-proportional part taken implicitly over the control period:
-                # q̇⁺ = (q̇ + Δt (h + f)) / (1 − Δt c); it damps, never reverses q̇ when |c| Δt > 1
+                # q̇⁺ = (q̇ + Δt (h + f)) / (1 − Δt c): it damps, never reverses q̇
                 qdd = ((qd + self.dt * h_plus_f) / (1.0 - self.dt * c) - qd) / self.dt
             else:
                 qdd = h_plus_f + c * qd
         else:  # the authors' code: no energization, no damping
             alpha = 0.0
-            qdd = h_plus_f + regulator
+            qdd = h_plus_f + r_coef * qd
         return Command(qdd=qdd, scalars={
             **fabric_scalars(av), "psi": psi, "psi_rate": float(dpsi @ qd),
             "dissipation": float(beta * (qd @ Mqd)),

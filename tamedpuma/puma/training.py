@@ -54,6 +54,12 @@ class Workspace:
         pad = margin * (hi - lo).max()
         return Workspace(tuple(lo - pad), tuple(hi + pad), 0.0)
 
+    def padded(self, fraction: float) -> Workspace:
+        """The box enlarged by ``fraction`` of its size on each side (same max_angle)."""
+        lo, hi = np.asarray(self.low), np.asarray(self.high)
+        pad = fraction * (hi - lo)
+        return Workspace(tuple(lo - pad), tuple(hi + pad), self.max_angle)
+
     def sample(self, rng: np.random.Generator, n: int, orientation: bool):
         """n positions (n, dim) and, with orientation, quaternions (n, 4)."""
         pos = rng.uniform(self.low, self.high, size=(n, len(self.low)))
@@ -142,20 +148,13 @@ def _padded(demos: Demonstrations, window: int, orientation: bool):
 
 
 def _random_starts(rng, ws: Workspace, spec: StateSpec, cfg: TrainConfig, vel_scale):
-    """Stability starts: workspace samples; velocities zero for half, else within ±½ max speed.
-
-    With ``sample_pad`` > 0 the positions come from the box enlarged by that fraction of its size
-    on each side, so the field just outside the evaluated workspace is trained too (rollouts from
-    its corners otherwise leave it into untrained space and may run away).
+    """Stability starts: samples of ``ws`` (the workspace, padded by ``sample_pad`` in ``train``);
+    velocities zero for half, else within ±½ max speed.
 
     A fraction ``near_goal_fraction`` is shrunk towards the goal by a log-uniform factor in
     [1e-3, 1] (positions, rotation angles and velocities), so the goal's neighbourhood is trained.
     """
     b = cfg.stability_batch
-    if cfg.sample_pad > 0:
-        lo, hi = np.asarray(ws.low), np.asarray(ws.high)
-        pad = cfg.sample_pad * (hi - lo)
-        ws = Workspace(tuple(lo - pad), tuple(hi + pad), ws.max_angle)
     pos, quat = ws.sample(rng, b, spec.orientation)
     vel = None
     if spec.order == 2:
@@ -220,6 +219,9 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
     low = torch.as_tensor(ws.low, dtype=torch.float32)
     high = torch.as_tensor(ws.high, dtype=torch.float32)
     dt = demos.dt
+    # stability starts also beyond the box (sample_pad): the field just outside the evaluated
+    # workspace is trained too, else rollouts from its edges leave it into untrained space
+    start_ws = ws.padded(cfg.sample_pad) if cfg.sample_pad > 0 else ws
     history: list[dict] = []
     chain = chain_rest = None
     bar = None
@@ -254,7 +256,7 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
         target = (P[di, ki], Q[di, ki] if Q is not None else None, V[di, ki])
         l_il = losses.imitation_loss(net, target, dt, cfg.vel_weight)
 
-        pos0, quat0, vel0 = _random_starts(rng, ws, spec, cfg, net.vel_scale.numpy())
+        pos0, quat0, vel0 = _random_starts(rng, start_ws, spec, cfg, net.vel_scale.numpy())
         rest = (torch.all(vel0 == 0, dim=-1) if vel0 is not None
                 else torch.ones(len(pos0), dtype=torch.bool))  # rollouts that started at rest
         if chain is not None:  # continue earlier rollouts (long horizons at no extra cost)
