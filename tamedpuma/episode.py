@@ -22,8 +22,8 @@ import numpy as np
 
 from tamedpuma.metrics import RunMetrics, orientation_error, run_metrics
 from tamedpuma.recording.records import Recorder, RunInfo, StepRecord
-from tamedpuma.sim import Simulator
 from tamedpuma.types import Controller, Scenario
+from tamedpuma.worlds.bullet import Simulator
 
 #: Clearance logged when the scene has no obstacle [m] (JSON has no infinity).
 NO_OBSTACLE_CLEARANCE = 1.0e3

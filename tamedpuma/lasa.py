@@ -1,36 +1,6 @@
-"""LASA benchmark: ``python -m tamedpuma.lasa [task.shapes=[Angle,GShape]] [overrides...]``.
+"""`python -m tamedpuma.lasa`: the entry point lives in :mod:`tamedpuma.app.lasa`."""
 
-Trains and evaluates a second-order 2-D PUMA on each LASA handwriting shape (all 30 by default)
-and writes the table of mean RMSE, DTW and Fréchet distances and non-converging grid rollouts to
-``benchmarks/lasa.md`` (and ``.json``); checkpoints go to ``runs/lasa/<shape>/``. Overrides are
-Hydra's, on top of ``conf/train.yaml`` with ``task=lasa puma=lasa``. Errors: one line, exit 2.
-"""
-
-from __future__ import annotations
-
-import sys
-
-from .errors import TamedPumaError
-from .train import _one_line, compose
-
-
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in ("-h", "--help"):
-        print(__doc__)
-        return 0
-    try:
-        cfg = compose("train", ["task=lasa", "puma=lasa", "out_dir=runs/lasa", "progress=false",
-                                *argv])
-        from .puma import lasa_benchmark
-
-        rows = lasa_benchmark.run(cfg, log=lambda m: print(m, file=sys.stderr))
-        print(lasa_benchmark.markdown(rows))
-        return 0
-    except TamedPumaError as exc:
-        print(f"error: {_one_line(exc)}", file=sys.stderr)
-        return 2
-
+from tamedpuma.app.lasa import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

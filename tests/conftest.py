@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from tamedpuma.config import load_group
-from tamedpuma.kinematics import Kinematics, robot_spec_from_config
+from tamedpuma.app.config import load_group
+from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 

@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.path_difference import path_difference, resample_by_arc_length
-from analysis.runs import load_runs
+from tamedpuma.analysis.path_difference import path_difference, resample_by_arc_length
+from tamedpuma.analysis.runs import load_runs
 
 REPO = Path(__file__).resolve().parents[1]
 

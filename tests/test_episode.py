@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from tamedpuma.config import load_group
+from tamedpuma.app.config import load_group
 from tamedpuma.episode import run_episode
 from tamedpuma.methods import make
 from tamedpuma.recording import McapRecorder, RerunRecorder, RunInfo, read_mcap, read_rrd_joints
-from tamedpuma.scenarios import scenario_from_config
-from tamedpuma.sim import Simulator
+from tamedpuma.worlds.bullet import Simulator
+from tamedpuma.worlds.scenarios import scenario_from_config
 
 
 def _scenario(robot_spec, **changes):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tamedpuma.bench_fabrics import (
+from tamedpuma.app.bench_fabrics import (
     markdown_section,
     random_obstacles,
     time_counts,

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tamedpuma.config import load_group
+from tamedpuma.app.config import load_group
 from tamedpuma.episode import run_episode
 from tamedpuma.methods import make
-from tamedpuma.scenarios import scenario_from_config
-from tamedpuma.sim import Simulator
+from tamedpuma.worlds.bullet import Simulator
+from tamedpuma.worlds.scenarios import scenario_from_config
 
 
 def _tomato_default(robot_spec):

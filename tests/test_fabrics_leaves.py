@@ -246,7 +246,7 @@ def test_an_extra_hand_sphere_is_only_config(robot_spec):
     """The real robot's hand sphere (diameter 0.14 m) is one more config entry: k = 6 spheres."""
     import dataclasses
 
-    from tamedpuma.kinematics import BodySphere, Kinematics
+    from tamedpuma.robot.kinematics import BodySphere, Kinematics
 
     spec = dataclasses.replace(robot_spec, spheres=robot_spec.spheres + (
         BodySphere("lbr_iiwa_link_7", 0.07, (0.0, 0.0, 0.1)),))

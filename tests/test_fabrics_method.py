@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 import pytest
 
-from tamedpuma.config import load_group
+from tamedpuma.app.config import load_group
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import FabricGains
 from tamedpuma.fabrics.gains import LIMIT_REFERENCE
@@ -51,7 +51,7 @@ def test_config_files_list_every_gain_at_its_default():
 
 
 def test_method_config_composes_the_default_fabric(kinematics):
-    from tamedpuma.train import compose
+    from tamedpuma.app.train import compose
 
     composed = compose("sweep", ["method=fabrics"])["method"]
     assert composed["name"] == "fabrics"

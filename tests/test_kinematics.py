@@ -6,7 +6,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from tamedpuma.ik import quat_to_matrix, rotation_error, solve_pose_ik
+from tamedpuma.robot.ik import quat_to_matrix, rotation_error, solve_pose_ik
 
 
 def _random_q(spec, rng, n):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tamedpuma.modulation import gamma, modulate, modulation, orthonormal_basis, weights
+from tamedpuma.methods._modulation import gamma, modulate, modulation, orthonormal_basis, weights
 
 RNG_SEEDS = range(200)
 

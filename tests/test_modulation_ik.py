@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from tamedpuma import ik_solvers
-from tamedpuma.config import load_group
+from tamedpuma.app.config import load_group
 from tamedpuma.errors import CheckpointError, ConfigError
-from tamedpuma.ik import quat_to_matrix
 from tamedpuma.ik_solvers import (
     IKProblem,
     IKResult,
@@ -22,6 +21,7 @@ from tamedpuma.ik_solvers import (
     violation,
 )
 from tamedpuma.methods.modulation_ik import LinearVelocityField, make
+from tamedpuma.robot.ik import quat_to_matrix
 from tamedpuma.types import Observation
 
 Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
@@ -221,7 +221,7 @@ def _obs(q, centers=(), velocities=None):
 
 
 def test_config_resolves_the_checkpoint_from_the_task():
-    from tamedpuma.train import compose
+    from tamedpuma.app.train import compose
 
     cfg = compose("sweep", ["method=modulation_ik", "task=pouring"])
     assert cfg["method"]["checkpoint"] == "runs/puma/pouring_position/puma.pt"
@@ -258,7 +258,7 @@ def test_bad_method_config_is_a_config_error(kinematics, changes, match):
 @pytest.fixture(scope="module")
 def tiny_position_checkpoint(tmp_path_factory):
     """A tiny first-order R³ PUMA trained in seconds (inaccurate; exercises loading)."""
-    from tamedpuma import train
+    from tamedpuma.app import train
 
     out = tmp_path_factory.mktemp("tiny_position")
     assert train.main(["task=tomato", "puma=tiny", "puma.orientation=false", "puma.order=1",
@@ -276,7 +276,7 @@ def test_a_trained_position_primitive_drives_the_controller(kinematics,
 
 
 def test_a_pose_checkpoint_is_refused(kinematics, tmp_path):
-    from tamedpuma import train
+    from tamedpuma.app import train
 
     out = tmp_path / "pose"
     assert train.main(["task=tomato", "puma=tiny", f"out_dir={out}", "progress=false",
@@ -356,7 +356,7 @@ def test_a_failed_solve_brakes(kinematics, monkeypatch, start_is_safe):
 # -- end to end ----------------------------------------------------------------------------
 
 def _default_scenario(robot_spec):
-    from tamedpuma.scenarios import scenario_from_config
+    from tamedpuma.worlds.scenarios import scenario_from_config
 
     cfg = load_group("scenario", "default")
     task = load_group("task", "tomato")
@@ -367,8 +367,8 @@ def _default_scenario(robot_spec):
 def test_episode_with_an_obstacle_moving_into_the_arm(robot_spec, kinematics):
     """An obstacle crossing the workspace toward the arm: no body sphere ever penetrates it."""
     from tamedpuma.episode import run_episode
-    from tamedpuma.sim import Simulator
     from tamedpuma.types import Obstacles
+    from tamedpuma.worlds.bullet import Simulator
 
     scenario = _default_scenario(robot_spec)
     p0 = kinematics.ee_pose(scenario.q0)[0]
@@ -384,8 +384,8 @@ def test_episode_with_an_obstacle_moving_into_the_arm(robot_spec, kinematics):
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_episode_reaches_the_tomato_goal_without_penetration(robot_spec, kinematics, backend):
     from tamedpuma.episode import run_episode
-    from tamedpuma.scenarios import scenario_from_config
-    from tamedpuma.sim import Simulator
+    from tamedpuma.worlds.bullet import Simulator
+    from tamedpuma.worlds.scenarios import scenario_from_config
 
     cfg = load_group("scenario", "default")
     task = load_group("task", "tomato")

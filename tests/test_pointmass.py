@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from tamedpuma.episode import run_episode
-from tamedpuma.pointmass import (
+from tamedpuma.types import Command
+from tamedpuma.worlds.pointmass import (
     POINT_GOAL,
     PointKinematics,
     PointMassWorld,
     point_scenario,
     point_spec,
 )
-from tamedpuma.types import Command
 
 
 class _Attractor:

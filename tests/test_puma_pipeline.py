@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tamedpuma import train
+from tamedpuma.app import train
 from tamedpuma.puma import checkpoint
 from tamedpuma.puma.primitive import PosePrimitive, VectorPrimitive, load_primitive
 

@@ -7,9 +7,9 @@ import logging
 import numpy as np
 import pytest
 
-from tamedpuma.config import load_group
+from tamedpuma.app.config import load_group
 from tamedpuma.errors import ScenarioError
-from tamedpuma.scenarios import clamp_start, scenario_from_config
+from tamedpuma.worlds.scenarios import clamp_start, scenario_from_config
 
 POURING_STARTS_PAST_LIMIT = [  # experiments.md: pouring #2, #3 (also #7, #8)
     [-0.06968, -2.0944, 1.25021, 1.91157, -0.902882, 0.387756, 1.26118],
@@ -72,7 +72,7 @@ def _run_cfg(**top):
 
 
 def test_clutter_is_seeded_and_keeps_clear_of_start_and_goal(robot_spec, kinematics):
-    from tamedpuma.scenarios import build_scenario
+    from tamedpuma.worlds.scenarios import build_scenario
 
     cfg = _run_cfg()
     cfg["clutter"]["count"] = 300
@@ -89,7 +89,7 @@ def test_clutter_is_seeded_and_keeps_clear_of_start_and_goal(robot_spec, kinemat
 
 
 def test_without_obstacles_and_task_mismatch(robot_spec, kinematics):
-    from tamedpuma.scenarios import build_scenario
+    from tamedpuma.worlds.scenarios import build_scenario
 
     assert len(build_scenario(_run_cfg(without_obstacles=True), robot_spec, kinematics)
                .obstacles) == 0
@@ -101,7 +101,7 @@ def test_without_obstacles_and_task_mismatch(robot_spec, kinematics):
 
 @pytest.mark.parametrize("task", ["tomato", "pouring"])
 def test_all_table1_scenarios_load(robot_spec, task):
-    from tamedpuma.config import CONF_DIR
+    from tamedpuma.app.config import CONF_DIR
 
     files = sorted((CONF_DIR / "scenario" / task).glob("*.yaml"))
     assert len(files) == 15
@@ -115,7 +115,7 @@ def test_all_table1_scenarios_load(robot_spec, task):
 def test_task_workspace_covers_every_scenario_start(robot_spec, kinematics, task):
     """PUMA is trained (stability, compatibility) only inside the task's workspace; a start
     outside it met an untrained, incompatible field (CPM stalled on tomato 12 and 13)."""
-    from tamedpuma.rotations import quat_to_matrix, rotation_error
+    from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 
     ws = load_group("task", task)["workspace"]
     low, high = np.array(ws["position_low"]), np.array(ws["position_high"])

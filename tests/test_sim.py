@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tamedpuma.sim import Simulator
 from tamedpuma.types import Goal, Obstacles, Scenario
+from tamedpuma.worlds.bullet import Simulator
 
 Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
 GOAL = Goal([0.58, -0.214, 0.115], [-0.5459, 0.5806, -0.4112, 0.4426])

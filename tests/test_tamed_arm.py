@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tamedpuma import train
-from tamedpuma.policy import PoseTask
+from tamedpuma.app import train
+from tamedpuma.methods._policy import PoseTask
 from tamedpuma.puma.primitive import load_primitive
 from tamedpuma.recording import read_mcap
 

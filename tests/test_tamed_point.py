@@ -6,19 +6,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.path_difference import path_difference
+from tamedpuma.analysis.path_difference import path_difference
 from tamedpuma.episode import run_episode
 from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.methods._policy import LinearTaskPrimitive, PlanarTask
 from tamedpuma.methods.cpm import CpmController
 from tamedpuma.methods.fpm import FpmController
 from tamedpuma.methods.puma import PumaController
-from tamedpuma.pointmass import (
+from tamedpuma.worlds.pointmass import (
     PointKinematics,
     PointMassWorld,
     point_scenario,
     point_spec,
 )
-from tamedpuma.policy import LinearTaskPrimitive, PlanarTask
 
 SPEC = point_spec(speed_limit=50.0)  # no velocity clipping: the theory's continuous system
 

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.path_difference import path_difference
-from tamedpuma.config import load_group
+from tamedpuma.analysis.path_difference import path_difference
+from tamedpuma.app.config import load_group
 from tamedpuma.episode import run_episode
 from tamedpuma.methods import make
-from tamedpuma.scenarios import scenario_from_config
-from tamedpuma.sim import Simulator
+from tamedpuma.worlds.bullet import Simulator
+from tamedpuma.worlds.scenarios import scenario_from_config
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -37,7 +37,7 @@ class _PsiSpy:
 
 
 def _method_cfg(name, task):
-    from tamedpuma.train import compose
+    from tamedpuma.app.train import compose
 
     cfg = compose("sweep", [f"method={name}", f"task={task}"])
     return cfg["method"]

@@ -38,7 +38,7 @@ from tamedpuma.fabrics.gains import FabricGains
 from tamedpuma.fabrics.leaves import goal_errors
 from tamedpuma.fabrics.spec import FabricError, Spec, solve_acceleration
 from tamedpuma.fabrics.speed import speed_terms
-from tamedpuma.rotations import quat_to_matrix
+from tamedpuma.robot.rotations import quat_to_matrix
 
 try:  # the LAPACK gesv gufunc behind np.linalg.solve, without its Python wrapper
     from numpy.linalg._umath_linalg import solve1 as _solve

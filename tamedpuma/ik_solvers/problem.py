@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tamedpuma.kinematics import Kinematics
+from tamedpuma.robot.kinematics import Kinematics
 
 
 def _frozen(value, shape, name) -> np.ndarray:

@@ -14,7 +14,7 @@ import pkgutil
 from collections.abc import Mapping
 
 from tamedpuma.errors import ConfigError
-from tamedpuma.kinematics import Kinematics
+from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.types import Controller
 
 

@@ -6,16 +6,16 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from tamedpuma.config import CONF_DIR
 from tamedpuma.errors import CheckpointError, ConfigError
-from tamedpuma.policy import NullSpaceObjective, PlanarTask, PoseTask
+from tamedpuma.methods._policy import NullSpaceObjective, PlanarTask, PoseTask
 
 
 def resolve_checkpoint(path: str) -> Path:
     """The checkpoint file: absolute, else relative to the working directory, else to the
     repository root. A missing file is a :class:`CheckpointError` saying how to make one."""
     p = Path(path)
-    candidates = [p] if p.is_absolute() else [Path.cwd() / p, CONF_DIR.parent / p]
+    repo = Path(__file__).resolve().parents[2]
+    candidates = [p] if p.is_absolute() else [Path.cwd() / p, repo / p]
     for c in candidates:
         if c.is_file():
             return c

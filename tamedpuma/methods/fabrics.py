@@ -32,7 +32,7 @@ _KEYS = {"name", "fabric", "defaults"}  # defaults: Hydra's list, when loaded wi
 class FabricsController:
     """The vanilla Fabrics method on one robot (see the module docstring).
 
-    gains: :class:`FabricGains`; kinematics: a :class:`~tamedpuma.kinematics.Kinematics` whose
+    gains: :class:`FabricGains`; kinematics: a :class:`~tamedpuma.robot.kinematics.Kinematics` whose
     ``spec`` supplies the joint limits; its body spheres are the avoidance spheres.
     """
 

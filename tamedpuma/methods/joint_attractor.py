@@ -15,8 +15,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from tamedpuma.ik import solve_pose_ik
-from tamedpuma.kinematics import Kinematics
+from tamedpuma.robot.ik import solve_pose_ik
+from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.types import Command, Observation, Scenario
 
 log = logging.getLogger(__name__)

@@ -6,7 +6,8 @@ Each control step (period Δt [s]), everything in the robot base (= world) frame
 1. nominal velocity of the first-order position primitive at the end-effector position p [m]:
    ``v = f(p − p_g) + ṗ_g`` [m/s] (the goal velocity is fed forward, so a moving goal is a moving
    frame), its norm clipped to ``max_speed``;
-2. modulation around the obstacles (Khansari-Zadeh and Billard 2012, :mod:`tamedpuma.modulation`)
+2. modulation around the obstacles (Khansari-Zadeh and Billard 2012,
+   :mod:`tamedpuma.methods._modulation`)
    with the obstacles inflated by ``safety_radius``: ``v_mod = M(p)(v − ȯ) + ȯ``;
 3. targets: ``p* = p + v_mod Δt``; orientation by a separate first-order attractor toward the goal
    orientation, ``R* = exp(k_R Δt [log(R_g Rᵀ)]) R`` (``orientation_gain`` k_R [1/s]), tracked by
@@ -50,9 +51,9 @@ import numpy as np
 
 from tamedpuma.errors import CheckpointError, ConfigError
 from tamedpuma.ik_solvers import BACKENDS, IKProblem, solve_ik, warm_up
-from tamedpuma.kinematics import Kinematics
-from tamedpuma.modulation import modulate
-from tamedpuma.rotations import quat_to_matrix, rotation_error
+from tamedpuma.methods._modulation import modulate
+from tamedpuma.robot.kinematics import Kinematics
+from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 from tamedpuma.types import Command, Observation, Scenario
 
 log = logging.getLogger(__name__)

@@ -14,13 +14,13 @@ from collections.abc import Mapping
 import numpy as np
 
 from tamedpuma.methods._learned import load_task, null_objective
-from tamedpuma.policy import NullSpaceObjective, pull_to_joints
+from tamedpuma.methods._policy import NullSpaceObjective, pull_to_joints
 from tamedpuma.types import Command, Observation, Scenario
 
 
 class PumaController:
-    """PUMA pulled to joint space. task: a :class:`~tamedpuma.policy.PoseTask` or
-    :class:`~tamedpuma.policy.PlanarTask`; damping: λ of the pseudo-inverse."""
+    """PUMA pulled to joint space. task: a :class:`~tamedpuma.methods._policy.PoseTask` or
+    :class:`~tamedpuma.methods._policy.PlanarTask`; damping: λ of the pseudo-inverse."""
 
     def __init__(self, task, kinematics, damping: float = 0.01,
                  null_space: NullSpaceObjective | None = None):

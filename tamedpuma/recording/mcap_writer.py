@@ -13,7 +13,7 @@ topic            schema                   content per step
 /scalars         JSON schema              {"step", "t", <every scalar>}
 ===============  =======================  ===================================================
 
-Metadata records: ``tamedpuma.run_info`` (the :class:`RunInfo` fields), ``tamedpuma.config``
+Metadata records: ``tamedpuma.run_info`` (the :class:`RunInfo` fields), ``tamedpuma.app.config``
 (``yaml``), and on close ``tamedpuma.summary`` (``complete``: "true"/"false", ``summary_json``).
 Attachments: ``config.yaml`` and the URDF (``model.urdf``).
 
@@ -61,7 +61,7 @@ from .records import RunInfo, StepRecord
 WORLD_FRAME = "world"
 ACTIVE_SUFFIX = ".active"
 META_RUN_INFO = "tamedpuma.run_info"
-META_CONFIG = "tamedpuma.config"
+META_CONFIG = "tamedpuma.app.config"
 META_SUMMARY = "tamedpuma.summary"
 ATTACH_CONFIG = "config.yaml"
 ATTACH_URDF = "model.urdf"

@@ -12,7 +12,7 @@ from omegaconf import OmegaConf
 
 from tamedpuma.errors import ConfigError
 
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+CONF_DIR = Path(__file__).resolve().parent.parent / "conf"  # tamedpuma/conf (package data)
 
 
 def load_group(group: str, name: str) -> dict:
@@ -25,7 +25,7 @@ def load_group(group: str, name: str) -> dict:
 
 
 def default_kinematics():
-    """A :class:`~tamedpuma.kinematics.Kinematics` of the default robot (``conf/robot/iiwa14``)."""
-    from tamedpuma.kinematics import Kinematics, robot_spec_from_config
+    """A :class:`~tamedpuma.robot.kinematics.Kinematics` of the default robot (iiwa14)."""
+    from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
 
     return Kinematics(robot_spec_from_config(load_group("robot", "iiwa14")))

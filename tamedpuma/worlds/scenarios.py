@@ -20,7 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from tamedpuma.errors import ScenarioError
-from tamedpuma.kinematics import RobotSpec
+from tamedpuma.robot.kinematics import RobotSpec
 from tamedpuma.types import Goal, Obstacles, Scenario
 
 log = logging.getLogger(__name__)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as pb
 
-from tamedpuma.kinematics import RobotSpec
+from tamedpuma.robot.kinematics import RobotSpec
 from tamedpuma.types import Contacts, Observation, Scenario
 
 

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tamedpuma.kinematics import Kinematics
-from tamedpuma.rotations import quat_to_matrix, rotation_error
+from tamedpuma.robot.kinematics import Kinematics
+from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 
 
 @dataclass(frozen=True)

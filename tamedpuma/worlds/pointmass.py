@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from tamedpuma.kinematics import KinematicState, RobotSpec
+from tamedpuma.robot.kinematics import KinematicState, RobotSpec
 from tamedpuma.types import Contacts, Goal, Observation, Obstacles, Scenario
 
 POINT_START = (0.0, 0.0)
@@ -29,7 +29,7 @@ def point_spec(radius: float = POINT_RADIUS, speed_limit: float = 2.0,
                bound: float = 100.0) -> RobotSpec:
     """The point robot as a :class:`RobotSpec`: 2 "joints" x, y [m] within ±bound, speed limit
     [m/s] per axis, one body sphere of ``radius`` [m]."""
-    from tamedpuma.kinematics import BodySphere
+    from tamedpuma.robot.kinematics import BodySphere
 
     return RobotSpec(urdf_path="", joint_names=("x", "y"), link_names=("point",),
                      ee_link="point", q_min=np.full(2, -bound), q_max=np.full(2, bound),
@@ -50,7 +50,7 @@ def point_scenario(obstacles: bool = True, max_steps: int = 1500, dt: float = 0.
 
 class PointKinematics:
     """Identity kinematics of the point robot, with the interface of
-    :class:`tamedpuma.kinematics.Kinematics` (``spec``, ``evaluate``, ``ee_pose``, ...)."""
+    :class:`tamedpuma.robot.kinematics.Kinematics` (``spec``, ``evaluate``, ``ee_pose``, ...)."""
 
     def __init__(self, spec: RobotSpec):
         self.spec = spec
@@ -79,7 +79,7 @@ class PointKinematics:
 
 
 class PointMassWorld:
-    """The 2-D world, with the interface of :class:`tamedpuma.sim.Simulator` (episode loop)."""
+    """The 2-D world, with the interface of :class:`tamedpuma.worlds.bullet.Simulator`."""
 
     def __init__(self, spec: RobotSpec | None = None):
         self.spec = spec or point_spec()

@@ -11,7 +11,7 @@ import sys
 import uuid
 from pathlib import Path
 
-from tamedpuma.config import CONF_DIR
+from tamedpuma.app.config import CONF_DIR
 
 
 def fail(message: str, status: int = 2) -> None:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tamedpuma.kinematics import KinematicState
+from tamedpuma.robot.kinematics import KinematicState
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,142 @@
+"""``python -m tamedpuma.sweep [overrides]``: run configured episodes into ``runs/``.
+
+One episode by default (``conf/sweep.yaml``); Hydra's multirun sweeps the groups, e.g.::
+
+    python -m tamedpuma.sweep -m method=joint_attractor,fabrics task=tomato,pouring
+
+Each run folder holds ``episode.mcap`` (Foxglove), ``episode.rrd`` (Rerun), ``summary.json`` and
+Hydra's ``.hydra/`` (the resolved config and the overrides). The entry point is the only place
+that imports Hydra; a user mistake (unknown option, malformed override, bad scenario, unwritable
+output folder) prints one line ``error: ...`` on stderr and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+from tamedpuma.app.cli import fail, precheck_overrides
+from tamedpuma.app.config import CONF_DIR
+from tamedpuma.errors import ConfigError, TamedPumaError
+
+log = logging.getLogger("tamedpuma.sweep")
+
+
+def _recorders(cfg: DictConfig, run_dir: Path):
+    from tamedpuma.recording.mcap_writer import McapRecorder
+    from tamedpuma.recording.rerun_writer import RerunRecorder
+
+    recorders, files = [], {}
+    if cfg.recorder.mcap:
+        files["mcap"] = run_dir / "episode.mcap"
+        recorders.append(McapRecorder(files["mcap"], flush_every=int(cfg.recorder.flush_every)))
+    if cfg.recorder.rerun:
+        files["rrd"] = run_dir / "episode.rrd"
+        recorders.append(RerunRecorder(files["rrd"]))
+    return recorders, files
+
+
+@dataclass(frozen=True)
+class Built:
+    """Everything one episode needs, built from the config before anything runs."""
+
+    spec: object
+    scenario: object
+    controller: object
+    sim_config: object
+
+
+def build(cfg: DictConfig) -> Built:
+    """Config -> robot, scenario, controller, simulator settings. Any invalid value (wrong type,
+    missing key, bad number) becomes a :class:`ConfigError` with a one-line message."""
+    from tamedpuma import methods
+    from tamedpuma.app.schema import validate
+    from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
+    from tamedpuma.worlds.bullet import SimConfig
+    from tamedpuma.worlds.scenarios import build_scenario
+
+    validate(cfg)
+    try:
+        plain = OmegaConf.to_container(cfg, resolve=True)
+        spec = robot_spec_from_config(plain["robot"])
+        kinematics = Kinematics(spec)
+        scenario = build_scenario(plain, spec, kinematics)
+        controller = methods.make(cfg.method.name, plain["method"], kinematics)
+        sim_config = SimConfig(**plain["sim"])
+    except TamedPumaError:
+        raise
+    except (ValueError, TypeError, KeyError) as exc:
+        raise ConfigError(f"invalid configuration: {type(exc).__name__}: {exc}") from exc
+    return Built(spec, scenario, controller, sim_config)
+
+
+def run_one(cfg: DictConfig, run_dir: Path) -> dict:
+    """Config -> scenario -> controller -> simulator -> recorders -> files. Returns the summary."""
+    from tamedpuma.episode import run_episode
+    from tamedpuma.recording.records import RunInfo
+    from tamedpuma.worlds.bullet import Simulator
+
+    built = build(cfg)
+    spec, scenario = built.spec, built.scenario
+    recorders, files = _recorders(cfg, run_dir)
+    info = RunInfo(run_id=run_dir.name, method=cfg.method.name, task=cfg.task.name,
+                   scenario_name=scenario.name, seed=int(cfg.seed),
+                   config_yaml=OmegaConf.to_yaml(cfg, resolve=True), urdf_path=spec.urdf_path,
+                   joint_names=spec.joint_names, link_names=spec.link_names,
+                   body_sphere_radii=spec.sphere_radii, dt=scenario.dt)
+    with Simulator(spec, built.sim_config) as sim:
+        result = run_episode(scenario, built.controller, sim, recorders, info,
+                             stop_on_success=bool(cfg.stop_on_success))
+    summary = {"run_dir": str(run_dir), "method": cfg.method.name, "task": cfg.task.name,
+               "scenario": scenario.name, "seed": int(cfg.seed),
+               "stop_reason": result.stop_reason, **result.metrics.as_dict(),
+               "files": {k: str(v) for k, v in files.items()}}
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def _report(summary: dict) -> None:
+    m = summary
+    outcome = "success" if m["success"] else "no success"
+    print(f"{m['method']} on {m['task']}/{m['scenario']}: {outcome} after {m['steps']} steps "
+          f"({m['duration_s']:.2f} s), final position error {m['final_position_error_m']:.4f} m, "
+          f"min clearance {m['min_clearance_m']:.3f} m, "
+          f"controller {m['compute_ms_median']:.3f} ms (median)")
+    print(f"run folder: {m['run_dir']}")
+    for kind, path in m["files"].items():
+        print(f"  {kind}: {path}")
+    print(f"  summary: {Path(m['run_dir']) / 'summary.json'}")
+    if "rrd" in m["files"]:
+        print(f"replay: rerun {m['files']['rrd']}")
+
+
+@hydra.main(config_path=str(CONF_DIR), config_name="sweep", version_base="1.3")
+def _hydra_main(cfg: DictConfig) -> None:
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    try:
+        summary = run_one(cfg, run_dir)
+    except TamedPumaError as exc:
+        fail(str(exc))
+    _report(summary)
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    # a killed run (SIGTERM) unwinds normally, so recorders close their files as incomplete
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    error = precheck_overrides("sweep", argv)
+    if error:
+        fail(error)
+    _hydra_main()
+
+
+if __name__ == "__main__":
+    main()

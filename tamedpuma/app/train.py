@@ -1,0 +1,109 @@
+"""Train a PUMA primitive: ``python -m tamedpuma.train task=tomato [overrides...]``.
+
+Composes ``conf/train.yaml`` with Hydra overrides (``task=pouring``, ``puma=tiny``,
+``task.demos=../shared/data/pumafabrics-demos/pick_tomato_31may``, ``seed=1``, ``out_dir=...``),
+trains with a progress bar, writes ``<out_dir>/puma.pt`` and ``<out_dir>/report.json`` and prints
+a summary. ``python -m tamedpuma.train --evaluate runs/puma/tomato/puma.pt`` re-evaluates a
+checkpoint on demand. User errors print one line ``error: ...`` on stderr and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from tamedpuma.app.config import CONF_DIR
+from tamedpuma.errors import ConfigError, TamedPumaError
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def compose(config_name: str, overrides: list[str]) -> dict:
+    """Hydra compose of ``conf/<config_name>.yaml`` → plain dict; Hydra errors → ConfigError."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    if not CONF_DIR.is_dir():
+        raise ConfigError(f"config folder not found: {CONF_DIR}")
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            cfg = hydra_compose(config_name=config_name, overrides=overrides)
+            return OmegaConf.to_container(cfg, resolve=True)
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise ConfigError(_one_line(exc)) from None
+    finally:
+        GlobalHydra.instance().clear()
+
+
+def _summary(report: dict) -> str:
+    ev = report.get("evaluation", {})
+    im, cv, cp = ev.get("imitation", {}), ev.get("convergence", {}), ev.get("compatibility", {})
+    lines = [f"trained in {report.get('train_seconds')} s ({report.get('iterations')} iterations)"]
+    if ev:
+        lines.append(f"imitation: DTW/point {im.get('dtw'):.4g}, RMSE {im.get('rmse'):.4g}, "
+                     f"Frechet {im.get('frechet'):.4g}"
+                     + (f", DTW angle {im['dtw_angle']:.4g} rad" if "dtw_angle" in im else ""))
+        lines.append(f"convergence: {100 * cv.get('converged_fraction', 0):.1f}% of "
+                     f"{cv.get('starts')} random starts (max final error "
+                     f"{cv.get('final_pos_error_max'):.3g}, angle "
+                     f"{cv.get('final_angle_error_max'):.3g} rad)")
+        lines.append(f"psi-compatible: {100 * cp.get('compatible_fraction', 0):.1f}% of "
+                     f"{cp.get('samples')} states; inference {report.get('inference')}")
+    lines.append(f"checkpoint: {report.get('checkpoint')}")
+    return "\n".join(lines)
+
+
+def evaluate_checkpoint(path: str, overrides: list[str]) -> dict:
+    """Re-evaluate a saved checkpoint with its own data config (``--evaluate PATH``)."""
+    from tamedpuma.puma import checkpoint, evaluation, pipeline
+
+    net, meta = checkpoint.load(pipeline.resolve_path(path))
+    cfg = meta.config
+    if overrides:
+        raise ConfigError("--evaluate takes no overrides")
+    demos = pipeline.load_demos(cfg["task"], cfg["puma"])
+    if demos.data_hash != meta.data_hash:
+        raise ConfigError(f"the configured demonstrations ({demos.source}) differ from the "
+                          "checkpoint's training data (hash mismatch)")
+    eval_kw = dict(cfg["puma"].get("eval", {}))
+    stored = (meta.report.get("evaluation") or {}).get("convergence") or {}
+    eval_kw.update({k: stored[k] for k in ("pos_tol", "ang_tol") if k in stored})
+    eval_cfg = evaluation.EvalConfig(**eval_kw)
+    report = {"checkpoint": path, "evaluation": evaluation.evaluate(net, demos, meta.workspace,
+                                                                    eval_cfg)}
+    return report
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in ("-h", "--help"):
+        print(__doc__)
+        return 0
+    try:
+        if argv and argv[0] == "--evaluate":
+            if len(argv) < 2:
+                raise ConfigError("--evaluate needs a checkpoint path")
+            report = evaluate_checkpoint(argv[1], argv[2:])
+            print(json.dumps(report, indent=2))
+            return 0
+        cfg = compose("train", argv)
+        cfg["command"] = " ".join(["python -m tamedpuma.train", *argv])
+        from tamedpuma.puma import pipeline
+
+        report = pipeline.run(cfg, log=lambda m: print(m, file=sys.stderr))
+        print(_summary(report))
+        return 0
+    except TamedPumaError as exc:
+        print(f"error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
