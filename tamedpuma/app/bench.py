@@ -1,0 +1,305 @@
+"""``python -m tamedpuma.bench``: the project's benchmarks in one command, written to files.
+
+Sections (each regenerated, never typed in):
+
+1. **Controller step** of every method at 2, 10, 100 and 1000 obstacles: the wall time of one
+   whole ``controller.step(obs)`` (kinematics, network, fabric, regulator, pullback, solve) on
+   fixed states near the default tomato start, obstacles seeded and kept clear of the arm
+   (``bench_fabrics.random_obstacles``). Each method is built exactly as ``tamedpuma.sweep``
+   builds it (same config, same model lookup). Median, p10, p90 [ms]; the first call at each
+   count is reported apart (it allocates that count's buffers), warm-up calls are not timed.
+2. **Episode speed**: one FPM episode of the default scenario run through the sweep's own
+   ``run_one`` with each recorder setting (none, MCAP, Rerun, both): simulated seconds per wall
+   second, and each recorder's overhead against ``recorder=none``.
+3. **PUMA training** and the **Table-1 sweep**: measured only on request (``--training``,
+   ``--table1``: minutes each); otherwise the last dated figures found in ``benchmarks/`` are
+   cited as such.
+
+    python -m tamedpuma.bench                       # sections 1-2, writes the files below
+    python -m tamedpuma.bench --methods fpm cpm --counts 2 1000 --no-write
+
+Writes ``benchmarks/bench.json`` (every figure, machine, load average at start and end) and the
+"## Controller step" section of ``BENCHMARKS.md`` (other sections are kept).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tamedpuma.app.bench_fabrics import ROOT, machine_info, random_obstacles
+
+COUNTS = (2, 10, 100, 1000)
+METHODS = ("puma", "fabrics", "fpm", "cpm", "modulation_ik")
+SECTION = "Controller step"
+#: Issue 16's targets: median [ms] per (method, obstacle count).
+TARGET_MS = {("fpm", 2): 0.2, ("cpm", 2): 0.3, ("fpm", 1000): 0.6, ("cpm", 1000): 0.8,
+             ("fabrics", 2): 0.05, ("fabrics", 1000): 0.2, ("modulation_ik", 2): 1.0}
+#: The paper's laptop figures [ms] (i7-12700H): Table 1 (2 obstacles) and the 1000-obstacle claim.
+PAPER_MS = {("puma", 2): 4.41, ("modulation_ik", 2): 7.08, ("fabrics", 2): 0.39,
+            ("fpm", 2): 5.22, ("cpm", 2): 6.55, ("fpm", 1000): 5.9, ("cpm", 1000): 7.0,
+            ("modulation_ik", 1000): 3.5e3}
+
+
+def compose(overrides: list[str]):
+    """The sweep's config with ``overrides`` (Hydra's compose API; entry points only)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from tamedpuma.app.config import CONF_DIR
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        return hydra_compose("sweep", overrides=overrides, return_hydra_config=False)
+
+
+def _observation(scenario, q, qd, obstacles, t=0.0, step=0):
+    from tamedpuma.types import Observation
+
+    goal = scenario.goal
+    return Observation(t=t, step=step, q=q, qd=qd, obstacle_centers=obstacles.centers,
+                       obstacle_radii=obstacles.radii,
+                       obstacle_velocities=obstacles.velocities,
+                       goal_position=goal.position, goal_quaternion=goal.quaternion,
+                       goal_velocity=goal.velocity)
+
+
+def time_controller(method: str, counts, calls: int, budget_s: float, overrides=(),
+                    seed: int = 0) -> list[dict]:
+    """Per obstacle count: timing of ``controller.step`` of ``method`` built as the sweep does.
+
+    A cell stops after ``calls`` timed calls or ``budget_s`` seconds, whichever comes first
+    (Modulation-IK at 1000 obstacles takes seconds per call). States: the scenario's start
+    plus small seeded perturbations (16 states, cycled), zero goal velocity.
+    """
+    from tamedpuma.app.sweep import build
+    from tamedpuma.types import Obstacles
+
+    built = build(compose([f"method={method}", "recorder=none", *overrides]))
+    kin_spec, scenario, controller = built.spec, built.scenario, built.controller
+    rng = np.random.default_rng(seed)
+    q0 = np.asarray(scenario.q0, dtype=float)
+    states = [(np.clip(q0 + rng.normal(scale=0.05, size=q0.size), kin_spec.q_min,
+                       kin_spec.q_max), rng.normal(scale=0.2, size=q0.size)) for _ in range(16)]
+    from tamedpuma.robot.kinematics import Kinematics
+
+    centers0 = Kinematics(kin_spec).evaluate(q0, np.zeros(q0.size)).sphere_centers
+    rows = []
+    for n in counts:
+        centers, radii, vel = random_obstacles(rng, n, centers0, kin_spec.sphere_radii, 0.15)
+        obstacles = Obstacles(centers=centers, radii=radii, velocities=vel)
+        controller.reset(dataclasses.replace(scenario, obstacles=obstacles))
+        observations = [_observation(scenario, q, qd, obstacles) for q, qd in states]
+        t0 = time.perf_counter()
+        controller.step(observations[0])
+        first_ms = (time.perf_counter() - t0) * 1e3
+        warm_end = time.perf_counter() + min(1.0, budget_s / 10)
+        for i in range(min(50, calls)):
+            if time.perf_counter() > warm_end:
+                break
+            controller.step(observations[i % len(observations)])
+        out, stop = [], time.perf_counter() + budget_s
+        for i in range(calls):
+            obs = observations[i % len(observations)]
+            t0 = time.perf_counter()
+            controller.step(obs)
+            out.append(time.perf_counter() - t0)
+            if time.perf_counter() > stop and len(out) >= 5:
+                break
+        ms = np.array(out) * 1e3
+        rows.append({"method": method, "n_obstacles": n,
+                     "median_ms": round(float(np.median(ms)), 5),
+                     "p10_ms": round(float(np.percentile(ms, 10)), 5),
+                     "p90_ms": round(float(np.percentile(ms, 90)), 5),
+                     "mean_ms": round(float(ms.mean()), 5), "n_calls": int(ms.size),
+                     "first_call_ms": round(first_ms, 5)})
+    return rows
+
+
+#: Recorder settings timed, as sweep overrides.
+RECORDERS = {"none": ["recorder=none"], "mcap": ["recorder=mcap"],
+             "rerun": ["recorder=none", "recorder.rerun=true"], "mcap+rerun": ["recorder=default"]}
+
+
+def time_episodes(method: str = "fpm", repeats: int = 3, overrides=()) -> list[dict]:
+    """Wall time of one default-scenario episode per recorder setting (median of ``repeats``).
+
+    Runs through ``tamedpuma.app.sweep.run_one`` into a temporary folder, so the figure is what
+    a user's ``python -m tamedpuma.sweep method=... recorder=...`` costs after start-up.
+    """
+    from tamedpuma.app.sweep import run_one
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for recorder, recorder_overrides in RECORDERS.items():
+            cfg = compose([f"method={method}", *recorder_overrides, *overrides])
+            walls, summary = [], None
+            for r in range(repeats):
+                run_dir = Path(tmp) / f"{recorder}_{r}"
+                run_dir.mkdir()
+                t0 = time.perf_counter()
+                summary = run_one(cfg, run_dir)
+                walls.append(time.perf_counter() - t0)
+            wall = float(np.median(walls))
+            sim_s = float(summary["duration_s"])
+            rows.append({"method": method, "recorder": recorder, "steps": summary["steps"],
+                         "sim_s": round(sim_s, 3), "wall_s": round(wall, 4),
+                         "realtime_factor": round(sim_s / wall, 1), "repeats": repeats})
+    base = next(r["wall_s"] for r in rows if r["recorder"] == "none")
+    for r in rows:
+        r["overhead_vs_none"] = round(r["wall_s"] / base - 1.0, 4)
+    return rows
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split("Config search path")[0].split()) or type(exc).__name__
+
+
+def _timed_command(argv: list[str]) -> dict:
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, *argv], capture_output=True, text=True)
+    return {"command": "python " + " ".join(argv), "wall_s": round(time.perf_counter() - t0, 1),
+            "returncode": proc.returncode}
+
+
+def cited(root: Path) -> dict:
+    """Dated figures already in ``benchmarks/`` (training reports), cited, not re-measured."""
+    out = {}
+    for task in ("tomato", "pouring"):
+        path = root / "benchmarks" / f"puma_{task}.json"
+        if path.is_file():
+            data = json.loads(path.read_text())
+            out[f"training_{task}"] = {
+                "source": str(path.relative_to(root)),
+                "wall_s": data.get("pipeline_seconds"),
+                "date": time.strftime("%Y-%m-%d", time.gmtime(path.stat().st_mtime)),
+            }
+    return out
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.3f}" if x < 10 else f"{x:.0f}"
+
+
+def markdown_section(report: dict) -> str:
+    """The "## Controller step" section of BENCHMARKS.md, from ``report`` alone."""
+    m = report["machine"]
+    lines = [f"## {SECTION}", "",
+             "Regenerated by `python -m tamedpuma.bench` (figures: `benchmarks/bench.json`, "
+             f"{report['date']}). One whole `controller.step` (kinematics, network, fabric, "
+             "regulator, pullback, solve) on fixed states near the default tomato start, each "
+             "method built as the sweep builds it (models: "
+             f"{report.get('models', 'the sweep defaults')}); obstacles seeded, clear of the arm.",
+             "",
+             "| method | obstacles | median [ms] | p10 [ms] | p90 [ms] | calls | first call [ms] "
+             "| target [ms] | paper [ms] |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for row in report["controller"]:
+        key = (row["method"], row["n_obstacles"])
+        target, paper = TARGET_MS.get(key), PAPER_MS.get(key)
+        lines.append(
+            f"| {row['method']} | {row['n_obstacles']} | {_fmt(row['median_ms'])} | "
+            f"{_fmt(row['p10_ms'])} | {_fmt(row['p90_ms'])} | {row['n_calls']} | "
+            f"{_fmt(row['first_call_ms'])} | {f'≤ {target}' if target else '—'} | "
+            f"{paper if paper else '—'} |")
+    for row in report.get("errors", []):
+        lines.append(f"| {row['method']} | — | not measured: {row['error']} | | | | | | |")
+    if report.get("episodes"):
+        lines += ["", "Episode speed (default tomato scenario, "
+                  f"{report['episodes'][0]['method']}, median of "
+                  f"{report['episodes'][0]['repeats']} runs, through the sweep's `run_one`; "
+                  "target: recorders ≤ 10% overhead, FPM ≥ 50× real time):", "",
+                  "| recorder | steps | simulated [s] | wall [s] | × real time "
+                  "| overhead vs none |",
+                  "|---|---:|---:|---:|---:|---:|"]
+        for r in report["episodes"]:
+            lines.append(f"| {r['recorder']} | {r['steps']} | {r['sim_s']:.2f} | "
+                         f"{r['wall_s']:.3f} | {r['realtime_factor']:.1f} | "
+                         f"{100 * r['overhead_vs_none']:+.1f}% |")
+    for key, item in report.get("commands", {}).items():
+        lines += ["", f"{key}: `{item['command']}` took {item['wall_s']} s "
+                  f"(exit {item['returncode']})."]
+    for key, item in report.get("cited", {}).items():
+        lines += ["", f"{key} (cited from `{item['source']}`, not re-measured in this run): "
+                  f"{item['wall_s']:.0f} s wall (file dated {item['date']})."]
+    lines += ["", f"Machine: {m['cpu_model']}, {m['cores']} cores, Python {m['python']}, "
+              f"numpy {m['numpy']}; load average {m.get('load_average_1min', '?')} at start, "
+              f"{m.get('load_average_1min_end', '?')} at the end (a shared machine inflates "
+              "every figure; compare ratios measured in one run).", ""]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--methods", nargs="+", default=list(METHODS))
+    parser.add_argument("--counts", type=int, nargs="+", default=list(COUNTS))
+    parser.add_argument("--calls", type=int, default=2000, help="timed calls per cell at most")
+    parser.add_argument("--budget", type=float, default=10.0, help="seconds per cell at most")
+    parser.add_argument("--episodes", type=int, default=3,
+                        help="repeats per recorder setting (0: skip episode speed)")
+    parser.add_argument("--training", action="store_true", help="also time PUMA training")
+    parser.add_argument("--table1", action="store_true", help="also time +experiment=table1")
+    parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--root", type=Path, default=ROOT, help="repository root to write into")
+    parser.add_argument("overrides", nargs="*", help="config overrides for every build")
+    args = parser.parse_args(argv)
+    if any(n < 0 for n in args.counts) or args.calls < 1 or args.budget <= 0:
+        print("error: counts must be ≥ 0, calls ≥ 1 and budget > 0", file=sys.stderr)
+        return 2
+    machine = machine_info()
+    report = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "controller": [],
+              "errors": [], "machine": machine, "overrides": args.overrides}
+    for method in args.methods:
+        try:
+            report["controller"] += time_controller(method, args.counts, args.calls,
+                                                    args.budget, args.overrides)
+        except Exception as exc:  # a missing model; Hydra's errors (unknown method, bad override)
+            report["errors"].append({"method": method, "error": _one_line(exc)})
+        print(f"bench: {method} done", file=sys.stderr)
+    if args.episodes > 0:
+        try:
+            report["episodes"] = time_episodes("fpm", args.episodes, args.overrides)
+        except Exception as exc:  # a missing model, a composition error: reported, not raised
+            report["errors"].append({"method": "episode", "error": _one_line(exc)})
+    report["commands"] = {}
+    if args.training:
+        for task in ("tomato", "pouring"):
+            with tempfile.TemporaryDirectory() as tmp:
+                report["commands"][f"training_{task}"] = _timed_command(
+                    ["-m", "tamedpuma.train", f"task={task}", f"out_dir={tmp}/m"])
+    if args.table1:
+        with tempfile.TemporaryDirectory() as tmp:
+            report["commands"]["table1"] = _timed_command(
+                ["-m", "tamedpuma.sweep", "+experiment=table1", f"output_root={tmp}"])
+    report["cited"] = cited(args.root)
+    machine["load_average_1min_end"] = round(os.getloadavg()[0], 2)
+    print(json.dumps(report, indent=2))
+    if not args.no_write:
+        out = args.root / "benchmarks" / "bench.json"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(report, indent=2) + "\n")
+        update_section(args.root / "BENCHMARKS.md", markdown_section(report))
+        print(f"wrote {out} and {args.root / 'BENCHMARKS.md'}", file=sys.stderr)
+    return 0
+
+
+def update_section(path: Path, section: str) -> None:
+    """Replace (or append) this command's section of ``path``, keeping every other section."""
+    text = path.read_text() if path.exists() else "# Benchmarks\n\n"
+    pattern = re.compile(rf"^## {SECTION}\n.*?(?=^## |\Z)", re.M | re.S)
+    if pattern.search(text):
+        text = pattern.sub(lambda _: section + "\n", text, count=1)
+    else:
+        text = text.rstrip("\n") + "\n\n" + section + "\n"
+    path.write_text(text.rstrip("\n") + "\n")
