@@ -5,7 +5,9 @@ Per control step k (period Δt):
 1. read the simulator's truth (joint state, link poses, body spheres, contacts, clearance);
 2. time the whole controller step ``q̈_k = controller.step(obs_k)`` (kinematics included) [ms];
 3. hand a :class:`StepRecord` to every recorder (streams; nothing is held back to the end);
-4. stop if the goal is reached (``stop_on_success``) or the step limit is hit, else apply q̈_k.
+4. stop ``settle_time`` [s] after the goal is first reached (``stop_on_success``; the settle
+   period lets the orientation be judged after the position has held) or at the step limit
+   (extended to cover the settle period of a reach near the limit), else apply q̈_k.
 
 The loop knows neither the method nor the file formats. It returns the run's
 :class:`~tamedpuma.metrics.RunMetrics`, computed from the same per-step values that were recorded.
@@ -48,9 +50,14 @@ def run_episode(
     recorders: Sequence[Recorder] = (),
     info: RunInfo | None = None,
     stop_on_success: bool = True,
+    settle_time: float = 0.0,
 ) -> EpisodeResult:
     """Run one episode of ``scenario`` driven by ``controller`` in ``sim``, streaming to
-    ``recorders`` (opened with ``info``, closed with ``complete=False`` if interrupted)."""
+    ``recorders`` (opened with ``info``, closed with ``complete=False`` if interrupted).
+    ``settle_time`` [s]: how long the run continues after the goal is first reached."""
+    if not settle_time >= 0:
+        raise ValueError(f"settle_time must be >= 0 s, got {settle_time}")
+    settle_steps = math.ceil(settle_time / scenario.dt - 1e-9)
     spec = sim.spec
     ee_index = spec.link_names.index(spec.ee_link)
     obs = sim.reset(scenario)
@@ -61,8 +68,11 @@ def run_episode(
                                             "contact", "ground", "ms")}
     complete = False
     stop_reason = "max_steps"
+    limit = scenario.max_steps
+    reach_step = None
     try:
-        for k in range(scenario.max_steps):
+        k = 0
+        while k < limit:
             link_pos, link_quat = sim.link_poses()
             centers = sim.body_sphere_centers(link_pos, link_quat)
             contacts = sim.contacts(centers)
@@ -104,10 +114,15 @@ def run_episode(
             if not np.all(np.isfinite(qdd)) or qdd.shape != (spec.dof,):
                 stop_reason = "nonfinite_command"
                 break
-            if stop_on_success and pos_err <= scenario.goal_tolerance:
+            if reach_step is None and pos_err <= scenario.goal_tolerance:
+                reach_step = k
+                limit = (k + settle_steps + 1 if stop_on_success
+                         else max(limit, k + settle_steps + 1))
+            if stop_on_success and reach_step is not None and k >= reach_step + settle_steps:
                 stop_reason = "goal_reached"
                 break
             obs = sim.step(qdd)
+            k += 1
         complete = True
     finally:
         metrics = None
@@ -117,7 +132,10 @@ def run_episode(
                 orientation_error=np.array(log["rot_err"]), clearance=np.array(log["clear"]),
                 obstacle_contact=np.array(log["contact"]), ground_contact=np.array(log["ground"]),
                 q=np.array(log["q"]), q_min=spec.q_min, q_max=spec.q_max,
-                compute_ms=np.array(log["ms"]), tolerance=scenario.goal_tolerance)
+                compute_ms=np.array(log["ms"]), tolerance=scenario.goal_tolerance,
+                time_limit=scenario.max_steps * scenario.dt, settle_time=settle_time,
+                ee_position=np.array(log["ee_p"]),
+                disturbance_time=getattr(sim, "disturbance_time", None))
         summary = {"stop_reason": stop_reason if complete else "interrupted",
                    **(metrics.as_dict() if metrics else {})}
         close_errors = []

@@ -1,22 +1,44 @@
 """Per-run scalars from one run's trajectory (pure numpy; the same code serves the live episode
 loop and the analysis of logs).
 
-Definitions (``../shared/docs/experiments.md``, "Metrics"):
+Definitions (``../shared/docs/experiments.md``, "Metrics"). Let k_r be the first step at which the
+end-effector position is within ``tolerance`` [m] of the (possibly moving) goal, t_r its time.
 
-- success: the end-effector position comes within ``tolerance`` [m] of the (possibly moving) goal
-  within the episode, and no collision happened up to then. Collision = any body sphere penetrating
-  an obstacle sphere (clearance < 0) or a PyBullet robot–obstacle contact.
-- time to success [s]: the first time the success condition holds.
+- **paper** success (the authors' ``check_distance_collision``): k_r exists, t_r < the time limit
+  (40 s), and no body sphere of the robot's collision model penetrates an obstacle sphere
+  (clearance < 0) at any step 0..k_r.
+- **whole-body** success: the paper criterion, and also at every step 0..k_r no PyBullet
+  robot–obstacle contact, no robot–ground contact and no joint outside its limits
+  (by more than ``limit_tolerance`` [rad]).
+- success with orientation (for either criterion): the run continues for ``settle_time`` [s]
+  after t_r; at the first step k_s with t ≥ t_r + settle_time the position is still within
+  ``tolerance``, the orientation error is ≤ ``orientation_tolerance`` [rad], and the criterion's
+  collision conditions hold over 0..k_s. A log that ends before t_r + settle_time fails it.
+- failure class (``failure_paper``, ``failure_whole_body``; empty on success): the first cause
+  that occurred up to k_r (or the whole run if never reached), in the order of the steps:
+  ``sphere_penetration``, ``obstacle_contact``, ``ground_contact``, ``joint_limit``; otherwise
+  ``late`` (reached after the time limit), ``stall`` (the end effector moved less than
+  ``stall_distance`` [m] over the last ``stall_window`` [s]) or ``time`` (still moving).
+- time to success [s]: t_r (NaN if never reached).
+- recovery time [s]: t_r − ``disturbance_time`` when a disturbance began at that time, the goal
+  was first reached after it and the run succeeded under the whole-body criterion (else NaN).
 - orientation error [rad]: the rotation angle between end-effector and goal orientation,
   ``2 arccos |⟨ζ, ζ_g⟩|``.
-- computation time [ms]: wall time of the whole controller step.
+- computation time [ms]: wall time of the whole controller step; mean, std, median, p99 and max
+  over every step of the run, and the first step's time on its own (the warm-up step: it is
+  included in the statistics, and shown apart so a reader can see its weight).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+#: Collision causes in the order they are reported when several occur at the same step.
+CAUSES = ("sphere_penetration", "obstacle_contact", "ground_contact", "joint_limit")
+PAPER_CAUSES = ("sphere_penetration",)
 
 
 def orientation_error(quat: np.ndarray, goal_quat: np.ndarray) -> np.ndarray:
@@ -27,17 +49,26 @@ def orientation_error(quat: np.ndarray, goal_quat: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class RunMetrics:
-    """Scalars of one run; times in seconds except ``compute_ms_*`` (milliseconds)."""
+    """Scalars of one run; times in seconds except ``compute_ms_*`` (milliseconds).
+    ``success`` is the whole-body criterion (the stricter one)."""
 
     steps: int
     duration_s: float
-    success: bool
-    success_with_orientation: bool
+    success_paper: bool
+    success_whole_body: bool
+    orientation_success_paper: bool
+    orientation_success_whole_body: bool
+    failure_paper: str
+    failure_whole_body: str
     time_to_success_s: float
+    recovery_time_s: float
+    settle_time_s: float
     final_position_error_m: float
     final_orientation_error_rad: float
+    settled_orientation_error_rad: float
     min_clearance_m: float
     collided: bool
+    sphere_penetration: bool
     obstacle_contact: bool
     ground_contact: bool
     joint_limit_violation_steps: int
@@ -45,9 +76,36 @@ class RunMetrics:
     compute_ms_std: float
     compute_ms_median: float
     compute_ms_p99: float
+    compute_ms_max: float
+    compute_ms_first: float
+
+    @property
+    def success(self) -> bool:
+        """The whole-body criterion."""
+        return self.success_whole_body
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+
+def _first(mask: np.ndarray) -> int:
+    """Index of the first True in ``mask``, or len(mask)."""
+    return int(np.argmax(mask)) if mask.any() else len(mask)
+
+
+def _judge(causes: dict[str, np.ndarray], names: tuple[str, ...], reach: int | None,
+           settle: int | None, n: int) -> tuple[bool, bool, str | None]:
+    """(position success ignoring time, orientation window clean, first cause up to the reach or
+    the end). ``reach``/``settle``: step indices or None."""
+    end = reach if reach is not None else n - 1
+    firsts = {name: _first(causes[name][: end + 1]) for name in names}
+    first_step = min(firsts.values())
+    cause = None
+    if first_step <= end:
+        cause = next(name for name in names if firsts[name] == first_step)
+    clean_settle = settle is not None and not any(causes[name][: settle + 1].any()
+                                                  for name in names)
+    return cause is None and reach is not None, clean_settle, cause
 
 
 def run_metrics(
@@ -64,10 +122,19 @@ def run_metrics(
     tolerance: float = 0.05,
     orientation_tolerance: float = 0.2,
     limit_tolerance: float = 1e-6,
+    time_limit: float = math.inf,
+    settle_time: float = 0.0,
+    ee_position: np.ndarray | None = None,
+    stall_window: float = 2.0,
+    stall_distance: float = 0.01,
+    disturbance_time: float | None = None,
 ) -> RunMetrics:
     """Metrics of one run from per-step arrays (T steps): t (T,) [s], end-effector position
     error to the goal (T,) [m], orientation error (T,) [rad], clearance (T,) [m], contact flags
-    (T,), q (T, 7) [rad], compute_ms (T,). Works on live arrays and on arrays read from a log."""
+    (T,), q (T, n) [rad], compute_ms (T,), optional ee_position (T, 3) [m] (for the stall class).
+    time_limit [s]: the goal must be reached strictly before it (the episode horizon);
+    settle_time [s]: how long after the reach the orientation is judged.
+    Works on live arrays and on arrays read from a log."""
     t = np.asarray(t, dtype=float)
     n = len(t)
     if n == 0:
@@ -75,31 +142,72 @@ def run_metrics(
     pos_err = np.asarray(position_error, dtype=float)
     rot_err = np.asarray(orientation_error, dtype=float)
     clearance = np.asarray(clearance, dtype=float)
-    contact = np.asarray(obstacle_contact, dtype=bool)
-    collision = (clearance < 0) | contact
-    first_collision = int(np.argmax(collision)) if collision.any() else n
-    reached = np.flatnonzero(pos_err[:first_collision] <= tolerance)
-    success = reached.size > 0
-    reached_o = np.flatnonzero((pos_err[:first_collision] <= tolerance)
-                               & (rot_err[:first_collision] <= orientation_tolerance))
     q = np.asarray(q, dtype=float)
-    violations = (q < q_min - limit_tolerance) | (q > q_max + limit_tolerance)
+    violations = ((q < q_min - limit_tolerance) | (q > q_max + limit_tolerance)).any(axis=1)
+    causes = {
+        "sphere_penetration": clearance < 0,
+        "obstacle_contact": np.asarray(obstacle_contact, dtype=bool),
+        "ground_contact": np.asarray(ground_contact, dtype=bool),
+        "joint_limit": violations,
+    }
+    inside = pos_err <= tolerance
+    reach = _first(inside)
+    reach = reach if reach < n else None
+    settle = None
+    if reach is not None:
+        k_s = _first(t >= t[reach] + settle_time - 1e-9)
+        settle = k_s if k_s < n else None
+    in_time = reach is not None and t[reach] < time_limit - 1e-9
+    oriented = (settle is not None and bool(inside[settle])
+                and rot_err[settle] <= orientation_tolerance)
+
+    def fallback() -> str:
+        if reach is not None:
+            return "late"  # reached, no collision, but after the time limit
+        if ee_position is not None:
+            ee = np.asarray(ee_position, dtype=float)
+            window = t >= t[-1] - stall_window
+            if t[-1] - t[0] >= stall_window:
+                moved = np.linalg.norm(ee[window] - ee[-1], axis=1).max()
+                if moved < stall_distance:
+                    return "stall"
+        return "time"
+
+    result = {}
+    for label, names in (("paper", PAPER_CAUSES), ("whole_body", CAUSES)):
+        ok, clean_settle, cause = _judge(causes, names, reach, settle, n)
+        success = ok and in_time
+        result[f"success_{label}"] = bool(success)
+        result[f"orientation_success_{label}"] = bool(success and clean_settle and oriented)
+        result[f"failure_{label}"] = "" if success else (cause or fallback())
+
     ms = np.asarray(compute_ms, dtype=float)
+    recovery = float("nan")
+    if (disturbance_time is not None and reach is not None and result["success_whole_body"]
+            and t[reach] >= disturbance_time):
+        recovery = float(t[reach] - disturbance_time)
+    collided = bool(causes["sphere_penetration"].any() or causes["obstacle_contact"].any())
     return RunMetrics(
         steps=n,
         duration_s=float(t[-1] - t[0]),
-        success=bool(success),
-        success_with_orientation=bool(reached_o.size > 0),
-        time_to_success_s=float(t[reached[0]]) if success else float("nan"),
+        **result,
+        time_to_success_s=float(t[reach]) if reach is not None else float("nan"),
+        recovery_time_s=recovery,
+        settle_time_s=float(settle_time),
         final_position_error_m=float(pos_err[-1]),
         final_orientation_error_rad=float(rot_err[-1]),
+        settled_orientation_error_rad=float(rot_err[settle]) if settle is not None
+        else float("nan"),
         min_clearance_m=float(clearance.min()),
-        collided=bool(collision.any()),
-        obstacle_contact=bool(contact.any()),
-        ground_contact=bool(np.any(ground_contact)),
-        joint_limit_violation_steps=int(violations.any(axis=1).sum()),
+        collided=collided,
+        sphere_penetration=bool(causes["sphere_penetration"].any()),
+        obstacle_contact=bool(causes["obstacle_contact"].any()),
+        ground_contact=bool(causes["ground_contact"].any()),
+        joint_limit_violation_steps=int(violations.sum()),
         compute_ms_mean=float(ms.mean()),
         compute_ms_std=float(ms.std()),
         compute_ms_median=float(np.median(ms)),
         compute_ms_p99=float(np.percentile(ms, 99)),
+        compute_ms_max=float(ms.max()),
+        compute_ms_first=float(ms[0]),
     )

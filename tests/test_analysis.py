@@ -46,9 +46,11 @@ def test_table1_is_rebuilt_from_the_logs_alone(tmp_path):
     _sweep(f"output_root={tmp_path}/runs", "scenario=default")
     for summary in (tmp_path / "runs").rglob("summary.json"):
         summary.unlink()  # the analysis must not need them
-    runs, paths = load_runs(tmp_path / "runs")
+    runs, paths, times = load_runs(tmp_path / "runs")
     assert len(runs) == 2 and set(runs["n_obstacles"]) == {0, 2}
-    assert runs["complete"].all() and runs["success"].all()
+    assert runs["complete"].all() and runs["success_whole_body"].all()
+    assert runs["success_paper"].all() and set(runs["method_label"]) == {"joint_attractor"}
+    assert all(len(times[p]) == n for p, n in zip(runs["path"], runs["steps"]))
     proc = subprocess.run([sys.executable, "-m", "analysis.tables", str(tmp_path / "runs"),
                            "--out", str(tmp_path / "tables")], cwd=REPO, capture_output=True,
                           text=True, timeout=120)

@@ -46,3 +46,14 @@ def test_straight_attractor_reaches_the_goal_but_hits_the_obstacle():
     assert np.linalg.norm(free.ee_position[-1, :2] - POINT_GOAL) <= 0.05
     blocked = run_episode(point_scenario(), _Attractor(), PointMassWorld())
     assert blocked.metrics.collided and not blocked.metrics.success
+
+
+def test_the_run_continues_for_the_settle_time_after_the_first_reach():
+    sc = point_scenario(obstacles=False)
+    plain = run_episode(sc, _Attractor(), PointMassWorld())
+    settled = run_episode(sc, _Attractor(), PointMassWorld(), settle_time=1.0)
+    reach = plain.metrics.steps - 1
+    assert settled.metrics.steps == plain.metrics.steps + round(1.0 / sc.dt)
+    assert settled.stop_reason == "goal_reached" and settled.metrics.settle_time_s == 1.0
+    np.testing.assert_array_equal(settled.q[: reach + 1], plain.q)  # same run, only longer
+    assert settled.metrics.time_to_success_s == plain.metrics.time_to_success_s

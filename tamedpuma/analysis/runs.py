@@ -26,14 +26,23 @@ def find_logs(root: str | Path) -> list[Path]:
     return sorted(root.rglob("episode.mcap")) + sorted(root.rglob("episode.mcap.active"))
 
 
-def run_row(path: str | Path) -> tuple[dict, np.ndarray]:
-    """Metrics of one logged run and its end-effector path (T, 3) [m]."""
+def method_label(cfg: dict, method: str | None) -> str | None:
+    """The table key of a run: the method config's ``label`` (e.g. ``cpm_literal``) or its name."""
+    return (cfg.get("method") or {}).get("label") or method
+
+
+def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
+    """Metrics of one logged run, its end-effector path (T, 3) [m] and its per-step controller
+    times (T,) [ms]."""
     run = read_mcap(path)
     cfg = yaml.safe_load(run.config_yaml) or {}
     robot = cfg.get("robot", {})
     scenario = cfg.get("scenario", {})
     sc = run.scalars
     q = run.joints[[f"q_{i}" for i in range(7)]].to_numpy()
+    ee = run.ee[["x", "y", "z"]].to_numpy()
+    dt = float(scenario.get("dt", run.info.get("dt") or 0.02))
+    max_steps = scenario.get("max_steps")
     metrics = run_metrics(
         t=sc["t"].to_numpy(), position_error=sc["position_error_m"].to_numpy(),
         orientation_error=sc["orientation_error_rad"].to_numpy(),
@@ -42,28 +51,44 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray]:
         q_min=np.array(robot.get("q_min", [-np.inf] * 7)),
         q_max=np.array(robot.get("q_max", [np.inf] * 7)),
         compute_ms=sc["compute_time_ms"].to_numpy(),
-        tolerance=float(scenario.get("goal_tolerance", 0.05)))
-    row = {"path": str(path), "run_id": run.info.get("run_id"), "method": run.info.get("method"),
+        tolerance=float(scenario.get("goal_tolerance", 0.05)),
+        time_limit=float(max_steps) * dt if max_steps is not None else float("inf"),
+        settle_time=float(cfg.get("settle_time", 0.0)), ee_position=ee,
+        disturbance_time=disturbance_onset(cfg))
+    method = run.info.get("method")
+    row = {"path": str(path), "run_id": run.info.get("run_id"), "method": method,
+           "method_label": method_label(cfg, method),
            "task": run.info.get("task"), "scenario": run.info.get("scenario_name"),
            "seed": run.info.get("seed"),
            "n_obstacles": int(run.obstacles["id"].nunique()) if len(run.obstacles) else 0,
            "complete": run.complete, **metrics.as_dict()}
-    return row, run.ee[["x", "y", "z"]].to_numpy()
+    return row, ee, sc["compute_time_ms"].to_numpy()
 
 
-def load_runs(root: str | Path) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
-    """All runs below ``root``: a metrics frame (one row per run) and the paths by run path.
-    Unreadable logs are skipped with a warning (and counted in the frame's ``attrs``)."""
-    rows, paths, skipped = [], {}, []
+def disturbance_onset(cfg: dict) -> float | None:
+    """Time [s] the run's configured disturbance begins (``disturbance`` group), or None."""
+    dist = cfg.get("disturbance") or {}
+    onset = dist.get("onset")
+    return float(onset) if dist.get("kind", "none") not in ("none", None) and onset is not None \
+        else None
+
+
+def load_runs(root: str | Path) -> tuple[pd.DataFrame, dict[str, np.ndarray],
+                                         dict[str, np.ndarray]]:
+    """All runs below ``root``: a metrics frame (one row per run), the end-effector paths and
+    the per-step controller times [ms], both by run path. Unreadable logs are skipped with a
+    warning (and counted in the frame's ``attrs``)."""
+    rows, paths, times, skipped = [], {}, {}, []
     for path in find_logs(root):
         try:
-            row, ee = run_row(path)
+            row, ee, ms = run_row(path)
         except (LogError, KeyError) as exc:
             log.warning("skipping %s: %s", path, exc)
             skipped.append(str(path))
             continue
         rows.append(row)
         paths[row["path"]] = ee
+        times[row["path"]] = ms
     frame = pd.DataFrame(rows)
     frame.attrs["skipped"] = skipped
-    return frame, paths
+    return frame, paths, times

@@ -1,8 +1,20 @@
 """Rebuild the paper's Table 1 from run logs: ``python -m analysis.tables RUNS_DIR [--out DIR]``.
 
-Per method: success rate, time to success [s] (mean ± std over successes), controller time [ms]
-(mean ± std of the per-run means; median of the per-run medians; worst per-run p99), and the path
-difference to PUMA [m] over obstacle-free runs of the same task and scenario.
+One row per method label (``method.label`` of the run's config, else the method name: the CPM
+forms ``cpm``, ``cpm_literal`` and ``cpm_original`` are separate rows), scored on the runs with
+obstacles:
+
+- success under both criteria side by side (``tamedpuma/metrics.py``): **paper** (within 0.05 m
+  of the goal within the horizon, no body sphere penetrating an obstacle sphere) and **whole
+  body** (also no PyBullet robot–obstacle or robot–ground contact, no joint-limit violation);
+  each also with orientation (≤ 0.2 rad after the settle time);
+- time to success [s] (mean ± std over the paper-criterion successes);
+- controller time [ms] over *every step of every run*: mean ± std, median, p99; the first step of
+  each run (the warm-up) is included and also shown on its own (mean / max over runs);
+- the whole-body failures by class (sphere_penetration, obstacle_contact, ground_contact,
+  joint_limit, stall, time, late);
+- the path difference to PUMA [m] over obstacle-free runs of the same task and scenario.
+
 Writes ``table1.md``, ``table1.tex`` and ``runs.csv`` to the output folder.
 """
 
@@ -10,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -18,15 +31,22 @@ import pandas as pd
 from tamedpuma.analysis.path_difference import path_difference
 from tamedpuma.analysis.runs import load_runs
 
-METHOD_ORDER = ["puma", "modulation_ik", "fabrics", "fpm", "cpm"]
+METHOD_ORDER = ["puma", "modulation_ik", "fabrics", "fpm", "cpm", "cpm_literal", "cpm_original"]
+
+
+def _labels(runs: pd.DataFrame) -> pd.Series:
+    if "method_label" in runs:
+        return runs["method_label"].fillna(runs["method"])
+    return runs["method"]
 
 
 def path_differences(runs: pd.DataFrame, paths: dict, reference: str = "puma") -> pd.Series:
     """Per obstacle-free run: path difference [m] to the reference method's run of the same
     task and scenario (NaN where there is none)."""
+    labels = _labels(runs)
     free = runs[runs["n_obstacles"] == 0]
-    ref = {(r.task, r.scenario): paths[r.path] for r in free.itertuples()
-           if r.method == reference}
+    ref = {(r["task"], r["scenario"]): paths[r["path"]] for idx, r in free.iterrows()
+           if labels[idx] == reference}
     out = pd.Series(np.nan, index=runs.index, name="path_difference_m")
     for idx, r in free.iterrows():
         key = (r["task"], r["scenario"])
@@ -36,30 +56,68 @@ def path_differences(runs: pd.DataFrame, paths: dict, reference: str = "puma") -
 
 
 def _pm(values: pd.Series, digits: int = 2) -> str:
-    values = values.dropna()
+    values = pd.Series(values).dropna()
     if values.empty:
         return "—"
     return f"{values.mean():.{digits}f} ± {values.std(ddof=0):.{digits}f}"
 
 
-def table1(runs: pd.DataFrame) -> pd.DataFrame:
-    """One row per method (paper order first) from a runs frame with path differences."""
+def step_time_stats(step_times: list[np.ndarray]) -> dict:
+    """Controller time over all steps of all runs [ms]: mean, std, median, p99, plus the first
+    step of each run (mean and max over runs) and the number of steps."""
+    arrays = [np.asarray(a, dtype=float) for a in step_times if len(a)]
+    if not arrays:
+        return {}
+    every = np.concatenate(arrays)
+    first = np.array([a[0] for a in arrays])
+    return {"mean": every.mean(), "std": every.std(), "median": float(np.median(every)),
+            "p99": float(np.percentile(every, 99)), "first_mean": first.mean(),
+            "first_max": first.max(), "steps": len(every)}
+
+
+def failure_counts(failures: pd.Series) -> str:
+    """'stall 2, ground_contact 1' (most frequent first), '—' when none."""
+    counts = Counter(f for f in failures if isinstance(f, str) and f)
+    return ", ".join(f"{k} {v}" for k, v in counts.most_common()) or "—"
+
+
+def ordered_labels(labels) -> list[str]:
+    present = set(labels)
+    return [m for m in METHOD_ORDER if m in present] + sorted(present - set(METHOD_ORDER))
+
+
+def table1(runs: pd.DataFrame, step_times: dict | None = None) -> pd.DataFrame:
+    """One row per method label (paper order first) from a runs frame with path differences;
+    ``step_times``: per-step controller times [ms] by run path (else the per-run summaries)."""
     rows = []
-    methods = [m for m in METHOD_ORDER if m in set(runs["method"])]
-    methods += sorted(set(runs["method"]) - set(methods))
-    for method in methods:
-        r = runs[runs["method"] == method]
+    labels = _labels(runs)
+    for label in ordered_labels(labels):
+        r = runs[labels == label]
         scored = r[r["n_obstacles"] > 0] if (r["n_obstacles"] > 0).any() else r
-        ok = scored[scored["success"]]
+        ok = scored[scored["success_paper"]]
+        if step_times is not None:
+            st = step_time_stats([step_times[p] for p in scored["path"] if p in step_times])
+        else:  # no per-step data: the per-run figures (documented as such)
+            st = {"mean": scored["compute_ms_mean"].mean(), "std": float("nan"),
+                  "median": scored["compute_ms_median"].median(),
+                  "p99": scored["compute_ms_p99"].max(),
+                  "first_mean": scored["compute_ms_first"].mean(),
+                  "first_max": scored["compute_ms_first"].max()}
         rows.append({
-            "method": method,
+            "method": label,
             "runs": len(scored),
-            "success": f"{scored['success'].mean():.2f}",
-            "success (with orientation)": f"{scored['success_with_orientation'].mean():.2f}",
+            "success (paper)": f"{scored['success_paper'].mean():.2f}",
+            "success (whole body)": f"{scored['success_whole_body'].mean():.2f}",
+            "with orientation (paper / whole body)":
+                f"{scored['orientation_success_paper'].mean():.2f} / "
+                f"{scored['orientation_success_whole_body'].mean():.2f}",
             "time-to-success [s]": _pm(ok["time_to_success_s"]),
-            "computation [ms]": _pm(scored["compute_ms_mean"]),
-            "computation median / p99 [ms]": (f"{scored['compute_ms_median'].median():.2f} / "
-                                              f"{scored['compute_ms_p99'].max():.2f}"),
+            "computation [ms] mean ± std (all steps)":
+                f"{st['mean']:.2f} ± {st['std']:.2f}" if st else "—",
+            "median / p99 [ms]": f"{st['median']:.2f} / {st['p99']:.2f}" if st else "—",
+            "first step [ms] mean / max": (f"{st['first_mean']:.2f} / {st['first_max']:.2f}"
+                                           if st else "—"),
+            "whole-body failures": failure_counts(scored["failure_whole_body"]),
             "path difference to PUMA [m]": _pm(r["path_difference_m"]),
         })
     return pd.DataFrame(rows)
@@ -73,12 +131,12 @@ def main(argv: list[str] | None = None) -> int:
     if not args.runs.is_dir():
         print(f"error: {args.runs} is not a folder", file=sys.stderr)
         return 2
-    runs, paths = load_runs(args.runs)
+    runs, paths, times = load_runs(args.runs)
     if runs.empty:
         print(f"error: no readable run logs (episode.mcap) below {args.runs}", file=sys.stderr)
         return 2
     runs["path_difference_m"] = path_differences(runs, paths)
-    table = table1(runs)
+    table = table1(runs, times)
     out = args.out or args.runs
     out.mkdir(parents=True, exist_ok=True)
     runs.to_csv(out / "runs.csv", index=False)

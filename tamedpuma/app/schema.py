@@ -91,7 +91,8 @@ class ClutterSchema:
 
 _GROUPS = {"robot": RobotSchema, "scenario": ScenarioSchema, "sim": SimSchema,
            "recorder": RecorderSchema, "clutter": ClutterSchema}
-_TOP = {"seed": int, "output_root": str, "stop_on_success": bool, "without_obstacles": bool}
+_TOP = {"seed": int, "output_root": str, "stop_on_success": bool, "without_obstacles": bool,
+        "settle_time": (int, float)}
 
 
 def validate(cfg) -> None:
@@ -108,6 +109,10 @@ def validate(cfg) -> None:
     for key, kind in _TOP.items():
         if key in cfg:
             value = cfg[key]
-            ok = isinstance(value, kind) and not (kind is int and isinstance(value, bool))
+            kinds = kind if isinstance(kind, tuple) else (kind,)
+            ok = isinstance(value, kinds) and not (bool not in kinds and isinstance(value, bool))
             if not ok:
-                raise ConfigError(f"{key} must be {kind.__name__}, got {value!r}")
+                what = " or ".join(k.__name__ for k in kinds)
+                raise ConfigError(f"{key} must be {what}, got {value!r}")
+    if "settle_time" in cfg and not cfg["settle_time"] >= 0:
+        raise ConfigError(f"settle_time must be >= 0 s, got {cfg['settle_time']!r}")

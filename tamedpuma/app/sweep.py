@@ -94,8 +94,10 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                    body_sphere_radii=spec.sphere_radii, dt=scenario.dt)
     with Simulator(spec, built.sim_config) as sim:
         result = run_episode(scenario, built.controller, sim, recorders, info,
-                             stop_on_success=bool(cfg.stop_on_success))
-    summary = {"run_dir": str(run_dir), "method": cfg.method.name, "task": cfg.task.name,
+                             stop_on_success=bool(cfg.stop_on_success),
+                             settle_time=float(cfg.get("settle_time", 0.0)))
+    summary = {"run_dir": str(run_dir), "method": cfg.method.name,
+               "method_label": method_label(cfg.method), "task": cfg.task.name,
                "scenario": scenario.name, "seed": int(cfg.seed),
                "stop_reason": result.stop_reason, **result.metrics.as_dict(),
                "files": {k: str(v) for k, v in files.items()}}
@@ -103,10 +105,22 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
     return summary
 
 
+def method_label(method_cfg) -> str:
+    """The name a method's runs carry in tables: ``label`` if the method config sets one (e.g.
+    ``cpm_literal``), else its ``name``."""
+    return str(method_cfg.get("label") or method_cfg.name)
+
+
 def _report(summary: dict) -> None:
     m = summary
-    outcome = "success" if m["success"] else "no success"
-    print(f"{m['method']} on {m['task']}/{m['scenario']}: {outcome} after {m['steps']} steps "
+    # whole-body success implies paper success (a superset of the same conditions)
+    if m["success_whole_body"]:
+        outcome = "success"
+    elif m["success_paper"]:
+        outcome = f"success under the paper criterion only [{m['failure_whole_body']}]"
+    else:
+        outcome = f"no success [{m['failure_whole_body']}]"
+    print(f"{m['method_label']} on {m['task']}/{m['scenario']}: {outcome} after {m['steps']} steps "
           f"({m['duration_s']:.2f} s), final position error {m['final_position_error_m']:.4f} m, "
           f"min clearance {m['min_clearance_m']:.3f} m, "
           f"controller {m['compute_ms_median']:.3f} ms (median)")

@@ -2,8 +2,9 @@
 
     make(cfg: Mapping, kinematics: Kinematics) -> Controller
 
-where ``cfg`` is the plain content of ``conf/method/<name>.yaml``. Methods never import the
-simulator; they see only :class:`~tamedpuma.types.Observation` and return
+where ``cfg`` is the plain content of ``conf/method/<name>.yaml`` (without the optional
+``label``, the name a configured variant carries in tables, e.g. ``conf/method/cpm_literal.yaml``).
+Methods never import the simulator; they see only :class:`~tamedpuma.types.Observation` and return
 :class:`~tamedpuma.types.Command`.
 """
 
@@ -28,4 +29,4 @@ def make(name: str, cfg: Mapping, kinematics: Kinematics) -> Controller:
     if name not in available():
         raise ConfigError(f"unknown method {name!r}; choose one of {available()}")
     module = importlib.import_module(f"tamedpuma.methods.{name}")
-    return module.make(cfg, kinematics)
+    return module.make({k: v for k, v in cfg.items() if k != "label"}, kinematics)

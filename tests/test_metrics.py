@@ -1,0 +1,157 @@
+"""Per-run metrics on synthetic logs: the paper and whole-body criteria, each failure cause, the
+settle period of the orientation check, the stall class and the step-time statistics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tamedpuma.analysis.tables import step_time_stats, table1
+from tamedpuma.metrics import run_metrics
+
+DT = 0.02
+Q_MIN, Q_MAX = -np.ones(7), np.ones(7)
+
+
+def _log(n=200, reach=100, **events):
+    """A synthetic run: the position error falls linearly to 0 at step ``reach``; clear of
+    everything unless ``events`` sets a flag array ({'clearance'|'contact'|'ground'|'q'|...})."""
+    t = np.arange(n) * DT
+    pos = np.clip(0.5 * (1 - np.arange(n) / reach), 0.0, None) if reach is not None \
+        else np.full(n, 0.5)
+    log = dict(t=t, position_error=pos, orientation_error=np.full(n, 0.1),
+               clearance=np.full(n, 0.2), obstacle_contact=np.zeros(n, bool),
+               ground_contact=np.zeros(n, bool), q=np.zeros((n, 7)), q_min=Q_MIN, q_max=Q_MAX,
+               compute_ms=np.full(n, 1.0))
+    log.update(events)
+    return log
+
+
+def _with(name, steps, value, n=200):
+    base = _log(n)[name].copy()
+    base[steps] = value
+    return base
+
+
+def test_a_clean_run_passes_both_criteria():
+    m = run_metrics(**_log())
+    assert m.success_paper and m.success_whole_body and m.success
+    assert m.failure_paper == m.failure_whole_body == ""
+    # reach (error ≤ 0.05 m) first at step 90
+    assert m.time_to_success_s == pytest.approx(90 * DT)
+
+
+@pytest.mark.parametrize("field, value, cause", [
+    ("obstacle_contact", True, "obstacle_contact"),
+    ("ground_contact", True, "ground_contact"),
+])
+def test_a_contact_alone_fails_only_the_whole_body_criterion(field, value, cause):
+    """A run that only touches a mesh (or the ground): every body sphere clear."""
+    m = run_metrics(**_log(**{field: _with(field, slice(40, 45), value)}))
+    assert m.success_paper and not m.success_whole_body
+    assert m.failure_whole_body == cause and m.failure_paper == ""
+    assert m.min_clearance_m > 0
+
+
+def test_a_joint_limit_violation_fails_only_the_whole_body_criterion():
+    q = np.zeros((200, 7))
+    q[50:53, 3] = 1.01
+    m = run_metrics(**_log(q=q))
+    assert m.success_paper and not m.success_whole_body
+    assert m.failure_whole_body == "joint_limit" and m.joint_limit_violation_steps == 3
+
+
+def test_a_sphere_penetration_fails_both_criteria():
+    m = run_metrics(**_log(clearance=_with("clearance", slice(30, 35), -0.01)))
+    assert not m.success_paper and not m.success_whole_body
+    assert m.failure_paper == m.failure_whole_body == "sphere_penetration"
+
+
+def test_the_first_cause_in_time_is_reported():
+    m = run_metrics(**_log(ground_contact=_with("ground_contact", 20, True),
+                           clearance=_with("clearance", 60, -0.01)))
+    assert m.failure_whole_body == "ground_contact" and m.failure_paper == "sphere_penetration"
+
+
+def test_events_after_the_reach_do_not_count_for_the_position_success():
+    m = run_metrics(**_log(obstacle_contact=_with("obstacle_contact", 150, True),
+                           clearance=_with("clearance", 150, -0.01)))
+    assert m.success_paper and m.success_whole_body and m.collided
+
+
+def test_a_reach_after_the_time_limit_fails_as_late():
+    m = run_metrics(**_log(), time_limit=90 * DT)
+    assert not m.success_paper and m.failure_paper == m.failure_whole_body == "late"
+    assert run_metrics(**_log(), time_limit=90 * DT + DT).success_paper
+
+
+def test_never_reached_is_a_stall_when_the_arm_stopped_and_time_when_it_moved():
+    n = 300
+    still = np.tile([0.3, 0.0, 0.4], (n, 1))
+    moving = still + np.linspace(0, 1, n)[:, None] * [0.5, 0.0, 0.0]
+    stalled = run_metrics(**_log(n=n, reach=None), ee_position=still)
+    assert stalled.failure_paper == stalled.failure_whole_body == "stall"
+    timed = run_metrics(**_log(n=n, reach=None), ee_position=moving)
+    assert timed.failure_whole_body == "time"
+    assert np.isnan(timed.time_to_success_s)
+
+
+def test_orientation_is_judged_after_the_settle_time():
+    """The orientation converges 1 s after the position reach: success with orientation with a
+    2 s settle time, not without one (judged at the reach)."""
+    rot = np.full(300, 0.5)
+    rot[140:] = 0.05  # reach at step 90, orientation within 0.2 rad from step 140 (1 s later)
+    log = _log(n=300, orientation_error=rot)
+    settled = run_metrics(**log, settle_time=2.0)
+    assert settled.orientation_success_paper and settled.orientation_success_whole_body
+    assert settled.settled_orientation_error_rad == pytest.approx(0.05)
+    at_reach = run_metrics(**log, settle_time=0.0)
+    assert at_reach.success_paper and not at_reach.orientation_success_paper
+
+
+def test_orientation_fails_if_the_log_ends_before_the_settle_time_or_the_position_drifts():
+    short = run_metrics(**_log(n=120), settle_time=2.0)  # reach at 90, log ends 0.6 s later
+    assert short.success_paper and not short.orientation_success_paper
+    pos = _log(n=300)["position_error"].copy()
+    pos[150:] = 0.2  # left the goal again during the settle period
+    drift = run_metrics(**_log(n=300, position_error=pos), settle_time=2.0)
+    assert drift.success_paper and not drift.orientation_success_paper
+
+
+def test_a_contact_during_the_settle_period_fails_only_the_whole_body_orientation_success():
+    log = _log(n=300, obstacle_contact=_with("obstacle_contact", 150, True, n=300))
+    m = run_metrics(**log, settle_time=2.0)
+    assert m.success_whole_body and m.orientation_success_paper
+    assert not m.orientation_success_whole_body
+
+
+def test_recovery_time_counts_from_the_disturbance_onset():
+    m = run_metrics(**_log(), disturbance_time=1.0)
+    assert m.recovery_time_s == pytest.approx(90 * DT - 1.0)
+    assert np.isnan(run_metrics(**_log(n=200, reach=None), disturbance_time=1.0).recovery_time_s)
+
+
+def test_step_time_statistics_cover_every_step_and_show_the_warm_up():
+    a = np.array([50.0, 1.0, 1.0, 1.0])
+    b = np.array([30.0, 2.0, 2.0, 2.0, 2.0, 2.0])
+    st = step_time_stats([a, b])
+    every = np.concatenate([a, b])
+    assert st["steps"] == 10 and st["mean"] == pytest.approx(every.mean())
+    assert st["std"] == pytest.approx(every.std()) and st["median"] == pytest.approx(2.0)
+    assert st["first_mean"] == pytest.approx(40.0) and st["first_max"] == pytest.approx(50.0)
+
+
+def test_table_rows_are_keyed_by_method_label_with_both_criteria():
+    rows = []
+    for label, contact in (("cpm", False), ("cpm_literal", True)):
+        m = run_metrics(**_log(obstacle_contact=_with("obstacle_contact", 10, contact)))
+        rows.append({"path": label, "method": "cpm", "method_label": label, "task": "tomato",
+                     "scenario": "s", "n_obstacles": 2, "path_difference_m": np.nan,
+                     **m.as_dict()})
+    table = table1(pd.DataFrame(rows), {r["path"]: np.ones(5) for r in rows}).set_index("method")
+    assert list(table.index) == ["cpm", "cpm_literal"]
+    assert table.loc["cpm_literal", "success (paper)"] == "1.00"
+    assert table.loc["cpm_literal", "success (whole body)"] == "0.00"
+    assert table.loc["cpm_literal", "whole-body failures"] == "obstacle_contact 1"
+    assert table.loc["cpm", "success (whole body)"] == "1.00"
