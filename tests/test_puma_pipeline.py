@@ -72,3 +72,17 @@ def test_cli_corrupt_checkpoint(tmp_path):
                           cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and proc.stderr.startswith("error: checkpoint")
     assert proc.stderr.count("\n") == 1
+
+
+@pytest.mark.parametrize("how", ["--config-dir", "searchpath"])
+def test_train_finds_a_task_in_a_users_config_folder(tmp_path, how):
+    folder = tmp_path / "my_conf"
+    (folder / "task").mkdir(parents=True)
+    (folder / "task" / "my_pouring.yaml").write_text(
+        "defaults:\n  - pouring\n  - _self_\nsynthetic: {n_demos: 3, seed: 1}\n")
+    where = ["--config-dir", str(folder)] if how == "--config-dir" else [
+        f"hydra.searchpath=[file://{folder}]"]
+    out = tmp_path / "out"
+    assert train.main([*where, "task=my_pouring", "puma=tiny", f"out_dir={out}",
+                       "progress=false", "evaluate=false"]) == 0
+    assert json.loads((out / "report.json").read_text())["n_demos"] == 3

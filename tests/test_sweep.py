@@ -96,3 +96,35 @@ def test_a_killed_run_leaves_a_readable_log_marked_incomplete(tmp_path):
     assert not log.complete
     assert 20 <= log.n_steps < 2000
     assert list(log.joints.index) == list(range(log.n_steps))
+
+
+def _own_config_folder(tmp_path):
+    """A user's config folder with one scenario of its own (the free scenario, renamed)."""
+    folder = tmp_path / "my_conf"
+    (folder / "scenario").mkdir(parents=True)
+    (folder / "scenario" / "mine.yaml").write_text(
+        "defaults:\n  - free\n  - _self_\nname: mine\nmax_steps: 3\n")
+    return folder
+
+
+@pytest.mark.parametrize("how", ["--config-dir", "-cd", "--config-dir=", "searchpath"])
+def test_a_users_config_folder_is_found_the_hydra_way(tmp_path, how):
+    folder = _own_config_folder(tmp_path)
+    if how == "searchpath":
+        args = [f"hydra.searchpath=[file://{folder}]"]
+    elif how.endswith("="):
+        args = [f"{how}{folder}"]
+    else:
+        args = [how, str(folder)]
+    proc = _sweep(*args, "scenario=mine", "recorder=none", f"output_root={tmp_path / 'runs'}")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(next((tmp_path / "runs").glob("*/summary.json")).read_text())
+    assert summary["scenario"] == "mine" and summary["steps"] == 3
+
+
+def test_a_missing_config_folder_or_option_is_a_one_line_error(tmp_path):
+    line = _error_line(_sweep("--config-dir", str(tmp_path / "nowhere"), "scenario=mine"))
+    assert "config folder not found" in line
+    folder = _own_config_folder(tmp_path)
+    line = _error_line(_sweep("--config-dir", str(folder), "scenario=theirs"))
+    assert "scenario/theirs" in line

@@ -3,6 +3,10 @@
 Hydra reports a bad override over several lines with a hint about HYDRA_FULL_ERROR. Before Hydra
 runs, :func:`precheck_overrides` composes the config once per value of every sweep list and turns
 the first problem into one line; it also checks that ``output_root`` can be written.
+
+A user's own config folder works the Hydra way: ``--config-dir DIR`` (``-cd DIR``) and
+``hydra.searchpath=[file://DIR]`` add DIR to the config search path, so its ``task/``,
+``scenario/``, ``robot/``... options are found next to the shipped ones (:func:`split_argv`).
 """
 
 from __future__ import annotations
@@ -56,6 +60,55 @@ def _check_writable(root: str) -> str | None:
     return None
 
 
+# Hydra's command-line flags that take a value (the value is the next argument or after "=")
+_VALUE_FLAGS = ("--config-dir", "-cd", "--config-path", "-cp", "--config-name", "-cn",
+                "--package", "-p", "--experimental-rerun", "--shell-completion", "-sc")
+_NO_CHECK = ("--help", "-h", "--hydra-help", "--info", "-i", "--cfg", "-c", "--resolve",
+             "--shell-completion", "-sc", "--experimental-rerun")
+
+
+def split_argv(argv: list[str]) -> tuple[list[str], list[str], dict[str, str]]:
+    """Hydra's command line → (overrides, extra config search paths, flags with their values).
+
+    ``--config-dir DIR`` / ``--config-dir=DIR`` / ``-cd DIR`` become the search path entry
+    ``file://DIR`` (absolute); ``hydra.searchpath=[...]`` overrides stay among the overrides.
+    Other flags (``-m``, ``--config-name X``...) are returned in the dict, not as overrides.
+    """
+    overrides, search, flags = [], [], {}
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg.startswith("-"):
+            name, eq, value = arg.partition("=")
+            if name in _VALUE_FLAGS and not eq and i + 1 < len(argv):
+                value, i = argv[i + 1], i + 1
+            flags[name] = value
+            if name in ("--config-dir", "-cd") and value:
+                search.append("file://" + str(Path(value).expanduser().resolve()))
+        else:
+            overrides.append(arg)
+        i += 1
+    return overrides, search, flags
+
+
+def with_search_path(overrides: list[str], search: list[str]) -> list[str]:
+    """``overrides`` with ``search`` entries put first into (or as) a ``hydra.searchpath``."""
+    if not search:
+        return list(overrides)
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    out, existing = [], []
+    for arg in overrides:
+        key = arg.split("=", 1)[0].lstrip("+~")
+        if key == "hydra.searchpath":
+            value = OverridesParser.create().parse_override(arg).value()
+            existing.extend(value if isinstance(value, list) else [value])
+        else:
+            out.append(arg)
+    entries = ",".join(f"'{p}'" for p in [*search, *existing])
+    return [f"hydra.searchpath=[{entries}]", *out]
+
+
 def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
     """Compose ``config_name`` with the command line's overrides; the first problem, or None."""
     from hydra import compose, initialize_config_dir
@@ -63,14 +116,19 @@ def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from omegaconf import OmegaConf
 
-    args = [a for a in argv if not a.startswith("-")]
-    if any(a in ("--help", "-h", "--hydra-help", "--info", "--cfg", "-c") for a in argv):
+    if any(a.split("=", 1)[0] in _NO_CHECK for a in argv):
         return None
+    args, search, flags = split_argv(argv)
+    for name in ("--config-dir", "-cd"):
+        if name in flags and not Path(flags[name]).expanduser().is_dir():
+            return f"config folder not found: {flags[name]!r} ({name})"
+    config_name = flags.get("--config-name") or flags.get("-cn") or config_name
     try:
         parsed = OverridesParser.create().parse_overrides(args)
     except Exception as exc:  # Hydra's OverrideParseException and friends
         return f"malformed override: {_one_line(exc)}"
-    base, sweeps = [], []
+    base, sweeps = with_search_path([ov.input_line for ov in parsed
+                                     if ov.key_or_group == "hydra.searchpath"], search), []
     for ov in parsed:
         if ov.key_or_group.startswith("hydra"):
             continue

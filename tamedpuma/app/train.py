@@ -4,13 +4,16 @@ Composes ``conf/train.yaml`` with Hydra overrides (``task=pouring``, ``puma=tiny
 ``task.demos=../shared/data/pumafabrics-demos/pick_tomato_31may``, ``seed=1``, ``out_dir=...``),
 trains with a progress bar, writes ``<out_dir>/puma.pt`` and ``<out_dir>/report.json`` and prints
 a summary. ``python -m tamedpuma.train --evaluate runs/puma/tomato/puma.pt`` re-evaluates a
-checkpoint on demand. User errors print one line ``error: ...`` on stderr and exit with status 2.
+checkpoint on demand. A user's own config folder: ``--config-dir DIR`` or
+``hydra.searchpath=[file://DIR]`` (its ``task/*.yaml`` next to the shipped ones).
+User errors print one line ``error: ...`` on stderr and exit with status 2.
 """
 
 from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 from tamedpuma.app.config import CONF_DIR
 from tamedpuma.errors import ConfigError, TamedPumaError
@@ -93,7 +96,17 @@ def main(argv: list[str] | None = None) -> int:
             report = evaluate_checkpoint(argv[1], argv[2:])
             print(json.dumps(report, indent=2))
             return 0
-        cfg = compose("train", argv)
+        from tamedpuma.app.cli import split_argv, with_search_path
+
+        overrides, search, flags = split_argv(argv)  # --config-dir DIR, hydra.searchpath=[...]
+        for name in ("--config-dir", "-cd"):
+            if name in flags and not Path(flags[name]).expanduser().is_dir():
+                raise ConfigError(f"config folder not found: {flags[name]!r} ({name})")
+        unknown = sorted(set(flags) - {"--config-dir", "-cd"})
+        if unknown:
+            raise ConfigError(f"unknown option(s) {', '.join(unknown)} (train takes overrides, "
+                              "--config-dir DIR and --evaluate CKPT)")
+        cfg = compose("train", with_search_path(overrides, search))
         cfg["command"] = " ".join(["python -m tamedpuma.train", *argv])
         from tamedpuma.puma import pipeline
 
