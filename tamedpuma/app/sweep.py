@@ -91,7 +91,8 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                    scenario_name=scenario.name, seed=int(cfg.seed),
                    config_yaml=OmegaConf.to_yaml(cfg, resolve=True), urdf_path=spec.urdf_path,
                    joint_names=spec.joint_names, link_names=spec.link_names,
-                   body_sphere_radii=spec.sphere_radii, dt=scenario.dt)
+                   body_sphere_radii=spec.sphere_radii, dt=scenario.dt,
+                   velocity_limits=spec.qd_max)
     with Simulator(spec, built.sim_config) as sim:
         result = run_episode(scenario, built.controller, sim, recorders, info,
                              stop_on_success=bool(cfg.stop_on_success),

@@ -29,7 +29,7 @@ from .mcap_writer import (
 )
 
 _TOPICS = ("/joint_states", "/tf", "/ee_pose", "/scene", "/scalars")
-_JSON_FIELDS = ("joint_names", "link_names", "body_sphere_radii")
+_JSON_FIELDS = ("joint_names", "link_names", "body_sphere_radii", "velocity_limits")
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,8 @@ class RunInfo:
     config_yaml: the resolved Hydra config (YAML text); urdf_path: robot URDF file;
     joint_names: the actuated joints (7 for the iiwa: ``lbr_iiwa_joint_1..7``);
     link_names: the L links whose poses each :class:`StepRecord` carries (``lbr_iiwa_link_0..7``);
-    body_sphere_radii: (k,) collision-sphere radii on the robot body [m]; dt: control period [s].
+    body_sphere_radii: (k,) collision-sphere radii on the robot body [m]; dt: control period [s];
+    velocity_limits: (n,) joint speed limits [rad/s] (empty: unknown, replays plot raw speeds).
     """
 
     run_id: str
@@ -48,12 +49,18 @@ class RunInfo:
     link_names: tuple[str, ...] = IIWA_LINK_NAMES
     body_sphere_radii: np.ndarray = field(default_factory=lambda: np.zeros(0))
     dt: float = 0.02
+    velocity_limits: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self):
         object.__setattr__(self, "joint_names", tuple(self.joint_names))
         object.__setattr__(self, "link_names", tuple(self.link_names))
         radii = _array(np.ravel(self.body_sphere_radii), (None,), "body_sphere_radii")
         object.__setattr__(self, "body_sphere_radii", radii)
+        limits = _array(np.ravel(self.velocity_limits), (None,), "velocity_limits")
+        if len(limits) not in (0, len(self.joint_names)):
+            raise ValueError(f"velocity_limits must be empty or have one value per joint "
+                             f"({len(self.joint_names)}), got {len(limits)}")
+        object.__setattr__(self, "velocity_limits", limits)
         if not self.joint_names:
             raise ValueError("joint_names must name at least one joint")
         if not self.dt > 0:
@@ -75,6 +82,7 @@ class RunInfo:
             "link_names": json.dumps(list(self.link_names)),
             "body_sphere_radii": json.dumps([float(r) for r in self.body_sphere_radii]),
             "dt": repr(float(self.dt)),
+            "velocity_limits": json.dumps([float(v) for v in self.velocity_limits]),
         }
 
 

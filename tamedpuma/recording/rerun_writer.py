@@ -10,9 +10,16 @@ Entity layout (all 3-D entities live in the named coordinate frame ``world``):
   ``LineStrips3D`` (one strip per block of steps, so the cost per step stays bounded).
 * ``/joints/<joint>``: joint positions [rad]; ``/metrics/<name>``: every scalar (``Scalars``).
 
+* ``/joint_speed/<joint>``: |q̇| divided by the joint's speed limit (raw [rad/s] when the limits
+  are unknown), with ``/joint_speed/limit`` = 1.
+* ``/world/reference_path``: PUMA's obstacle-free path, from a separate overlay file
+  (:func:`write_reference_overlay`) that the viewer merges in.
+
 Timelines: ``step`` (sequence) and ``time`` (duration, simulated seconds). The file is streamed
-while the episode runs (``RecordingStream.save`` before the first log), with a default blueprint:
-a 3-D view of ``/world`` beside time-series views of the joints and the metrics.
+while the episode runs (``RecordingStream.save`` before the first log). Its blueprint
+(:func:`replay_blueprint`) is sent with the first step and again on close: the 3-D scene with the
+arm's visual meshes (collision meshes and body spheres hidden, one click away), an eye framing
+everything the episode showed (:func:`frame_camera`), and one plot per quantity.
 
 Crash safety, as for MCAP: the file is ``<path>.active`` until :meth:`RerunRecorder.close`
 renames it. A killed run's ``.active`` file has no RRD footer (``rerun rrd verify`` fails) but
@@ -21,9 +28,11 @@ renames it. A killed run's ``.active`` file has no RRD footer (``rerun rrd verif
 
 from __future__ import annotations
 
+import fnmatch
 import os
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -36,28 +45,172 @@ from .records import RunInfo, StepRecord
 
 WORLD_FRAME = "world"
 PATH_BLOCK = 100  # steps per end-effector path strip
+FRAME_EVERY = 5  # the camera frames the scene as seen every this many steps
 GOAL_MARKER_RADIUS = 0.03  # [m], display only
 _OBSTACLE_RGBA = (217, 51, 51, 160)
 _BODY_RGBA = (51, 102, 230, 90)
 _GOAL_RGBA = (26, 204, 51, 255)
 _EE_RGBA = (255, 200, 0, 255)
+_REFERENCE_RGBA = (80, 200, 255, 255)
+_LIMIT_RGBA = (255, 60, 60, 255)
+
+
+#: One time-series plot per quantity: (title, scalar-name patterns), in display order. A scalar
+#: goes to the first plot whose pattern matches; the rest share "method internals".
+PLOT_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("position error [m]", ("position_error_m", "goal_distance", "ik_position_error_m")),
+    ("clearance [m]", ("clearance_m", "min_clearance*", "ik_constraint_violation_m")),
+    ("ψ (PUMA potential)", ("psi",)),
+    ("ψ rate [1/s]", ("psi_rate",)),
+    ("energies", ("energy_*", "dissipation", "potential")),
+    ("compute time [ms]", ("compute_time_ms", "ik_solve_ms")),
+    ("orientation error [rad]", ("orientation_error*", "joint_error_rad")),
+    ("contacts", ("obstacle_contact", "ground_contact")),
+)
+INTERNALS = "method internals"
+MAX_LEGEND = 3  # plots with more series show no legend (hover shows the names)
+#: Vertical field of view of Rerun's 3-D eye [rad] (measured: a point 1 m off-axis at 3 m
+#: projects 0.32 image heights from the centre, i.e. 55°).
+RERUN_FOV_Y = np.deg2rad(55.0)
+#: Direction from the scene centre to the default eye (front-right, above).
+EYE_DIRECTION = (1.0, -1.5, 0.75)
+#: Hidden by default; each is one click (the eye icon) away in the viewer.
+HIDDEN_BY_DEFAULT = ("/world/lbr_iiwa/collision_geometries", "/world/body_spheres")
+REFERENCE_PATH = "/world/reference_path"
+
+
+def plot_groups(scalar_names: Iterable[str]) -> list[tuple[str, list[str]]]:
+    """Split scalar names into the :data:`PLOT_GROUPS` plots (empty ones left out) plus
+    "method internals" for names no group claims."""
+    groups: dict[str, list[str]] = {title: [] for title, _ in PLOT_GROUPS}
+    groups[INTERNALS] = []
+    for name in scalar_names:
+        title = next((t for t, pats in PLOT_GROUPS
+                      if any(fnmatch.fnmatchcase(name, p) for p in pats)), INTERNALS)
+        groups[title].append(name)
+    return [(t, names) for t, names in groups.items() if names]
+
+
+@dataclass(frozen=True)
+class Camera:
+    """An orbit eye: ``position`` and ``look_target`` [m] in the world frame, +z up."""
+
+    position: np.ndarray
+    look_target: np.ndarray
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+
+    def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(right, up, backward) unit vectors of the image."""
+        b = self.position - self.look_target
+        b = b / np.linalg.norm(b)
+        r = np.cross(self.up, b)
+        r = r / np.linalg.norm(r)
+        return r, np.cross(b, r), b
+
+    def project(self, points: np.ndarray, width: int, height: int,
+                fov_y: float = RERUN_FOV_Y) -> np.ndarray:
+        """Pinhole projection of (N, 3) world points [m] to (N, 2) pixel coordinates (x right,
+        y down) of a ``width`` × ``height`` view: ``x = W/2 + f (p·r)/z``,
+        ``y = H/2 − f (p·u)/z``, ``f = (H/2)/tan(fov_y/2)``, z the depth along −b."""
+        r, u, b = self.axes()
+        d = np.asarray(points, dtype=float).reshape(-1, 3) - self.position
+        depth = -(d @ b)
+        f = 0.5 * height / np.tan(fov_y / 2)
+        return np.stack([0.5 * width + f * (d @ r) / depth,
+                         0.5 * height - f * (d @ u) / depth], axis=1)
+
+
+def frame_camera(points: np.ndarray, direction=EYE_DIRECTION, fov_y: float = RERUN_FOV_Y,
+                 aspect: float = 1.2, margin: float = 1.08, pad: float = 0.1) -> Camera:
+    """The closest eye looking along ``-direction`` that sees every point with ``pad`` [m]
+    around it (the arm's volume around its link origins), the points centred in the image.
+
+    With camera axes (right r, up u, backward b), an eye at ``c + a·r + e·u + d·b`` (c: the
+    bounding-box centre) and a point at offset p, the padded point is in the frustum when
+    ``|p·r − a| + pad ≤ T_r (d − p·b − pad)`` and ``|p·u − e| + pad ≤ T_u (d − p·b − pad)``
+    with ``T_u = tan(fov_y/2)/margin``, ``T_r = aspect·T_u``. For a given d the feasible a is
+    ``[max(p·r + pad − T_r δ), min(p·r − pad + T_r δ)]`` (δ = d − p·b − pad), non-empty from
+    some d on: d is found by bisection and a, e are the middles of their intervals.
+    points: (N, 3) [m]; fov_y: vertical field of view [rad]; aspect: view width / height.
+    """
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) == 0:
+        pts = np.zeros((1, 3))
+    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    r, u, b = Camera(np.asarray(direction, dtype=float), np.zeros(3)).axes()
+    p = pts - centre
+    pr, pu, pb = p @ r, p @ u, p @ b
+    t_u = np.tan(fov_y / 2) / margin
+    t_r = aspect * t_u
+
+    def interval(d: float, x: np.ndarray, t: float) -> tuple[float, float]:
+        delta = d - pb - pad
+        return float(np.max(x + pad - t * delta)), float(np.min(x - pad + t * delta))
+
+    def feasible(d: float) -> bool:
+        lo_r, hi_r = interval(d, pr, t_r)
+        lo_u, hi_u = interval(d, pu, t_u)
+        return lo_r <= hi_r and lo_u <= hi_u
+
+    near, far = 0.0, 1.0
+    while not feasible(far):
+        near, far = far, 2.0 * far
+    for _ in range(50):
+        mid = 0.5 * (near + far)
+        near, far = (near, mid) if feasible(mid) else (mid, far)
+    d = max(far, 0.5)
+    a = 0.5 * sum(interval(d, pr, t_r))
+    e = 0.5 * sum(interval(d, pu, t_u))
+    target = centre + a * r + e * u
+    return Camera(position=target + d * b, look_target=target)
+
+
+def scene_points(rec: StepRecord) -> np.ndarray:
+    """Points a camera must see at one step: links, end effector, goal, obstacle extremes."""
+    r = rec.obstacle_radii[:, None, None] * np.vstack([np.eye(3), -np.eye(3)])[None]
+    obstacles = (rec.obstacle_centers[:, None, :] + r).reshape(-1, 3)
+    return np.vstack([rec.link_positions, rec.ee_position, rec.goal_position, obstacles])
+
+
+def replay_blueprint(scalar_names: Iterable[str] = (), joint_names: Iterable[str] = (),
+                     camera: Camera | None = None, speed_limits: bool = True) -> rrb.Blueprint:
+    """The replay layout: the 3-D scene (visual meshes; collision meshes and body spheres hidden
+    but listed, so one click shows them; eye from ``camera``) beside one plot per quantity
+    (joints, joint speed against the limits, then :func:`plot_groups` of ``scalar_names``)."""
+    eye = None
+    if camera is not None:
+        eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital,
+                                position=camera.position.tolist(),
+                                look_target=camera.look_target.tolist(), eye_up=list(camera.up))
+    scene = rrb.Spatial3DView(
+        name="scene", origin="/world",
+        spatial_information=rrb.SpatialInformation(target_frame=WORLD_FRAME, show_axes=False),
+        overrides={path: rrb.EntityBehavior(visible=False) for path in HIDDEN_BY_DEFAULT},
+        eye_controls=eye)
+    joint_names = list(joint_names)
+
+    def legend(n: int) -> rrb.PlotLegend:  # a legend of many series hides a small plot
+        return rrb.PlotLegend(corner=rrb.Corner2D.RightTop, visible=n <= MAX_LEGEND)
+
+    plots = [rrb.TimeSeriesView(name="joints [rad]", origin="/joints",
+                                plot_legend=legend(len(joint_names)))]
+    if joint_names:
+        plots.append(rrb.TimeSeriesView(
+            name="joint speed / limit" if speed_limits else "joint speed [rad/s]",
+            origin="/joint_speed", plot_legend=legend(len(joint_names))))
+    for title, names in plot_groups(scalar_names):
+        plots.append(rrb.TimeSeriesView(name=title, origin="/metrics",
+                                         contents=[f"/metrics/{n}" for n in names],
+                                         plot_legend=legend(len(names))))
+    return rrb.Blueprint(
+        rrb.Horizontal(scene, rrb.Grid(*plots, grid_columns=2), column_shares=[3, 2]),
+        collapse_panels=True)
 
 
 def default_blueprint() -> rrb.Blueprint:
-    """3-D view of ``/world`` (target frame ``world``) beside joint and metric plots."""
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(name="scene", origin="/world",
-                              spatial_information=rrb.archetypes.SpatialInformation(
-                                  target_frame=WORLD_FRAME, show_axes=True)),
-            rrb.Vertical(
-                rrb.TimeSeriesView(name="joints [rad]", origin="/joints"),
-                rrb.TimeSeriesView(name="metrics", origin="/metrics"),
-            ),
-            column_shares=[3, 2],
-        ),
-        collapse_panels=True,
-    )
+    """:func:`replay_blueprint` before any step is known (joint plot and scene only)."""
+    return replay_blueprint()
 
 
 class RerunRecorder:
@@ -91,7 +244,9 @@ class RerunRecorder:
         prepare_output(self.path, self.active_path, self.overwrite)
         self._info = info
         rec = rr.RecordingStream(self.application_id, recording_id=info.run_id)
-        rec.save(self.active_path, default_blueprint=default_blueprint())
+        # The layout needs the scalar names and the scene's extent: sent with the first step
+        # (camera framing the start) and again on close (framing the whole episode).
+        rec.save(self.active_path)
         self._rec = rec
         rec.send_recording_name(f"{info.method}/{info.scenario_name}/seed{info.seed}")
         rec.send_property("run", rr.AnyValues(**info.metadata()))
@@ -115,6 +270,9 @@ class RerunRecorder:
         rec.log("/world/ee", rr.CoordinateFrame(WORLD_FRAME), rr.Points3D.from_fields(
             radii=0.01, colors=_EE_RGBA), static=True)
 
+        if len(info.velocity_limits):
+            rec.log("/joint_speed/limit", rr.SeriesLines(colors=_LIMIT_RGBA, names="limit",
+                                                         widths=2.0), static=True)
         self._joints = []
         self._root = None
         self._root_index = None
@@ -134,6 +292,9 @@ class RerunRecorder:
         else:
             warnings.warn(f"URDF {info.urdf_path} not found: the replay has no robot model",
                           stacklevel=2)
+        self._points: list[np.ndarray] = []  # what the camera must frame [m]
+        self._last: StepRecord | None = None
+        self._scalar_names: list[str] = []
         self._buffer: list[StepRecord] = []
         self._path_tail: list[list[float]] = []  # EE points of the current path block
         self._count = 0
@@ -142,6 +303,12 @@ class RerunRecorder:
         """Buffer one step (arrays copied); send the buffer every ``batch`` steps."""
         if self._rec is None:
             raise RuntimeError("RerunRecorder.write before open")
+        if (self._count + len(self._buffer)) % FRAME_EVERY == 0:
+            self._points.append(scene_points(rec))
+        self._last = rec
+        if not self._scalar_names and self._count == 0 and not self._buffer:
+            self._scalar_names = list(rec.scalars)
+            self._send_blueprint()
         self._buffer.append(copy_record(rec))
         if len(self._buffer) >= self.batch:
             self._send()
@@ -153,6 +320,9 @@ class RerunRecorder:
             return
         try:
             self._send()
+            if self._last is not None:
+                self._points.append(scene_points(self._last))
+            self._send_blueprint()
             fields = {k: (v if isinstance(v, (bool, int, float, str)) else str(v))
                       for k, v in summary.items()}
             stream.log("/summary", rr.AnyValues(**{**fields, "complete": bool(complete),
@@ -162,6 +332,16 @@ class RerunRecorder:
             stream.disconnect()
             self._rec = None
             os.replace(self.active_path, self.path)
+
+    def blueprint(self) -> rrb.Blueprint:
+        """The layout for what was written so far (camera framing every point seen)."""
+        info = self._info
+        camera = frame_camera(np.vstack(self._points)) if self._points else None
+        return replay_blueprint(self._scalar_names, info.joint_names, camera,
+                                speed_limits=len(info.velocity_limits) > 0)
+
+    def _send_blueprint(self) -> None:
+        self._rec.send_blueprint(self.blueprint(), make_active=True, make_default=True)
 
     # -- column-wise sending -----------------------------------------------------------------
 
@@ -206,6 +386,12 @@ class RerunRecorder:
 
         for j, name in enumerate(info.joint_names):
             send(f"/joints/{name}", rr.Scalars.columns(scalars=q[:, j]))
+        speed = np.abs(np.array([r.qd for r in recs]))
+        if len(info.velocity_limits):
+            speed = speed / info.velocity_limits
+            send("/joint_speed/limit", rr.Scalars.columns(scalars=np.ones(n)))
+        for j, name in enumerate(info.joint_names):
+            send(f"/joint_speed/{name}", rr.Scalars.columns(scalars=speed[:, j]))
         for name in recs[0].scalars:
             values = np.array([float(r.scalars.get(name, np.nan)) for r in recs])
             send(f"/metrics/{name}", rr.Scalars.columns(scalars=values))
@@ -232,6 +418,24 @@ class RerunRecorder:
                 indexes=[rr.TimeColumn("step", sequence=[s for s, _, _ in items]),
                          rr.TimeColumn("time", duration=[t for _, t, _ in items])],
                 columns=rr.LineStrips3D.columns(strips=strips))
+
+
+def write_reference_overlay(path: str | os.PathLike, recording_id: str, points: np.ndarray,
+                            label: str = "PUMA without obstacles",
+                            application_id: str = "tamedpuma") -> Path:
+    """A small ``.rrd`` that adds a reference end-effector path (static ``LineStrips3D`` on
+    :data:`REFERENCE_PATH`) to the recording ``recording_id``: the viewer merges files that share
+    application and recording ids, so the run's own file is never modified. points: (T, 3) [m]."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rec = rr.RecordingStream(application_id, recording_id=recording_id)
+    rec.save(path)
+    rec.log(REFERENCE_PATH, rr.CoordinateFrame(WORLD_FRAME), rr.LineStrips3D(
+        [np.asarray(points, dtype=float)], colors=_REFERENCE_RGBA, radii=0.004, labels=label),
+        static=True)
+    rec.flush()
+    rec.disconnect()
+    return path
 
 
 def copy_record(rec: StepRecord) -> StepRecord:
