@@ -24,11 +24,8 @@ import numpy as np
 
 from tamedpuma.metrics import RunMetrics, orientation_error, run_metrics
 from tamedpuma.recording.records import Recorder, RunInfo, StepRecord
-from tamedpuma.types import Controller, Scenario
+from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Controller, Scenario
 from tamedpuma.worlds.bullet import Simulator
-
-#: Clearance logged when the scene has no obstacle [m] (JSON has no infinity).
-NO_OBSTACLE_CLEARANCE = 1.0e3
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,10 @@ from typing import Protocol
 
 import numpy as np
 
+#: Clearance [m] logged when the scene has no obstacle: a large finite number, so every log
+#: (MCAP, Rerun, ``summary.json``) holds plain finite floats.
+NO_OBSTACLE_CLEARANCE = 1.0e3
+
 
 def _frozen_array(value, shape: tuple[int | None, ...], name: str) -> np.ndarray:
     """Return ``value`` as a read-only float64 array of ``shape`` (None = any length)."""

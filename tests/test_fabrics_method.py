@@ -20,7 +20,7 @@ GOAL = Goal(position=[0.58, -0.214, 0.115], quaternion=[-0.5459, 0.5806, -0.4112
 OBSTACLES = Obstacles(centers=[[0.5, -0.30, 0.5], [0.24355761, 0.45252747, 0.2]],
                       radii=[0.05, 0.05], velocities=np.zeros((2, 3)))
 SCALARS = {"energy_fabric", "energy_execution", "potential", "alpha_geometry", "alpha_0",
-           "alpha_psi", "alpha_ex", "eta", "beta", "min_clearance", "n_clamped",
+           "alpha_psi", "alpha_ex", "eta", "beta", "min_clearance_m", "n_clamped",
            "n_limit_clamped", "goal_distance", "orientation_error"}
 
 
@@ -110,7 +110,7 @@ def test_fabrics_reaches_the_tomato_goal_in_a_kinematic_loop(kinematics):
     scalars = trace[-1][3]
     assert SCALARS <= set(scalars)
     assert all(np.isfinite(v) for v in scalars.values())
-    assert scalars["min_clearance"] == pytest.approx(gaps[-2], abs=0.02)
+    assert scalars["min_clearance_m"] == pytest.approx(gaps[-2], abs=0.02)
     assert all(t[3]["beta"] > 0 and t[3]["n_clamped"] == 0 for t in trace)
 
 

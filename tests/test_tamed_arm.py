@@ -61,7 +61,7 @@ def _sweep(*args):
 
 @pytest.mark.parametrize("method, scalars", [
     ("puma", {"task_acc_norm"}),
-    ("fpm", {"energy_fabric", "alpha", "min_clearance"}),
+    ("fpm", {"energy_fabric", "alpha", "min_clearance_m"}),
     ("cpm", {"psi", "psi_rate", "energy_total", "alpha", "beta", "dissipation"}),
 ])
 def test_each_method_is_one_override_away(tmp_path, tiny_checkpoint, method, scalars):

@@ -32,7 +32,7 @@ energization, β = 0, and the regulator scaled by 0.05: ``q̈ = h + f_θ^C − 0
 (we keep ψ squared, at the current state, with the correct quaternion Jacobian: those were bugs).
 Scalars: ``psi`` (ψ), ``psi_rate`` (∂ψ/∂q · q̇ [1/s]), ``dissipation`` (β q̇ᵀMq̇, the predicted
 −dH/dt), ``energy_fabric`` (H_{L_e}),
-``energy_total`` (H_{L_e} + ψ), ``alpha``, ``beta``, ``min_clearance`` [m], ``n_clamped``,
+``energy_total`` (H_{L_e} + ψ), ``alpha``, ``beta``, ``min_clearance_m`` [m], ``n_clamped``,
 ``n_limit_clamped``, ``task_acc_norm``.
 """
 
@@ -44,8 +44,7 @@ import numpy as np
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric
-from tamedpuma.methods.fpm import avoidance_at, fabric_scalars, puma_and_fabric
-from tamedpuma.methods.puma import PumaController
+from tamedpuma.methods._tamed import PumaController, avoidance_at, fabric_scalars, puma_and_fabric
 from tamedpuma.types import Command, Observation, Scenario
 
 VARIANTS = ("paper", "original")

@@ -8,7 +8,7 @@ Select it with ``method=fabrics``; its gains are the ``fabric:`` block of the co
 Every step logs to ``Command.scalars``: ``energy_fabric`` (H of the avoidance fabric's energy),
 ``energy_execution`` (‖q̇‖² [rad²/s²]), ``potential`` (goal ψ), ``alpha_geometry`` (α_G),
 ``alpha_0``, ``alpha_psi``, ``alpha_ex`` (energization coefficients [1/s]), ``eta``, ``beta``
-(damping [1/s]), ``min_clearance`` [m] (body spheres vs obstacles; absent without obstacles),
+(damping [1/s]), ``min_clearance_m`` [m] (body spheres vs obstacles; absent without obstacles),
 ``ground_clearance`` [m] (only with the ground leaf), ``n_clamped`` (obstacle/ground barrier
 distances clamped at the margin: penetration), ``n_limit_clamped`` (joint-limit distances clamped:
 a state on or past a limit), ``goal_distance`` [m] and ``orientation_error`` [m].
@@ -81,7 +81,8 @@ class FabricsController:
             self._warn("penetration", f"step {obs.step}: {diag.n_clamped} body sphere barrier "
                                       "distances below the margin (penetration) were clamped")
         scalars = diag.as_scalars()
-        for key in ("min_clearance", "ground_clearance"):
+        scalars["min_clearance_m"] = scalars.pop("min_clearance")  # the name every method logs
+        for key in ("min_clearance_m", "ground_clearance"):
             if not math.isfinite(scalars[key]):
                 del scalars[key]
         return Command(qdd=qdd, scalars=scalars)

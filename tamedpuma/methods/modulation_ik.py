@@ -54,12 +54,10 @@ from tamedpuma.ik_solvers import BACKENDS, IKProblem, solve_ik, warm_up
 from tamedpuma.methods._modulation import modulate
 from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
-from tamedpuma.types import Command, Observation, Scenario
+from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
 
 log = logging.getLogger(__name__)
 
-#: min_clearance_m logged without obstacles [m] (JSON has no infinity).
-NO_OBSTACLE_CLEARANCE = 1.0e3
 _REPO = Path(__file__).resolve().parents[2]
 
 
