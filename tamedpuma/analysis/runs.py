@@ -61,7 +61,9 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
            "task": run.info.get("task"), "scenario": run.info.get("scenario_name"),
            "seed": run.info.get("seed"),
            "n_obstacles": int(run.obstacles["id"].nunique()) if len(run.obstacles) else 0,
-           "complete": run.complete, **metrics.as_dict()}
+           "complete": run.complete,
+           "stop_reason": run.summary.get("stop_reason") or ("" if run.complete else "incomplete"),
+           "read_error": run.read_error or "", **metrics.as_dict()}
     return row, ee, sc["compute_time_ms"].to_numpy()
 
 
