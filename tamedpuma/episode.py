@@ -31,13 +31,15 @@ from tamedpuma.worlds.bullet import Simulator
 @dataclass(frozen=True)
 class EpisodeResult:
     """metrics: the run's scalars; stop_reason: 'goal_reached', 'max_steps' or 'nonfinite_command';
-    trajectory: per-step arrays q (T, 7) [rad], ee_position (T, 3) [m], t (T,) [s]."""
+    trajectory: per-step arrays q (T, 7) [rad], ee_position (T, 3) [m], t (T,) [s];
+    compute_ms (T,): the controller's wall time per step [ms]."""
 
     metrics: RunMetrics
     stop_reason: str
     t: np.ndarray
     q: np.ndarray
     ee_position: np.ndarray
+    compute_ms: np.ndarray | None = None
 
 
 def run_episode(
@@ -56,6 +58,9 @@ def run_episode(
         raise ValueError(f"settle_time must be >= 0 s, got {settle_time}")
     settle_steps = math.ceil(settle_time / scenario.dt - 1e-9)
     spec = sim.spec
+    # the recorders log the true obstacle positions (the controller may see noisy ones)
+    truth = ((lambda _obs: sim.obstacle_centers()) if hasattr(sim, "obstacle_centers")
+             else (lambda o: o.obstacle_centers))
     ee_index = spec.link_names.index(spec.ee_link)
     obs = sim.reset(scenario)
     controller.reset(scenario)
@@ -96,7 +101,7 @@ def run_episode(
                 step=k, t=obs.t, q=obs.q, qd=obs.qd, qdd_cmd=qdd,
                 link_positions=link_pos, link_quaternions=link_quat,
                 ee_position=ee_p, ee_quaternion=ee_q, body_sphere_centers=centers,
-                obstacle_centers=obs.obstacle_centers, obstacle_radii=obs.obstacle_radii,
+                obstacle_centers=truth(obs), obstacle_radii=obs.obstacle_radii,
                 goal_position=obs.goal_position, goal_quaternion=obs.goal_quaternion,
                 scalars=scalars,
             )
@@ -144,4 +149,5 @@ def run_episode(
         if close_errors and complete:
             raise close_errors[0]
     return EpisodeResult(metrics=metrics, stop_reason=stop_reason, t=np.array(log["t"]),
-                         q=np.array(log["q"]), ee_position=np.array(log["ee_p"]))
+                         q=np.array(log["q"]), ee_position=np.array(log["ee_p"]),
+                         compute_ms=np.array(log["ms"]))

@@ -71,8 +71,8 @@ def disturbance_onset(cfg: dict) -> float | None:
     """Time [s] the run's configured disturbance begins (``disturbance`` group), or None."""
     dist = cfg.get("disturbance") or {}
     onset = dist.get("onset")
-    return float(onset) if dist.get("kind", "none") not in ("none", None) and onset is not None \
-        else None
+    discrete = dist.get("kind") in ("goal_change", "push")  # Disturbance.onset_time
+    return float(onset) if discrete and onset is not None else None
 
 
 def load_runs(root: str | Path) -> tuple[pd.DataFrame, dict[str, np.ndarray],

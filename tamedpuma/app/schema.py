@@ -71,6 +71,26 @@ class SimSchema:
     gravity: float = 9.81
     max_joint_force: float = 500.0
     ground: bool = True
+    control: str = "velocity"
+    stiffness: list[float] = field(default_factory=lambda: [600.0, 600.0, 300.0, 300.0, 100.0,
+                                                            50.0, 20.0])
+    damping: list[float] = field(default_factory=lambda: [30.0, 30.0, 15.0, 15.0, 5.0, 2.0, 0.5])
+    torque_limit: list[float] = field(default_factory=lambda: [320.0, 320.0, 176.0, 176.0, 110.0,
+                                                               40.0, 40.0])
+    feedforward: bool = True
+
+
+@dataclass
+class DisturbanceSchema:
+    kind: str = "none"
+    name: str = ""
+    onset: float = 3.0
+    duration: float = 0.2
+    force: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    link: str = "lbr_iiwa_link_7"
+    goal_offset: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    noise_std: float = 0.0
+    sensor_rate: float = 30.0
 
 
 @dataclass
@@ -83,6 +103,7 @@ class RecorderSchema:
 @dataclass
 class ClutterSchema:
     count: int = 0
+    total: Any = None  # int: fill up to this many obstacles in all (overrides count)
     radius: float = 0.05
     low: list[float] = field(default_factory=lambda: [-1.2, -1.2, 0.05])
     high: list[float] = field(default_factory=lambda: [1.2, 1.2, 1.4])
@@ -90,7 +111,8 @@ class ClutterSchema:
 
 
 _GROUPS = {"robot": RobotSchema, "scenario": ScenarioSchema, "sim": SimSchema,
-           "recorder": RecorderSchema, "clutter": ClutterSchema}
+           "recorder": RecorderSchema, "clutter": ClutterSchema,
+           "disturbance": DisturbanceSchema}
 _TOP = {"seed": int, "output_root": str, "stop_on_success": bool, "without_obstacles": bool,
         "settle_time": (int, float)}
 

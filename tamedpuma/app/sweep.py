@@ -52,6 +52,7 @@ class Built:
     scenario: object
     controller: object
     sim_config: object
+    disturbance: object = None
 
 
 def build(cfg: DictConfig) -> Built:
@@ -60,7 +61,7 @@ def build(cfg: DictConfig) -> Built:
     from tamedpuma import methods
     from tamedpuma.app.schema import validate
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
-    from tamedpuma.worlds.bullet import SimConfig
+    from tamedpuma.worlds.bullet import Disturbance, SimConfig
     from tamedpuma.worlds.scenarios import build_scenario
 
     validate(cfg)
@@ -71,11 +72,12 @@ def build(cfg: DictConfig) -> Built:
         scenario = build_scenario(plain, spec, kinematics)
         controller = methods.make(cfg.method.name, plain["method"], kinematics)
         sim_config = SimConfig(**plain["sim"])
+        disturbance = Disturbance(**(plain.get("disturbance") or {}))
     except TamedPumaError:
         raise
     except (ValueError, TypeError, KeyError) as exc:
         raise ConfigError(f"invalid configuration: {type(exc).__name__}: {exc}") from exc
-    return Built(spec, scenario, controller, sim_config)
+    return Built(spec, scenario, controller, sim_config, disturbance)
 
 
 def run_one(cfg: DictConfig, run_dir: Path) -> dict:
@@ -93,15 +95,20 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                    joint_names=spec.joint_names, link_names=spec.link_names,
                    body_sphere_radii=spec.sphere_radii, dt=scenario.dt,
                    velocity_limits=spec.qd_max)
-    with Simulator(spec, built.sim_config) as sim:
+    with Simulator(spec, built.sim_config, built.disturbance) as sim:
         result = run_episode(scenario, built.controller, sim, recorders, info,
                              stop_on_success=bool(cfg.stop_on_success),
                              settle_time=float(cfg.get("settle_time", 0.0)))
     summary = {"run_dir": str(run_dir), "method": cfg.method.name,
                "method_label": method_label(cfg.method), "task": cfg.task.name,
                "scenario": scenario.name, "seed": int(cfg.seed),
+               "n_obstacles": len(scenario.obstacles),
+               "disturbance": built.disturbance.name or built.disturbance.kind,
+               "control": built.sim_config.control,
                "stop_reason": result.stop_reason, **result.metrics.as_dict(),
-               "files": {k: str(v) for k, v in files.items()}}
+               "files": {k: str(v) for k, v in files.items()},
+               # every step's controller time [ms] (pooled statistics across runs)
+               "step_compute_ms": [round(float(v), 5) for v in result.compute_ms]}
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 

@@ -3,9 +3,29 @@
 The only module that imports PyBullet. It knows the robot (a :class:`RobotSpec`) and the scenario,
 never the method that drives it.
 
-Control: every control period Δt [s] the controller's joint acceleration q̈ [rad/s²] becomes a
-joint-velocity target ``q̇_cmd = clip(q̇ + q̈ Δt, ±q̇_max)`` [rad/s], held for Δt / substep PyBullet
-steps of 1 ms. Obstacles move kinematically, ``o(t) = o₀ + t v``, updated once per control period.
+Control (``SimConfig.control``): every control period Δt [s] the controller's joint acceleration
+q̈ [rad/s²] becomes the velocity target ``q̇_cmd = clip(q̇_k + q̈ Δt, ±q̇_max)`` [rad/s], i.e. the
+acceleration ``a = (q̇_cmd − q̇_k)/Δt``, and is then tracked over the Δt / substep PyBullet steps of
+1 ms by
+
+- ``velocity`` (default): PyBullet's velocity motors hold q̇_cmd (force limit ``max_joint_force``);
+- ``impedance``: a 1 kHz joint impedance (torque) controller with gravity compensation, as on the
+  real iiwa: at each substep, τ after the period start,
+  ``q_d = q_k + q̇_k τ + ½ a τ²``, ``q̇_d = q̇_k + a τ`` and the torque [N·m]
+  ``u = g(q) + K (q_d − q) + D (q̇_d − q̇)`` (+ ``M(q) a + c(q, q̇)`` when ``feedforward``: the
+  inverse dynamics of a at the measured state, which contains g), clipped to ``torque_limit``.
+  With a 30 Hz policy use Δt = 0.033 s (``disturbance=impedance`` sets it).
+
+Obstacles move kinematically, ``o(t) = o₀ + t v``, updated once per control period.
+
+Disturbances (:class:`Disturbance`, ``conf/disturbance/``): ``goal_change`` (from ``onset`` the
+goal is displaced by ``goal_offset`` [m], seen at once by the controller); ``push`` (an external
+force ``force`` [N], world frame, at the origin of ``link`` for ``duration`` s from ``onset``,
+applied at every physics substep); ``obstacle_noise`` (the controller sees obstacle centres
+sampled at ``sensor_rate`` [Hz] with i.i.d. Gaussian noise of std ``noise_std`` [m] per axis, held
+between samples, seeded by the scenario seed; the true positions decide every clearance and
+contact, and are what the recorders log).
+
 Each simulator owns its own PyBullet client (DIRECT by default), so runs are independent and the
 same inputs give the identical trajectory.
 """
@@ -32,14 +52,63 @@ class SimConfig:
     gravity: float = 9.81
     max_joint_force: float = 500.0
     ground: bool = True
+    control: str = "velocity"
+    stiffness: tuple = (600.0, 600.0, 300.0, 300.0, 100.0, 50.0, 20.0)  # K [N·m/rad]
+    damping: tuple = (30.0, 30.0, 15.0, 15.0, 5.0, 2.0, 0.5)            # D [N·m·s/rad]
+    torque_limit: tuple = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)  # [N·m] (iiwa 14)
+    feedforward: bool = True
+
+    def __post_init__(self):
+        if self.control not in CONTROL_MODES:
+            raise ValueError(f"sim.control must be one of {CONTROL_MODES}, got {self.control!r}")
+
+
+CONTROL_MODES = ("velocity", "impedance")
+DISTURBANCE_KINDS = ("none", "goal_change", "push", "obstacle_noise")
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """What perturbs an episode (see the module docstring). name: the behaviour's name in run
+    folders and tables (``impedance`` has kind ``none``); onset [s]; duration [s] (push);
+    force (3,) [N] in the world frame (push); link: the pushed link; goal_offset (3,) [m]
+    (goal_change); noise_std [m] and sensor_rate [Hz] (obstacle_noise)."""
+
+    kind: str = "none"
+    name: str = ""  # the config's name (run folders, tables); the kind if empty
+    onset: float = 3.0
+    duration: float = 0.2
+    force: tuple = (0.0, 0.0, 0.0)
+    link: str = "lbr_iiwa_link_7"
+    goal_offset: tuple = (0.0, 0.0, 0.0)
+    noise_std: float = 0.0
+    sensor_rate: float = 30.0
+
+    def __post_init__(self):
+        if self.kind not in DISTURBANCE_KINDS:
+            raise ValueError(f"disturbance.kind must be one of {DISTURBANCE_KINDS}, "
+                             f"got {self.kind!r}")
+        if not (self.onset >= 0 and self.duration >= 0 and self.noise_std >= 0
+                and self.sensor_rate > 0):
+            raise ValueError("disturbance: onset, duration and noise_std must be >= 0, "
+                             "sensor_rate > 0")
+        if len(self.force) != 3 or len(self.goal_offset) != 3:
+            raise ValueError("disturbance.force and goal_offset must have 3 components")
+
+    @property
+    def onset_time(self) -> float | None:
+        """When a discrete disturbance begins [s] (goal change, push), else None."""
+        return float(self.onset) if self.kind in ("goal_change", "push") else None
 
 
 class Simulator:
     """A PyBullet world for one robot. ``reset(scenario)`` then ``step(q̈)`` per control period."""
 
-    def __init__(self, spec: RobotSpec, config: SimConfig = SimConfig()):
+    def __init__(self, spec: RobotSpec, config: SimConfig = SimConfig(),
+                 disturbance: Disturbance = Disturbance()):
         self.spec = spec
         self.config = config
+        self.disturbance = disturbance
         self._client = pb.connect(pb.GUI if config.gui else pb.DIRECT)
         self._robot = -1
         self._obstacle_ids: list[int] = []
@@ -83,14 +152,32 @@ class Simulator:
         self._sphere_radii = self.spec.sphere_radii
         for j, q in zip(self._joint_idx, scenario.q0):
             pb.resetJointState(self._robot, j, float(q), 0.0, physicsClientId=c)
-        # velocity motors hold the arm; gravity is compensated by the motor force
+        # velocity motors hold the arm (gravity is compensated by the motor force); in impedance
+        # mode they are switched off (force 0) and the torques below act alone
+        motor_force = self.config.max_joint_force if self.config.control == "velocity" else 0.0
         pb.setJointMotorControlArray(self._robot, self._joint_idx, pb.VELOCITY_CONTROL,
                                      targetVelocities=[0.0] * self.spec.dof,
-                                     forces=[self.config.max_joint_force] * self.spec.dof,
+                                     forces=[motor_force] * self.spec.dof,
                                      physicsClientId=c)
+        n_joints = pb.getNumJoints(self._robot, physicsClientId=c)
+        movable = [i for i in range(n_joints)
+                   if pb.getJointInfo(self._robot, i, physicsClientId=c)[2] != pb.JOINT_FIXED]
+        if self.config.control == "impedance" and movable != list(self._joint_idx):
+            raise ValueError("impedance control needs the actuated joints to be all the "
+                             "robot's movable joints")
+        dist = self.disturbance
+        self._push_link = -1
+        if dist.kind == "push":
+            if dist.link not in self.spec.link_names:
+                raise ValueError(f"disturbance.link {dist.link!r} is not one of "
+                                 f"{list(self.spec.link_names)}")
+            self._push_link = self._link_idx[self.spec.link_names.index(dist.link)]
+        self._noise_rng = np.random.default_rng([int(scenario.seed), 4243])
+        self._sensor_sample = -1
+        self._sensed_centers = None
         self._obstacle_ids = self._add_obstacles(scenario)
-        self._goal_marker = self._add_goal_marker(scenario)
         self._scenario = scenario
+        self._goal_marker = self._add_goal_marker(scenario)
         self._step = 0
         return self.observe()
 
@@ -111,7 +198,8 @@ class Simulator:
         vis = pb.createVisualShape(pb.GEOM_SPHERE, radius=0.02, rgbaColor=[0.1, 0.8, 0.1, 0.6],
                                    physicsClientId=c)
         return pb.createMultiBody(baseMass=0, baseVisualShapeIndex=vis,
-                                  basePosition=scenario.goal.position.tolist(), physicsClientId=c)
+                                  basePosition=self.goal_position(0.0).tolist(),
+                                  physicsClientId=c)
 
     # -- stepping ---------------------------------------------------------------------------
     @property
@@ -119,19 +207,39 @@ class Simulator:
         """Simulated time [s]."""
         return self._step * self._scenario.dt
 
+    @property
+    def disturbance_time(self) -> float | None:
+        """Onset [s] of the configured discrete disturbance (goal change, push), else None."""
+        return self.disturbance.onset_time
+
+    def goal_position(self, t: float) -> np.ndarray:
+        """The goal at time t [s]: the scenario's, displaced from the onset of a goal change."""
+        goal = self._scenario.goal.at(t)
+        dist = self.disturbance
+        if dist.kind == "goal_change" and t >= dist.onset - 1e-9:
+            goal = goal + np.asarray(dist.goal_offset, dtype=float)
+        return goal
+
     def step(self, qdd: np.ndarray) -> Observation:
         """Apply q̈ [rad/s²] for one control period and return the next observation."""
         sc = self._scenario
         c = self._client
-        qd = self._joint_velocities()
+        q0, qd = self._joint_state()
         qd_cmd = np.clip(qd + np.asarray(qdd, dtype=float) * sc.dt,
                          -self.spec.qd_max, self.spec.qd_max)
         self._qd_cmd = qd_cmd
-        pb.setJointMotorControlArray(self._robot, self._joint_idx, pb.VELOCITY_CONTROL,
-                                     targetVelocities=qd_cmd.tolist(),
-                                     forces=[self.config.max_joint_force] * self.spec.dof,
-                                     physicsClientId=c)
-        for _ in range(self._n_sub):
+        if self.config.control == "velocity":
+            pb.setJointMotorControlArray(self._robot, self._joint_idx, pb.VELOCITY_CONTROL,
+                                         targetVelocities=qd_cmd.tolist(),
+                                         forces=[self.config.max_joint_force] * self.spec.dof,
+                                         physicsClientId=c)
+        acc = (qd_cmd - qd) / sc.dt
+        t0 = self.t
+        for i in range(self._n_sub):
+            tau = i * self.config.substep
+            if self.config.control == "impedance":
+                self._apply_impedance(q0 + qd * tau + 0.5 * acc * tau**2, qd + acc * tau, acc)
+            self._apply_push(t0 + tau)
             pb.stepSimulation(physicsClientId=c)
         self._step += 1
         t = self.t
@@ -139,29 +247,80 @@ class Simulator:
             for oid, center in zip(self._obstacle_ids, sc.obstacles.at(t)):
                 pb.resetBasePositionAndOrientation(oid, center.tolist(), [0, 0, 0, 1],
                                                    physicsClientId=c)
-        if np.any(sc.goal.velocity != 0):
-            pb.resetBasePositionAndOrientation(self._goal_marker, sc.goal.at(t).tolist(),
+        if np.any(sc.goal.velocity != 0) or self.disturbance.kind == "goal_change":
+            pb.resetBasePositionAndOrientation(self._goal_marker, self.goal_position(t).tolist(),
                                                [0, 0, 0, 1], physicsClientId=c)
         return self.observe()
 
-    def _joint_velocities(self) -> np.ndarray:
+    def _apply_impedance(self, q_d: np.ndarray, qd_d: np.ndarray, acc: np.ndarray) -> None:
+        """One substep of the joint impedance controller (module docstring)."""
+        c = self._client
+        q, qd = self._joint_state()
+        cfg = self.config
+        if cfg.feedforward:
+            base = pb.calculateInverseDynamics(self._robot, q.tolist(), qd.tolist(),
+                                               acc.tolist(), physicsClientId=c)
+        else:
+            zeros = [0.0] * self.spec.dof
+            base = pb.calculateInverseDynamics(self._robot, q.tolist(), zeros, zeros,
+                                               physicsClientId=c)
+        torque = (np.asarray(base) + np.asarray(cfg.stiffness) * (q_d - q)
+                  + np.asarray(cfg.damping) * (qd_d - qd))
+        limit = np.asarray(cfg.torque_limit, dtype=float)
+        pb.setJointMotorControlArray(self._robot, self._joint_idx, pb.TORQUE_CONTROL,
+                                     forces=np.clip(torque, -limit, limit).tolist(),
+                                     physicsClientId=c)
+
+    def _apply_push(self, t: float) -> None:
+        """The push's force on its link if t [s] is inside [onset, onset + duration)."""
+        dist = self.disturbance
+        if dist.kind != "push" or not dist.onset - 1e-9 <= t < dist.onset + dist.duration - 1e-9:
+            return
+        c = self._client
+        if self._push_link >= 0:
+            where = pb.getLinkState(self._robot, self._push_link, physicsClientId=c)[4]
+        else:
+            where = pb.getBasePositionAndOrientation(self._robot, physicsClientId=c)[0]
+        pb.applyExternalForce(self._robot, self._push_link, list(map(float, dist.force)), where,
+                              pb.WORLD_FRAME, physicsClientId=c)
+
+    def _joint_state(self) -> tuple[np.ndarray, np.ndarray]:
         states = pb.getJointStates(self._robot, self._joint_idx, physicsClientId=self._client)
-        return np.array([s[1] for s in states])
+        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
+
+    def obstacle_centers(self, t: float | None = None) -> np.ndarray:
+        """True obstacle centres (n, 3) [m] at time t (default: now): what decides contacts."""
+        return self._scenario.obstacles.at(self.t if t is None else t)
+
+    def _sensed_obstacles(self, t: float) -> np.ndarray:
+        """Obstacle centres as the controller sees them (noisy, sampled, held) at time t [s]."""
+        dist = self.disturbance
+        truth = self._scenario.obstacles.at(t)
+        if dist.kind != "obstacle_noise" or not len(truth):
+            return truth
+        sample = math.floor(t * dist.sensor_rate + 1e-9)
+        if sample != self._sensor_sample:
+            t_s = sample / dist.sensor_rate
+            self._sensed_centers = (self._scenario.obstacles.at(t_s)
+                                    + self._noise_rng.normal(0.0, dist.noise_std, truth.shape))
+            self._sensor_sample = sample
+        return self._sensed_centers
 
     def observe(self) -> Observation:
-        """The current state as an :class:`Observation` (simulator truth)."""
+        """The current state as an :class:`Observation` (simulator truth, except the obstacle
+        centres under ``obstacle_noise``)."""
         sc = self._scenario
-        states = pb.getJointStates(self._robot, self._joint_idx, physicsClientId=self._client)
+        q, qd = self._joint_state()
         t = self.t
         return Observation(
             t=t,
             step=self._step,
-            q=np.array([s[0] for s in states]),
-            qd=np.array([s[1] for s in states]),
-            obstacle_centers=sc.obstacles.at(t),
+            q=q,
+            qd=qd,
+            obstacle_centers=self._sensed_obstacles(t),
             obstacle_radii=sc.obstacles.radii,
             obstacle_velocities=sc.obstacles.velocities,
-            goal_position=sc.goal.at(t),
+            goal_position=self.goal_position(t),
             goal_quaternion=sc.goal.quaternion,
             goal_velocity=sc.goal.velocity,
         )

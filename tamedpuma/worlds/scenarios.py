@@ -148,6 +148,18 @@ def without_obstacles(scenario: Scenario) -> Scenario:
     return replace(scenario, obstacles=Obstacles.empty())
 
 
+def clutter_count(clutter: Mapping, own: int) -> int:
+    """How many clutter obstacles to add: ``clutter.total`` − the scenario's own ``own`` when a
+    total is set (the obstacle-count sweep: 2, 10, 100, 1000 in all), else ``clutter.count``."""
+    total = clutter.get("total")
+    if total is not None:
+        if int(total) < own:
+            raise ScenarioError(f"clutter.total={total} is below the scenario's own {own} "
+                                f"obstacles")
+        return int(total) - own
+    return int(clutter.get("count", 0))
+
+
 def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
     """The run's scenario from a whole resolved run config (plain mapping): the ``scenario``
     group checked against the ``task`` group, then ``without_obstacles`` and ``clutter``
@@ -163,11 +175,12 @@ def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
     if cfg.get("without_obstacles"):
         scenario = without_obstacles(scenario)
     clutter = cfg.get("clutter") or {}
-    if int(clutter.get("count", 0)) > 0:
+    count = clutter_count(clutter, len(scenario.obstacles))
+    if count > 0:
         keep_out = np.concatenate([kinematics.sphere_centers(scenario.q0),
                                    kinematics.ee_pose(scenario.q0)[0][None],
                                    scenario.goal.position[None]])
-        scenario = with_clutter(scenario, int(clutter["count"]), float(clutter["radius"]),
+        scenario = with_clutter(scenario, count, float(clutter["radius"]),
                                 clutter["low"], clutter["high"], keep_out,
                                 float(clutter["min_distance"]),
                                 np.random.default_rng([int(cfg.get("seed", 0)), 7919]))

@@ -1,0 +1,65 @@
+"""The disturbance experiment from a sweep's summaries:
+``python -m analysis.disturbance RUNS_DIR [--out DIR]`` (after ``+experiment=disturbance``).
+
+Per disturbance (goal_change, push, obstacle_noise, impedance) and method label: the runs,
+success under both criteria, time to success [s] and recovery time [s] (mean ± std over the
+successful runs; recovery = time to success − the disturbance's onset, for the goal change and
+the push; the noise and the impedance chain act throughout, so only time to success applies),
+and the whole-body failures by class. Writes ``disturbance.md`` and ``disturbance.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from tamedpuma.analysis.summaries import load_summaries
+from tamedpuma.analysis.tables import _pm, failure_counts, ordered_labels
+
+
+def disturbance_table(runs: pd.DataFrame) -> pd.DataFrame:
+    rows = []
+    for dist in sorted(runs["disturbance"].fillna("none").unique()):
+        d = runs[runs["disturbance"].fillna("none") == dist]
+        for label in ordered_labels(d["method_label"]):
+            r = d[d["method_label"] == label]
+            ok = r[r["success_whole_body"]]
+            rows.append({
+                "disturbance": dist, "method": label, "runs": len(r),
+                "success (paper)": f"{r['success_paper'].mean():.2f}",
+                "success (whole body)": f"{r['success_whole_body'].mean():.2f}",
+                "time-to-success [s]": _pm(ok["time_to_success_s"]),
+                "recovery [s]": _pm(ok["recovery_time_s"]),
+                "whole-body failures": failure_counts(r["failure_whole_body"]),
+            })
+    return pd.DataFrame(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default: RUNS)")
+    args = parser.parse_args(argv)
+    if not args.runs.is_dir():
+        print(f"error: {args.runs} is not a folder", file=sys.stderr)
+        return 2
+    runs, _ = load_summaries(args.runs)
+    if runs.empty:
+        print(f"error: no run summaries (summary.json) below {args.runs}", file=sys.stderr)
+        return 2
+    table = disturbance_table(runs)
+    out = args.out or args.runs
+    out.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out / "disturbance.csv", index=False)
+    text = table.to_markdown(index=False, disable_numparse=True) + "\n"
+    (out / "disturbance.md").write_text(text)
+    print(text)
+    print(f"{len(runs)} runs read; disturbance.md, disturbance.csv in {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

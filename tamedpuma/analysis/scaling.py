@@ -1,0 +1,109 @@
+"""Obstacle-count scaling from a sweep's summaries:
+``python -m analysis.scaling RUNS_DIR [--out DIR]`` (after ``+experiment=scaling``).
+
+Per method label and obstacle count (the scenario's own plus clutter, as run): the runs, success
+under both criteria (``tamedpuma/metrics.py``) and the controller time over every step of those
+runs (median and p99 [ms]; the first step of each run is included). Writes ``scaling.md``,
+``scaling.csv`` and ``scaling.png`` (time and success against the count, one line per method).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from tamedpuma.analysis.summaries import load_summaries, pooled_step_times
+from tamedpuma.analysis.tables import ordered_labels
+
+
+def scaling_table(runs: pd.DataFrame, times: dict) -> pd.DataFrame:
+    """One row per (method label, obstacle count): runs, success (paper / whole body), pooled
+    controller time median and p99 [ms], mean first step [ms], steps timed."""
+    rows = []
+    for label in ordered_labels(runs["method_label"]):
+        r = runs[runs["method_label"] == label]
+        for count in sorted(r["n_obstacles"].unique()):
+            c = r[r["n_obstacles"] == count]
+            st = pooled_step_times(c["path"], times)
+            rows.append({"method": label, "obstacles": int(count), "runs": len(c),
+                         "success_paper": c["success_paper"].mean(),
+                         "success_whole_body": c["success_whole_body"].mean(),
+                         "median_ms": st["median"], "p99_ms": st["p99"],
+                         "first_step_ms": st["first_mean"], "steps": st["steps"]})
+    return pd.DataFrame(rows)
+
+
+def markdown(table: pd.DataFrame) -> str:
+    """Methods as rows, counts as columns: 'median / p99 ms (paper, whole-body success)'."""
+    counts = sorted(table["obstacles"].unique())
+    lines = ["| method | " + " | ".join(f"{c} obstacles" for c in counts) + " |",
+             "|---|" + "---|" * len(counts)]
+    for label in ordered_labels(table["method"]):
+        cells = []
+        for c in counts:
+            row = table[(table["method"] == label) & (table["obstacles"] == c)]
+            if row.empty:
+                cells.append("—")
+                continue
+            r = row.iloc[0]
+            cells.append(f"{r.median_ms:.2f} / {r.p99_ms:.2f} ms "
+                         f"({r.success_paper:.2f}, {r.success_whole_body:.2f}; n={r.runs})")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(table: pd.DataFrame, path: Path) -> None:
+    """Controller time (median solid, p99 dashed) and success (paper) against the count."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_t, ax_s) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for label in ordered_labels(table["method"]):
+        r = table[table["method"] == label].sort_values("obstacles")
+        line, = ax_t.plot(r["obstacles"], r["median_ms"], "o-", label=label)
+        ax_t.plot(r["obstacles"], r["p99_ms"], "--", color=line.get_color())
+        ax_s.plot(r["obstacles"], r["success_paper"], "o-", color=line.get_color(), label=label)
+        ax_s.plot(r["obstacles"], r["success_whole_body"], "x:", color=line.get_color())
+    ax_t.set(xscale="log", yscale="log", xlabel="obstacles", ylabel="controller time [ms]",
+             title="median (solid) and p99 (dashed) per step")
+    ax_s.set(xscale="log", xlabel="obstacles", ylabel="success rate", ylim=(-0.05, 1.05),
+             title="success: paper (solid), whole body (dotted)")
+    ax_t.legend(fontsize=8)
+    for ax in (ax_t, ax_s):
+        ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default: RUNS)")
+    args = parser.parse_args(argv)
+    if not args.runs.is_dir():
+        print(f"error: {args.runs} is not a folder", file=sys.stderr)
+        return 2
+    runs, times = load_summaries(args.runs)
+    if runs.empty:
+        print(f"error: no run summaries (summary.json) below {args.runs}", file=sys.stderr)
+        return 2
+    table = scaling_table(runs, times)
+    out = args.out or args.runs
+    out.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out / "scaling.csv", index=False)
+    text = markdown(table)
+    (out / "scaling.md").write_text(text)
+    figure(table, out / "scaling.png")
+    print(text)
+    print(f"{len(runs)} runs read; scaling.md, scaling.csv, scaling.png in {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
