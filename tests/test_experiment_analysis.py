@@ -1,0 +1,100 @@
+"""The analyses of the scaling, disturbance and randomized experiments on synthetic run summaries:
+pooled step-time statistics, bootstrap intervals, tables and the figure."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tamedpuma.analysis import disturbance, scaling
+from tamedpuma.analysis.summaries import bootstrap_ci, load_summaries, pooled_step_times
+from tamedpuma.metrics import run_metrics
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _summary(folder: Path, method: str, n_obstacles: int, step_ms: float, success: bool,
+             disturbance_name: str = "none", onset: float | None = None):
+    n = 300
+    t = np.arange(n) * 0.02
+    pos = np.where(np.arange(n) >= 200, 0.01, 0.5) if success else np.full(n, 0.5)
+    m = run_metrics(t=t, position_error=pos, orientation_error=np.zeros(n),
+                    clearance=np.full(n, 0.1), obstacle_contact=np.zeros(n, bool),
+                    ground_contact=np.zeros(n, bool), q=np.zeros((n, 7)), q_min=-np.ones(7),
+                    q_max=np.ones(7), compute_ms=np.full(n, step_ms), disturbance_time=onset,
+                    ee_position=np.zeros((n, 3)))
+    folder.mkdir(parents=True)
+    steps = [10 * step_ms] + [step_ms] * (n - 1)  # a slow first (warm-up) step
+    (folder / "summary.json").write_text(json.dumps({
+        "method": method, "method_label": method, "task": "tomato", "scenario": "s",
+        "n_obstacles": n_obstacles, "disturbance": disturbance_name, **m.as_dict(),
+        "step_compute_ms": steps}))
+
+
+def test_bootstrap_interval_contains_the_rate_and_narrows_with_more_scenarios():
+    assert bootstrap_ci(np.ones(50)) == (1.0, 1.0)
+    small = bootstrap_ci(np.r_[np.ones(10), np.zeros(10)])
+    large = bootstrap_ci(np.r_[np.ones(200), np.zeros(200)])
+    assert small[0] < 0.5 < small[1] and large[0] < 0.5 < large[1]
+    assert large[1] - large[0] < 0.5 * (small[1] - small[0])
+    # the normal approximation of a binomial proportion: ±1.96 sqrt(p(1-p)/n)
+    assert large[1] - large[0] == pytest.approx(2 * 1.96 * np.sqrt(0.25 / 400), rel=0.1)
+
+
+def test_pooled_step_times_count_every_step_of_every_run():
+    times = {"a": np.array([9.0, 1.0, 1.0]), "b": np.array([5.0, 3.0])}
+    st = pooled_step_times(["a", "b"], times)
+    assert st["steps"] == 5 and st["median"] == 3.0 and st["first_mean"] == 7.0
+    assert st["mean"] == pytest.approx(19 / 5)
+
+
+def test_scaling_table_and_figure_from_summaries(tmp_path):
+    runs = tmp_path / "runs"
+    for count, ms in ((2, 0.5), (1000, 2.0)):
+        for k, ok in enumerate((True, False)):
+            _summary(runs / f"{count}" / f"fpm_{k}", "fpm", count, ms, ok)
+        _summary(runs / f"{count}" / "puma_0", "puma", count, 0.3, True)
+    frame, times = load_summaries(runs)
+    table = scaling.scaling_table(frame, times).set_index(["method", "obstacles"])
+    assert table.loc[("fpm", 1000), "median_ms"] == pytest.approx(2.0)
+    assert table.loc[("fpm", 1000), "p99_ms"] == pytest.approx(2.0)  # 2 warm-up steps of 600
+    assert table.loc[("fpm", 1000), "first_step_ms"] == pytest.approx(20.0)
+    assert table.loc[("fpm", 2), "success_paper"] == 0.5 and table.loc[("fpm", 2), "runs"] == 2
+    assert scaling.main([str(runs), "--out", str(tmp_path / "out")]) == 0
+    assert (tmp_path / "out" / "scaling.png").stat().st_size > 10_000
+    text = (tmp_path / "out" / "scaling.md").read_text()
+    assert "| puma |" in text.splitlines()[2] and "1000 obstacles" in text
+
+
+def test_disturbance_table_reports_recovery_from_the_onset(tmp_path):
+    runs = tmp_path / "runs"
+    _summary(runs / "push" / "fpm", "fpm", 2, 1.0, True, "push", onset=1.0)
+    _summary(runs / "push" / "puma", "puma", 2, 1.0, False, "push", onset=1.0)
+    frame, _ = load_summaries(runs)
+    table = disturbance.disturbance_table(frame).set_index("method")
+    assert table.loc["fpm", "recovery [s]"] == "3.00 ± 0.00"  # reached at 4 s, pushed at 1 s
+    assert table.loc["puma", "success (whole body)"] == "0.00"
+    assert table.loc["puma", "whole-body failures"] == "stall 1"
+
+
+@pytest.mark.parametrize("module", ["analysis.scaling", "analysis.disturbance",
+                                    "analysis.random_suite"])
+def test_an_empty_folder_is_a_one_line_error(tmp_path, module):
+    proc = subprocess.run([sys.executable, "-m", module, str(tmp_path)], cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and proc.stderr.startswith("error: ")
+    assert proc.stderr.count("\n") == 1
+
+
+def test_summaries_without_step_times_are_skipped(tmp_path):
+    (tmp_path / "r").mkdir()
+    (tmp_path / "r" / "summary.json").write_text(json.dumps({"method": "fpm"}))
+    frame, _ = load_summaries(tmp_path)
+    assert frame.empty and len(frame.attrs["skipped"]) == 1
+    assert isinstance(frame, pd.DataFrame)
