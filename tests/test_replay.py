@@ -170,3 +170,34 @@ def test_rendered_replay_shows_the_arm_where_its_links_project(sweep, tmp_path):
 def test_ci_installs_the_vulkan_driver():
     script = (REPO / ".ci" / "run").read_text()
     assert "mesa-vulkan-drivers" in script and os.access(REPO / ".ci" / "run", os.X_OK)
+
+
+def test_foxglove_layout_names_recorded_channels(sweep):
+    """docs/foxglove_layout.json: every panel of the mosaic is configured, and every message
+    path reads a channel (and for /scalars a field) that the recorder writes."""
+    import json
+
+    from mcap.reader import make_reader
+
+    layout = json.loads((REPO / "docs" / "foxglove_layout.json").read_text())
+    panels, stack = [], [layout["layout"]]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, str):
+            panels.append(node)
+        else:
+            stack += [node["first"], node["second"]]
+    assert set(panels) == set(layout["configById"])
+    with open(sweep[0] / "episode.mcap", "rb") as f:
+        topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
+    fields = set(read_mcap(sweep[0] / "episode.mcap").scalars.columns)
+    for name, cfg in layout["configById"].items():
+        paths = [p["value"] for p in cfg.get("paths", [])] + [cfg.get("topicPath", "")]
+        paths += list(cfg.get("topics", {}))
+        for path in filter(None, paths):
+            topic = "/" + path.lstrip("/").split(".")[0]
+            assert topic in topics, (name, path)
+        assert all(p["value"].split(".", 1)[1] in fields | {"psi", "min_clearance_m",
+                                                            "energy_total", "energy_fabric",
+                                                            "energy_execution"}
+                   for p in cfg.get("paths", []) if p["value"].startswith("/scalars."))

@@ -7,8 +7,8 @@
   start value) over time, one thin line per run, coloured by method;
 - ``success_timing.png``: success rate per method (paper and whole-body criteria), time to
   success [s] and controller time [ms] (median of each run), each with a 95% bootstrap interval;
-- ``scaling.png`` (only when a method was run at three or more obstacle counts, e.g. the
-  ``clutter.count`` sweep): controller time and success against the number of obstacles.
+- ``scaling.png`` (only when a method was run at three or more obstacle counts up to 10 or more,
+  the ``clutter.count`` sweep): controller time and success against the number of obstacles.
 
 Everything is read from the MCAP logs alone (:mod:`tamedpuma.analysis.runs`).
 """
@@ -57,8 +57,11 @@ def method_colors(labels) -> dict[str, tuple]:
     return out
 
 
+FORMATS = ("png", "pdf")
+
+
 def _save(fig, out: Path, name: str) -> list[Path]:
-    paths = [out / f"{name}.png", out / f"{name}.pdf"]
+    paths = [out / f"{name}.{fmt}" for fmt in FORMATS]
     for p in paths:
         fig.savefig(p, bbox_inches="tight")
     _plt().close(fig)
@@ -236,10 +239,11 @@ def success_timing_figure(runs: pd.DataFrame, out: Path) -> list[Path]:
     return _save(fig, out, "success_timing")
 
 
-def has_scaling(runs: pd.DataFrame) -> bool:
-    """Whether some method was run at three or more obstacle counts."""
-    counts = runs.groupby(_labels(runs))["n_obstacles"].nunique()
-    return bool((counts >= 3).any())
+def has_scaling(runs: pd.DataFrame, min_counts: int = 3, min_largest: int = 10) -> bool:
+    """Whether some method was run at ``min_counts`` or more obstacle counts reaching at least
+    ``min_largest`` obstacles (the obstacle-count sweep, not the scenarios' own 0-3)."""
+    g = runs.groupby(_labels(runs))["n_obstacles"]
+    return bool(((g.nunique() >= min_counts) & (g.max() >= min_largest)).any())
 
 
 def scaling_figure(runs: pd.DataFrame, out: Path) -> list[Path]:
@@ -293,8 +297,11 @@ def goal_positions(runs: pd.DataFrame) -> dict[str, np.ndarray]:
     return goals
 
 
-def make_figures(runs: pd.DataFrame, paths: dict, out: Path) -> list[Path]:
-    """Every figure the runs support; returns the files written (PNG and PDF)."""
+def make_figures(runs: pd.DataFrame, paths: dict, out: Path,
+                 formats: tuple[str, ...] = ("png", "pdf")) -> list[Path]:
+    """Every figure the runs support; returns the files written (one per format)."""
+    global FORMATS
+    FORMATS = tuple(formats)
     out.mkdir(parents=True, exist_ok=True)
     written = []
     series = load_series(runs)
@@ -313,6 +320,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (default: RUNS/figures)")
+    parser.add_argument("--formats", default="png,pdf",
+                        help="comma-separated file formats (default: png,pdf)")
     args = parser.parse_args(argv)
     if not args.runs.is_dir():
         print(f"error: {args.runs} is not a folder", file=sys.stderr)
@@ -321,10 +330,10 @@ def main(argv: list[str] | None = None) -> int:
     if runs.empty:
         print(f"error: no readable run logs (episode.mcap) below {args.runs}", file=sys.stderr)
         return 2
-    written = make_figures(runs, paths, args.out or args.runs / "figures")
+    formats = tuple(f.strip() for f in args.formats.split(",") if f.strip())
+    written = make_figures(runs, paths, args.out or args.runs / "figures", formats)
     for p in written:
-        if p.suffix == ".png":
-            print(p)
+        print(p)
     return 0
 
 
