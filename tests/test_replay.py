@@ -130,6 +130,10 @@ def test_rendered_replay_shows_the_arm_where_its_links_project(sweep, tmp_path):
         layout = viewer.client.get_blueprint().blueprint
         key = next(k for k in layout if k.endswith("/EyeControls3D"))
         eye = layout[key]["EyeControls3D"]
+        hidden = {k for k, v in layout.items()
+                  if v.get("EntityBehavior", {}).get("visible") is False}
+        assert any("lbr_iiwa/collision_geometries" in k for k in hidden)  # no z-fighting
+        assert any("body_spheres" in k for k in hidden)
         # the same layout with the arm hidden (as the eye icon in the viewer would)
         view = key[: -len("/EyeControls3D")]
         layout[f"{view}/ViewContents/overrides/world/lbr_iiwa/visualizers"] = {
@@ -201,3 +205,24 @@ def test_foxglove_layout_names_recorded_channels(sweep):
                                                             "energy_total", "energy_fabric",
                                                             "energy_execution"}
                    for p in cfg.get("paths", []) if p["value"].startswith("/scalars."))
+
+
+def test_web_serving_hands_the_files_to_the_viewer_with_cors(sweep):
+    """--web: the run's files over HTTP with a CORS header, named in the viewer link."""
+    import urllib.parse
+    import urllib.request
+
+    from tamedpuma.app.replay import prepare, serve_files, web_url
+
+    replay = prepare(sweep[1], reference=None)
+    server = serve_files(replay.rrd.parent, "127.0.0.1", 0)
+    try:
+        port = server.server_address[1]
+        link = web_url("127.0.0.1", 9090, port, replay.files, replay.rrd.parent)
+        (url,) = urllib.parse.parse_qs(urllib.parse.urlparse(link).query)["url"]
+        with urllib.request.urlopen(url, timeout=10) as resp:
+            assert resp.headers["Access-Control-Allow-Origin"] == "*"
+            assert resp.read() == replay.rrd.read_bytes()
+    finally:
+        server.shutdown()
+        server.server_close()
