@@ -90,3 +90,29 @@ def test_link_poses_match_pinocchio(robot_spec, kinematics):
         pos, _ = sim.link_poses()
     ref, _ = kinematics.link_poses(Q0)
     np.testing.assert_allclose(pos, ref, atol=1e-6)
+
+
+def test_contacts_are_checked_among_1000_obstacles(robot_spec, kinematics):
+    """The scaling experiment's largest count: 999 seeded clutter spheres kept clear of the arm
+    plus one on link 4 — the mesh contact and the sphere penetration are both reported; without
+    that one, none is."""
+    from dataclasses import replace
+
+    from tamedpuma.worlds.scenarios import arm_points, with_clutter
+
+    keep_out = arm_points(kinematics, Q0)
+    clutter = with_clutter(_scenario(), 999, 0.05, [-1.2, -1.2, 0.05], [1.2, 1.2, 1.4],
+                           keep_out, 0.1, np.random.default_rng(0))
+    on_link = kinematics.sphere_centers(Q0)[1]  # link 4's sphere centre
+    obst = clutter.obstacles
+    touching = Obstacles(np.vstack([obst.centers, on_link]), np.r_[obst.radii, 0.05],
+                         np.vstack([obst.velocities, np.zeros(3)]))
+    for obstacles, expect in ((obst, False), (touching, True)):
+        with Simulator(robot_spec) as sim:
+            sim.reset(replace(clutter, obstacles=obstacles))
+            sim.step(np.zeros(7))  # one control period of physics
+            pos, quat = sim.link_poses()
+            contacts = sim.contacts(sim.body_sphere_centers(pos, quat))
+        assert len(obstacles) == 999 + expect
+        assert contacts.obstacle_contact == expect
+        assert (contacts.sphere_clearance < 0) == expect

@@ -148,6 +148,17 @@ def without_obstacles(scenario: Scenario) -> Scenario:
     return replace(scenario, obstacles=Obstacles.empty())
 
 
+def arm_points(kinematics, q: np.ndarray, per_segment: int = 8) -> np.ndarray:
+    """Points along the arm at q [m]: its body-sphere centres and ``per_segment`` points on every
+    segment between consecutive link origins (the links' axes, which the five spheres leave
+    uncovered), end effector included. Clutter kept ``min_distance`` from them clears the meshes
+    (link radius < 0.1 m) and not only the spheres."""
+    origins = kinematics.link_poses(q)[0]
+    s = np.linspace(0.0, 1.0, per_segment)[:, None, None]
+    along = (origins[:-1][None] + s * (origins[1:] - origins[:-1])[None]).reshape(-1, 3)
+    return np.concatenate([kinematics.sphere_centers(q), along, kinematics.ee_pose(q)[0][None]])
+
+
 def clutter_count(clutter: Mapping, own: int) -> int:
     """How many clutter obstacles to add: ``clutter.total`` − the scenario's own ``own`` when a
     total is set (the obstacle-count sweep: 2, 10, 100, 1000 in all), else ``clutter.count``."""
@@ -163,7 +174,7 @@ def clutter_count(clutter: Mapping, own: int) -> int:
 def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
     """The run's scenario from a whole resolved run config (plain mapping): the ``scenario``
     group checked against the ``task`` group, then ``without_obstacles`` and ``clutter``
-    (seeded by ``seed``, kept clear of the start's body spheres, end effector and goal)."""
+    (seeded by ``seed``, kept clear of the arm at the start (:func:`arm_points`) and the goal)."""
     sc_cfg, task = cfg["scenario"], cfg["task"]["name"]
     if sc_cfg.get("task") not in (None, task):
         raise ScenarioError(f"scenario {sc_cfg['name']!r} belongs to task {sc_cfg['task']!r}, "
@@ -177,8 +188,7 @@ def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
     clutter = cfg.get("clutter") or {}
     count = clutter_count(clutter, len(scenario.obstacles))
     if count > 0:
-        keep_out = np.concatenate([kinematics.sphere_centers(scenario.q0),
-                                   kinematics.ee_pose(scenario.q0)[0][None],
+        keep_out = np.concatenate([arm_points(kinematics, scenario.q0),
                                    scenario.goal.position[None]])
         scenario = with_clutter(scenario, count, float(clutter["radius"]),
                                 clutter["low"], clutter["high"], keep_out,
