@@ -72,6 +72,10 @@ def run_episode(
     stop_reason = "max_steps"
     limit = scenario.max_steps
     reach_step = None
+    # with a discrete disturbance (goal change, push) only a reach at or after its onset counts:
+    # the run goes on until then however early it first came near the goal
+    onset = getattr(sim, "disturbance_time", None)
+    onset = -math.inf if onset is None else onset - 1e-9
     try:
         k = 0
         while k < limit:
@@ -116,7 +120,7 @@ def run_episode(
             if not np.all(np.isfinite(qdd)) or qdd.shape != (spec.dof,):
                 stop_reason = "nonfinite_command"
                 break
-            if reach_step is None and pos_err <= scenario.goal_tolerance:
+            if reach_step is None and pos_err <= scenario.goal_tolerance and obs.t >= onset:
                 reach_step = k
                 limit = (k + settle_steps + 1 if stop_on_success
                          else max(limit, k + settle_steps + 1))
@@ -137,7 +141,7 @@ def run_episode(
                 compute_ms=np.array(log["ms"]), tolerance=scenario.goal_tolerance,
                 time_limit=scenario.max_steps * scenario.dt, settle_time=settle_time,
                 ee_position=np.array(log["ee_p"]),
-                disturbance_time=getattr(sim, "disturbance_time", None))
+                disturbance_time=None if onset == -math.inf else onset + 1e-9)
         summary = {"stop_reason": stop_reason if complete else "interrupted",
                    **(metrics.as_dict() if metrics else {})}
         close_errors = []

@@ -2,7 +2,9 @@
 loop and the analysis of logs).
 
 Definitions (``../shared/docs/experiments.md``, "Metrics"). Let k_r be the first step at which the
-end-effector position is within ``tolerance`` [m] of the (possibly moving) goal, t_r its time.
+end-effector position is within ``tolerance`` [m] of the (possibly moving) goal, t_r its time;
+with a discrete disturbance (``disturbance_time``: a goal change or a push) only steps at or after
+its onset count, so the run must reach the goal after the disturbance.
 
 - **paper** success (the authors' ``check_distance_collision``): k_r exists, t_r < the time limit
   (40 s), and no body sphere of the robot's collision model penetrates an obstacle sphere
@@ -151,7 +153,8 @@ def run_metrics(
         "joint_limit": violations,
     }
     inside = pos_err <= tolerance
-    reach = _first(inside)
+    after = t >= disturbance_time - 1e-9 if disturbance_time is not None else np.ones(n, bool)
+    reach = _first(inside & after)
     reach = reach if reach < n else None
     settle = None
     if reach is not None:

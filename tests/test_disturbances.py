@@ -119,7 +119,7 @@ def test_after_an_online_goal_change_fpm_reaches_the_new_goal(robot_spec, kinema
     new_goal = scenario.goal.position + np.asarray(dist.goal_offset)
     assert np.linalg.norm(dist.goal_offset) >= 0.1
     assert run.metrics.success_whole_body, run.metrics.failure_whole_body
-    assert run.metrics.time_to_success_s > dist.onset  # it reached the goal after the change
+    assert run.metrics.time_to_success_s >= dist.onset  # only a reach after the change counts
     assert np.linalg.norm(run.ee_position[-1] - new_goal) <= scenario.goal_tolerance
     assert np.linalg.norm(run.ee_position[-1] - scenario.goal.position) > 0.1
 

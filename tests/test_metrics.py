@@ -155,3 +155,15 @@ def test_table_rows_are_keyed_by_method_label_with_both_criteria():
     assert table.loc["cpm_literal", "success (whole body)"] == "0.00"
     assert table.loc["cpm_literal", "whole-body failures"] == "obstacle_contact 1"
     assert table.loc["cpm", "success (whole body)"] == "1.00"
+
+
+def test_with_a_disturbance_only_a_reach_after_its_onset_counts():
+    pos = np.full(300, 0.01)  # at the goal from the start ...
+    pos[100:150] = 0.3       # ... pushed away at step 100, back at step 150
+    m = run_metrics(**_log(n=300, position_error=pos), disturbance_time=100 * DT)
+    assert m.success_paper and m.time_to_success_s == pytest.approx(150 * DT)
+    assert m.recovery_time_s == pytest.approx(50 * DT)
+    never_back = pos.copy()
+    never_back[150:] = 0.3
+    assert not run_metrics(**_log(n=300, position_error=never_back),
+                           disturbance_time=100 * DT).success_paper
