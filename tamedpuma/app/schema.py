@@ -56,8 +56,11 @@ class ObstacleSchema:
 class ScenarioSchema:
     name: str = MISSING
     task: Any = None  # if set, the task group must match
-    q0: list[float] = MISSING
+    q0: list[float] = MISSING  # not set by scenario=random (generated)
     goal: GoalSchema = field(default_factory=GoalSchema)
+    random_seed: Any = None  # scenario=random: the generator's seed (int)
+    start_kind: Any = None  # scenario=random: near_table1 | anywhere
+    random: Any = None  # scenario=random: generator parameters (RandomParams)
     obstacles: list[ObstacleSchema] = field(default_factory=list)
     dt: float = 0.02
     max_steps: int = 2000

@@ -171,6 +171,48 @@ def clutter_count(clutter: Mapping, own: int) -> int:
     return int(clutter.get("count", 0))
 
 
+def table1_starts(task: str) -> list[list[float]]:
+    """The start configurations q0 [rad] of the task's Table-1 scenarios
+    (``conf/scenario/<task>/NN.yaml``); empty for a task without them."""
+    from pathlib import Path
+
+    from omegaconf import OmegaConf
+
+    folder = Path(__file__).resolve().parents[1] / "conf" / "scenario" / task
+    return [[float(v) for v in OmegaConf.load(p)["q0"]]
+            for p in sorted(folder.glob("[0-9][0-9].yaml"))]
+
+
+def random_scenario(cfg: Mapping, kinematics) -> Scenario:
+    """The ``scenario=random`` scenario of a whole resolved run config: drawn by
+    :func:`tamedpuma.worlds.random_scenarios.generate` from ``scenario.random_seed``,
+    ``scenario.start_kind`` and ``scenario.random`` (the task's goal and workspace)."""
+    from tamedpuma.worlds.random_scenarios import RandomParams, TaskRegion, generate
+
+    sc_cfg, task_cfg = cfg["scenario"], cfg["task"]
+    try:
+        seed = int(sc_cfg["random_seed"])
+    except (TypeError, ValueError) as exc:
+        raise ScenarioError(f"scenario.random_seed must be an integer, "
+                            f"got {sc_cfg['random_seed']!r}") from exc
+    if "workspace" not in task_cfg:
+        raise ScenarioError(f"task {task_cfg['name']!r} has no workspace: "
+                            "scenario=random needs one")
+    params = RandomParams.from_mapping(
+        {**(sc_cfg.get("random") or {}), "dt": sc_cfg.get("dt", 0.02),
+         "max_steps": sc_cfg.get("max_steps", 2000),
+         "goal_tolerance": sc_cfg.get("goal_tolerance", 0.05)},
+        str(sc_cfg.get("start_kind") or "near_table1"))
+    region = TaskRegion.from_task_config(task_cfg)
+    region = replace(region, goal_position=np.asarray(sc_cfg["goal"]["position"], dtype=float),
+                     goal_quaternion=np.asarray(sc_cfg["goal"]["quaternion"], dtype=float))
+    starts = table1_starts(region.name) if params.start_kind == "near_table1" else []
+    generated = generate(region, kinematics, seed, params, starts)
+    log.info("random scenario %s after %d draws (rejected: %s)", generated.scenario.name,
+             generated.tries, generated.rejected)
+    return generated.scenario
+
+
 def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
     """The run's scenario from a whole resolved run config (plain mapping): the ``scenario``
     group checked against the ``task`` group, then ``without_obstacles`` and ``clutter``
@@ -180,9 +222,12 @@ def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
         raise ScenarioError(f"scenario {sc_cfg['name']!r} belongs to task {sc_cfg['task']!r}, "
                             f"not {task!r}: add task={sc_cfg['task']}")
     robot = cfg["robot"]
-    scenario = scenario_from_config(sc_cfg, spec, task=task, seed=int(cfg.get("seed", 0)),
-                                    limit_tolerance=float(robot["limit_tolerance"]),
-                                    limit_margin=float(robot["limit_margin"]))
+    if sc_cfg.get("random_seed") is not None:
+        scenario = random_scenario(cfg, kinematics)
+    else:
+        scenario = scenario_from_config(sc_cfg, spec, task=task, seed=int(cfg.get("seed", 0)),
+                                        limit_tolerance=float(robot["limit_tolerance"]),
+                                        limit_margin=float(robot["limit_margin"]))
     if cfg.get("without_obstacles"):
         scenario = without_obstacles(scenario)
     clutter = cfg.get("clutter") or {}

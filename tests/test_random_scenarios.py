@@ -1,0 +1,104 @@
+"""The random scenario generator (issue 12): deterministic per seed, every scenario valid, and
+reachable from the sweep's config (``scenario=random``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tamedpuma.app.config import load_group
+from tamedpuma.errors import ScenarioError
+from tamedpuma.worlds.scenarios import build_scenario, table1_starts
+from tamedpuma.worlds.random_scenarios import (
+    REJECT_REASONS,
+    START_KINDS,
+    RandomParams,
+    TaskRegion,
+    generate,
+    scenario_config,
+)
+
+
+def _region(task):
+    return TaskRegion.from_task_config(load_group("task", task))
+
+
+def _angle(a, b):
+    return 2.0 * np.arccos(min(1.0, abs(float(a @ b))))
+
+
+@pytest.mark.parametrize("task", ["tomato", "pouring"])
+@pytest.mark.parametrize("kind", START_KINDS)
+def test_every_generated_scenario_is_valid(kinematics, task, kind):
+    region, params = _region(task), RandomParams(start_kind=kind)
+    spec, horizon = kinematics.spec, params.max_steps * params.dt
+    for seed in range(25):
+        g = generate(region, kinematics, seed, params, table1_starts(task))
+        sc = g.scenario
+        assert set(g.rejected) <= set(REJECT_REASONS)
+        assert sum(g.rejected.values()) == g.tries - 1
+        assert np.all(sc.q0 >= spec.q_min + params.limit_margin)
+        assert np.all(sc.q0 <= spec.q_max - params.limit_margin)
+        ee_p, ee_quat = kinematics.ee_pose(sc.q0)
+        rel = ee_p - sc.goal.position
+        assert np.all(rel >= region.position_low) and np.all(rel <= region.position_high)
+        assert _angle(ee_quat, sc.goal.quaternion) <= region.max_angle
+        assert np.linalg.norm(sc.goal.position - region.goal_position) <= params.goal_shift_max
+        assert np.linalg.norm(sc.goal.velocity) <= params.goal_speed_max
+        assert sc.goal.velocity[2] == 0
+        obs = sc.obstacles
+        assert 1 <= len(obs) <= 2
+        assert np.all((obs.radii >= 0.04) & (obs.radii <= 0.07))
+        assert np.all(obs.centers[:, 2] >= obs.radii)
+        centers = kinematics.sphere_centers(sc.q0)
+        assert np.min(centers[:, 2] - spec.sphere_radii) >= params.ground_clearance
+        gaps = (np.linalg.norm(centers[:, None] - obs.centers[None], axis=-1)
+                - spec.sphere_radii[:, None] - obs.radii[None])
+        assert gaps.min() >= params.start_clearance
+        for t in np.linspace(0.0, horizon, 41):
+            d = np.linalg.norm(obs.at(t) - sc.goal.at(t), axis=1) - obs.radii
+            assert d.min() >= params.goal_clearance - 1e-9
+
+
+def test_same_seed_same_scenario_other_seed_other_scenario(kinematics):
+    region, starts = _region("tomato"), table1_starts("tomato")
+    params = RandomParams(start_kind="near_table1")
+    a = scenario_config(generate(region, kinematics, 7, params, starts).scenario)
+    b = scenario_config(generate(region, kinematics, 7, params, starts).scenario)
+    c = scenario_config(generate(region, kinematics, 8, params, starts).scenario)
+    d = scenario_config(generate(region, kinematics, 7, RandomParams(start_kind="anywhere"),
+                                 starts).scenario)
+    assert a == b
+    assert a["q0"] != c["q0"] and a["q0"] != d["q0"]
+
+
+def test_near_table1_starts_lie_near_a_table1_start(kinematics):
+    starts = np.array(table1_starts("pouring"))
+    assert starts.shape == (15, 7)
+    params = RandomParams(start_kind="near_table1")
+    dist = [np.min(np.linalg.norm(starts - generate(_region("pouring"), kinematics, s, params,
+                                                       starts).scenario.q0, axis=1))
+            for s in range(20)]
+    assert np.median(dist) < 0.3 * np.sqrt(7) * 1.5  # σ = 0.3 per joint
+
+
+def test_impossible_parameters_raise_with_the_counted_reasons(kinematics):
+    params = RandomParams(start_kind="anywhere", goal_clearance=5.0, max_tries=50)
+    with pytest.raises(ScenarioError, match="goal_blocked|workspace"):
+        generate(_region("tomato"), kinematics, 0, params)
+    with pytest.raises(ScenarioError, match="start_kind"):
+        RandomParams(start_kind="somewhere")
+
+
+def test_scenario_random_config_builds_the_generated_scenario(kinematics):
+    from omegaconf import OmegaConf
+
+    cfg = {"robot": load_group("robot", "iiwa14"), "task": load_group("task", "pouring"),
+           "scenario": load_group("scenario", "random"), "seed": 0}
+    cfg["scenario"].update(random_seed=1003, start_kind="anywhere")
+    plain = OmegaConf.to_container(OmegaConf.create(cfg), resolve=True)
+    sc = build_scenario(plain, kinematics.spec, kinematics)
+    assert sc.name == "random_pouring_anywhere_1003"
+    ref = generate(_region("pouring"), kinematics, 1003, RandomParams(start_kind="anywhere"))
+    np.testing.assert_array_equal(sc.q0, ref.scenario.q0)
+    np.testing.assert_array_equal(sc.obstacles.centers, ref.scenario.obstacles.centers)
