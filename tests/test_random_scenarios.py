@@ -8,7 +8,6 @@ import pytest
 
 from tamedpuma.app.config import load_group
 from tamedpuma.errors import ScenarioError
-from tamedpuma.worlds.scenarios import build_scenario, table1_starts
 from tamedpuma.worlds.random_scenarios import (
     REJECT_REASONS,
     START_KINDS,
@@ -17,6 +16,7 @@ from tamedpuma.worlds.random_scenarios import (
     generate,
     scenario_config,
 )
+from tamedpuma.worlds.scenarios import build_scenario, table1_starts
 
 
 def _region(task):

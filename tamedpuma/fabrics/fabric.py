@@ -55,7 +55,11 @@ class AvoidanceFabric:
     force) and f_energy (the pulled force of the fabric energy L_e); energy: ``H_{L_e}``;
     min_clearance [m]: smallest ``‖c_i − o_j‖ − r_i − r_j`` (inf without obstacles);
     ground_clearance [m] (inf when the ground leaf is off); n_clamped: barrier distances clamped
-    to the margin (obstacle/ground pairs); n_limit_clamped: joint-limit distances clamped.
+    to the margin (obstacle/ground pairs); n_limit_clamped: joint-limit distances clamped;
+    barrier_rows (R, n), barrier_x (R,): every barrier's Jacobian row ∂x/∂q and distance x, not
+    clamped (≤ 0 past a barrier), and curvature J̇q̇ (pairs, joint limits, ground; not the base
+    rows), for the discrete-time barrier step
+    (:func:`tamedpuma.fabrics.discrete.barrier_step`).
     """
 
     M: np.ndarray
@@ -65,6 +69,9 @@ class AvoidanceFabric:
     ground_clearance: float
     n_clamped: int
     n_limit_clamped: int
+    barrier_rows: np.ndarray | None = None
+    barrier_x: np.ndarray | None = None
+    barrier_jdqd: np.ndarray | None = None
 
     @property
     def f(self) -> np.ndarray:
@@ -190,9 +197,13 @@ class Fabric:
         mf = ws.avoidance_system()
         n = self._n
         clearance, ground = self._clearances(ws)
+        keep = ws.barrier_index
         return AvoidanceFabric(M=mf[:, :n].copy(), forces=mf[:, n:].T.copy(), energy=energy,
                                min_clearance=clearance, ground_clearance=ground,
-                               n_clamped=n_clamped, n_limit_clamped=n_limit)
+                               n_clamped=n_clamped, n_limit_clamped=n_limit,
+                               barrier_rows=ws.Z[keep, :n],
+                               barrier_x=(ws.x if ws.x_raw is None else ws.x_raw)[keep],
+                               barrier_jdqd=ws.jd[keep])
 
     def forcing(self, state, qd, goal_position, goal_rotation) -> Forcing:
         """The goal attractor pulled into joint space (see :class:`Forcing`).

@@ -79,6 +79,8 @@ class Workspace:
         R = Rb + 3 * K
         self.k, self.m, self.n = k, m, n
         self.ground = bool(ground)
+        # barrier rows without the base rows: pairs, limits, ground (fancy index: copies)
+        self.barrier_index = np.r_[0:P + 2 * n, L:Rb]
         # design matrix Z = [a | h + J̇q̇ | κ + J̇q̇]; constant parts written once
         Z = self.Z = np.zeros((R, n + 2))
         eye = np.eye(n)
@@ -244,7 +246,9 @@ class Workspace:
             self.ground_clearance = float(self.x_gr.min())
         x, margin = self.x, g.barrier_margin
         n_limit = 0
+        self.x_raw = None  # the distances before clamping (only kept when some are clamped)
         if _min(x) < margin:  # rare: penetration or a start on/past a limit
+            self.x_raw = x.copy()
             P, L, n = self.P, self.L, self.n
             n_clamped = int(np.count_nonzero(x[:P] < margin) + np.count_nonzero(x[L:] < margin))
             n_limit = int(np.count_nonzero(x[P:L - n] < margin))  # not the base rows

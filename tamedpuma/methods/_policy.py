@@ -44,9 +44,13 @@ class PoseTask:
         self.primitive = primitive
 
     def acceleration(self, state: KinematicState, qd: np.ndarray, goal_position: np.ndarray,
-                     goal_quaternion: np.ndarray) -> TaskAcceleration:
+                     goal_quaternion: np.ndarray,
+                     goal_velocity: np.ndarray | None = None) -> TaskAcceleration:
+        """goal_velocity (3,) [m/s]: if given, the primitive sees the end effector's velocity
+        relative to the (translating) goal, ``ṗ − v_g`` (its state is goal-relative)."""
         twist = state.ee_jacobian @ qd
-        a, alpha = self.primitive.acceleration(state.ee_position, state.ee_quaternion, twist[:3],
+        v = twist[:3] if goal_velocity is None else twist[:3] - goal_velocity
+        a, alpha = self.primitive.acceleration(state.ee_position, state.ee_quaternion, v,
                                                twist[3:], goal_position, goal_quaternion)
         return TaskAcceleration(np.concatenate([a, alpha]), state.ee_jacobian, state.ee_jdqd)
 
@@ -67,10 +71,12 @@ class PlanarTask:
         self.dims = dims
 
     def acceleration(self, state: KinematicState, qd: np.ndarray, goal_position: np.ndarray,
-                     goal_quaternion: np.ndarray) -> TaskAcceleration:
+                     goal_quaternion: np.ndarray,
+                     goal_velocity: np.ndarray | None = None) -> TaskAcceleration:
         d = self.dims
         J = state.ee_jacobian[:d]
-        xdd = self.primitive.acceleration(state.ee_position[:d], J @ qd, goal_position[:d])
+        v = J @ qd if goal_velocity is None else J @ qd - goal_velocity[:d]
+        xdd = self.primitive.acceleration(state.ee_position[:d], v, goal_position[:d])
         return TaskAcceleration(np.asarray(xdd, dtype=float), J, state.ee_jdqd[:d])
 
     def potential(self, state: KinematicState, goal_position: np.ndarray,
@@ -86,9 +92,37 @@ def damped_pseudo_inverse(J: np.ndarray, damping: float) -> np.ndarray:
     return np.linalg.solve(J @ J.T + damping**2 * np.eye(m), J).T
 
 
-def pull_to_joints(task: TaskAcceleration, damping: float,
+def manipulability(J: np.ndarray) -> float:
+    """Yoshikawa's manipulability ``w = √det(J Jᵀ)`` of a (m, n) Jacobian (m ≤ n) [1]."""
+    sign, logdet = np.linalg.slogdet(J @ J.T)
+    return float(np.exp(0.5 * logdet)) if sign > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class Damping:
+    """Damping λ of the pseudo-inverse, growing as the manipulability w falls below w₀
+    (Nakamura-Hanafusa / Chiaverini singularity-robust inverse):
+    ``λ² = λ₀² + λ_max² (1 − w/w₀)²`` for w < w₀, else λ₀². lam_max = 0: constant λ₀."""
+
+    lam0: float = 0.01
+    lam_max: float = 0.0
+    w0: float = 0.02
+
+    def __call__(self, J: np.ndarray) -> float:
+        if self.lam_max <= 0.0:
+            return self.lam0
+        w = manipulability(J)
+        if w >= self.w0:
+            return self.lam0
+        return float(np.sqrt(self.lam0**2 + (self.lam_max * (1.0 - w / self.w0)) ** 2))
+
+
+def pull_to_joints(task: TaskAcceleration, damping: float | Damping,
                    qdd_null: np.ndarray | None = None) -> np.ndarray:
-    """``q̈ = J⁺(ẍ_d − J̇q̇) + (I − J⁺J) q̈_null`` [rad/s²]."""
+    """``q̈ = J⁺(ẍ_d − J̇q̇) + (I − J⁺J) q̈_null`` [rad/s²]; damping: λ, or a :class:`Damping`
+    rule evaluated at J."""
+    if callable(damping):
+        damping = damping(task.J)
     pinv = damped_pseudo_inverse(task.J, damping)
     qdd = pinv @ (task.xdd - task.jdqd)
     if qdd_null is not None:

@@ -7,12 +7,15 @@ Methods never import each other; what two of them share lives here.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
+from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.fabrics.discrete import barrier_step, limit_speed
 from tamedpuma.methods._learned import load_task, null_objective
-from tamedpuma.methods._policy import NullSpaceObjective, pull_to_joints
+from tamedpuma.methods._policy import Damping, NullSpaceObjective, pull_to_joints
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
 
 
@@ -20,19 +23,22 @@ class PumaController:
     """PUMA pulled to joint space (see :mod:`tamedpuma.methods.puma`):
     ``q̈ = J⁺(ẍ_d − J̇q̇) + N q̈_null`` [rad/s²]. task: a
     :class:`~tamedpuma.methods._policy.PoseTask` or :class:`~tamedpuma.methods._policy.PlanarTask`;
-    damping: λ of the pseudo-inverse."""
+    damping: λ of the pseudo-inverse, or a :class:`~tamedpuma.methods._policy.Damping` rule
+    (singularity-robust); feed_goal_velocity: the primitive sees ``ṗ − v_g`` (moving goals)."""
 
-    def __init__(self, task, kinematics, damping: float = 0.01,
-                 null_space: NullSpaceObjective | None = None):
+    def __init__(self, task, kinematics, damping: float | Damping = 0.01,
+                 null_space: NullSpaceObjective | None = None, feed_goal_velocity: bool = True):
         self.task, self.kinematics = task, kinematics
         self.damping, self.null_space = damping, null_space
+        self.feed_goal_velocity = feed_goal_velocity
 
     def reset(self, scenario: Scenario) -> None:
         pass
 
     def joint_acceleration(self, state, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         """(q̈_C, ẍ_d): the pulled PUMA acceleration at the observation (state = kinematics)."""
-        task = self.task.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion)
+        vg = obs.goal_velocity if self.feed_goal_velocity else None
+        task = self.task.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
         return pull_to_joints(task, self.damping, null), task.xdd
 
@@ -43,11 +49,26 @@ class PumaController:
                                          "joint_acc_norm": float(np.linalg.norm(qdd))})
 
 
+def damping_rule(cfg: Mapping) -> Damping:
+    """The pseudo-inverse damping of a method config: ``pinv_damping`` λ₀, ``pinv_damping_max``
+    λ_max (0: constant λ₀), ``manipulability_threshold`` w₀ (see :mod:`tamedpuma.methods.puma`)."""
+    return Damping(float(cfg["pinv_damping"]), float(cfg.get("pinv_damping_max", 0.0)),
+                   float(cfg.get("manipulability_threshold", 0.02)))
+
+
+def feed_goal_velocity(cfg: Mapping) -> bool:
+    """``goal_velocity: feedforward`` (True) or ``ignore`` (False) of a method config."""
+    mode = str(cfg.get("goal_velocity", "feedforward"))
+    if mode not in ("feedforward", "ignore"):
+        raise ConfigError(f"method.goal_velocity must be 'feedforward' or 'ignore', got {mode!r}")
+    return mode == "feedforward"
+
+
 def pulled_puma(cfg: Mapping, kinematics) -> PumaController:
-    """The pulled PUMA policy of a puma/fpm/cpm method config (checkpoint, pinv_damping,
-    null_space)."""
-    return PumaController(load_task(cfg), kinematics, float(cfg["pinv_damping"]),
-                          null_objective(cfg.get("null_space")))
+    """The pulled PUMA policy of a puma/fpm/cpm method config (checkpoint, pinv_damping and the
+    singularity-robust rule, null_space, goal_velocity)."""
+    return PumaController(load_task(cfg), kinematics, damping_rule(cfg),
+                          null_objective(cfg.get("null_space")), feed_goal_velocity(cfg))
 
 
 def puma_and_fabric(cfg: Mapping, kinematics) -> tuple[PumaController, Fabric]:
@@ -71,3 +92,64 @@ def fabric_scalars(av) -> dict[str, float]:
     clearance = av.min_clearance if np.isfinite(av.min_clearance) else NO_OBSTACLE_CLEARANCE
     return {"energy_fabric": float(av.energy), "min_clearance_m": float(clearance),
             "n_clamped": float(av.n_clamped), "n_limit_clamped": float(av.n_limit_clamped)}
+
+
+@dataclass(frozen=True)
+class ControlRate:
+    """What FPM and CPM do to stay safe at the control rate (:mod:`tamedpuma.fabrics.discrete`;
+    the ``control_rate`` block of conf/method/fpm.yaml and cpm.yaml).
+
+    barrier_step: project the next velocity so that no barrier (body sphere × obstacle, joint
+    limit, ground when its leaf is on) is crossed within one period (kappa κ: the largest
+    fraction of a barrier distance one period may use); speed_limit: scale the next velocity
+    uniformly onto the joint velocity limits (direction kept) instead of leaving the per-joint
+    clamp to the simulator; semi_implicit (FPM): take −α q̇ implicitly when it brakes.
+    All of them only remove energy (see the module), so the paper's energy arguments still hold.
+    """
+
+    barrier_step: bool = False
+    kappa: float = 0.5
+    speed_limit: bool = False
+    semi_implicit: bool = False
+
+    @staticmethod
+    def from_mapping(cfg: Mapping | None) -> ControlRate:
+        cfg = dict(cfg or {})
+        unknown = sorted(set(cfg) - {"barrier_step", "kappa", "speed_limit", "semi_implicit"})
+        if unknown:
+            raise ConfigError(f"unknown method.control_rate keys {unknown}")
+        rate = ControlRate(bool(cfg.get("barrier_step", False)), float(cfg.get("kappa", 0.5)),
+                           bool(cfg.get("speed_limit", False)),
+                           bool(cfg.get("semi_implicit", False)))
+        if not 0.0 < rate.kappa < 1.0:
+            raise ConfigError(f"method.control_rate.kappa must be in (0, 1), got {rate.kappa}")
+        return rate
+
+    def next_velocity(self, qd_next, av, dt: float, qd_max) -> tuple[np.ndarray, dict]:
+        """Filter the next velocity q̇⁺ [rad/s]; returns it and the log scalars
+        ``n_barrier_active`` (rows projected) and ``speed_scale`` (s ≤ 1)."""
+        n_active, scale = 0, 1.0
+        if self.barrier_step and av.barrier_rows is not None and len(av.barrier_x):
+            qd_next, n_active = barrier_step(qd_next, av.barrier_rows, av.barrier_x, dt,
+                                             self.kappa, av.M, av.barrier_jdqd)
+        if self.speed_limit:
+            qd_next, scale = limit_speed(qd_next, qd_max)
+        return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}
+
+
+def bounded_alpha(alpha: float, alpha_min: float | None) -> float:
+    """Energization coefficient bounded below, ``max(α, α_min)`` [1/s] (None: unbounded).
+
+    α < 0 injects energy (``−α q̇`` accelerates along q̇) to make up for a geometry that brakes;
+    raising it to α_min only adds the damping ``(α_min − α) q̇``, so H_{L_e} can only fall where
+    the bound acts: the fabric's boundedness (and barrier) argument still holds, the conservation
+    of H_{L_e} becomes "non-increasing"."""
+    return alpha if alpha_min is None or alpha >= alpha_min else float(alpha_min)
+
+
+def alpha_floor(cfg: Mapping) -> float | None:
+    """α_min of a method config: ``energization: exact`` → None, ``bounded`` → −alpha_bound."""
+    mode = str(cfg.get("energization", "exact"))
+    if mode not in ("exact", "bounded"):
+        raise ConfigError(f"method.energization must be 'exact' or 'bounded', got {mode!r}")
+    return -abs(float(cfg.get("alpha_bound", 20.0))) if mode == "bounded" else None

@@ -44,7 +44,15 @@ import numpy as np
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric
-from tamedpuma.methods._tamed import PumaController, avoidance_at, fabric_scalars, puma_and_fabric
+from tamedpuma.methods._tamed import (
+    ControlRate,
+    PumaController,
+    alpha_floor,
+    avoidance_at,
+    bounded_alpha,
+    fabric_scalars,
+    puma_and_fabric,
+)
 from tamedpuma.types import Command, Observation, Scenario
 
 VARIANTS = ("paper", "original")
@@ -58,7 +66,8 @@ class CpmController:
     def __init__(self, puma: PumaController, fabric: Fabric, beta: float, eps: float = 1e-6,
                  variant: str = "paper", regulator_scale: float = 1.0,
                  potential_scale: float = 1.0, damping: str = "constant",
-                 semi_implicit: bool = True):
+                 semi_implicit: bool = True, alpha_min: float | None = None,
+                 rate: ControlRate | None = None):
         if variant not in VARIANTS:
             raise ConfigError(f"cpm variant must be one of {VARIANTS}, got {variant!r}")
         if variant == "paper" and not beta > 0:
@@ -74,6 +83,8 @@ class CpmController:
             raise ConfigError(f"cpm damping must be 'constant' or 'matched', got {damping!r}")
         self.matched = damping == "matched"
         self.semi_implicit = semi_implicit
+        self.alpha_min, self.rate = alpha_min, rate or ControlRate()
+        self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.dt = 0.02
 
     def reset(self, scenario: Scenario) -> None:
@@ -91,7 +102,7 @@ class CpmController:
         r_coef = -self.regulator_scale * (qd @ dpsi) / (qd @ Mqd + self.eps)  # regulator: r q̇
         beta = self.beta
         if self.variant == "paper":
-            alpha = av.alpha(qd, h_plus_f, self.eps)
+            alpha = bounded_alpha(av.alpha(qd, h_plus_f, self.eps), self.alpha_min)
             if self.matched:  # β = max(β_min, r − α): exactly h + f_C whenever that dissipates
                 beta = max(self.beta, r_coef - alpha)
             c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇
@@ -104,8 +115,10 @@ class CpmController:
         else:  # the authors' code: no energization, no damping
             alpha = 0.0
             qdd = h_plus_f + r_coef * qd
+        qd_next, extra = self.rate.next_velocity(qd + self.dt * qdd, av, self.dt, self.qd_max)
+        qdd = (qd_next - qd) / self.dt
         return Command(qdd=qdd, scalars={
-            **fabric_scalars(av), "psi": psi, "psi_rate": float(dpsi @ qd),
+            **extra, **fabric_scalars(av), "psi": psi, "psi_rate": float(dpsi @ qd),
             "dissipation": float(beta * (qd @ Mqd)),
             "energy_total": float(av.energy + psi), "alpha": float(alpha),
             "beta": float(beta), "task_acc_norm": float(np.linalg.norm(xdd))})
@@ -114,11 +127,13 @@ class CpmController:
 def make(cfg: Mapping, kinematics) -> CpmController:
     puma, fabric = puma_and_fabric(cfg, kinematics)
     variant = str(cfg.get("variant", "paper"))
+    rate = ControlRate.from_mapping(cfg.get("control_rate"))
     if variant == "original":
         return CpmController(puma, fabric, beta=0.0, eps=float(cfg.get("eps", 1e-6)),
-                             variant=variant, regulator_scale=0.05)
+                             variant=variant, regulator_scale=0.05, rate=rate)
     return CpmController(puma, fabric, beta=float(cfg["beta"]), eps=float(cfg.get("eps", 1e-6)),
                          variant=variant, regulator_scale=float(cfg.get("regulator_scale", 1.0)),
                          potential_scale=float(cfg.get("potential_scale", 1.0)),
                          damping=str(cfg.get("damping", "constant")),
-                         semi_implicit=bool(cfg.get("semi_implicit", True)))
+                         semi_implicit=bool(cfg.get("semi_implicit", True)),
+                         alpha_min=alpha_floor(cfg), rate=rate)

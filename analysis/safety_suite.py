@@ -1,0 +1,175 @@
+"""Run methods on a suite of random scenarios (issue 12) and classify every outcome.
+
+    python -m analysis.random_suite --tasks tomato pouring --kinds near_table1 anywhere \\
+        --seeds 1000-1049 --methods puma fpm cpm --models /work/models --jobs 2 \\
+        --out runs/random_suite/eval.csv [--set method.some_key=value ...]
+
+Each run is the sweep's ``scenario=random scenario.random_seed=S scenario.start_kind=K
+method=M method.checkpoint=<models>/<task>/puma.pt recorder=none`` (plus ``--set`` overrides),
+composed by Hydra and run in-process (no files per run); one CSV row per run:
+
+- ``success_paper``: within the goal tolerance within the episode, no body sphere penetrating an
+  obstacle sphere before (the authors' check); ``success_whole_body``: also no PyBullet
+  robot-obstacle contact, no ground contact and no joint-limit violation before success;
+- ``failure``: for a run failing the paper criterion, the first that applies of ``contact`` (a body
+  sphere penetrated an obstacle), ``ground`` (robot-ground contact or a body sphere below the
+  ground), ``joint_limit``, ``stall`` (at rest, ‖q̇‖ < 0.05 rad/s over the last second, short of
+  the goal), ``time`` (still moving at the end); for a paper success failing the whole-body
+  criterion: ``mesh`` / ``ground`` / ``joint_limit``;
+- ``alpha_max``: max |α| logged by the method [1/s]; ``speed_ratio_max``: max over steps and joints
+  of |q̇|/q̇_max; ``clamp_frac``: fraction of steps where the commanded ``q̇ + q̈Δt`` exceeded a
+  velocity limit (the simulator's clamp acted); ``min_clearance``, ``min_ground_clearance`` [m].
+
+Prints a summary per (task, kind, method). Hydra is used here (an entry point), not in the library.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from multiprocessing import Pool
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+
+class _Tracker:
+    """A recorder that keeps what the classification needs, per step."""
+
+    def __init__(self, dt, qd_max, radii):
+        self.dt, self.qd_max, self.radii = dt, np.asarray(qd_max), np.asarray(radii)
+        self.rows = []
+
+    def open(self, info):
+        self.rows = []
+
+    def write(self, rec):
+        s = rec.scalars
+        cmd = np.abs(rec.qd + rec.qdd_cmd * self.dt) / self.qd_max
+        self.rows.append((rec.t, s["position_error_m"], s["clearance_m"], s["obstacle_contact"],
+                          s["ground_contact"], abs(s.get("alpha", 0.0)),
+                          float(np.max(np.abs(rec.qd) / self.qd_max)), float(cmd.max()),
+                          float(np.linalg.norm(rec.qd)),
+                          float(np.min(rec.body_sphere_centers[:, 2] - self.radii))))
+
+    def close(self, complete, summary):
+        pass
+
+
+def run_one(spec: dict) -> dict:
+    from omegaconf import OmegaConf
+
+    from tamedpuma.app.sweep import build
+    from tamedpuma.app.train import compose
+    from tamedpuma.episode import run_episode
+    from tamedpuma.worlds.bullet import Simulator
+
+    task, kind, seed, method = spec["task"], spec["kind"], spec["seed"], spec["method"]
+    overrides = [f"task={task}", "scenario=random", f"scenario.random_seed={seed}",
+                 f"scenario.start_kind={kind}", f"method={method}", "recorder=none",
+                 *spec["set"]]
+    if spec["models"]:
+        overrides.append(f"method.checkpoint={spec['models']}/{task}/puma.pt")
+    cfg = OmegaConf.create(compose("sweep", overrides))
+    built = build(cfg)
+    sc, robot = built.scenario, built.spec
+    tracker = _Tracker(sc.dt, robot.qd_max, robot.sphere_radii)
+    start = time.perf_counter()
+    with Simulator(robot, built.sim_config) as sim:
+        result = run_episode(sc, built.controller, sim, [tracker], None, stop_on_success=True)
+    wall = time.perf_counter() - start
+    a = np.array(tracker.rows)
+    t, err, clear, contact, ground = a[:, 0], a[:, 1], a[:, 2], a[:, 3] > 0, a[:, 4] > 0
+    q = result.q
+    limit = np.any((q < robot.q_min - 1e-6) | (q > robot.q_max + 1e-6), axis=1)
+    below = a[:, 9] < 0
+    pen = clear < 0
+    first_pen = int(np.argmax(pen)) if pen.any() else len(t)
+    reached = np.flatnonzero(err[:first_pen] <= sc.goal_tolerance)
+    paper = reached.size > 0
+    end = int(reached[0]) + 1 if paper else len(t)
+    wb_mesh, wb_ground, wb_limit = contact[:end].any(), (ground | below)[:end].any(), \
+        limit[:end].any()
+    whole = paper and not (wb_mesh or wb_ground or wb_limit)
+    last = a[-int(1.0 / sc.dt):, 8]
+    if paper:
+        failure = "" if whole else ("mesh" if wb_mesh else "ground" if wb_ground else
+                                    "joint_limit")
+    elif pen.any():
+        failure = "contact"
+    elif (ground | below).any():
+        failure = "ground"
+    elif limit.any():
+        failure = "joint_limit"
+    elif np.max(last) < 0.05:
+        failure = "stall"
+    else:
+        failure = "time"
+    return {"task": task, "kind": kind, "seed": seed, "method": method,
+            "label": spec["label"], "success_paper": bool(paper), "success_whole_body": bool(whole),
+            "failure": failure, "time_to_success": float(t[reached[0]]) if paper else np.nan,
+            "final_error": float(err[-1]), "min_error": float(err.min()),
+            "min_clearance": float(clear.min()), "min_ground_clearance": float(a[:, 9].min()),
+            "mesh_contact": bool(contact.any()), "ground_contact": bool(ground.any()),
+            "limit_steps": int(limit.sum()), "alpha_max": float(a[:, 5].max()),
+            "speed_ratio_max": float(a[:, 6].max()), "clamp_frac": float(np.mean(a[:, 7] > 1.0)),
+            "steps": len(t), "wall_s": wall,
+            "ms_mean": float(result.metrics.compute_ms_mean)}
+
+
+def _seeds(text: str) -> list[int]:
+    out = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out.extend(range(int(lo), int(hi) + 1) if hi else [int(lo)])
+    return out
+
+
+def summarise(df: pd.DataFrame) -> pd.DataFrame:
+    g = df.groupby(["task", "kind", "label"])
+    out = g.agg(n=("seed", "size"), paper=("success_paper", "mean"),
+                whole_body=("success_whole_body", "mean"), alpha_max=("alpha_max", "max"),
+                speed_ratio_max=("speed_ratio_max", "max"), clamp_frac=("clamp_frac", "mean"))
+    fails = df[df.failure != ""].groupby(["task", "kind", "label"])["failure"].agg(
+        lambda s: " ".join(f"{k}:{v}" for k, v in s.value_counts().items()))
+    return out.join(fails).fillna("")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tasks", nargs="+", default=["tomato", "pouring"])
+    ap.add_argument("--kinds", nargs="+", default=["near_table1", "anywhere"])
+    ap.add_argument("--seeds", default="1000-1049")
+    ap.add_argument("--methods", nargs="+", default=["puma", "fpm", "cpm"])
+    ap.add_argument("--models", default="/work/models", help="folder of <task>/puma.pt ('' = "
+                    "the method config's checkpoint)")
+    ap.add_argument("--set", nargs="*", default=[], help="extra Hydra overrides for every run")
+    ap.add_argument("--label", default=None, help="label of this configuration in the table")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args(argv)
+    specs = [{"task": t, "kind": k, "seed": s, "method": m, "models": args.models,
+              "set": args.set, "label": args.label or m}
+             for t in args.tasks for k in args.kinds for m in args.methods
+             for s in _seeds(args.seeds)]
+    if args.label:
+        for s in specs:
+            s["label"] = f"{s['method']}:{args.label}"
+    rows = []
+    with Pool(args.jobs) as pool:
+        for i, row in enumerate(pool.imap_unordered(run_one, specs), 1):
+            rows.append(row)
+            if i % 20 == 0:
+                print(f"{i}/{len(specs)} runs", flush=True)
+    df = pd.DataFrame(rows).sort_values(["task", "kind", "label", "seed"])
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    df.to_csv(out, index=False)
+    with pd.option_context("display.width", 200, "display.max_columns", 20):
+        print(summarise(df))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

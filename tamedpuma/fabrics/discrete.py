@@ -1,0 +1,119 @@
+"""The fabric at the control rate: what a continuous-time law needs to stay safe when it is applied
+as one velocity target per control period Δt (issue 12).
+
+The simulator (and a real velocity-controlled arm) turns q̈ into the next joint velocity
+``q̇⁺ = q̇ + Δt q̈``, held for Δt. Three discrete-time facts break the continuous guarantees:
+
+1. **Barriers crossed between samples.** A barrier leaf keeps its distance x > 0 only in continuous
+   time; at Δt = 0.02 s a body sphere approaching at ẋ < −x/Δt is inside the obstacle before the
+   next evaluation of the fabric. :func:`barrier_step` keeps the linearised next distance positive:
+   every barrier row p (Jacobian row a_p, distance x_p, curvature J̇q̇_p) gets the constraint
+   ``a_pᵀ q̇⁺ ≥ −κ x_p/Δt − ½Δt min(J̇q̇_p, 0)`` (0 < κ < 1), so
+   ``x⁺ ≈ x + Δt a_pᵀq̇⁺ + ½Δt² J̇q̇_p ≥ (1 − κ) x > 0``: a discrete-time barrier (the distance
+   shrinks at most geometrically and never crosses, to second order in Δt along the current
+   velocity's curvature; exactly for the linear joint-limit rows).
+   q̇⁺ is projected onto these half-spaces in the metric M (the closest admissible velocity,
+   ``min ‖q̇⁺ − v‖²_M``, one small non-negative least-squares solve when a row is violated).
+2. **Velocity limits.** A per-joint clamp ``clip(q̇⁺, ±q̇_max)`` changes the direction of motion, so
+   the path is no longer the fabric's (the arm swings off its geometry, e.g. into an obstacle or
+   the ground). :func:`limit_speed` instead scales q̇⁺ uniformly, ``q̇⁺ ← s q̇⁺`` with
+   ``s = min(1, min_j q̇_max,j / |q̇⁺_j|)``: the speed along the path changes, the direction (and
+   the path of an HD2 geometry) does not. The arm then never needs the simulator's clamp.
+3. **Velocity-proportional terms.** Energization and damping act as ``q̈ = a + c q̇``; with
+   ``|c| Δt > 1`` the explicit step flips or amplifies q̇. :func:`implicit_velocity_step` takes the
+   ``c q̇`` part implicitly, ``q̇⁺ = (q̇ + Δt a)/(1 − Δt c)`` for c ≤ 0.
+
+What is kept: both filters only remove energy. The projection is onto a convex set that contains
+q̇⁺ = 0 (the right-hand sides are ≤ 0), so ``‖q̇⁺‖_M`` never grows (non-expansive projection in
+the M-norm); the scaling has s ≤ 1. Hence every energy argument of the paper that says "the energy
+does not increase" (boundedness, barrier avoidance; CPM's dH/dt ≤ −β q̇ᵀMq̇) still holds, with
+extra dissipation where a filter acts. The paths of an HD2 geometry are unchanged by the scaling;
+the projection changes the direction only when the next step would otherwise cross a barrier.
+numpy only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def limit_speed(qd_next: np.ndarray, qd_max: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(s q̇⁺, s)`` with ``s = min(1, min_j q̇_max,j/|q̇⁺_j|)`` (direction kept) [rad/s], [1]."""
+    ratio = float(np.max(np.abs(qd_next) / qd_max))
+    if ratio <= 1.0:
+        return qd_next, 1.0
+    s = 1.0 / ratio
+    return qd_next * s, s
+
+
+def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kappa: float,
+                 M: np.ndarray, jdqd: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """Project the next velocity v (n,) [rad/s] onto ``{w : A w ≥ b}``,
+    ``b = −κ x/Δt − ½ Δt min(J̇q̇, 0)``, in the metric M.
+
+    rows A (R, n): barrier Jacobian rows ``∂x_p/∂q``; x (R,) barrier distances (in the rows'
+    units; ≤ 0 past a barrier: then the row must move away); dt [s]; kappa κ ∈ (0, 1); M (n, n)
+    SPD; jdqd (R,): the rows' curvature J̇q̇ at the current velocity, the second-order term of
+    ``x⁺ ≈ x + Δt a·w + ½Δt² J̇q̇`` (only its negative part is kept: a curved path that bends
+    towards the barrier tightens the constraint, one that bends away never loosens it).
+    Returns (w, number of rows active at w).
+    Nothing to do (one product) unless a row is violated; then the exact projection
+    ``min ½‖w − v‖²_M`` as a least-distance problem (Lawson & Hanson, ch. 23): with M = LLᵀ and
+    ``u = Lᵀ(w − v)``, ``min ‖u‖ s.t. G u ≥ h``, ``G = A L⁻ᵀ``, ``h = b − A v``, solved by one
+    non-negative least squares ``min_{z ≥ 0} ‖[Gᵀ; hᵀ] z − e_{n+1}‖`` (``u = −r_{1..n}/r_{n+1}``
+    for the residual r). Feasible always: w = 0 is admissible since b ≤ 0.
+    """
+    b = -kappa * x / dt
+    if jdqd is not None:
+        b = b - 0.5 * dt * np.minimum(jdqd, 0.0)
+    Av = rows @ v
+    if np.all(Av >= b):
+        return v, 0
+    L = np.linalg.cholesky(M)  # M = L Lᵀ
+    G = np.linalg.solve(L, rows.T).T  # A L⁻ᵀ (R, n)
+    h = b - Av
+    n = v.shape[0]
+    E = np.vstack((G.T, h[None]))
+    f = np.zeros(n + 1)
+    f[n] = 1.0
+    z = nnls(E, f)
+    r = E @ z - f
+    u = -r[:n] / r[n]
+    w = v + np.linalg.solve(L.T, u)  # L⁻ᵀ u
+    return w, int(np.count_nonzero(z > 0))
+
+
+def nnls(E: np.ndarray, f: np.ndarray, max_iter: int | None = None) -> np.ndarray:
+    """``argmin_{z ≥ 0} ‖E z − f‖`` (Lawson & Hanson's active-set NNLS), E (m, k), f (m,)."""
+    m, k = E.shape
+    z = np.zeros(k)
+    passive = np.zeros(k, dtype=bool)
+    tol = 1e-12 * max(1.0, float(np.abs(E).max()))
+    for _ in range(max_iter or 3 * k + 10):
+        w = E.T @ (f - E @ z)
+        w[passive] = -np.inf
+        j = int(np.argmax(w))
+        if w[j] <= tol:
+            break
+        passive[j] = True
+        while True:
+            idx = np.flatnonzero(passive)
+            sol = np.linalg.lstsq(E[:, idx], f, rcond=None)[0]
+            if np.all(sol > 0):
+                z[:] = 0.0
+                z[idx] = sol
+                break
+            neg = sol <= 0
+            step = np.min(z[idx][neg] / (z[idx][neg] - sol[neg]))
+            z[idx] += step * (sol - z[idx])
+            passive[idx[z[idx] <= tol]] = False
+            z[~passive] = 0.0
+    return z
+
+
+def implicit_velocity_step(qd: np.ndarray, a: np.ndarray, c: float, dt: float) -> np.ndarray:
+    """Next velocity of ``q̈ = a + c q̇`` over Δt with the ``c q̇`` part implicit when c < 0:
+    ``q̇⁺ = (q̇ + Δt a)/(1 − Δt c)`` (never reverses q̇); explicit ``q̇ + Δt(a + c q̇)`` for c ≥ 0."""
+    if c < 0.0:
+        return (qd + dt * a) / (1.0 - dt * c)
+    return qd + dt * (a + c * qd)

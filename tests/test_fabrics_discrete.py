@@ -1,0 +1,105 @@
+"""The fabric at the control rate (tamedpuma/fabrics/discrete.py): the barrier step is the
+M-projection onto the half-spaces and removes energy, barriers are never crossed at Δt on the arm,
+the speed limit keeps the direction and every joint under its limit."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.fabrics.discrete import barrier_step, implicit_velocity_step, limit_speed
+
+Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
+
+
+def _spd(rng, n):
+    A = rng.normal(size=(n, n))
+    return A @ A.T + 0.2 * np.eye(n)
+
+
+def test_barrier_step_is_the_metric_projection_onto_the_half_spaces():
+    rng = np.random.default_rng(0)
+    dt, kappa = 0.02, 0.5
+    for _ in range(200):
+        n, R = 7, int(rng.integers(1, 8))
+        M, A = _spd(rng, n), rng.normal(size=(R, n))
+        x, v = rng.uniform(1e-3, 0.5, size=R), rng.normal(scale=3.0, size=n)
+        w, active = barrier_step(v, A, x, dt, kappa, M)
+        b = -kappa * x / dt
+        assert np.all(A @ w >= b - 1e-9)
+        assert w @ M @ w <= v @ M @ v + 1e-9  # energy never grows (0 is admissible)
+        if np.all(A @ v >= b):
+            assert active == 0 and np.array_equal(w, v)
+            continue
+        # optimality: no admissible point on the segment to random admissible points is closer
+        dist = (w - v) @ M @ (w - v)
+        for _ in range(20):
+            z = w + rng.normal(scale=0.5, size=n)
+            if np.all(A @ z >= b):
+                for t in (0.01, 0.1, 0.5, 1.0):
+                    y = w + t * (z - w)
+                    assert (y - v) @ M @ (y - v) >= dist - 1e-9
+
+
+def test_limit_speed_keeps_the_direction_and_every_joint_under_its_limit():
+    rng = np.random.default_rng(1)
+    qd_max = np.array([1.4835, 1.4835, 1.7453, 1.3090, 2.2689, 2.3562, 2.3562])
+    for _ in range(100):
+        v = rng.normal(scale=3.0, size=7)
+        w, s = limit_speed(v, qd_max)
+        assert np.all(np.abs(w) <= qd_max * (1 + 1e-12))
+        assert 0 < s <= 1 and np.allclose(w, s * v)
+        if np.all(np.abs(v) <= qd_max):
+            assert s == 1.0
+
+
+def test_implicit_step_never_reverses_the_velocity():
+    qd, a = np.array([1.0, -2.0]), np.zeros(2)
+    for c in (-1.0, -50.0, -1e6):
+        out = implicit_velocity_step(qd, a, c, 0.02)
+        assert np.all(np.sign(out) == np.sign(qd)) and np.all(np.abs(out) <= np.abs(qd))
+        explicit = qd + 0.02 * c * qd
+        if c * 0.02 < -1:
+            assert np.all(np.sign(explicit) != np.sign(qd))  # what the implicit step avoids
+
+
+def test_no_barrier_is_crossed_at_the_control_rate_on_the_arm(kinematics):
+    """Drive the arm at its speed limits straight at an obstacle (and at joint limits and the
+    ground): with the barrier step no body sphere enters the obstacle, no joint leaves its range
+    and no sphere goes below the ground; without it the same commands cross."""
+    spec = kinematics.spec
+    fabric = Fabric(FabricGains(ground_enabled=True), spec.q_min, spec.q_max)
+    dt = 0.02
+    zeros = np.zeros(7)
+    q_start = Q0.copy()
+    centers = kinematics.sphere_centers(q_start)
+    target = centers[4]
+    rng = np.random.default_rng(2)
+    for trial in range(5):
+        direction = rng.normal(size=7)
+        # the obstacle sits where the commanded motion takes the wrist sphere after ~0.5 s
+        q_ahead = q_start + 0.5 * direction / np.max(np.abs(direction) / spec.qd_max)
+        obstacle = kinematics.sphere_centers(q_ahead)[4][None] + 0.0 * target
+        radii = np.array([0.06])
+        crossed = {}
+        for use_step in (False, True):
+            q, qd = q_start.copy(), zeros.copy()
+            worst, worst_limit, worst_ground = np.inf, np.inf, np.inf
+            for _ in range(100):
+                command, _ = limit_speed(direction * 10.0, spec.qd_max)
+                state = kinematics.evaluate(q, qd)
+                av = fabric.avoidance(state, q, qd, obstacle, radii, np.zeros((1, 3)))
+                if use_step:
+                    command, _ = barrier_step(command, av.barrier_rows, av.barrier_x, dt, 0.5,
+                                              av.M, av.barrier_jdqd)
+                qd = command
+                q = q + dt * qd
+                c = kinematics.sphere_centers(q)
+                gap = np.linalg.norm(c - obstacle, axis=1) - spec.sphere_radii - radii
+                worst = min(worst, gap.min())
+                worst_limit = min(worst_limit, np.min(q - spec.q_min), np.min(spec.q_max - q))
+                worst_ground = min(worst_ground, np.min(c[:, 2] - spec.sphere_radii))
+            crossed[use_step] = (worst, worst_limit, worst_ground)
+        assert crossed[False][0] < 0, f"trial {trial}: the test command never reached the obstacle"
+        worst, worst_limit, worst_ground = crossed[True]
+        assert worst > 0 and worst_limit > -1e-9 and worst_ground > 0, crossed[True]
