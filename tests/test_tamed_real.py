@@ -3,6 +3,7 @@ CPM"). Skipped unless `runs/puma/<task>/puma.pt` exists (train it first, see REA
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -36,10 +37,18 @@ class _PsiSpy:
         return command
 
 
+def _model(task) -> Path:
+    """The trained model: $TAMEDPUMA_MODELS/<task>/puma.pt if that variable is set, else
+    runs/puma/<task>/puma.pt (README's training commands)."""
+    root = os.environ.get("TAMEDPUMA_MODELS")
+    return Path(root) / task / "puma.pt" if root else REPO / "runs" / "puma" / task / "puma.pt"
+
+
 def _method_cfg(name, task):
     from tamedpuma.app.train import compose
 
-    cfg = compose("sweep", [f"method={name}", f"task={task}"])
+    cfg = compose("sweep", [f"method={name}", f"task={task}",
+                            f"method.checkpoint={_model(task)}"])
     return cfg["method"]
 
 
@@ -55,8 +64,8 @@ def _scenario(spec, task, obstacles):
 @pytest.mark.parametrize("task", ["tomato", "pouring"])
 def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, robot_spec,
                                                                      kinematics):
-    if not (REPO / "runs" / "puma" / task / "puma.pt").is_file():
-        pytest.skip(f"no trained model at runs/puma/{task}/puma.pt")
+    if not _model(task).is_file():
+        pytest.skip(f"no trained model at {_model(task)} (set TAMEDPUMA_MODELS or train one)")
     paths = {}
     for name in ("puma", "fpm", "cpm"):
         controller = _PsiSpy(make(name, _method_cfg(name, task), kinematics))
