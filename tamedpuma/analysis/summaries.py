@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tamedpuma.analysis import stats
+
 log = logging.getLogger(__name__)
 
 
@@ -57,11 +59,7 @@ def pooled_step_times(paths, times: dict[str, np.ndarray]) -> dict:
 def bootstrap_ci(values, level: float = 0.95, samples: int = 10_000,
                  seed: int = 0) -> tuple[float, float]:
     """Percentile bootstrap confidence interval of the mean of ``values`` (e.g. 0/1 success),
-    ``samples`` resamples with replacement, seeded. (nan, nan) for no values."""
-    x = np.asarray(values, dtype=float)
-    if x.size == 0:
-        return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    means = x[rng.integers(0, x.size, size=(samples, x.size))].mean(axis=1)
-    tail = (1.0 - level) / 2.0
-    return float(np.quantile(means, tail)), float(np.quantile(means, 1.0 - tail))
+    ``samples`` resamples with replacement, seeded. (nan, nan) for no values.
+    (:func:`tamedpuma.analysis.stats.bootstrap_ci`, as a (low, high) pair.)"""
+    iv = stats.bootstrap_ci(values, level=level, resamples=samples, seed=seed)
+    return iv.low, iv.high
