@@ -36,7 +36,8 @@ def test_path_difference_ignores_speed_and_measures_offsets():
 
 
 def _sweep(*args):
-    proc = subprocess.run([sys.executable, "-m", "tamedpuma.sweep", "recorder=mcap", *args],
+    proc = subprocess.run([sys.executable, "-m", "tamedpuma.sweep", "recorder=mcap",
+                           "method=joint_attractor", *args],
                           cwd=REPO, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
 

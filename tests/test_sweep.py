@@ -34,7 +34,17 @@ def test_one_episode_writes_its_files_and_says_where(tmp_path):
     summary = json.loads((run_dir / "summary.json").read_text())
     log = read_mcap(run_dir / "episode.mcap")
     assert log.complete and log.n_steps == summary["steps"]
-    assert "method:" in log.config_yaml and "joint_attractor" in log.config_yaml
+    assert "method:" in log.config_yaml and "name: fpm" in log.config_yaml
+    # TamedPUMA (FPM) by default, with the best model at hand, recorded and said
+    from tamedpuma.puma.store import file_sha256
+
+    model = summary["model"]
+    assert model["model_sha256"] == file_sha256(model["model_path"])
+    assert {k: log.info[k] for k in model} == model  # the same record in the MCAP metadata
+    assert f"model: {model['model_origin']} {model['model_path']}" in proc.stdout
+    assert f"replay: rerun {run_dir / 'episode.rrd'}" in proc.stdout
+    assert summary["success_whole_body"] and not summary["collided"]
+    assert summary["min_clearance_m"] > 0
 
 
 def _error_line(proc):

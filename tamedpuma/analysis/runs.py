@@ -19,6 +19,9 @@ from tamedpuma.recording import read_mcap
 
 log = logging.getLogger(__name__)
 
+#: the trained model a run used (RunInfo.model in the MCAP metadata; empty for model-free methods)
+MODEL_KEYS = ("model_name", "model_origin", "model_data", "model_data_source", "model_sha256")
+
 
 def find_logs(root: str | Path) -> list[Path]:
     """Every ``episode.mcap`` (finished) or ``episode.mcap.active`` (killed) below ``root``."""
@@ -63,7 +66,8 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
            "n_obstacles": int(run.obstacles["id"].nunique()) if len(run.obstacles) else 0,
            "complete": run.complete,
            "stop_reason": run.summary.get("stop_reason") or ("" if run.complete else "incomplete"),
-           "read_error": run.read_error or "", **metrics.as_dict()}
+           "read_error": run.read_error or "", **metrics.as_dict(),
+           **{k: run.info.get(k, "") for k in MODEL_KEYS}}
     return row, ee, sc["compute_time_ms"].to_numpy()
 
 

@@ -123,6 +123,22 @@ def table1(runs: pd.DataFrame, step_times: dict | None = None) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def model_notes(runs: pd.DataFrame) -> list[str]:
+    """One line per trained model the runs used: which data it came from (synthetic: the shipped
+    models; real: the authors' demonstrations), its origin and sha256."""
+    if "model_sha256" not in runs:
+        return []
+    used = runs[runs["model_sha256"].fillna("") != ""]
+    lines = []
+    for key, group in used.groupby(["model_name", "model_data", "model_data_source",
+                                    "model_origin", "model_sha256"], dropna=False):
+        name, kind, source, origin, sha = key
+        methods = ", ".join(sorted(set(group.get("method_label", group["method"]))))
+        lines.append(f"model {name}: {kind} data ({source}), {origin}, sha256 {sha[:12]}; "
+                     f"{len(group)} runs ({methods})")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
@@ -140,9 +156,14 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or args.runs
     out.mkdir(parents=True, exist_ok=True)
     runs.to_csv(out / "runs.csv", index=False)
-    (out / "table1.md").write_text(table.to_markdown(index=False, disable_numparse=True) + "\n")
-    (out / "table1.tex").write_text(table.to_latex(index=False))
-    print(table.to_markdown(index=False, disable_numparse=True))
+    notes = model_notes(runs) or ["no trained model used"]
+    md = table.to_markdown(index=False, disable_numparse=True)
+    (out / "table1.md").write_text(md + "\n\n" + "".join(f"- {n}\n" for n in notes))
+    (out / "table1.tex").write_text(table.to_latex(index=False)
+                                    + "".join(f"% {n}\n" for n in notes))
+    print(md)
+    for n in notes:
+        print(n)
     skipped = runs.attrs.get("skipped", [])
     print(f"{len(runs)} runs read, {len(skipped)} skipped; tables in {out}")
     return 0

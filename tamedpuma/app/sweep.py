@@ -53,6 +53,7 @@ class Built:
     controller: object
     sim_config: object
     disturbance: object = None
+    model: object = None  # the trained model the method uses (store.ModelChoice) or None
 
 
 def build(cfg: DictConfig) -> Built:
@@ -60,6 +61,7 @@ def build(cfg: DictConfig) -> Built:
     missing key, bad number) becomes a :class:`ConfigError` with a one-line message."""
     from tamedpuma import methods
     from tamedpuma.app.schema import validate
+    from tamedpuma.puma import store
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
     from tamedpuma.worlds.bullet import Disturbance, SimConfig
     from tamedpuma.worlds.scenarios import build_scenario
@@ -70,6 +72,9 @@ def build(cfg: DictConfig) -> Built:
         spec = robot_spec_from_config(plain["robot"])
         kinematics = Kinematics(spec)
         scenario = build_scenario(plain, spec, kinematics)
+        model = store.resolve_for_method(plain["method"])
+        if model is not None:  # the method loads exactly the file that is recorded
+            plain["method"]["checkpoint"] = str(model.path)
         controller = methods.make(cfg.method.name, plain["method"], kinematics)
         sim_config = SimConfig(**plain["sim"])
         disturbance = Disturbance(**(plain.get("disturbance") or {}))
@@ -77,7 +82,7 @@ def build(cfg: DictConfig) -> Built:
         raise
     except (ValueError, TypeError, KeyError) as exc:
         raise ConfigError(f"invalid configuration: {type(exc).__name__}: {exc}") from exc
-    return Built(spec, scenario, controller, sim_config, disturbance)
+    return Built(spec, scenario, controller, sim_config, disturbance, model)
 
 
 def run_one(cfg: DictConfig, run_dir: Path) -> dict:
@@ -94,7 +99,8 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                    config_yaml=OmegaConf.to_yaml(cfg, resolve=True), urdf_path=spec.urdf_path,
                    joint_names=spec.joint_names, link_names=spec.link_names,
                    body_sphere_radii=spec.sphere_radii, dt=scenario.dt,
-                   velocity_limits=spec.qd_max)
+                   velocity_limits=spec.qd_max,
+                   model=built.model.metadata() if built.model else {})
     with Simulator(spec, built.sim_config, built.disturbance) as sim:
         result = run_episode(scenario, built.controller, sim, recorders, info,
                              stop_on_success=bool(cfg.stop_on_success),
@@ -107,6 +113,7 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                "control": built.sim_config.control,
                "stop_reason": result.stop_reason, **result.metrics.as_dict(),
                "files": {k: str(v) for k, v in files.items()},
+               "model": built.model.metadata() if built.model else None,
                # every step's controller time [ms] (pooled statistics across runs)
                "step_compute_ms": [round(float(v), 5) for v in result.compute_ms]}
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -132,12 +139,18 @@ def _report(summary: dict) -> None:
           f"({m['duration_s']:.2f} s), final position error {m['final_position_error_m']:.4f} m, "
           f"min clearance {m['min_clearance_m']:.3f} m, "
           f"controller {m['compute_ms_median']:.3f} ms (median)")
+    if m.get("model"):
+        mm = m["model"]
+        print(f"model: {mm['model_origin']} {mm['model_path']} (sha256 "
+              f"{mm['model_sha256'][:12]}, trained on {mm['model_data']} data "
+              f"{mm['model_data_source']})")
     print(f"run folder: {m['run_dir']}")
     for kind, path in m["files"].items():
         print(f"  {kind}: {path}")
     print(f"  summary: {Path(m['run_dir']) / 'summary.json'}")
     if "rrd" in m["files"]:
         print(f"replay: rerun {m['files']['rrd']}")
+    print(f"replay: python -m tamedpuma.replay {m['run_dir']}")
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="sweep", version_base="1.3")

@@ -1,5 +1,5 @@
 """Shared by the methods driven by a trained PUMA primitive (puma, fpm, cpm): loading the
-checkpoint named in the method config and choosing the task adapter."""
+checkpoint named in the method config (or the best model at hand) and choosing the task adapter."""
 
 from __future__ import annotations
 
@@ -24,13 +24,23 @@ def resolve_checkpoint(path: str) -> Path:
                           f"`python -m tamedpuma.train task={task}` (or set method.checkpoint)")
 
 
+def model_path(cfg: Mapping, order: int) -> Path:
+    """The checkpoint a method config names, or, with ``checkpoint`` null, the best model at hand
+    for ``cfg['task']`` (cache, user-trained, shipped: :mod:`tamedpuma.puma.store`)."""
+    if cfg.get("checkpoint"):
+        return resolve_checkpoint(str(cfg["checkpoint"]))
+    if not cfg.get("task"):
+        raise ConfigError("method.checkpoint and method.task are not set")
+    from tamedpuma.puma import store
+
+    return store.resolve(str(cfg["task"]), order, None, str(cfg.get("model", "auto"))).path
+
+
 def load_task(cfg: Mapping):
     """Load ``cfg['checkpoint']`` and wrap it in the task adapter of its kind."""
     from tamedpuma.puma.primitive import PosePrimitive, load_primitive
 
-    if not cfg.get("checkpoint"):
-        raise ConfigError("method.checkpoint is not set")
-    primitive = load_primitive(resolve_checkpoint(str(cfg["checkpoint"])))
+    primitive = load_primitive(model_path(cfg, order=2))
     if isinstance(primitive, PosePrimitive):
         return PoseTask(primitive)
     if primitive.spec.order != 2:

@@ -242,12 +242,18 @@ def load_position_primitive(cfg: Mapping) -> VelocityField:
     """The first-order R³ primitive of ``cfg['checkpoint']``; a CheckpointError (one line, with the
     train command) if it is missing, corrupt or not a first-order 3-D position model."""
     path = cfg.get("checkpoint")
-    if not path:
-        raise ConfigError("method.checkpoint is not set; it must point at a first-order position "
-                          "PUMA (puma=position)")
     from tamedpuma.puma.primitive import VectorPrimitive, load_primitive
 
-    resolved = _resolve(str(path))
+    if path:
+        resolved = _resolve(str(path))
+    elif cfg.get("task"):
+        from tamedpuma.puma import store
+
+        resolved = store.resolve(str(cfg["task"]), 1, None, str(cfg.get("model", "auto"))).path
+        path = str(resolved)
+    else:
+        raise ConfigError("method.checkpoint and method.task are not set; name a first-order "
+                          "position PUMA (puma=position)")
     try:
         primitive = load_primitive(resolved)
     except CheckpointError as exc:
@@ -263,7 +269,7 @@ def load_position_primitive(cfg: Mapping) -> VelocityField:
 def params_from_config(cfg: Mapping) -> ModulationIKParams:
     """:class:`ModulationIKParams` from the method config (unknown keys are errors)."""
     known = {f.name for f in fields(ModulationIKParams)}
-    reserved = {"name", "checkpoint", "task"}
+    reserved = {"name", "checkpoint", "task", "model"}
     unknown = sorted(set(cfg) - known - reserved)
     if unknown:
         raise ConfigError(f"method: unknown key(s) {unknown} for modulation_ik; "

@@ -36,6 +36,8 @@ class RunInfo:
     link_names: the L links whose poses each :class:`StepRecord` carries (``lbr_iiwa_link_0..7``);
     body_sphere_radii: (k,) collision-sphere radii on the robot body [m]; dt: control period [s];
     velocity_limits: (n,) joint speed limits [rad/s] (empty: unknown, replays plot raw speeds).
+    model: the trained model the method used (``model_path``, ``model_sha256``, ``model_origin``,
+    ``model_data``, ``model_data_source``, ``model_data_sha256``; empty for methods without one).
     """
 
     run_id: str
@@ -50,6 +52,7 @@ class RunInfo:
     body_sphere_radii: np.ndarray = field(default_factory=lambda: np.zeros(0))
     dt: float = 0.02
     velocity_limits: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    model: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self):
         object.__setattr__(self, "joint_names", tuple(self.joint_names))
@@ -83,6 +86,7 @@ class RunInfo:
             "body_sphere_radii": json.dumps([float(r) for r in self.body_sphere_radii]),
             "dt": repr(float(self.dt)),
             "velocity_limits": json.dumps([float(v) for v in self.velocity_limits]),
+            **{str(k): str(v) for k, v in dict(self.model).items()},
         }
 
 

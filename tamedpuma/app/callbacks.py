@@ -1,0 +1,96 @@
+"""Hydra callbacks of the Table-1 experiment (``conf/experiment/table1.yaml``).
+
+Before the sweep (main process): build the real-data models that are missing from the cache
+(:func:`tamedpuma.app.models.ensure_real_models`), or say that the shipped synthetic models are
+used when the authors' demonstrations are not on this machine. After each run (in the worker):
+one progress line ``[done/total] ...``. After the sweep (main process): the analysis of the whole
+sweep folder, exactly ``python -m analysis.tables <sweep dir>`` (prints Table 1, writes
+``table1.md``, ``table1.tex``, ``runs.csv``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig, OmegaConf
+
+
+def sweep_size(config: DictConfig) -> int | None:
+    """Number of runs of a basic-sweeper sweep: the product of its comma-list lengths."""
+    try:
+        params = {str(k): str(v) for k, v in (config.hydra.sweeper.params or {}).items()}
+        overrides = list(config.hydra.overrides.task or [])
+    except Exception:
+        return None
+    for ov in overrides:  # command-line sweeps (-m case=00,01) replace the configured lists
+        key, _, value = str(ov).partition("=")
+        key = key.lstrip("+~")
+        if key in params or "," in value:
+            params[key] = value
+    sizes = [len(v.split(",")) for v in params.values()]
+    return math.prod(sizes) if sizes else None
+
+
+class Table1(Callback):
+    """``build_models``: build missing real-data models first; ``data``: their demonstrations
+    folder (default: found as ``python -m tamedpuma.models build`` finds it); ``jobs``: parallel
+    trainings (default: all cores)."""
+
+    def __init__(self, build_models: bool = True, data: str | None = None,
+                 jobs: int | None = None) -> None:
+        self.build_models, self.data, self.jobs = bool(build_models), data, jobs
+        self._total: int | str | None = None
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        total = sweep_size(config)
+        print(f"table1: {total} runs into {config.hydra.sweep.dir}", flush=True)
+        if not self.build_models:
+            return
+        from tamedpuma.app import models
+        from tamedpuma.errors import TamedPumaError
+        from tamedpuma.puma import download
+
+        if self.data is None and download.find_root() is None:
+            print("table1: the authors' demonstrations are not on this machine (`python -m "
+                  "tamedpuma.models download` fetches them): the methods use the best model at "
+                  "hand (shipped: synthetic data); the table says which", flush=True)
+            return
+        try:
+            models.ensure_real_models(self.data, self.jobs,
+                                      log=lambda m: print(f"table1: {m}", flush=True))
+        except TamedPumaError as exc:
+            print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
+            sys.exit(2)
+
+    def on_job_end(self, config: DictConfig, job_return: Any, **kwargs: Any) -> None:
+        root = Path(str(config.hydra.sweep.dir))
+        done = sum(1 for _ in root.rglob("summary.json"))
+        if self._total is None:  # the sweep's own config (a job's config names one value each)
+            try:
+                self._total = sweep_size(OmegaConf.load(root / "multirun.yaml")) or "?"
+            except Exception:
+                self._total = "?"
+        total = self._total
+        run_dir = Path(str(config.hydra.runtime.output_dir))
+        outcome = "?"
+        summary = run_dir / "summary.json"
+        if summary.is_file():
+            s = json.loads(summary.read_text())
+            outcome = ("success" if s.get("success_whole_body") else
+                       "success (paper criterion only)" if s.get("success_paper") else
+                       f"no success ({s.get('failure_whole_body') or s.get('stop_reason')})")
+        elif getattr(job_return, "status", None) is not None:
+            outcome = str(job_return.status.name).lower()
+        print(f"[{done}/{total}] {run_dir.relative_to(root)}: {outcome}", flush=True)
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        from tamedpuma.analysis.tables import main as tables
+
+        root = str(config.hydra.sweep.dir)
+        print(f"table1: analysis of {root} (= python -m analysis.tables {root})", flush=True)
+        tables([root])

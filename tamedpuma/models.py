@@ -1,0 +1,6 @@
+"""`python -m tamedpuma.models`: the entry point lives in :mod:`tamedpuma.app.models`."""
+
+from tamedpuma.app.models import main
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,247 @@
+"""Where trained PUMA models live, and which one a method uses (no torch here).
+
+A method driven by PUMA (``puma``, ``fpm``, ``cpm``: the second-order R³×S³ model of the task;
+``modulation_ik``: the first-order position model ``<task>_position``) takes, in this order:
+
+1. ``explicit``: ``method.checkpoint=PATH`` (absolute, else relative to the working directory,
+   else to the repository root);
+2. ``cache``: a real-data model built by ``python -m tamedpuma.models build`` in the user cache
+   (``$TAMEDPUMA_CACHE`` or ``${XDG_CACHE_HOME:-~/.cache}/tamedpuma``, folder
+   ``models/<key>/`` with ``puma.pt`` and ``manifest.json``; ``key`` = sha256 of the data hash,
+   the training config and the training-code version, see :func:`model_key`); among several, the
+   one built by the current training code first, then the newest;
+3. ``user``: a model the user trained on real data with the README's command
+   (``runs/puma/<task>[_position]/puma.pt`` whose ``report.json`` names non-synthetic data);
+4. ``shipped``: the model trained on the seeded synthetic demonstrations that ships with the
+   package (``tamedpuma/puma/shipped/<task>[_position]/``).
+
+``method.model`` narrows the choice: ``auto`` (the order above), ``real`` (2 or 3, else an
+error saying how to build one) or ``shipped`` (4). Every run records the choice
+(:meth:`ModelChoice.metadata`: path, sha256 of the file, data source and its sha256, origin).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import CheckpointError, ConfigError
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+REPO_ROOT = PACKAGE_DIR.parents[1]
+SHIPPED_DIR = PACKAGE_DIR / "shipped"
+POSITION_METHODS = frozenset({"modulation_ik"})  # use the first-order position model
+ORIGINS = ("explicit", "cache", "user", "shipped")
+
+
+def cache_root() -> Path:
+    """``$TAMEDPUMA_CACHE``, else ``$XDG_CACHE_HOME/tamedpuma``, else ``~/.cache/tamedpuma``."""
+    if os.environ.get("TAMEDPUMA_CACHE"):
+        return Path(os.environ["TAMEDPUMA_CACHE"]).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(xdg).expanduser() / "tamedpuma"
+
+
+def models_dir() -> Path:
+    return cache_root() / "models"
+
+
+def model_name(task: str, order: int) -> str:
+    """``tomato`` (second order, R³×S³) or ``tomato_position`` (first order, R³)."""
+    return f"{task}_position" if int(order) == 1 else str(task)
+
+
+def data_kind(source: str) -> str:
+    """``synthetic`` (seeded, shipped), ``lasa`` or ``real`` (recorded demonstrations)."""
+    source = str(source or "")
+    if source.startswith("synthetic:"):
+        return "synthetic"
+    if source.startswith("lasa:"):
+        return "lasa"
+    return "real" if source else "unknown"
+
+
+def file_sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def training_code_version() -> str:
+    """sha256 over the sources of the training code (``tamedpuma/puma/*.py`` except this module
+    and the builder): a change there changes every cache key, so models are rebuilt."""
+    h = hashlib.sha256()
+    for path in sorted(PACKAGE_DIR.glob("*.py")):
+        if path.name in ("store.py", "build.py", "download.py"):
+            continue
+        h.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def key_config(train_cfg: dict) -> dict:
+    """The training config as it enters the cache key: bookkeeping (output folder, progress bar,
+    command line) and the data path (the data enters through its hash) left out."""
+    cfg = json.loads(json.dumps(train_cfg))
+    for k in ("out_dir", "progress", "bench_out", "command"):
+        cfg.pop(k, None)
+    if isinstance(cfg.get("task"), dict):
+        cfg["task"].pop("demos", None)
+    return cfg
+
+
+def model_key(data_hash: str, train_cfg: dict, code_version: str | None = None) -> str:
+    """sha256 of (data hash, training config, training-code version): the cache folder name."""
+    blob = json.dumps({"data": data_hash, "config": key_config(train_cfg),
+                       "code": code_version or training_code_version()}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class ModelChoice:
+    """The model a run used: file, its sha256, the training data (source, sha256), origin."""
+
+    path: Path
+    sha256: str
+    data_source: str
+    data_sha256: str
+    origin: str  # explicit | cache | user | shipped
+    name: str = ""  # tomato | tomato_position | ...
+
+    @property
+    def data_kind(self) -> str:
+        return data_kind(self.data_source)
+
+    def metadata(self) -> dict[str, str]:
+        """Flat string map (MCAP metadata, summary.json)."""
+        return {"model_name": self.name, "model_path": str(self.path), "model_sha256": self.sha256,
+                "model_origin": self.origin, "model_data": self.data_kind,
+                "model_data_source": self.data_source, "model_data_sha256": self.data_sha256}
+
+    def describe(self) -> str:
+        return (f"{self.origin} model {self.path} (sha256 {self.sha256[:12]}, "
+                f"{self.data_kind} data: {self.data_source})")
+
+
+def read_manifest(folder: Path) -> dict | None:
+    """``manifest.json`` (or, for a user-trained model, ``report.json``) of a model folder."""
+    for name in ("manifest.json", "report.json"):
+        path = folder / name
+        if path.is_file():
+            try:
+                return json.loads(path.read_text())
+            except (OSError, ValueError):
+                return None
+    return None
+
+
+def _provenance(path: Path) -> tuple[str, str]:
+    """(data source, data sha256) of a checkpoint: from its manifest/report, else its header."""
+    man = read_manifest(path.parent) or {}
+    data = man.get("data") if isinstance(man.get("data"), dict) else {}
+    source = data.get("source") or man.get("data_source")
+    digest = data.get("sha256") or man.get("data_hash")
+    if source and digest:
+        return str(source), str(digest)
+    from .checkpoint import load  # torch: only for a bare checkpoint without a manifest
+
+    _, meta = load(path)
+    return meta.data_source, meta.data_hash
+
+
+def choice(path: Path, origin: str, name: str = "") -> ModelChoice:
+    source, digest = _provenance(path)
+    return ModelChoice(path.resolve(), file_sha256(path), source, digest, origin, name)
+
+
+def resolve_explicit(path: str) -> Path:
+    """An explicit checkpoint path: absolute, else relative to the cwd, else to the repo root."""
+    p = Path(path).expanduser()
+    for c in ([p] if p.is_absolute() else [Path.cwd() / p, REPO_ROOT / p]):
+        if c.is_file():
+            return c
+    return p
+
+
+def shipped_path(task: str, order: int) -> Path:
+    return SHIPPED_DIR / model_name(task, order) / "puma.pt"
+
+
+def cached_models(task: str, order: int) -> list[tuple[Path, dict]]:
+    """Real-data models of ``task``/``order`` in the cache, best first (current code, newest)."""
+    root = models_dir()
+    if not root.is_dir():
+        return []
+    code = training_code_version()
+    found = []
+    for man_path in root.glob("*/manifest.json"):
+        try:
+            man = json.loads(man_path.read_text())
+        except (OSError, ValueError):
+            continue
+        pt = man_path.parent / "puma.pt"
+        if (man.get("name") == model_name(task, order) and pt.is_file()
+                and data_kind((man.get("data") or {}).get("source", "")) == "real"):
+            found.append((pt, man, man.get("code_version") == code, pt.stat().st_mtime))
+    found.sort(key=lambda f: (f[2], f[3]), reverse=True)
+    return [(pt, man) for pt, man, _, _ in found]
+
+
+def user_model(task: str, order: int) -> Path | None:
+    """``runs/puma/<name>/puma.pt`` (cwd, then the repo root) trained on real data."""
+    rel = Path("runs") / "puma" / model_name(task, order) / "puma.pt"
+    for base in (Path.cwd(), REPO_ROOT):
+        pt = base / rel
+        if pt.is_file():
+            rep = read_manifest(pt.parent) or {}
+            if data_kind(rep.get("data_source", "")) == "real":
+                return pt
+    return None
+
+
+def resolve(task: str, order: int, checkpoint: str | None = None,
+            model: str = "auto") -> ModelChoice:
+    """The model a method of ``task`` needing a model of ``order`` uses (see module doc)."""
+    if model not in ("auto", "real", "shipped"):
+        raise ConfigError(f"method.model must be auto, real or shipped, got {model!r}")
+    if checkpoint:
+        path = resolve_explicit(str(checkpoint))
+        if not path.is_file():
+            hint = (f"python -m tamedpuma.train task={task}"
+                    + (" puma=position" if int(order) == 1 else "")
+                    + f" out_dir={path.parent}")
+            raise CheckpointError(f"no PUMA checkpoint at {checkpoint}: train one with `{hint}` "
+                                  "(or leave method.checkpoint unset to use the best at hand)")
+        return choice(path, "explicit", model_name(task, order))
+    if model in ("auto", "real"):
+        cached = cached_models(task, order)
+        if cached:
+            return choice(cached[0][0], "cache", model_name(task, order))
+        user = user_model(task, order)
+        if user is not None:
+            return choice(user, "user", model_name(task, order))
+        if model == "real":
+            raise CheckpointError(f"no real-data model of {model_name(task, order)}: build them "
+                                  "with `python -m tamedpuma.models build` (or set "
+                                  "method.model=auto)")
+    path = shipped_path(task, order)
+    if not path.is_file():
+        raise CheckpointError(f"no shipped model at {path} (broken install?): train one with "
+                              f"`python -m tamedpuma.train task={task}`")
+    return choice(path, "shipped", model_name(task, order))
+
+
+def resolve_for_method(method_cfg: dict) -> ModelChoice | None:
+    """The model of a method config (None for methods without a ``checkpoint`` key)."""
+    if "checkpoint" not in method_cfg:
+        return None
+    task = method_cfg.get("task")
+    if not task:
+        raise ConfigError("method.task is not set (it names the task whose model to use)")
+    order = 1 if method_cfg.get("name") in POSITION_METHODS else 2
+    return resolve(str(task), order, method_cfg.get("checkpoint"),
+                   str(method_cfg.get("model", "auto")))
