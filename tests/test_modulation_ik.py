@@ -223,9 +223,12 @@ def _obs(q, centers=(), velocities=None):
 def test_config_resolves_the_checkpoint_from_the_task():
     from tamedpuma.app.train import compose
 
-    cfg = compose("sweep", ["method=modulation_ik", "task=pouring"])
-    assert cfg["method"]["checkpoint"] == "runs/puma/pouring_position/puma.pt"
+    from tamedpuma.puma import store
+
+    cfg = compose("sweep", ["method=modulation_ik", "task=pouring", "method.model=shipped"])
+    assert cfg["method"]["checkpoint"] is None  # the best model at hand (tamedpuma.puma.store)
     assert cfg["method"]["task"] == "pouring" and cfg["method"]["name"] == "modulation_ik"
+    assert store.resolve_for_method(cfg["method"]).name == "pouring_position"
 
 
 def test_missing_checkpoint_names_the_train_command(kinematics, tmp_path):
