@@ -36,6 +36,10 @@ class RobotSchema:
     limit_tolerance: float = 1e-4
     limit_margin: float = 1e-3
     spheres: list[SphereSchema] = MISSING
+    home: Any = None                  # default start [rad] (scenario=default uses it)
+    null_space: Any = None            # {link, target}: PUMA's "elbow up" objective
+    body_model: Any = None            # {skip, merge}: for python -m tamedpuma.body_model
+    body_model_tolerance: Any = None  # [m], written by python -m tamedpuma.body_model
 
 
 @dataclass

@@ -55,7 +55,8 @@ def load_raws(task: dict, puma: dict) -> tuple[list[data.RawDemo], str, str]:
     src = task.get("demos")
     if src is None:
         syn = task.get("synthetic") or {}
-        raws = demos_synthetic.generate(name, _require(task, "goal_position", "task"),
+        raws = demos_synthetic.generate(str(syn.get("kind", name)),
+                                        _require(task, "goal_position", "task"),
                                         _require(task, "goal_quaternion", "task"),
                                         int(syn.get("n_demos", 10)), int(syn.get("seed", 0)))
         return raws, f"synthetic:{name}", "m"
