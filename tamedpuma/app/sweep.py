@@ -61,6 +61,7 @@ def build(cfg: DictConfig) -> Built:
     from tamedpuma import methods
     from tamedpuma.app.schema import validate
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
+    from tamedpuma.worlds import demo_scenarios
     from tamedpuma.worlds.bullet import Disturbance, SimConfig
     from tamedpuma.worlds.scenarios import build_scenario
 
@@ -69,6 +70,7 @@ def build(cfg: DictConfig) -> Built:
         plain = OmegaConf.to_container(cfg, resolve=True)
         spec = robot_spec_from_config(plain["robot"])
         kinematics = Kinematics(spec)
+        plain = demo_scenarios.apply(plain, kinematics)  # derived goal, generated scenario
         scenario = build_scenario(plain, spec, kinematics)
         controller = methods.make(cfg.method.name, plain["method"], kinematics)
         sim_config = SimConfig(**plain["sim"])

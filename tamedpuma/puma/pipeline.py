@@ -147,7 +147,10 @@ def scenario_starts(task: dict) -> list[tuple[str, np.ndarray, np.ndarray, np.nd
         gp, gq = goal.get("position"), goal.get("quaternion")
         gp = task.get("goal_position") if not isinstance(gp, list) else gp
         gq = task.get("goal_quaternion") if not isinstance(gq, list) else gq
-        p, q = kin.ee_pose(np.asarray(sc["q0"], float))
+        if sc.get("generator") or (sc.get("q0") is None and kin.spec.home is None):
+            continue  # generated starts are checked where they are made
+        p, q = kin.ee_pose(np.asarray(sc["q0"] if sc.get("q0") is not None else kin.spec.home,
+                                      float))
         out.append((str(sc.get("name", f.stem)), p, q, gp, gq))
     return out
 

@@ -24,12 +24,15 @@ makes it at least ``min_dt`` [s] (a finer model step only slows training down).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import ConfigError, DataError
 from .data import RawDemo
-from .training import Workspace
+
+if TYPE_CHECKING:
+    from .training import Workspace
 
 
 def angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -68,6 +71,15 @@ class DerivedTask:
                 "dt": self.dt, "data_period_s": self.data_period, "n_demos": self.n_demos}
 
 
+def derive_goal(raws: list[RawDemo], spread_limit: float = np.deg2rad(30.0)):
+    """(goal position (3,), goal quaternion (4,) or None, rule) without torch (for the sweep)."""
+    goal_p = np.array([r.pos[-1] for r in raws]).mean(0)
+    if raws[0].quat is None:
+        return goal_p, None, "none"
+    q, rule, _ = goal_orientation(np.array([r.quat[-1] for r in raws]), spread_limit)
+    return goal_p, q, rule
+
+
 def goal_orientation(finals: np.ndarray, spread_limit: float) -> tuple[np.ndarray, str, float]:
     """(goal quaternion, rule, largest pairwise angle [rad]) of final orientations (D, 4)."""
     q = finals / np.linalg.norm(finals, axis=1, keepdims=True)
@@ -90,6 +102,7 @@ def model_step(raws: list[RawDemo], min_dt: float) -> tuple[float, float]:
 def derive(raws: list[RawDemo], *, margin: float = 0.05, angle_margin: float = 0.15,
            spread_limit: float = np.deg2rad(30.0), min_dt: float = 0.02) -> DerivedTask:
     """Goal, workspace and Δt of a set of demonstrations (see the module docstring)."""
+    from .training import Workspace  # torch: only when a workspace is built
     if not raws:
         raise DataError("no demonstrations")
     if margin < 0 or angle_margin < 0:

@@ -74,9 +74,12 @@ class RobotSpec:
     q_max: np.ndarray
     qd_max: np.ndarray
     spheres: tuple[BodySphere, ...]
+    home: tuple[float, ...] | None = None  # default start [rad] (a scenario with q0: null)
 
     def __post_init__(self):
         n = len(self.joint_names)
+        if self.home is not None and len(self.home) != n:
+            raise ConfigError(f"robot.home must be {n} joint angles, got {list(self.home)}")
         for name in ("q_min", "q_max", "qd_max"):
             arr = np.array(getattr(self, name), dtype=float)
             if arr.shape != (n,) or not np.all(np.isfinite(arr)):
@@ -116,6 +119,7 @@ def robot_spec_from_config(cfg) -> RobotSpec:
         q_max=np.array(cfg["q_max"], dtype=float),
         qd_max=np.array(cfg["qd_max"], dtype=float),
         spheres=spheres,
+        home=None if cfg.get("home") is None else tuple(float(v) for v in cfg["home"]),
     )
 
 

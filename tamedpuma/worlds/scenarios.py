@@ -3,7 +3,7 @@
 A scenario config (``conf/scenario/*.yaml``, goal usually interpolated from ``conf/task``) holds::
 
     name: default
-    q0: [7 joint angles, rad]
+    q0: [7 joint angles, rad]   # null: the robot config's home
     goal: {position: [x, y, z], quaternion: [x, y, z, w], velocity: [vx, vy, vz]}
     obstacles: [{center: [x, y, z], radius: r, velocity: [vx, vy, vz]}, ...]
     dt: 0.02           # control period [s]
@@ -92,7 +92,10 @@ def scenario_from_config(cfg: Mapping, spec: RobotSpec, *, task: str, seed: int 
             quaternion=_vec(goal_cfg["quaternion"], 4, "goal.quaternion"),
             velocity=_vec(goal_cfg.get("velocity") or [0, 0, 0], 3, "goal.velocity"),
         )
-        q0 = clamp_start(_vec(cfg["q0"], spec.dof, "q0"), spec, limit_tolerance, limit_margin)
+        q0_cfg = cfg["q0"] if cfg["q0"] is not None else spec.home  # null: the robot's home
+        if q0_cfg is None:
+            raise ScenarioError("scenario q0 is null and the robot config has no home")
+        q0 = clamp_start(_vec(q0_cfg, spec.dof, "q0"), spec, limit_tolerance, limit_margin)
         return Scenario(
             name=str(cfg["name"]),
             task=task,
