@@ -230,3 +230,28 @@ def test_training_from_a_csv_folder_writes_the_derivation(tmp_path, csv_folder):
     _, meta = checkpoint.load(out / "puma.pt")
     assert meta.goal["position"] == report["derived"]["goal_position"]
     assert list(meta.workspace.low) == report["derived"]["workspace"]["position_low"]
+
+
+def test_scenarios_from_demonstrations_start_near_a_demo_with_an_obstacle_on_its_path(
+        csv_folder, kinematics):
+    from tamedpuma.worlds import demo_scenarios as ds
+
+    raws = demo_formats.load_any(csv_folder)
+    goal = np.mean([r.pos[-1] for r in raws], axis=0)
+    cfg = ds.DemoScenarioConfig(seed=3, start_noise=0.03, path_offset=0.03)
+    home = [-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010]
+    q0, centers, radii, i = ds.generate(raws, goal, kinematics, home, cfg)
+    again = ds.generate(raws, goal, kinematics, home, cfg)
+    np.testing.assert_array_equal(q0, again[0])  # seeded
+    np.testing.assert_array_equal(centers, again[1])
+    p0, quat0 = kinematics.ee_pose(q0)
+    assert np.linalg.norm(p0 - raws[i].pos[0]) <= 0.03 + 1e-4  # near that demo's start
+    assert task_from_demos.angle(quat0, raws[i].quat[0]) < 1e-3
+    path = raws[i].pos - raws[i].pos[-1] + goal
+    dist = np.linalg.norm(path[:, None] - centers[None], axis=-1).min(axis=0)
+    assert np.all(dist <= 0.03 + 0.02)  # on or near the path (polyline sampling slack)
+    gaps = np.linalg.norm(kinematics.sphere_centers(q0)[:, None] - centers[None], axis=-1)
+    assert np.all(gaps - kinematics.spec.sphere_radii[:, None] - radii[None] >= 0.1 - 1e-9)
+    assert np.all(np.linalg.norm(centers - goal, axis=1) - radii >= 0.1 - 1e-9)
+    other = ds.generate(raws, goal, kinematics, home, ds.DemoScenarioConfig(seed=4))
+    assert not np.allclose(other[1], centers)
