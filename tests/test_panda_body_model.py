@@ -148,3 +148,23 @@ def test_fitting_a_link_covers_its_vertices_and_states_its_volumes():
     (loose,) = bm.fit_body(spec.urdf_path, ["panda_link4"], tolerance=0.01, samples=20_000)
     assert 0 < loose.max_outside <= 0.01 + 1e-9
     assert loose.union_volume < fit.union_volume
+
+
+def test_the_body_model_command_writes_a_robot_option_and_updates_its_block(tmp_path):
+    from omegaconf import OmegaConf
+
+    from tamedpuma.app import body_model as app
+
+    out = tmp_path / "robot" / "panda_quick.yaml"
+    args = ["robot=panda", f"out={out}", "samples=4000", "max_spheres=1"]
+    assert app.main(args) == 0
+    text = out.read_text()
+    assert text.count(app.BEGIN) == 1 and "excess" in text and "defaults:" in text
+    cfg = OmegaConf.to_container(OmegaConf.load(out))
+    assert len(cfg["spheres"]) == 8 and cfg["body_model_tolerance"] == 0.0  # one per link
+    # run again on the file it wrote: the block is replaced, not appended
+    assert app.main(args) == 0
+    assert out.read_text().count(app.BEGIN) == 1
+    bare = tmp_path / "bare.yaml"
+    bare.write_text("name: x\n")
+    assert app.main(["robot=panda", f"out={bare}", "samples=4000", "max_spheres=1"]) == 2

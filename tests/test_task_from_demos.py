@@ -255,3 +255,19 @@ def test_scenarios_from_demonstrations_start_near_a_demo_with_an_obstacle_on_its
     assert np.all(np.linalg.norm(centers - goal, axis=1) - radii >= 0.1 - 1e-9)
     other = ds.generate(raws, goal, kinematics, home, ds.DemoScenarioConfig(seed=4))
     assert not np.allclose(other[1], centers)
+
+
+@pytest.mark.parametrize("scenario", [["scenario=from_demos"],
+                                      ["scenario=random", "scenario.random_seed=5"]])
+def test_a_new_task_runs_with_obstacles_at_once(tmp_path, csv_folder, scenario):
+    """task=from_demos with scenario=from_demos or scenario=random (starts near the
+    demonstrations' starts, the derived goal and workspace): one sweep command, no config file."""
+    proc = subprocess.run([sys.executable, "-m", "tamedpuma.sweep", "task=from_demos",
+                           f"task.demos={csv_folder}", "task.name=mine", *scenario,
+                           "method=fabrics", "recorder=none", "scenario.max_steps=3",
+                           f"output_root={tmp_path}"],
+                          cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    (summary,) = tmp_path.glob("*/summary.json")
+    s = json.loads(summary.read_text())
+    assert s["task"] == "mine" and s["steps"] == 3 and np.isfinite(s["min_clearance_m"])

@@ -80,6 +80,21 @@ def derive_goal(raws: list[RawDemo], spread_limit: float = np.deg2rad(30.0)):
     return goal_p, q, rule
 
 
+def workspace_numbers(raws: list[RawDemo], goal_p, goal_q, margin: float,
+                      angle_margin: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """(position_low, position_high, max_angle) of the derived workspace (module docstring)."""
+    goal_p = np.asarray(goal_p, float)
+    rel = np.concatenate([np.concatenate([r.pos - r.pos[-1], r.pos - goal_p]) for r in raws])
+    low, high = rel.min(0) - margin, rel.max(0) + margin
+    high = np.maximum(high, low + 1e-6)
+    max_angle = 0.0
+    if raws[0].quat is not None and goal_q is not None:
+        worst = max(max(angle(r.quat, r.quat[-1]).max(), angle(r.quat, goal_q).max())
+                    for r in raws)
+        max_angle = float(min(np.pi, worst + angle_margin))
+    return low, high, max_angle
+
+
 def goal_orientation(finals: np.ndarray, spread_limit: float) -> tuple[np.ndarray, str, float]:
     """(goal quaternion, rule, largest pairwise angle [rad]) of final orientations (D, 4)."""
     q = finals / np.linalg.norm(finals, axis=1, keepdims=True)
@@ -109,17 +124,11 @@ def derive(raws: list[RawDemo], *, margin: float = 0.05, angle_margin: float = 0
         raise ConfigError("task.margin and task.angle_margin must be >= 0")
     finals = np.array([r.pos[-1] for r in raws])
     goal_p = finals.mean(0)
-    rel = np.concatenate([np.concatenate([r.pos - r.pos[-1], r.pos - goal_p]) for r in raws])
-    low, high = rel.min(0) - margin, rel.max(0) + margin
-    high = np.maximum(high, low + 1e-6)
-    orient = raws[0].quat is not None
-    goal_q, rule, spread, max_angle = None, "none", 0.0, 0.0
-    if orient:
+    goal_q, rule, spread = None, "none", 0.0
+    if raws[0].quat is not None:
         goal_q, rule, spread = goal_orientation(np.array([r.quat[-1] for r in raws]),
                                                 spread_limit)
-        worst = max(max(angle(r.quat, r.quat[-1]).max(), angle(r.quat, goal_q).max())
-                    for r in raws)
-        max_angle = float(min(np.pi, worst + angle_margin))
+    low, high, max_angle = workspace_numbers(raws, goal_p, goal_q, margin, angle_margin)
     dt, period = model_step(raws, min_dt)
     return DerivedTask(
         goal_position=tuple(float(v) for v in goal_p),

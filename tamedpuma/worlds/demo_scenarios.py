@@ -137,16 +137,40 @@ def apply(plain: dict, kinematics) -> dict:
     generated start and obstacles (added to any listed ones)."""
     task, sc = dict(plain["task"]), dict(plain["scenario"])
     gen = sc.get("generator")
-    need_goal = task.get("derive") and task.get("goal_position") is None
-    if not need_goal and not gen:
+    # scenario=random (worlds/random_scenarios.py) for a task without Table-1 starts: its
+    # near_table1 starts are then the IK solutions of the demonstrations' start poses
+    random_near = (sc.get("random_seed") is not None
+                   and (sc.get("start_kind") or "near_table1") == "near_table1"
+                   and (task.get("derive") or task.get("demos") not in (None, "lasa")))
+    need_goal = bool(task.get("derive")) and (task.get("goal_position") is None
+                                              or task.get("workspace") is None)
+    if not need_goal and not gen and not random_near:
         return plain
-    raws = task_raws(task) if (need_goal or gen) and task.get("demos") != "lasa" else []
+    raws = task_raws(task) if task.get("demos") != "lasa" else []
+    if random_near:
+        rng = np.random.default_rng(0)
+        home = np.asarray(plain["robot"].get("home") or (kinematics.spec.q_min
+                                                         + kinematics.spec.q_max) / 2, float)
+        starts = [start_configuration(kinematics, r.pos[0], r.quat[0] if r.quat is not None
+                                      else kinematics.ee_pose(home)[1], home, rng) for r in raws]
+        task["demo_starts"] = [q.tolist() for q in starts if q is not None]
     if need_goal:
         from tamedpuma.puma.task_from_demos import derive_goal
 
         gp, gq, _ = derive_goal(raws, float(task.get("spread_limit", np.deg2rad(30.0))))
+        if task.get("goal_position") is not None:  # a derive task with its goal set by hand
+            gp = np.asarray(task["goal_position"], float)
+            gq = None if task.get("goal_quaternion") is None else np.asarray(
+                task["goal_quaternion"], float)
         task["goal_position"] = gp.tolist()
         task["goal_quaternion"] = None if gq is None else gq.tolist()
+        if task.get("workspace") is None:  # the derived one (scenario=random needs it)
+            from tamedpuma.puma.task_from_demos import workspace_numbers
+
+            lo, hi, ang = workspace_numbers(raws, gp, gq, float(task.get("margin", 0.05)),
+                                            float(task.get("angle_margin", 0.15)))
+            task["workspace"] = {"position_low": lo.tolist(), "position_high": hi.tolist(),
+                                 "max_angle": ang}
     goal = dict(sc.get("goal") or {})
     if goal.get("position") is None:
         goal["position"] = task["goal_position"]

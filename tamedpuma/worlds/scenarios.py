@@ -209,7 +209,8 @@ def random_scenario(cfg: Mapping, kinematics) -> Scenario:
     region = TaskRegion.from_task_config(task_cfg)
     region = replace(region, goal_position=np.asarray(sc_cfg["goal"]["position"], dtype=float),
                      goal_quaternion=np.asarray(sc_cfg["goal"]["quaternion"], dtype=float))
-    starts = table1_starts(region.name) if params.start_kind == "near_table1" else []
+    starts = ((table1_starts(region.name) or task_cfg.get("demo_starts") or [])
+              if params.start_kind == "near_table1" else [])  # demo_starts: worlds/demo_scenarios
     generated = generate(region, kinematics, seed, params, starts)
     log.info("random scenario %s after %d draws (rejected: %s)", generated.scenario.name,
              generated.tries, generated.rejected)
