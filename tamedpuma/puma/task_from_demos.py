@@ -4,7 +4,7 @@ and the check that a hand-set workspace holds the demonstrations and the scenari
 Goal. Position p_g = mean of the demonstrations' final positions. Orientation: the final
 orientations ζ_i are sign-aligned to the first; if their largest pairwise angle is at most
 ``spread_limit`` the goal is their normalised chordal mean, otherwise (pouring_v2's final
-orientations spread 125°) no mean is meaningful and the goal is the *medoid*: the demonstrated
+orientations spread 136°) no mean is meaningful and the goal is the *medoid*: the demonstrated
 final orientation with the smallest summed angle to the others (an orientation a demonstration
 actually ended in). Training is unaffected (goal convention ``final_pose``: each demonstration is
 learned relative to its own final pose, so the model converges to whatever goal it is given); the
