@@ -8,7 +8,7 @@ task groups are open: each method validates its own keys in its ``make``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Optional
 
 from omegaconf import MISSING, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -36,12 +36,16 @@ class RobotSchema:
     limit_tolerance: float = 1e-4
     limit_margin: float = 1e-3
     spheres: list[SphereSchema] = MISSING
+    home: Any = None                  # default start [rad] (scenario=default uses it)
+    null_space: Any = None            # {link, target}: PUMA's "elbow up" objective
+    body_model: Any = None            # {skip, merge}: for python -m tamedpuma.body_model
+    body_model_tolerance: Any = None  # [m], written by python -m tamedpuma.body_model
 
 
 @dataclass
 class GoalSchema:
-    position: list[float] = MISSING
-    quaternion: list[float] = MISSING
+    position: Optional[list[float]] = MISSING    # null: the task's derived goal  # noqa: UP045
+    quaternion: Optional[list[float]] = MISSING  # noqa: UP045
     velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
@@ -56,11 +60,12 @@ class ObstacleSchema:
 class ScenarioSchema:
     name: str = MISSING
     task: Any = None  # if set, the task group must match
-    q0: list[float] = MISSING  # not set by scenario=random (generated)
+    q0: Any = MISSING  # joint angles [rad]; null: the robot's home; not set by generators
     goal: GoalSchema = field(default_factory=GoalSchema)
     random_seed: Any = None  # scenario=random: the generator's seed (int)
     start_kind: Any = None  # scenario=random: near_table1 | anywhere
     random: Any = None  # scenario=random: generator parameters (RandomParams)
+    generator: Any = None  # scenario=from_demos: {kind: demos, ...} (worlds/demo_scenarios.py)
     obstacles: list[ObstacleSchema] = field(default_factory=list)
     dt: float = 0.02
     max_steps: int = 2000

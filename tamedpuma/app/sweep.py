@@ -63,6 +63,7 @@ def build(cfg: DictConfig) -> Built:
     from tamedpuma.app.schema import validate
     from tamedpuma.puma import store
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
+    from tamedpuma.worlds import demo_scenarios
     from tamedpuma.worlds.bullet import Disturbance, SimConfig
     from tamedpuma.worlds.scenarios import build_scenario
 
@@ -71,6 +72,12 @@ def build(cfg: DictConfig) -> Built:
         plain = OmegaConf.to_container(cfg, resolve=True)
         spec = robot_spec_from_config(plain["robot"])
         kinematics = Kinematics(spec)
+        plain = demo_scenarios.apply(plain, kinematics)  # derived goal, generated scenario
+        if plain["robot"].get("null_space") and isinstance(plain["method"].get("null_space"),
+                                                           dict):
+            # the robot config's "elbow up" link and target replace the method's (iiwa) ones
+            plain["method"]["null_space"] = {**plain["method"]["null_space"],
+                                             **plain["robot"]["null_space"]}
         scenario = build_scenario(plain, spec, kinematics)
         model = store.resolve_for_method(plain["method"])
         if model is not None:  # the method loads exactly the file that is recorded

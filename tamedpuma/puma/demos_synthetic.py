@@ -39,6 +39,10 @@ TASKS = {
                             (8.0, 10.0)),
     "pouring": SyntheticTask((0.1, 0.1, 0.1), (0.2, 0.12, 0.1), (1.75, 2.25), (1.0, 0.2, 0.1),
                              (9.0, 13.0)),
+    # a short reach with a small twist (the Franka Panda's task panda_reach: from about its
+    # ready pose down and to the side)
+    "reach": SyntheticTask((-0.15, 0.25, 0.25), (0.08, 0.08, 0.06), (0.2, 0.5), (0.0, 0.3, 1.0),
+                           (5.0, 7.0)),
 }
 
 
@@ -49,7 +53,7 @@ def _approach(tau: np.ndarray, a: float = 8.0) -> np.ndarray:
 
 def generate(task: str, goal_position, goal_quaternion, n_demos: int = 10, seed: int = 0,
              period: float = 0.030) -> list[RawDemo]:
-    """``n_demos`` seeded demonstrations of ``task`` ('tomato' or 'pouring') ending at the goal."""
+    """``n_demos`` seeded demonstrations of ``task`` (a key of ``TASKS``) ending at the goal."""
     if task not in TASKS:
         raise ConfigError(f"no synthetic demonstrations for task '{task}' "
                           f"(one of: {', '.join(TASKS)}); set task.demos to a folder")

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from . import checkpoint, data, demos_synthetic, evaluation
+from . import checkpoint, data, demo_formats, demos_synthetic, evaluation, task_from_demos
 from .network import NetConfig, StateSpec
 from .training import TrainConfig, Workspace, train
 
@@ -48,30 +48,59 @@ def _require(cfg: dict, key: str, where: str):
     return cfg[key]
 
 
-def load_demos(task: dict, puma: dict) -> data.Demonstrations:
-    """The task's demonstrations: synthetic (demos null), LASA (demos 'lasa') or a folder."""
+def load_raws(task: dict, puma: dict) -> tuple[list[data.RawDemo], str, str]:
+    """The task's raw demonstrations, their source and unit: synthetic (demos null), LASA (demos
+    'lasa'), or a folder/file in any format of :mod:`tamedpuma.puma.demo_formats`."""
     name = _require(task, "name", "task")
     src = task.get("demos")
-    dt = float(_require(puma, "dt", "puma"))
-    kw = {"smoothing": float(puma.get("smoothing", 0.0)), "hold": int(puma.get("hold", 10)),
-          "use_orientation": bool(puma.get("orientation", True))}
     if src is None:
         syn = task.get("synthetic") or {}
-        raws = demos_synthetic.generate(name, _require(task, "goal_position", "task"),
+        raws = demos_synthetic.generate(str(syn.get("kind", name)),
+                                        _require(task, "goal_position", "task"),
                                         _require(task, "goal_quaternion", "task"),
                                         int(syn.get("n_demos", 10)), int(syn.get("seed", 0)))
-        return data.prepare(raws, dt, source=f"synthetic:{name}", **kw)
+        return raws, f"synthetic:{name}", "m"
     if src == "lasa":
         shape = str(_require(task, "shape", "task"))
-        raws = data.load_lasa(shape, int(task.get("every", 10)))
-        kw["use_orientation"] = False
-        return data.prepare(raws, dt, source=f"lasa:{shape}", unit=task.get("unit", "mm"), **kw)
-    folder = resolve_path(str(src))
-    return data.prepare(data.load_pickle_demos(folder), dt, source=str(src), **kw)
+        return data.load_lasa(shape, int(task.get("every", 10))), f"lasa:{shape}", \
+            task.get("unit", "mm")
+    return demo_formats.load_any(resolve_path(str(src))), str(src), "m"
+
+
+def derived_task(task: dict, raws: list[data.RawDemo]) -> task_from_demos.DerivedTask:
+    """Goal, workspace and Δt from the data, with the task's margins (``task.margin`` [m],
+    ``task.angle_margin`` [rad], ``task.spread_limit`` [rad], ``task.min_dt`` [s])."""
+    return task_from_demos.derive(
+        raws, margin=float(task.get("margin", 0.05)),
+        angle_margin=float(task.get("angle_margin", 0.15)),
+        spread_limit=float(task.get("spread_limit", np.deg2rad(30.0))),
+        min_dt=float(task.get("min_dt", 0.02)))
+
+
+def model_dt(task: dict, puma: dict, raws: list[data.RawDemo]) -> float:
+    """``task.dt`` if set (``auto``: derived from the data), else ``puma.dt`` [s]."""
+    dt = task.get("dt")
+    if dt == "auto":
+        return task_from_demos.model_step(raws, float(task.get("min_dt", 0.02)))[0]
+    return float(dt if dt is not None else _require(puma, "dt", "puma"))
+
+
+def load_demos(task: dict, puma: dict) -> data.Demonstrations:
+    """The task's demonstrations, prepared (relative to their final poses, resampled to Δt)."""
+    return prepare_demos(task, puma, *load_raws(task, puma))
+
+
+def prepare_demos(task: dict, puma: dict, raws: list[data.RawDemo], source: str,
+                  unit: str) -> data.Demonstrations:
+    kw = {"smoothing": float(puma.get("smoothing", 0.0)), "hold": int(puma.get("hold", 10)),
+          "use_orientation": bool(puma.get("orientation", True)) and source[:5] != "lasa:"}
+    return data.prepare(raws, model_dt(task, puma, raws), source=source, unit=unit, **kw)
 
 
 def workspace_of(task: dict, demos: data.Demonstrations) -> Workspace:
     ws = task.get("workspace")
+    if ws == "derived":
+        raise ConfigError("task.workspace 'derived' needs task.derive=true")
     if ws is None:
         return Workspace.around(demos, float(task.get("margin", 0.1)))
     try:
@@ -81,6 +110,76 @@ def workspace_of(task: dict, demos: data.Demonstrations) -> Workspace:
     except (KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f"invalid task.workspace ({exc}); needs position_low, position_high, "
                           "max_angle") from None
+
+
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+
+
+def scenario_starts(task: dict) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray, object]]:
+    """The end-effector poses of the scenario starts to check against the workspace:
+    ``task.workspace_check.scenarios`` (``auto``: every ``conf/scenario/<task>/*.yaml``; or a list
+    of scenario names / yaml paths) on ``task.workspace_check.robot`` (default iiwa14).
+    Returns (name, position, quaternion, goal position, goal quaternion) per start."""
+    from omegaconf import OmegaConf
+
+    from ..robot.kinematics import Kinematics, robot_spec_from_config
+
+    wc = task.get("workspace_check") or {}
+    names = wc.get("scenarios", "auto")
+    if names == "auto":
+        files = sorted((CONF_DIR / "scenario" / str(task.get("name"))).glob("*.yaml"))
+    else:
+        files = [Path(n) if str(n).endswith(".yaml") else CONF_DIR / "scenario" / f"{n}.yaml"
+                 for n in (names or [])]
+    if not files:
+        return []
+    robot_file = CONF_DIR / "robot" / f"{wc.get('robot', 'iiwa14')}.yaml"
+    try:
+        kin = Kinematics(robot_spec_from_config(OmegaConf.to_container(OmegaConf.load(robot_file))))
+    except OSError as exc:
+        raise ConfigError(f"task.workspace_check.robot: {exc}") from None
+    out = []
+    for f in files:
+        if not f.is_file():
+            raise ConfigError(f"task.workspace_check.scenarios: no scenario file {f}")
+        sc = OmegaConf.to_container(OmegaConf.load(f), resolve=False)
+        goal = sc.get("goal") or {}
+        gp, gq = goal.get("position"), goal.get("quaternion")
+        gp = task.get("goal_position") if not isinstance(gp, list) else gp
+        gq = task.get("goal_quaternion") if not isinstance(gq, list) else gq
+        if sc.get("generator") or (sc.get("q0") is None and kin.spec.home is None):
+            continue  # generated starts are checked where they are made
+        p, q = kin.ee_pose(np.asarray(sc["q0"] if sc.get("q0") is not None else kin.spec.home,
+                                      float))
+        out.append((str(sc.get("name", f.stem)), p, q, gp, gq))
+    return out
+
+
+def check_workspace(task: dict, raws: list[data.RawDemo], ws: Workspace,
+                    log=print) -> list[str]:
+    """Warn (``task.workspace_check.action: warn``, the default), refuse (``error``) or skip
+    (``off``) when a demonstration (relative to its own final pose) or a scenario start
+    (relative to its goal) leaves the workspace; returns the problems, each naming how far."""
+    wc = task.get("workspace_check") or {}
+    action = str(wc.get("action", "warn"))
+    if action not in ("warn", "error", "off"):
+        raise ConfigError(f"task.workspace_check.action must be warn, error or off, not {action!r}")
+    if action == "off":
+        return []
+    found = task_from_demos.demo_excursions(raws, ws)
+    if len(ws.low) == 3:
+        for name, p, q, gp, gq in scenario_starts(task):
+            if gp is None:
+                continue
+            found += task_from_demos.start_excursions(
+                [(name, p, q if raws[0].quat is not None else None)], gp, gq, ws)
+    problems = [str(ex) for ex in found]
+    if problems and action == "error":
+        raise ConfigError(f"{len(problems)} item(s) leave the task workspace, first "
+                          f"{problems[0]} (task.workspace_check.action=warn to train anyway)")
+    for text in problems:
+        log(f"warning: workspace: {text}")
+    return problems
 
 
 def inference_timing(prim, repeats: int = 300) -> dict:
@@ -122,8 +221,21 @@ def run(cfg: dict, log=print) -> dict:
     train_cfg = _dataclass(TrainConfig, puma.get("train"), "puma.train")
     net_cfg = _dataclass(NetConfig, puma.get("network"), "puma.network")
     eval_cfg = _dataclass(evaluation.EvalConfig, puma.get("eval"), "puma.eval")
-    demos = load_demos(task, puma)
-    ws = workspace_of(task, demos)
+    raws, source, unit = load_raws(task, puma)
+    derived = derived_task(task, raws) if task.get("derive") else None
+    if derived is not None:
+        if task.get("workspace") is not None:
+            raise ConfigError("task.derive=true derives the workspace: leave task.workspace null")
+        task = {**task, "goal_position": list(derived.goal_position),
+                "goal_quaternion": derived.goal_quaternion and list(derived.goal_quaternion)}
+        cfg = {**cfg, "task": task}
+        if derived.goal_rule == "medoid":
+            log(f"note: the final orientations spread {np.rad2deg(derived.final_angle_spread):.0f}"
+                " deg; goal orientation = the medoid final orientation (each demonstration is "
+                "learned relative to its own final pose)")
+    demos = prepare_demos(task, puma, raws, source, unit)
+    ws = derived.workspace if derived is not None else workspace_of(task, demos)
+    problems = check_workspace(task, raws, ws, log)
     if task.get("workspace") is None and demos.unit != "m":
         # tolerances scale with the workspace for non-metric data (e.g. LASA in mm)
         size = float(np.max(np.subtract(ws.high, ws.low)))
@@ -148,7 +260,12 @@ def run(cfg: dict, log=print) -> dict:
               "n_demos": len(demos), "spec": asdict(spec), "seed": seed,
               "train_seconds": round(result.seconds, 2), "iterations": train_cfg.iterations,
               "final_losses": result.history[-1] if result.history else {},
-              "selection": result.selection}
+              "selection": result.selection, "dt": demos.dt,
+              "workspace": {"position_low": list(ws.low), "position_high": list(ws.high),
+                            "max_angle": ws.max_angle},
+              "workspace_problems": problems}
+    if derived is not None:
+        report["derived"] = derived.as_dict()
     goal = {"position": task.get("goal_position"), "quaternion": task.get("goal_quaternion")}
     meta = checkpoint.Meta(demos.dt, data.GOAL_CONVENTION, goal, demos.unit, ws, cfg,
                            demos.data_hash, demos.source, report)

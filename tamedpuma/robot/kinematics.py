@@ -34,6 +34,20 @@ def default_urdf_path() -> str:
     return os.path.join(pybullet_data.getDataPath(), "kuka_iiwa", "model.urdf")
 
 
+def resolve_urdf(path: str | None) -> str:
+    """``robot.urdf``: null = the iiwa of pybullet_data; an existing path as given (user home
+    expanded); otherwise a path inside ``pybullet_data`` (e.g. ``franka_panda/panda.urdf``)."""
+    if not path:
+        return default_urdf_path()
+    expanded = os.path.expanduser(str(path))
+    if os.path.isabs(expanded) or os.path.isfile(expanded):
+        return expanded
+    import pybullet_data
+
+    inside = os.path.join(pybullet_data.getDataPath(), expanded)
+    return inside if os.path.isfile(inside) else expanded
+
+
 @dataclass(frozen=True)
 class BodySphere:
     """A collision sphere rigidly attached to a link: centre = link origin + R_link · offset [m]."""
@@ -60,9 +74,12 @@ class RobotSpec:
     q_max: np.ndarray
     qd_max: np.ndarray
     spheres: tuple[BodySphere, ...]
+    home: tuple[float, ...] | None = None  # default start [rad] (a scenario with q0: null)
 
     def __post_init__(self):
         n = len(self.joint_names)
+        if self.home is not None and len(self.home) != n:
+            raise ConfigError(f"robot.home must be {n} joint angles, got {list(self.home)}")
         for name in ("q_min", "q_max", "qd_max"):
             arr = np.array(getattr(self, name), dtype=float)
             if arr.shape != (n,) or not np.all(np.isfinite(arr)):
@@ -85,7 +102,7 @@ class RobotSpec:
 
 def robot_spec_from_config(cfg) -> RobotSpec:
     """Build a :class:`RobotSpec` from the ``robot`` config group (a mapping)."""
-    urdf = cfg.get("urdf") or default_urdf_path()
+    urdf = resolve_urdf(cfg.get("urdf"))
     if not os.path.isfile(urdf):
         raise ConfigError(f"robot.urdf: no such file: {urdf}")
     spheres = tuple(
@@ -102,6 +119,7 @@ def robot_spec_from_config(cfg) -> RobotSpec:
         q_max=np.array(cfg["q_max"], dtype=float),
         qd_max=np.array(cfg["qd_max"], dtype=float),
         spheres=spheres,
+        home=None if cfg.get("home") is None else tuple(float(v) for v in cfg["home"]),
     )
 
 
@@ -129,7 +147,10 @@ _WORLD = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 class Kinematics:
-    """Pinocchio model of a :class:`RobotSpec`; collision spheres are extra operational frames."""
+    """Pinocchio model of a :class:`RobotSpec`; collision spheres are extra operational frames.
+
+    URDF joints not in ``spec.joint_names`` (a gripper's fingers) are locked at their neutral
+    value, as the simulator leaves them."""
 
     def __init__(self, spec: RobotSpec):
         self.spec = spec
@@ -138,8 +159,17 @@ class Kinematics:
         except Exception as exc:  # pinocchio raises plain exceptions for bad files
             raise ConfigError(f"cannot load URDF {spec.urdf_path}: {exc}") from exc
         names = [model.names[i] for i in range(1, model.njoints)]
+        missing = [n for n in spec.joint_names if n not in names]
+        if missing:
+            raise ConfigError(f"robot.joint_names {missing} are not joints of URDF {names}")
+        extra = [n for n in names if n not in spec.joint_names]
+        if extra:  # e.g. the Panda's two finger joints: locked at their neutral value (closed)
+            model = pin.buildReducedModel(model, [model.getJointId(n) for n in extra],
+                                          pin.neutral(model))
+            names = [model.names[i] for i in range(1, model.njoints)]
         if tuple(names) != spec.joint_names:
-            raise ConfigError(f"robot.joint_names {spec.joint_names} do not match URDF {names}")
+            raise ConfigError(f"robot.joint_names {spec.joint_names} do not match the URDF's "
+                              f"order {names}")
         self.link_ids = tuple(self._frame_id(model, n) for n in spec.link_names)
         self.ee_id = self._frame_id(model, spec.ee_link)
         sphere_ids = []

@@ -3,7 +3,7 @@
 A scenario config (``conf/scenario/*.yaml``, goal usually interpolated from ``conf/task``) holds::
 
     name: default
-    q0: [7 joint angles, rad]
+    q0: [7 joint angles, rad]   # null: the robot config's home
     goal: {position: [x, y, z], quaternion: [x, y, z, w], velocity: [vx, vy, vz]}
     obstacles: [{center: [x, y, z], radius: r, velocity: [vx, vy, vz]}, ...]
     dt: 0.02           # control period [s]
@@ -92,7 +92,10 @@ def scenario_from_config(cfg: Mapping, spec: RobotSpec, *, task: str, seed: int 
             quaternion=_vec(goal_cfg["quaternion"], 4, "goal.quaternion"),
             velocity=_vec(goal_cfg.get("velocity") or [0, 0, 0], 3, "goal.velocity"),
         )
-        q0 = clamp_start(_vec(cfg["q0"], spec.dof, "q0"), spec, limit_tolerance, limit_margin)
+        q0_cfg = cfg["q0"] if cfg["q0"] is not None else spec.home  # null: the robot's home
+        if q0_cfg is None:
+            raise ScenarioError("scenario q0 is null and the robot config has no home")
+        q0 = clamp_start(_vec(q0_cfg, spec.dof, "q0"), spec, limit_tolerance, limit_margin)
         return Scenario(
             name=str(cfg["name"]),
             task=task,
@@ -206,7 +209,8 @@ def random_scenario(cfg: Mapping, kinematics) -> Scenario:
     region = TaskRegion.from_task_config(task_cfg)
     region = replace(region, goal_position=np.asarray(sc_cfg["goal"]["position"], dtype=float),
                      goal_quaternion=np.asarray(sc_cfg["goal"]["quaternion"], dtype=float))
-    starts = table1_starts(region.name) if params.start_kind == "near_table1" else []
+    starts = ((table1_starts(region.name) or task_cfg.get("demo_starts") or [])
+              if params.start_kind == "near_table1" else [])  # demo_starts: worlds/demo_scenarios
     generated = generate(region, kinematics, seed, params, starts)
     log.info("random scenario %s after %d draws (rejected: %s)", generated.scenario.name,
              generated.tries, generated.rejected)

@@ -1,0 +1,197 @@
+"""Scenarios for any task, made from its demonstrations (``scenario=from_demos``).
+
+Seeded by ``seed`` (the same seed gives the same scenario):
+
+- start: one demonstration, drawn at random, gives the start pose: its first position plus a
+  uniform offset of at most ``start_noise`` [m] and its first orientation; q0 is the pose IK
+  solution from the robot's ``home`` (then seeded restarts) that converges with every body sphere
+  above the ground. The goal is the task's goal.
+- obstacles: the demonstration's path carried onto the goal (``p_k − p_end + p_goal``: PUMA
+  learns each demonstration relative to its own final pose, so this is where the learned path from
+  that start runs), a point at an arc-length fraction drawn from ``path_fraction``, moved sideways
+  (perpendicular to the path) by at most ``path_offset`` [m]: obstacles on or near the path. A
+  point is kept only if the obstacle's surface stays ``min_clearance`` [m] from the start's body
+  spheres and end effector and from the goal, and clear of the other obstacles.
+
+numpy only (kinematics and IK from :mod:`tamedpuma.robot`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tamedpuma.errors import ScenarioError
+from tamedpuma.puma.data import RawDemo
+from tamedpuma.robot.ik import solve_pose_ik
+
+
+@dataclass(frozen=True)
+class DemoScenarioConfig:
+    """See the module docstring; lengths [m]."""
+
+    seed: int = 0
+    start_noise: float = 0.03
+    n_obstacles: int = 1
+    obstacle_radius: float = 0.05
+    path_fraction: tuple[float, float] = (0.3, 0.7)
+    path_offset: float = 0.03
+    min_clearance: float = 0.1
+    max_tries: int = 200
+
+
+def _arc_point(path: np.ndarray, u: float) -> tuple[np.ndarray, np.ndarray]:
+    """Point at arc-length fraction u of a polyline, and the unit tangent there."""
+    seg = np.diff(path, axis=0)
+    length = np.linalg.norm(seg, axis=1)
+    cum = np.concatenate(([0.0], np.cumsum(length)))
+    if cum[-1] <= 0:
+        return path[-1], np.array([1.0, 0.0, 0.0])
+    s = u * cum[-1]
+    k = int(np.clip(np.searchsorted(cum, s) - 1, 0, len(seg) - 1))
+    frac = (s - cum[k]) / max(length[k], 1e-12)
+    tangent = seg[k] / max(length[k], 1e-12)
+    return path[k] + frac * seg[k], tangent
+
+
+def start_configuration(kin, position, quaternion, home, rng) -> np.ndarray | None:
+    """Pose IK from ``home`` then seeded restarts; None unless it converges with every body
+    sphere above the ground (z > radius)."""
+    for attempt in range(4):
+        q_init = home if attempt == 0 else rng.uniform(kin.spec.q_min, kin.spec.q_max)
+        res = solve_pose_ik(kin, position, quaternion, q_init, seed=int(rng.integers(1 << 30)))
+        if not res.converged:
+            continue
+        centers = kin.sphere_centers(res.q)
+        if len(centers) == 0 or np.all(centers[:, 2] > kin.spec.sphere_radii):
+            return res.q
+    return None
+
+
+def generate(raws: list[RawDemo], goal_position, kin, home, cfg: DemoScenarioConfig
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(q0 (dof,), obstacle centres (n, 3), radii (n,), index of the demonstration used)."""
+    rng = np.random.default_rng([int(cfg.seed), 2718])
+    goal = np.asarray(goal_position, float)
+    home = np.asarray(home if home is not None else (kin.spec.q_min + kin.spec.q_max) / 2, float)
+    for _ in range(cfg.max_tries):
+        i = int(rng.integers(len(raws)))
+        demo = raws[i]
+        offset = rng.normal(size=3)
+        offset *= cfg.start_noise * rng.uniform() ** (1 / 3) / max(np.linalg.norm(offset), 1e-12)
+        quat = demo.quat[0] if demo.quat is not None else kin.ee_pose(home)[1]
+        q0 = start_configuration(kin, demo.pos[0] + offset, quat, home, rng)
+        if q0 is None:
+            continue
+        keep_out = np.concatenate([kin.sphere_centers(q0), kin.ee_pose(q0)[0][None],
+                                   goal[None]])
+        keep_r = np.concatenate([kin.spec.sphere_radii, [0.0, 0.0]])
+        path = demo.pos - demo.pos[-1] + goal
+        centers: list[np.ndarray] = []
+        for _ in range(cfg.max_tries):
+            if len(centers) == cfg.n_obstacles:
+                break
+            point, tangent = _arc_point(path, rng.uniform(*cfg.path_fraction))
+            side = np.cross(tangent, rng.normal(size=3))
+            side /= max(np.linalg.norm(side), 1e-12)
+            c = point + side * rng.uniform(0, cfg.path_offset)
+            gap = np.linalg.norm(keep_out - c, axis=1) - keep_r - cfg.obstacle_radius
+            if gap.min() < cfg.min_clearance or c[2] < cfg.obstacle_radius:
+                continue
+            if centers and (np.linalg.norm(np.array(centers) - c, axis=1).min()
+                            < 2 * cfg.obstacle_radius):
+                continue
+            centers.append(c)
+        if len(centers) == cfg.n_obstacles:
+            return q0, np.array(centers).reshape(-1, 3), np.full(len(centers),
+                                                                 cfg.obstacle_radius), i
+    raise ScenarioError(f"could not make a scenario from the demonstrations in {cfg.max_tries} "
+                        "tries (start unreachable by IK, or no obstacle place on the path "
+                        f"{cfg.min_clearance} m clear of the start and the goal)")
+
+
+def task_raws(task: dict) -> list[RawDemo]:
+    """The task's raw demonstrations without torch: synthetic (``demos: null``) or a folder/file
+    (relative paths: the working directory, then the repository root)."""
+    from pathlib import Path
+
+    from tamedpuma.puma import demo_formats, demos_synthetic
+
+    src = task.get("demos")
+    if src is None:
+        syn = task.get("synthetic") or {}
+        return demos_synthetic.generate(str(syn.get("kind", task["name"])), task["goal_position"],
+                                        task["goal_quaternion"], int(syn.get("n_demos", 10)),
+                                        int(syn.get("seed", 0)))
+    path = Path(str(src)).expanduser()
+    if not path.is_absolute() and not path.exists():
+        path = Path(__file__).resolve().parents[2] / path
+    return demo_formats.load_any(path)
+
+
+def apply(plain: dict, kinematics) -> dict:
+    """A resolved run config with the demonstrations' part filled in: a task with ``derive`` and
+    no goal gets the derived goal (:func:`tamedpuma.puma.task_from_demos.derive_goal`), the
+    scenario its goal if unset, and a scenario with a ``generator: {kind: demos, ...}`` block its
+    generated start and obstacles (added to any listed ones)."""
+    task, sc = dict(plain["task"]), dict(plain["scenario"])
+    gen = sc.get("generator")
+    # scenario=random (worlds/random_scenarios.py) for a task without Table-1 starts: its
+    # near_table1 starts are then the IK solutions of the demonstrations' start poses
+    random_near = (sc.get("random_seed") is not None
+                   and (sc.get("start_kind") or "near_table1") == "near_table1"
+                   and (task.get("derive") or task.get("demos") not in (None, "lasa")))
+    need_goal = bool(task.get("derive")) and (task.get("goal_position") is None
+                                              or task.get("workspace") is None)
+    if not need_goal and not gen and not random_near:
+        return plain
+    raws = task_raws(task) if task.get("demos") != "lasa" else []
+    if random_near:
+        rng = np.random.default_rng(0)
+        home = np.asarray(plain["robot"].get("home") or (kinematics.spec.q_min
+                                                         + kinematics.spec.q_max) / 2, float)
+        starts = [start_configuration(kinematics, r.pos[0], r.quat[0] if r.quat is not None
+                                      else kinematics.ee_pose(home)[1], home, rng) for r in raws]
+        task["demo_starts"] = [q.tolist() for q in starts if q is not None]
+    if need_goal:
+        from tamedpuma.puma.task_from_demos import derive_goal
+
+        gp, gq, _ = derive_goal(raws, float(task.get("spread_limit", np.deg2rad(30.0))))
+        if task.get("goal_position") is not None:  # a derive task with its goal set by hand
+            gp = np.asarray(task["goal_position"], float)
+            gq = None if task.get("goal_quaternion") is None else np.asarray(
+                task["goal_quaternion"], float)
+        task["goal_position"] = gp.tolist()
+        task["goal_quaternion"] = None if gq is None else gq.tolist()
+        if task.get("workspace") is None:  # the derived one (scenario=random needs it)
+            from tamedpuma.puma.task_from_demos import workspace_numbers
+
+            lo, hi, ang = workspace_numbers(raws, gp, gq, float(task.get("margin", 0.05)),
+                                            float(task.get("angle_margin", 0.15)))
+            task["workspace"] = {"position_low": lo.tolist(), "position_high": hi.tolist(),
+                                 "max_angle": ang}
+    goal = dict(sc.get("goal") or {})
+    if goal.get("position") is None:
+        goal["position"] = task["goal_position"]
+    if goal.get("quaternion") is None:
+        goal["quaternion"] = task["goal_quaternion"] or [0.0, 0.0, 0.0, 1.0]
+    sc["goal"] = goal
+    if gen:
+        gen = dict(gen)
+        if gen.pop("kind", "demos") != "demos":
+            raise ScenarioError("scenario.generator.kind must be 'demos'")
+        try:
+            cfg = DemoScenarioConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                        for k, v in gen.items()})
+        except TypeError as exc:
+            raise ScenarioError(f"scenario.generator: {exc}") from None
+        q0, centers, radii, i = generate(raws, goal["position"], kinematics,
+                                         plain["robot"].get("home"), cfg)
+        sc["q0"] = q0.tolist()
+        sc["obstacles"] = list(sc.get("obstacles") or []) + [
+            {"center": c.tolist(), "radius": float(r), "velocity": [0.0, 0.0, 0.0]}
+            for c, r in zip(centers, radii)]
+        sc["name"] = f"{sc.get('name', 'from_demos')}_{cfg.seed}"
+        sc["generated_from"] = raws[i].source
+    return {**plain, "task": task, "scenario": sc}
