@@ -222,7 +222,6 @@ def _obs(q, centers=(), velocities=None):
 
 def test_config_resolves_the_checkpoint_from_the_task():
     from tamedpuma.app.train import compose
-
     from tamedpuma.puma import store
 
     cfg = compose("sweep", ["method=modulation_ik", "task=pouring", "method.model=shipped"])

@@ -230,8 +230,11 @@ def resolve(task: str, order: int, checkpoint: str | None = None,
                                   "method.model=auto)")
     path = shipped_path(task, order)
     if not path.is_file():
-        raise CheckpointError(f"no shipped model at {path} (broken install?): train one with "
-                              f"`python -m tamedpuma.train task={task}`")
+        raise CheckpointError(f"no trained model of {model_name(task, order)} (none cached, "
+                              f"none in runs/puma/, none shipped): train one with `python -m "
+                              f"tamedpuma.train task={task}"
+                              + (" puma=position" if int(order) == 1 else "")
+                              + "` and pass method.checkpoint=<out_dir>/puma.pt")
     return choice(path, "shipped", model_name(task, order))
 
 
