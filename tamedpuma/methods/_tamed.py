@@ -103,7 +103,10 @@ class ControlRate:
     limit, ground when its leaf is on) is crossed within one period (kappa κ: the largest
     fraction of a barrier distance one period may use); speed_limit: scale the next velocity
     uniformly onto the joint velocity limits (direction kept) instead of leaving the per-joint
-    clamp to the simulator; semi_implicit (FPM): take −α q̇ implicitly when it brakes.
+    clamp to the simulator; semi_implicit (FPM): take −α q̇ implicitly when it brakes;
+    ground: add the body spheres' ground distances ``c_z − r − ground_height`` [m] (rows
+    ``(J_i)_z``) to the barrier step only (no continuous ground leaf, whose metres-scaled barrier
+    also blocked the tomato goal 4.5 cm above the table).
     All of them only remove energy (see the module), so the paper's energy arguments still hold.
     """
 
@@ -111,27 +114,39 @@ class ControlRate:
     kappa: float = 0.5
     speed_limit: bool = False
     semi_implicit: bool = False
+    ground: bool = False
+    ground_height: float = 0.0
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> ControlRate:
         cfg = dict(cfg or {})
-        unknown = sorted(set(cfg) - {"barrier_step", "kappa", "speed_limit", "semi_implicit"})
+        keys = {"barrier_step", "kappa", "speed_limit", "semi_implicit", "ground",
+                "ground_height"}
+        unknown = sorted(set(cfg) - keys)
         if unknown:
             raise ConfigError(f"unknown method.control_rate keys {unknown}")
         rate = ControlRate(bool(cfg.get("barrier_step", False)), float(cfg.get("kappa", 0.5)),
                            bool(cfg.get("speed_limit", False)),
-                           bool(cfg.get("semi_implicit", False)))
+                           bool(cfg.get("semi_implicit", False)), bool(cfg.get("ground", False)),
+                           float(cfg.get("ground_height", 0.0)))
         if not 0.0 < rate.kappa < 1.0:
             raise ConfigError(f"method.control_rate.kappa must be in (0, 1), got {rate.kappa}")
         return rate
 
-    def next_velocity(self, qd_next, av, dt: float, qd_max) -> tuple[np.ndarray, dict]:
-        """Filter the next velocity q̇⁺ [rad/s]; returns it and the log scalars
-        ``n_barrier_active`` (rows projected) and ``speed_scale`` (s ≤ 1)."""
+    def next_velocity(self, qd_next, av, dt: float, qd_max,
+                      state=None) -> tuple[np.ndarray, dict]:
+        """Filter the next velocity q̇⁺ [rad/s] (state: the KinematicState, for the ground rows);
+        returns it and the log scalars ``n_barrier_active`` (rows projected) and ``speed_scale``
+        (s ≤ 1)."""
         n_active, scale = 0, 1.0
-        if self.barrier_step and av.barrier_rows is not None and len(av.barrier_x):
-            qd_next, n_active = barrier_step(qd_next, av.barrier_rows, av.barrier_x, dt,
-                                             self.kappa, av.M, av.barrier_jdqd)
+        if self.barrier_step and av.barrier_rows is not None:
+            rows, x, jd = av.barrier_rows, av.barrier_x, av.barrier_jdqd
+            if self.ground and state is not None:
+                rows = np.concatenate((rows, state.sphere_jacobians[:, 2, :]))
+                x = np.concatenate((x, state.sphere_centers[:, 2] - state.sphere_radii
+                                    - self.ground_height))
+                jd = np.concatenate((jd, state.sphere_jdqd[:, 2]))
+            qd_next, n_active = barrier_step(qd_next, rows, x, dt, self.kappa, av.M, jd)
         if self.speed_limit:
             qd_next, scale = limit_speed(qd_next, qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}
