@@ -140,3 +140,51 @@ def test_cpm_stiff_damping_never_reverses_the_velocity(semi_implicit):
         assert reversals == 0 and np.all(np.diff(psi) <= 1e-9 * psi[0]) and psi[-1] < psi[0]
     else:
         assert reversals > 10
+
+
+def test_cpm_matched_forcing_follows_puma_and_still_dissipates():
+    """damping: matched_forcing (β = max(β, r − α_f), the avoidance geometry energized):
+    PUMA's path without obstacles, and H = H_{L_e} + ψ falls at the logged rate β q̇ᵀMq̇ with
+    β ≥ β_min among obstacles (the Theorem III.5 argument unchanged)."""
+    kin = PointKinematics(SPEC)
+    puma = PumaController(PlanarTask(LinearTaskPrimitive(1.0, 2.0)), kin)
+
+    def make():
+        return CpmController(puma, _fabric(), beta=0.5, potential_scale=5.0,
+                             damping="matched_forcing")
+
+    ref = _run("puma", obstacles=False)
+    run = run_episode(point_scenario(obstacles=False), make(), PointMassWorld(SPEC))
+    assert run.metrics.success
+    assert path_difference(run.ee_position, ref.ee_position) <= 0.02
+    dt = 0.001
+    rows = _scalars(make(), point_scenario(obstacles=True, max_steps=6000, dt=dt),
+                    PointMassWorld(SPEC))
+    energy = np.array([r["energy_total"] for r in rows])
+    dissipation = np.array([r["dissipation"] for r in rows])
+    assert all(r["beta"] >= 0.5 for r in rows)
+    predicted = -np.sum(0.5 * (dissipation[1:] + dissipation[:-1])) * dt
+    assert energy[-1] - energy[0] == pytest.approx(predicted, rel=0.05)
+    assert energy[-1] - energy[0] < -0.5 * energy[0]
+
+
+def test_goal_velocity_is_fed_to_the_primitive_as_a_relative_velocity():
+    """goal_velocity: feedforward: the primitive sees ẋ − v_g (ẍ = −k e − d(ẋ − v_g)), so the
+    point converges onto a moving goal; ignore: it lags behind it by d v_g / k."""
+    from tamedpuma.types import Goal
+
+    kin = PointKinematics(SPEC)
+    vg = np.array([0.05, 0.0, 0.0])
+    sc = point_scenario(obstacles=False, max_steps=1500)
+    from dataclasses import replace
+
+    sc = replace(sc, goal=Goal(sc.goal.position, sc.goal.quaternion, vg))
+    errors = {}
+    for feed in (True, False):
+        puma = PumaController(PlanarTask(LinearTaskPrimitive(1.0, 2.0)), kin,
+                              feed_goal_velocity=feed)
+        run = run_episode(sc, puma, PointMassWorld(SPEC), stop_on_success=False)
+        goal_end = sc.goal.at(run.t[-1])
+        errors[feed] = float(np.linalg.norm(run.ee_position[-1, :2] - goal_end[:2]))
+    assert errors[True] < 1e-3
+    assert errors[False] == pytest.approx(2.0 * 0.05 / 1.0, rel=0.05)
