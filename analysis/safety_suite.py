@@ -3,6 +3,7 @@
     python -m analysis.random_suite --tasks tomato pouring --kinds near_table1 anywhere \\
         --seeds 1000-1049 --methods puma fpm cpm --models /work/models --jobs 2 \\
         --out runs/random_suite/eval.csv [--set method.some_key=value ...]
+    python -m analysis.safety_suite --kinds table1 --seeds 0-14 ...   # the 30 Table-1 scenarios
 
 Each run is the sweep's ``scenario=random scenario.random_seed=S scenario.start_kind=K
 method=M method.checkpoint=<models>/<task>/puma.pt recorder=none`` (plus ``--set`` overrides),
@@ -66,9 +67,14 @@ def run_one(spec: dict) -> dict:
     from tamedpuma.worlds.bullet import Simulator
 
     task, kind, seed, method = spec["task"], spec["kind"], spec["seed"], spec["method"]
-    overrides = [f"task={task}", "scenario=random", f"scenario.random_seed={seed}",
-                 f"scenario.start_kind={kind}", f"method={method}", "recorder=none",
-                 *spec["set"]]
+    if kind == "table1":  # seed = the Table-1 scenario number
+        overrides = [f"task={task}", f"scenario={task}/{seed:02d}", f"method={method}",
+                     "recorder=none", f"without_obstacles={spec.get('free', False)}",
+                     *spec["set"]]
+    else:
+        overrides = [f"task={task}", "scenario=random", f"scenario.random_seed={seed}",
+                     f"scenario.start_kind={kind}", f"method={method}", "recorder=none",
+                     *spec["set"]]
     if spec["models"]:
         overrides.append(f"method.checkpoint={spec['models']}/{task}/puma.pt")
     cfg = OmegaConf.create(compose("sweep", overrides))
@@ -79,6 +85,11 @@ def run_one(spec: dict) -> dict:
     with Simulator(robot, built.sim_config) as sim:
         result = run_episode(sc, built.controller, sim, [tracker], None, stop_on_success=True)
     wall = time.perf_counter() - start
+    if spec.get("paths"):
+        out = Path(spec["paths"])
+        out.mkdir(parents=True, exist_ok=True)
+        np.save(out / f"{task}_{kind}_{seed}_{spec['label']}_{int(spec.get('free', False))}.npy",
+                result.ee_position)
     a = np.array(tracker.rows)
     t, err, clear, contact, ground = a[:, 0], a[:, 1], a[:, 2], a[:, 3] > 0, a[:, 4] > 0
     q = result.q
@@ -147,10 +158,12 @@ def main(argv=None) -> None:
     ap.add_argument("--set", nargs="*", default=[], help="extra Hydra overrides for every run")
     ap.add_argument("--label", default=None, help="label of this configuration in the table")
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--free", action="store_true", help="without obstacles (path differences)")
+    ap.add_argument("--paths", default="", help="save every run's end-effector path (.npy) here")
     ap.add_argument("--out", required=True)
     args = ap.parse_args(argv)
     specs = [{"task": t, "kind": k, "seed": s, "method": m, "models": args.models,
-              "set": args.set, "label": args.label or m}
+              "set": args.set, "label": args.label or m, "free": args.free, "paths": args.paths}
              for t in args.tasks for k in args.kinds for m in args.methods
              for s in _seeds(args.seeds)]
     if args.label:
