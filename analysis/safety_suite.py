@@ -170,15 +170,18 @@ def main(argv=None) -> None:
         for s in specs:
             s["label"] = f"{s['method']}:{args.label}"
     rows = []
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_suffix(".partial.csv")  # every finished run, as it finishes
     with Pool(args.jobs) as pool:
         for i, row in enumerate(pool.imap_unordered(run_one, specs), 1):
             rows.append(row)
+            pd.DataFrame([row]).to_csv(partial, mode="a", header=i == 1, index=False)
             if i % 20 == 0:
                 print(f"{i}/{len(specs)} runs", flush=True)
     df = pd.DataFrame(rows).sort_values(["task", "kind", "label", "seed"])
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(out, index=False)
+    partial.unlink(missing_ok=True)
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         print(summarise(df))
     print(f"wrote {out}")
