@@ -20,7 +20,7 @@ arm brakes along q̇ otherwise. dH/dt = −β(q, q̇) q̇ᵀMq̇ ≤ −β q̇�
 argument; the speed along the path is then PUMA's own wherever the potential is strong enough
 (k_ψ large), so CPM follows PUMA's paths. ``damping: constant`` is the paper's literal β.
 
-``damping: matched_forcing`` (default, issue 12) matches the damping to the forcing only: with
+``damping: matched_forcing`` (option, issue 12) matches the damping to the forcing only: with
 ``α = α_h + α_f``, ``α_h = q̇ᵀ(M h + f_e)/(q̇ᵀMq̇ + ε)`` (the avoidance geometry's energization,
 bounded below as FPM's) and ``α_f = q̇ᵀM f_θ^C/(q̇ᵀMq̇ + ε)``, it takes β = max(β_min, r − α_f).
 Then ``q̈ = energize[h] + f_θ^C + min(r − α_f − β_min, 0) q̇``: in free space (h = 0) exactly the
