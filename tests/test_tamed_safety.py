@@ -46,7 +46,8 @@ def test_fpm_and_cpm_respect_speed_limits_and_barriers_on_a_random_scenario(
     # (α to −9e4, commands 28× the velocity limits, through q₄ = 0, 0.95 m from the goal)
     cfg = OmegaConf.create(train.compose("sweep", [
         "task=tomato", "scenario=random", "scenario.random_seed=5", f"method={method}",
-        f"method.checkpoint={tiny_checkpoint}", "recorder=none", "scenario.max_steps=400"]))
+        f"method.checkpoint={tiny_checkpoint}", "recorder=none", "scenario.max_steps=400",
+        "method.energization=bounded", "method.control_rate.speed_limit=true"]))
     built = build(cfg)
     spy = _Spy(built.controller)
     spec = built.spec
