@@ -23,6 +23,13 @@ def tiny_checkpoint(tmp_path_factory):
     return out / "puma.pt"
 
 
+# the issue-12 options measured in BENCHMARKS.md ("Safety beyond Table 1"; off by default)
+SAFE = ["method.energization=bounded", "method.control_rate.speed_limit=true",
+        "method.control_rate.barrier_step=true", "method.control_rate.semi_implicit=true",
+        "method.control_rate.ground=true", "method.pinv_damping_max=0.1",
+        "method.goal_velocity=feedforward"]
+
+
 class _Spy:
     def __init__(self, controller):
         self.controller, self.rows = controller, []
@@ -47,7 +54,7 @@ def test_fpm_and_cpm_respect_speed_limits_and_barriers_on_a_random_scenario(
     cfg = OmegaConf.create(train.compose("sweep", [
         "task=tomato", "scenario=random", "scenario.random_seed=5", f"method={method}",
         f"method.checkpoint={tiny_checkpoint}", "recorder=none", "scenario.max_steps=400",
-        "method.energization=bounded", "method.control_rate.speed_limit=true"]))
+        *SAFE]))
     built = build(cfg)
     spy = _Spy(built.controller)
     spec = built.spec

@@ -52,9 +52,10 @@ def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kapp
     ``b = −κ x/Δt − ½ Δt min(J̇q̇, 0)``, in the metric M.
 
     rows A (R, n): barrier Jacobian rows ``∂x_p/∂q``; x (R,) barrier distances (in the rows'
-    units; ≤ 0 past a barrier: then the row must move away); dt [s]; kappa κ ∈ (0, 1); M (n, n)
-    SPD; jdqd (R,): the rows' curvature J̇q̇ at the current velocity, the second-order term of
-    ``x⁺ ≈ x + Δt a·w + ½Δt² J̇q̇`` (only its negative part is kept: a curved path that bends
+    units; ≤ 0 past a barrier: then the row may not approach further); dt [s]; kappa
+    κ ∈ (0, 1); M (n, n) SPD; jdqd (R,): the rows' curvature J̇q̇ at the current velocity,
+    the second-order term of ``x⁺ ≈ x + Δt a·w + ½Δt² J̇q̇`` (only its negative part is kept: a
+    curved path that bends
     towards the barrier tightens the constraint, one that bends away never loosens it).
     Returns (w, number of rows active at w).
     Nothing to do (one product) unless a row is violated; then the exact projection
@@ -66,6 +67,10 @@ def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kapp
     b = -kappa * x / dt
     if jdqd is not None:
         b = b - 0.5 * dt * np.minimum(jdqd, 0.0)
+    # a row already past its barrier (x ≤ 0, e.g. a base sphere below the ground plane) must not
+    # approach further but is not asked to jump out: w = 0 stays admissible (always feasible)
+    past = x <= 0.0
+    b[past] = np.minimum(b[past], 0.0)
     Av = rows @ v
     if np.all(Av >= b):
         return v, 0
