@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -42,15 +42,94 @@ class EpisodeResult:
     compute_ms: np.ndarray | None = None
 
 
-def run_episode(
-    scenario: Scenario,
-    controller: Controller,
-    sim: Simulator,
-    recorders: Sequence[Recorder] = (),
-    info: RunInfo | None = None,
-    stop_on_success: bool = True,
-    settle_time: float = 0.0,
-) -> EpisodeResult:
+@dataclass
+class _Trace:
+    """The per-step values the run's metrics are computed from (the same ones recorded)."""
+
+    t: list = field(default_factory=list)
+    q: list = field(default_factory=list)
+    ee_position: list = field(default_factory=list)
+    position_error: list = field(default_factory=list)
+    orientation_error: list = field(default_factory=list)
+    clearance: list = field(default_factory=list)
+    obstacle_contact: list = field(default_factory=list)
+    ground_contact: list = field(default_factory=list)
+    compute_ms: list = field(default_factory=list)
+
+    def add(self, **values) -> None:
+        for name, value in values.items():
+            getattr(self, name).append(value)
+
+    def metrics(self, spec, scenario: Scenario, settle_time: float,
+                disturbance_time: float | None) -> RunMetrics | None:
+        if not self.t:
+            return None
+        arrays = {f.name: np.array(getattr(self, f.name)) for f in fields(self)}
+        return run_metrics(
+            **arrays, q_min=spec.q_min, q_max=spec.q_max, tolerance=scenario.goal_tolerance,
+            time_limit=scenario.max_steps * scenario.dt, settle_time=settle_time,
+            disturbance_time=disturbance_time)
+
+
+def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, link_pos, link_quat,
+                 ee_index: int, centers, contacts, pos_err: float, rot_err: float,
+                 compute_ms: float) -> StepRecord:
+    """What the recorders receive for step k (simulator truth, the command and its scalars)."""
+    clearance = contacts.sphere_clearance
+    scalars = {
+        "compute_time_ms": compute_ms,
+        "clearance_m": clearance if math.isfinite(clearance) else NO_OBSTACLE_CLEARANCE,
+        "position_error_m": pos_err,
+        "orientation_error_rad": rot_err,
+        "obstacle_contact": float(contacts.obstacle_contact),
+        "ground_contact": float(contacts.ground_contact),
+        **{name: float(v) for name, v in command.scalars.items()},
+    }
+    return StepRecord(
+        step=k, t=obs.t, q=obs.q, qd=obs.qd, qdd_cmd=qdd,
+        link_positions=link_pos, link_quaternions=link_quat,
+        ee_position=link_pos[ee_index], ee_quaternion=link_quat[ee_index],
+        body_sphere_centers=centers, obstacle_centers=truth, obstacle_radii=obs.obstacle_radii,
+        goal_position=obs.goal_position, goal_quaternion=obs.goal_quaternion, scalars=scalars)
+
+
+def _observe(sim, obs, ee_index: int):
+    """The simulator's truth at a step: link poses, body spheres, contacts, goal errors."""
+    link_pos, link_quat = sim.link_poses()
+    centers = sim.body_sphere_centers(link_pos, link_quat)
+    contacts = sim.contacts(centers)
+    pos_err = float(np.linalg.norm(link_pos[ee_index] - obs.goal_position))
+    rot_err = float(orientation_error(link_quat[ee_index], obs.goal_quaternion))
+    return link_pos, link_quat, centers, contacts, pos_err, rot_err
+
+
+def _timed_step(controller: Controller, obs, dof: int):
+    """(command, q̈, wall time of the whole controller step [ms]); a q̈ of the wrong shape is a
+    controller bug (ValueError)."""
+    start = time.perf_counter()
+    command = controller.step(obs)
+    compute_ms = (time.perf_counter() - start) * 1e3
+    qdd = np.asarray(command.qdd, dtype=float)
+    if qdd.shape != (dof,):
+        raise ValueError(f"controller returned q̈ of shape {qdd.shape}, not ({dof},)")
+    return command, qdd, compute_ms
+
+
+def _close(recorders: Sequence[Recorder], complete: bool, summary: dict) -> None:
+    """Close every recorder, even if one fails; re-raise the first failure of a complete run."""
+    errors = []
+    for rec in recorders:
+        try:
+            rec.close(complete=complete, summary=summary)
+        except Exception as exc:  # re-raised below, after the others are closed
+            errors.append(exc)
+    if errors and complete:
+        raise errors[0]
+
+
+def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
+                recorders: Sequence[Recorder] = (), info: RunInfo | None = None,
+                stop_on_success: bool = True, settle_time: float = 0.0) -> EpisodeResult:
     """Run one episode of ``scenario`` driven by ``controller`` in ``sim``, streaming to
     ``recorders`` (opened with ``info``, closed with ``complete=False`` if interrupted).
     ``settle_time`` [s]: how long the run continues after the goal is first reached."""
@@ -66,61 +145,29 @@ def run_episode(
     controller.reset(scenario)
     for rec in recorders:
         rec.open(info)
-    log: dict[str, list] = {k: [] for k in ("t", "q", "ee_p", "pos_err", "rot_err", "clear",
-                                            "contact", "ground", "ms")}
-    complete = False
-    stop_reason = "max_steps"
-    limit = scenario.max_steps
-    reach_step = None
+    trace, complete, stop_reason = _Trace(), False, "max_steps"
+    limit, reach_step = scenario.max_steps, None
     # with a discrete disturbance (goal change, push) only a reach at or after its onset counts:
     # the run goes on until then however early it first came near the goal
     onset = getattr(sim, "disturbance_time", None)
-    onset = -math.inf if onset is None else onset - 1e-9
+    after_onset = -math.inf if onset is None else onset - 1e-9
     try:
         k = 0
         while k < limit:
-            link_pos, link_quat = sim.link_poses()
-            centers = sim.body_sphere_centers(link_pos, link_quat)
-            contacts = sim.contacts(centers)
-            ee_p, ee_q = link_pos[ee_index], link_quat[ee_index]
-            pos_err = float(np.linalg.norm(ee_p - obs.goal_position))
-            rot_err = float(orientation_error(ee_q, obs.goal_quaternion))
-
-            start = time.perf_counter()
-            command = controller.step(obs)
-            compute_ms = (time.perf_counter() - start) * 1e3
-            qdd = np.asarray(command.qdd, dtype=float)
-
-            clearance = contacts.sphere_clearance
-            scalars = {
-                "compute_time_ms": compute_ms,
-                "clearance_m": clearance if math.isfinite(clearance) else NO_OBSTACLE_CLEARANCE,
-                "position_error_m": pos_err,
-                "orientation_error_rad": rot_err,
-                "obstacle_contact": float(contacts.obstacle_contact),
-                "ground_contact": float(contacts.ground_contact),
-                **{name: float(v) for name, v in command.scalars.items()},
-            }
-            record = StepRecord(
-                step=k, t=obs.t, q=obs.q, qd=obs.qd, qdd_cmd=qdd,
-                link_positions=link_pos, link_quaternions=link_quat,
-                ee_position=ee_p, ee_quaternion=ee_q, body_sphere_centers=centers,
-                obstacle_centers=truth(obs), obstacle_radii=obs.obstacle_radii,
-                goal_position=obs.goal_position, goal_quaternion=obs.goal_quaternion,
-                scalars=scalars,
-            )
+            link_pos, link_quat, centers, contacts, pos_err, rot_err = _observe(sim, obs, ee_index)
+            command, qdd, compute_ms = _timed_step(controller, obs, spec.dof)
+            record = _step_record(k, obs, truth(obs), command, qdd, link_pos, link_quat,
+                                  ee_index, centers, contacts, pos_err, rot_err, compute_ms)
             for rec in recorders:
                 rec.write(record)
-            for key, value in (("t", obs.t), ("q", obs.q), ("ee_p", ee_p), ("pos_err", pos_err),
-                               ("rot_err", rot_err), ("clear", clearance),
-                               ("contact", contacts.obstacle_contact),
-                               ("ground", contacts.ground_contact), ("ms", compute_ms)):
-                log[key].append(value)
-
-            if not np.all(np.isfinite(qdd)) or qdd.shape != (spec.dof,):
+            trace.add(t=obs.t, q=obs.q, ee_position=link_pos[ee_index], position_error=pos_err,
+                      orientation_error=rot_err, clearance=contacts.sphere_clearance,
+                      obstacle_contact=contacts.obstacle_contact,
+                      ground_contact=contacts.ground_contact, compute_ms=compute_ms)
+            if not np.all(np.isfinite(qdd)):
                 stop_reason = "nonfinite_command"
                 break
-            if reach_step is None and pos_err <= scenario.goal_tolerance and obs.t >= onset:
+            if reach_step is None and pos_err <= scenario.goal_tolerance and obs.t >= after_onset:
                 reach_step = k
                 limit = (k + settle_steps + 1 if stop_on_success
                          else max(limit, k + settle_steps + 1))
@@ -131,27 +178,9 @@ def run_episode(
             k += 1
         complete = True
     finally:
-        metrics = None
-        if log["t"]:
-            metrics = run_metrics(
-                t=np.array(log["t"]), position_error=np.array(log["pos_err"]),
-                orientation_error=np.array(log["rot_err"]), clearance=np.array(log["clear"]),
-                obstacle_contact=np.array(log["contact"]), ground_contact=np.array(log["ground"]),
-                q=np.array(log["q"]), q_min=spec.q_min, q_max=spec.q_max,
-                compute_ms=np.array(log["ms"]), tolerance=scenario.goal_tolerance,
-                time_limit=scenario.max_steps * scenario.dt, settle_time=settle_time,
-                ee_position=np.array(log["ee_p"]),
-                disturbance_time=None if onset == -math.inf else onset + 1e-9)
-        summary = {"stop_reason": stop_reason if complete else "interrupted",
-                   **(metrics.as_dict() if metrics else {})}
-        close_errors = []
-        for rec in recorders:  # close every file, even if one recorder fails
-            try:
-                rec.close(complete=complete, summary=summary)
-            except Exception as exc:  # re-raised below, after the others are closed
-                close_errors.append(exc)
-        if close_errors and complete:
-            raise close_errors[0]
-    return EpisodeResult(metrics=metrics, stop_reason=stop_reason, t=np.array(log["t"]),
-                         q=np.array(log["q"]), ee_position=np.array(log["ee_p"]),
-                         compute_ms=np.array(log["ms"]))
+        metrics = trace.metrics(spec, scenario, settle_time, onset)
+        _close(recorders, complete, {"stop_reason": stop_reason if complete else "interrupted",
+                                     **(metrics.as_dict() if metrics else {})})
+    return EpisodeResult(metrics=metrics, stop_reason=stop_reason, t=np.array(trace.t),
+                         q=np.array(trace.q), ee_position=np.array(trace.ee_position),
+                         compute_ms=np.array(trace.compute_ms))

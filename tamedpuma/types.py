@@ -101,9 +101,9 @@ class Scenario:
     q0: np.ndarray
     goal: Goal
     obstacles: Obstacles
-    dt: float = 0.02
-    max_steps: int = 2000
-    goal_tolerance: float = 0.05
+    dt: float
+    max_steps: int
+    goal_tolerance: float
     seed: int = 0
 
     def __post_init__(self):
@@ -112,6 +112,8 @@ class Scenario:
             raise ValueError(f"dt must be positive, got {self.dt}")
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+        if not self.goal_tolerance > 0:
+            raise ValueError(f"goal_tolerance must be positive, got {self.goal_tolerance}")
 
 
 @dataclass(frozen=True)

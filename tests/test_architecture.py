@@ -49,3 +49,60 @@ def test_import_rules(path):
             "methods/_policy.py"):
         assert top <= {"numpy", "tamedpuma", "__future__", "collections", "dataclasses",
                        "typing", "math", "warnings"}, f"{rel} must stay numpy-only: {top}"
+
+
+#: the layers, lowest first: a module imports only from its own package or lower layers
+LAYERS = [{"errors"}, {"types", "paths"}, {"robot"}, {"fabrics", "puma", "ik_solvers"},
+          {"methods", "worlds"}, {"metrics"}, {"episode"}, {"recording"}, {"analysis"},
+          {"app"}]
+#: the one upward edge: the control loop hands recording's record types to the recorders
+_ALLOWED = {("episode", "tamedpuma.recording.records")}
+_SHIMS = {"sweep", "train", "lasa", "bench_fabrics", "bench", "replay", "__init__", "__main__"}
+
+
+def _layer(part: str) -> int:
+    for i, names in enumerate(LAYERS):
+        if part in names:
+            return i
+    if part in _SHIMS:
+        return len(LAYERS)  # thin entry-point shims: above everything
+    raise AssertionError(f"tamedpuma/{part} has no layer: add it to LAYERS")
+
+
+def _package(path: Path) -> str:
+    rel = path.relative_to(PKG)
+    return rel.parts[0] if len(rel.parts) > 1 else rel.stem
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PKG)))
+def test_layers_import_only_downwards(path):
+    own = _package(path)
+    for name in _imports(path):
+        parts = name.split(".")
+        if parts[0] != "tamedpuma" or len(parts) < 2 or parts[1] == own \
+                or (own, name) in _ALLOWED:
+            continue
+        assert _layer(parts[1]) < _layer(own), \
+            f"{path.relative_to(PKG)} ({own}) imports {name}: not a lower layer"
+
+
+@pytest.mark.parametrize("path", sorted((PKG / "methods").glob("*.py")), ids=lambda p: p.name)
+def test_methods_never_import_each_other(path):
+    for name in _imports(path):
+        parts = name.split(".")
+        if parts[:2] == ["tamedpuma", "methods"] and len(parts) > 2:
+            assert parts[2].startswith("_"), \
+                f"methods/{path.name} imports {name}: share it through a private module"
+
+
+#: the control loop, the fabric assembly and the training loop: no function over 60 lines
+SHORT = ["episode.py", "puma/training.py"]
+
+
+@pytest.mark.parametrize("rel", SHORT)
+def test_no_long_function_in_the_loops(rel):
+    tree = ast.parse((PKG / rel).read_text())
+    long = [f"{n.name}: {n.end_lineno - n.lineno + 1} lines" for n in ast.walk(tree)
+            if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)
+            and n.end_lineno - n.lineno + 1 > 60]
+    assert not long, f"{rel}: {long}"

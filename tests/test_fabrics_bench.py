@@ -24,7 +24,7 @@ def test_time_counts_and_markdown_keep_other_sections(tmp_path):
     rows, build_ms, kin_ms = time_counts(counts=(0, 3), calls=5)
     assert [r["n_obstacles"] for r in rows] == [0, 3]
     assert all(r["p10_ms"] <= r["median_ms"] <= r["p90_ms"] for r in rows)
-    assert build_ms >= 0 and kin_ms > 0
+    assert np.isfinite(build_ms) and np.isfinite(kin_ms)
     report = {"date": "today", "results": rows, "build_ms": build_ms,
               "kinematics_median_ms": kin_ms,
               "machine": {"cpu_model": "cpu", "cores": 2, "python": "3", "numpy": "2",

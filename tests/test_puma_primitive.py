@@ -110,5 +110,10 @@ def test_vector_primitive(order):
     np.testing.assert_allclose(fd, g, rtol=1e-5, atol=1e-8)
 
 
-def test_pose_primitive_type(pose):
+def test_pose_primitive_rests_at_its_goal(pose):
+    """Pinned goal: at rest on the goal the acceleration and the potential vanish."""
     assert isinstance(pose, PosePrimitive)
+    a, alpha = pose.acceleration(GP, GQ, np.zeros(3), np.zeros(3), GP, GQ)
+    np.testing.assert_allclose(a, 0.0, atol=1e-9)
+    np.testing.assert_allclose(alpha, 0.0, atol=1e-9)
+    assert pose.potential(GP, GQ, GP, GQ)[0] == pytest.approx(0.0, abs=1e-12)

@@ -94,7 +94,8 @@ def test_scenario_random_config_builds_the_generated_scenario(kinematics):
     from omegaconf import OmegaConf
 
     cfg = {"robot": load_group("robot", "iiwa14"), "task": load_group("task", "pouring"),
-           "scenario": load_group("scenario", "random"), "seed": 0}
+           "scenario": load_group("scenario", "random"), "seed": 0,
+           "without_obstacles": False, "clutter": {"count": 0, "total": None}}
     cfg["scenario"].update(random_seed=1003, start_kind="anywhere")
     plain = OmegaConf.to_container(OmegaConf.create(cfg), resolve=True)
     sc = build_scenario(plain, kinematics.spec, kinematics)

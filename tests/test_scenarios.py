@@ -65,7 +65,7 @@ def test_invalid_scenarios_raise_scenario_error(robot_spec, bad):
 def _run_cfg(**top):
     cfg = {"robot": load_group("robot", "iiwa14"), "task": load_group("task", "tomato"),
            "scenario": _default_cfg(), "seed": 0, "without_obstacles": False,
-           "clutter": {"count": 0, "radius": 0.05, "low": [-1.2, -1.2, 0.05],
+           "clutter": {"count": 0, "total": None, "radius": 0.05, "low": [-1.2, -1.2, 0.05],
                        "high": [1.2, 1.2, 1.4], "min_distance": 0.1}}
     cfg.update(top)
     return cfg

@@ -14,7 +14,8 @@ GOAL = Goal([0.58, -0.214, 0.115], [-0.5459, 0.5806, -0.4112, 0.4426])
 
 def _scenario(obstacles=None, goal=GOAL, steps=50):
     return Scenario(name="t", task="tomato", q0=Q0, goal=goal,
-                    obstacles=obstacles or Obstacles.empty(), max_steps=steps)
+                    obstacles=obstacles or Obstacles.empty(), dt=0.02,
+                    max_steps=steps, goal_tolerance=0.05)
 
 
 def _rollout(spec, scenario, qdd_of):

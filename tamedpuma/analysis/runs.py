@@ -97,4 +97,21 @@ def load_runs(root: str | Path) -> tuple[pd.DataFrame, dict[str, np.ndarray],
         times[row["path"]] = ms
     frame = pd.DataFrame(rows)
     frame.attrs["skipped"] = skipped
+    frame.attrs["failed"] = failed_runs(root)
     return frame, paths, times
+
+
+def failed_runs(root: str | Path) -> list[tuple[str, str]]:
+    """(run folder, reason) of every run below ``root`` whose ``summary.json`` records a failure
+    (a sweep's run that raised: no episode log, see ``tamedpuma.app.sweep``)."""
+    import json
+
+    out = []
+    for path in sorted(Path(root).rglob("summary.json")):
+        try:
+            summary = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(summary, dict) and summary.get("status") == "failed":
+            out.append((str(path.parent), str(summary.get("reason", ""))))
+    return out

@@ -143,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: RUNS)")
+    parser.add_argument("--include-incomplete", action="store_true",
+                        help="score killed/truncated runs too (default: listed and excluded)")
     args = parser.parse_args(argv)
     if not args.runs.is_dir():
         print(f"error: {args.runs} is not a folder", file=sys.stderr)
@@ -151,6 +153,14 @@ def main(argv: list[str] | None = None) -> int:
     if runs.empty:
         print(f"error: no readable run logs (episode.mcap) below {args.runs}", file=sys.stderr)
         return 2
+    attrs = dict(runs.attrs)
+    incomplete = runs[~runs["complete"].astype(bool)]
+    if not args.include_incomplete:
+        runs = runs[runs["complete"].astype(bool)].copy()
+        if runs.empty:
+            print(f"error: no complete run below {args.runs} ({len(incomplete)} incomplete; "
+                  "--include-incomplete scores them)", file=sys.stderr)
+            return 2
     runs["path_difference_m"] = path_differences(runs, paths)
     table = table1(runs, times)
     out = args.out or args.runs
@@ -158,15 +168,36 @@ def main(argv: list[str] | None = None) -> int:
     runs.to_csv(out / "runs.csv", index=False)
     notes = model_notes(runs) or ["no trained model used"]
     md = table.to_markdown(index=False, disable_numparse=True)
-    (out / "table1.md").write_text(md + "\n\n" + "".join(f"- {n}\n" for n in notes))
+    (out / "table1.md").write_text(md + "
+
+" + "".join(f"- {n}
+" for n in notes))
     (out / "table1.tex").write_text(table.to_latex(index=False)
-                                    + "".join(f"% {n}\n" for n in notes))
+                                    + "".join(f"% {n}
+" for n in notes))
     print(md)
     for n in notes:
         print(n)
-    skipped = runs.attrs.get("skipped", [])
-    print(f"{len(runs)} runs read, {len(skipped)} skipped; tables in {out}")
+    runs.attrs.update(attrs)
+    print(footer(runs, incomplete, args.include_incomplete))
+    for path in incomplete["path"]:
+        print(f"  incomplete: {path}")
+    for folder, reason in runs.attrs.get("failed", []):
+        print(f"  failed: {folder}: {reason}")
+    for path in runs.attrs.get("skipped", []):
+        print(f"  unreadable: {path}")
+    print(f"tables in {out}")
     return 0
+
+
+def footer(runs: pd.DataFrame, incomplete: pd.DataFrame, included: bool) -> str:
+    """The count line under the table: complete, incomplete (killed or truncated logs: excluded
+    from the rates unless ``included``), failed (the run raised; no log) and unreadable runs."""
+    n_complete = int(runs["complete"].astype(bool).sum())  # runs holds incomplete ones if included
+    how = "included in the rates" if included else "excluded from the rates"
+    return (f"runs: {n_complete} complete, {len(incomplete)} incomplete ({how}), "
+            f"{len(runs.attrs.get('failed', []))} failed, "
+            f"{len(runs.attrs.get('skipped', []))} unreadable")
 
 
 if __name__ == "__main__":

@@ -109,6 +109,21 @@ def with_search_path(overrides: list[str], search: list[str]) -> list[str]:
     return [f"hydra.searchpath=[{entries}]", *out]
 
 
+def _schema_problem(config_name: str, cfg) -> str | None:
+    """Types, unknown keys and ranges of a composed config (:mod:`tamedpuma.app.schema`)."""
+    from tamedpuma.app import schema
+    from tamedpuma.errors import ConfigError
+
+    check = {"sweep": schema.run_config, "train": schema.train_config}.get(config_name)
+    if check is None:
+        return None
+    try:
+        check(cfg)
+    except ConfigError as exc:
+        return str(exc)
+    return None
+
+
 def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
     """Compose ``config_name`` with the command line's overrides; the first problem, or None."""
     from hydra import compose, initialize_config_dir
@@ -155,6 +170,9 @@ def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
                     OmegaConf.to_container(cfg, resolve=True)
                 except Exception as exc:  # composition and interpolation errors
                     return _one_line(exc)
+                problem = _schema_problem(config_name, cfg)
+                if problem:
+                    return problem
                 if "output_root" in cfg:
                     problem = _check_writable(str(cfg.output_root))
                     if problem:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
+from tamedpuma.app import schema as _schema  # noqa: F401 - registers the config schema with Hydra
 from tamedpuma.errors import ConfigError
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"  # tamedpuma/conf (package data)

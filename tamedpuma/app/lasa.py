@@ -21,6 +21,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         cfg = compose("train", ["task=lasa", "puma=lasa", "out_dir=runs/lasa", "progress=false",
+                                "overwrite=true",  # the benchmark retrains every shape
                                 *argv])
         from tamedpuma.puma import lasa_benchmark
 

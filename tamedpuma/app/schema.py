@@ -1,148 +1,550 @@
-"""Typed schemas of the fixed config groups (robot, scenario, sim, recorder and the top level).
+"""The typed configuration: every config key, its type, its default and its valid range.
 
-``validate(cfg)`` merges each group into its schema with OmegaConf, so a wrong type or an unknown
-key is reported with the key's name (``robot.limit_margin: Value 'abc' ... Float``). Method and
-task groups are open: each method validates its own keys in its ``make``.
+This module is the only place config defaults live. Settings the library owns are the library's
+frozen dataclasses, used here as field types (their defaults are the defaults):
+:class:`~tamedpuma.worlds.settings.SimConfig`, :class:`~tamedpuma.worlds.settings.Disturbance`,
+:class:`~tamedpuma.fabrics.FabricGains`,
+:class:`~tamedpuma.methods.modulation_ik.ModulationIKParams`, and PUMA's
+:class:`~tamedpuma.puma.settings.TrainConfig`, :class:`~tamedpuma.puma.settings.NetConfig`,
+:class:`~tamedpuma.puma.settings.EvalConfig`. Everything else is a dataclass below. The YAML
+files under ``conf/`` override these values; a YAML key the schema does not know is an error
+(``tests/test_schema.py`` loads every YAML against it).
+
+**Adding a key** is one line in one dataclass (name, type, default, and a range check in its
+``__post_init__`` if it has one). A method's options are the dataclass in :data:`METHODS`.
+
+``run_config(cfg)`` and ``train_config(cfg)`` merge a composed config into the schema (wrong types
+and unknown keys are :class:`ConfigError` naming the key), build the typed objects (ranges
+checked in ``__post_init__``) and return them; ``build`` in the entry points works from those.
+The schemas are also registered in Hydra's ConfigStore (``tamedpuma_sweep``, ``tamedpuma_train``,
+``tamedpuma_method/<name>``).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
+import typing
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any
 
-from omegaconf import MISSING, OmegaConf
+from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from tamedpuma.errors import ConfigError
+from tamedpuma.fabrics.gains import FabricGains
+from tamedpuma.methods._tamed import ControlRate
+from tamedpuma.methods.modulation_ik import ModulationIKParams
+from tamedpuma.puma.settings import EvalConfig, NetConfig, TrainConfig
+from tamedpuma.worlds.settings import Disturbance, SimConfig
+
+# Limits that keep one run within memory and time (a value beyond them is refused, named).
+MAX_EPISODE_STEPS = 200_000      # per-step logs and metrics are held in memory
+MAX_EPISODE_SECONDS = 3600.0     # simulated time of one episode [s]
+MAX_SUBSTEPS_PER_STEP = 1000     # physics substeps per control period (Δt / substep)
+MAX_CLUTTER = 1000               # extra obstacles (the fabric is O(spheres × obstacles))
+MAX_TRAIN_ITERATIONS = 1_000_000
+
+
+def _check(ok: bool, key: str, rule: str, value) -> None:
+    if not ok:
+        raise ConfigError(f"{key} must be {rule}, got {value!r}")
+
+
+def _finite(x) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def _positive(key: str, value) -> None:
+    _check(_finite(value) and value > 0, key, "a finite number > 0", value)
+
+
+def _nonneg(key: str, value) -> None:
+    _check(_finite(value) and value >= 0, key, "a finite number >= 0", value)
+
+
+# ----------------------------------------------------------------------------- robot, world
 
 
 @dataclass
 class SphereSchema:
     link: str = MISSING
-    radius: float = MISSING
-    offset: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    radius: float = MISSING          # [m]
+    offset: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # in the link frame [m]
+
+    def __post_init__(self):
+        _positive("robot.spheres.radius", self.radius)
 
 
 @dataclass
 class RobotSchema:
     name: str = MISSING
-    urdf: Any = None
+    urdf: str | None = None       # null: pybullet_data/kuka_iiwa/model.urdf
     joint_names: list[str] = MISSING
     link_names: list[str] = MISSING
     ee_link: str = MISSING
-    q_min: list[float] = MISSING
-    q_max: list[float] = MISSING
-    qd_max: list[float] = MISSING
-    limit_tolerance: float = 1e-4
-    limit_margin: float = 1e-3
+    q_min: list[float] = MISSING     # [rad]
+    q_max: list[float] = MISSING     # [rad]
+    qd_max: list[float] = MISSING    # [rad/s]
+    limit_tolerance: float = 1e-4    # a start this far outside a limit is clamped [rad]
+    limit_margin: float = 1e-3       # ... to this far inside [rad]
     spheres: list[SphereSchema] = MISSING
-    home: Any = None                  # default start [rad] (scenario=default uses it)
-    null_space: Any = None            # {link, target}: PUMA's "elbow up" objective
+    home: list[float] | None = None   # default start [rad] (a scenario with q0: null uses it)
+    null_space: Any = None            # {link, target}: replaces the method's "elbow up" objective
     body_model: Any = None            # {skip, merge}: for python -m tamedpuma.body_model
     body_model_tolerance: Any = None  # [m], written by python -m tamedpuma.body_model
+
+    def __post_init__(self):
+        n = len(self.joint_names)
+        for key in ("q_min", "q_max", "qd_max"):
+            _check(len(getattr(self, key)) == n, f"robot.{key}", f"{n} numbers (one per joint)",
+                   getattr(self, key))
+        _check(all(lo < hi for lo, hi in zip(self.q_min, self.q_max)), "robot.q_min",
+               "below q_max for every joint", self.q_min)
+        _check(all(_finite(v) and v > 0 for v in self.qd_max), "robot.qd_max",
+               "finite and > 0", self.qd_max)
+        _nonneg("robot.limit_tolerance", self.limit_tolerance)
+        _nonneg("robot.limit_margin", self.limit_margin)
 
 
 @dataclass
 class GoalSchema:
-    position: Optional[list[float]] = MISSING    # null: the task's derived goal  # noqa: UP045
-    quaternion: Optional[list[float]] = MISSING  # noqa: UP045
-    velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    position: list[float] | None = MISSING         # [m]; null: the task's derived goal
+    quaternion: list[float] | None = MISSING       # (x, y, z, w)
+    velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # [m/s]
 
 
 @dataclass
 class ObstacleSchema:
-    center: list[float] = MISSING
-    radius: float = MISSING
-    velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    center: list[float] = MISSING                  # [m]
+    radius: float = MISSING                        # [m]
+    velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # [m/s]
+
+    def __post_init__(self):
+        _positive("scenario.obstacles.radius", self.radius)
 
 
 @dataclass
 class ScenarioSchema:
     name: str = MISSING
-    task: Any = None  # if set, the task group must match
-    q0: Any = MISSING  # joint angles [rad]; null: the robot's home; not set by generators
+    task: str | None = None       # if set, the task group must match
+    q0: list[float] | None = None    # start [rad]; null: the robot's home (or generated)
     goal: GoalSchema = field(default_factory=GoalSchema)
-    random_seed: Any = None  # scenario=random: the generator's seed (int)
-    start_kind: Any = None  # scenario=random: near_table1 | anywhere
-    random: Any = None  # scenario=random: generator parameters (RandomParams)
-    generator: Any = None  # scenario=from_demos: {kind: demos, ...} (worlds/demo_scenarios.py)
+    random_seed: int | None = None   # scenario=random: the generator's seed
+    start_kind: str | None = None    # scenario=random: near_table1 | anywhere
+    random: Any = None               # scenario=random: generator parameters (RandomParams)
+    generator: Any = None            # scenario=from_demos: {kind: demos, ...}
     obstacles: list[ObstacleSchema] = field(default_factory=list)
-    dt: float = 0.02
-    max_steps: int = 2000
-    goal_tolerance: float = 0.05
+    dt: float = 0.02                 # control period [s]
+    max_steps: int = 2000            # episode length limit (40 s)
+    goal_tolerance: float = 0.05     # success radius [m]
 
-
-@dataclass
-class SimSchema:
-    gui: bool = False
-    substep: float = 0.001
-    gravity: float = 9.81
-    max_joint_force: float = 500.0
-    ground: bool = True
-    control: str = "velocity"
-    stiffness: list[float] = field(default_factory=lambda: [600.0, 600.0, 300.0, 300.0, 100.0,
-                                                            50.0, 20.0])
-    damping: list[float] = field(default_factory=lambda: [30.0, 30.0, 15.0, 15.0, 5.0, 2.0, 0.5])
-    torque_limit: list[float] = field(default_factory=lambda: [320.0, 320.0, 176.0, 176.0, 110.0,
-                                                               40.0, 40.0])
-    feedforward: bool = True
-
-
-@dataclass
-class DisturbanceSchema:
-    kind: str = "none"
-    name: str = ""
-    onset: float = 3.0
-    duration: float = 0.2
-    force: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    link: str = "lbr_iiwa_link_7"
-    goal_offset: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    noise_std: float = 0.0
-    sensor_rate: float = 30.0
+    def __post_init__(self):
+        _positive("scenario.dt", self.dt)
+        _check(1 <= self.max_steps <= MAX_EPISODE_STEPS, "scenario.max_steps",
+               f"in [1, {MAX_EPISODE_STEPS}] (memory limit)", self.max_steps)
+        _check(self.max_steps * self.dt <= MAX_EPISODE_SECONDS, "scenario.max_steps * dt",
+               f"at most {MAX_EPISODE_SECONDS:g} s (time limit)", self.max_steps * self.dt)
+        _positive("scenario.goal_tolerance", self.goal_tolerance)
 
 
 @dataclass
 class RecorderSchema:
-    mcap: bool = True
-    rerun: bool = True
-    flush_every: int = 100
+    mcap: bool = True                # stream to episode.mcap (Foxglove)
+    rerun: bool = True               # stream to episode.rrd (Rerun)
+    flush_every: int = 100           # MCAP chunk flush period [steps]
+
+    def __post_init__(self):
+        _check(self.flush_every >= 1, "recorder.flush_every", "an integer >= 1", self.flush_every)
 
 
 @dataclass
 class ClutterSchema:
-    count: int = 0
-    total: Any = None  # int: fill up to this many obstacles in all (overrides count)
-    radius: float = 0.05
-    low: list[float] = field(default_factory=lambda: [-1.2, -1.2, 0.05])
-    high: list[float] = field(default_factory=lambda: [1.2, 1.2, 1.4])
-    min_distance: float = 0.1
+    count: int = 0                   # seeded extra static obstacles
+    total: int | None = None         # if set: add total − (the scenario's own) instead of count
+    radius: float = 0.05             # [m]
+    low: list[float] = field(default_factory=lambda: [-1.2, -1.2, 0.05])  # box corner [m]
+    high: list[float] = field(default_factory=lambda: [1.2, 1.2, 1.4])    # box corner [m]
+    min_distance: float = 0.1        # [m] clear of the start's body spheres, the EE and the goal
+
+    def __post_init__(self):
+        for key in ("count", "total"):
+            value = getattr(self, key)
+            _check(value is None or 0 <= value <= MAX_CLUTTER, f"clutter.{key}",
+                   f"in [0, {MAX_CLUTTER}] (the fabric's cost grows with every obstacle)", value)
+        _check(_finite(self.radius) and 0 < self.radius <= 1.0, "clutter.radius",
+               "in (0, 1] m", self.radius)
+        _nonneg("clutter.min_distance", self.min_distance)
+        _check(len(self.low) == 3 and len(self.high) == 3
+               and all(_finite(a) and _finite(b) and a < b for a, b in zip(self.low, self.high)),
+               "clutter.low/high", "3 finite numbers each with low < high",
+               (self.low, self.high))
 
 
-_GROUPS = {"robot": RobotSchema, "scenario": ScenarioSchema, "sim": SimSchema,
-           "recorder": RecorderSchema, "clutter": ClutterSchema,
-           "disturbance": DisturbanceSchema}
-_TOP = {"seed": int, "output_root": str, "stop_on_success": bool, "without_obstacles": bool,
-        "settle_time": (int, float)}
+@dataclass
+class WorkspaceSchema:
+    position_low: list[float] = MISSING   # relative to the goal [m or the data's unit]
+    position_high: list[float] = MISSING
+    max_angle: float = 0.0                # [rad] around the goal orientation
+
+
+@dataclass
+class SyntheticSchema:
+    kind: str | None = None          # the generator's shape (default: the task's name)
+    n_demos: int = 10
+    seed: int = 0
+
+    def __post_init__(self):
+        _check(1 <= self.n_demos <= 1000, "task.synthetic.n_demos", "in [1, 1000]", self.n_demos)
+
+
+@dataclass
+class TaskSchema:
+    """A task: goal and demonstrations (robot tasks) or a LASA shape (2-D, mm)."""
+
+    name: str = MISSING
+    goal_position: list[float] | None = None
+    goal_quaternion: list[float] | None = None   # (x, y, z, w); null for 2-D tasks
+    demos: str | None = None      # null: synthetic; 'lasa'; or a folder of ee_state_*.pk
+    goal_convention: str = "final_pose"
+    synthetic: SyntheticSchema = field(default_factory=SyntheticSchema)
+    workspace: Any = None            # {position_low, position_high, max_angle}; null: the demos'
+    #                                  box enlarged by margin (derived with derive: true)
+    derive: bool = False             # goal, workspace and Δt from the data (task_from_demos)
+    angle_margin: float = 0.15       # derive: added to the largest angle to the goal [rad]
+    spread_limit: float = 0.5236     # derive: final orientations spreading more: medoid goal
+    dt: Any = None                   # model step [s], 'auto' (from the data) or null: puma.dt
+    min_dt: float = 0.02             # derive / dt auto: smallest model step [s]
+    workspace_check: Any = None      # {action: warn|error|off, robot, scenarios}
+    margin: float = 0.1              # fraction of the box size added on each side
+    unit: str = "mm"                 # LASA data unit
+    shape: str | None = None      # LASA shape
+    every: int = 10                  # LASA: keep every n-th sample
+    pos_tol: float | None = None  # evaluation tolerance (non-metric data; null: 1% of the box)
+    shapes: Any = "all"              # python -m tamedpuma.lasa: 'all' or a list of shapes
+    grid: int = 20                   # python -m tamedpuma.lasa: grid x grid starts
+    table: str = "benchmarks/lasa.md"  # python -m tamedpuma.lasa: where the table goes
+
+    def __post_init__(self):
+        _nonneg("task.margin", self.margin)
+        _check(self.every >= 1, "task.every", "an integer >= 1", self.every)
+        _check(1 <= self.grid <= 1000, "task.grid", "in [1, 1000]", self.grid)
+
+
+# ----------------------------------------------------------------------------- methods
+
+
+@dataclass
+class MethodSchema:
+    name: str = MISSING
+    label: str | None = None      # the name its runs carry in tables (default: name)
+
+
+@dataclass
+class JointAttractorMethod(MethodSchema):
+    stiffness: float = 4.0           # k [1/s²]
+    damping: float = 4.0             # d [1/s]; 2√k = critically damped
+
+    def __post_init__(self):
+        _positive("method.stiffness", self.stiffness)
+        _nonneg("method.damping", self.damping)
+
+
+@dataclass
+class NullSpaceSchema:
+    link: str | None = "lbr_iiwa_link_3"  # null: no null-space objective
+    target: list[float] = field(default_factory=lambda: [0.2, 0.0, 0.45])  # [m]
+    stiffness: float = 1.0           # [1/s²]
+    damping: float = 1.0             # [1/s]
+
+    def __post_init__(self):
+        _check(len(self.target) == 3, "method.null_space.target", "3 numbers [m]", self.target)
+        _nonneg("method.null_space.stiffness", self.stiffness)
+        _nonneg("method.null_space.damping", self.damping)
+
+
+@dataclass
+class PumaMethod(MethodSchema):
+    checkpoint: str | None = None  # python -m tamedpuma.train task=<task> writes one
+    pinv_damping: float = 0.01        # λ₀ of J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹
+    pinv_damping_max: float = 0.0     # λ_max of the singularity-robust inverse (0: constant λ₀)
+    manipulability_threshold: float = 0.02  # w₀: λ grows below this manipulability
+    goal_velocity: str = "ignore"     # feedforward: the primitive sees ṗ − v_g | ignore
+    null_space: NullSpaceSchema | None = field(default_factory=NullSpaceSchema)
+
+    def __post_init__(self):
+        _nonneg("method.pinv_damping", self.pinv_damping)
+        _nonneg("method.pinv_damping_max", self.pinv_damping_max)
+        _positive("method.manipulability_threshold", self.manipulability_threshold)
+        _check(self.goal_velocity in ("feedforward", "ignore"), "method.goal_velocity",
+               "feedforward or ignore", self.goal_velocity)
+
+
+@dataclass
+class FabricsMethod(MethodSchema):
+    fabric: FabricGains = field(default_factory=FabricGains)
+
+
+@dataclass
+class FpmMethod(PumaMethod):
+    fabric: FabricGains = field(default_factory=FabricGains)
+    energization: str = "exact"       # exact (α unbounded) | bounded (α ≥ −alpha_bound)
+    alpha_bound: float = 20.0         # [1/s]
+    control_rate: ControlRate = field(default_factory=ControlRate)  # safety at the control rate
+
+    def __post_init__(self):
+        super().__post_init__()
+        _check(self.energization in ("exact", "bounded"), "method.energization",
+               "exact or bounded", self.energization)
+        _nonneg("method.alpha_bound", self.alpha_bound)
+        _check(0.0 < self.control_rate.kappa < 1.0, "method.control_rate.kappa", "in (0, 1)",
+               self.control_rate.kappa)
+
+
+@dataclass
+class CpmMethod(FpmMethod):
+    variant: str = "paper"           # paper | original (the authors' code)
+    beta: float = 0.5                # β [1/s] > 0: the damping (its floor with damping: matched)
+    damping: str = "matched"         # matched: β(q, q̇) = max(β, r − α) | constant: the paper's β
+    potential_scale: float = 0.3     # k_ψ > 0 on ψ in the regulator
+    semi_implicit: bool = True       # take the q̇-proportional terms implicitly over Δt
+    eps: float = 1.0e-6              # ε [(rad/s)²] of the regulator's denominator
+    regulator_scale: float = 1.0     # factor on the ψ term (the paper: 1)
+
+    def __post_init__(self):
+        super().__post_init__()
+        _check(self.variant in ("paper", "original"), "method.variant", "paper or original",
+               self.variant)
+        _check(self.damping in ("matched", "constant"), "method.damping", "matched or constant",
+               self.damping)
+        _nonneg("method.beta", self.beta)
+        _positive("method.potential_scale", self.potential_scale)
+        _positive("method.eps", self.eps)
+        _nonneg("method.regulator_scale", self.regulator_scale)
+
+
+def _with_fields_of(name: str, base: type, library: type) -> type:
+    """A schema dataclass: ``base``'s fields plus every field of the frozen ``library`` dataclass
+    (same types and defaults), whose constructor (range checks) runs on the result."""
+    hints = typing.get_type_hints(library)
+    extra = [(f.name, hints[f.name], field(default=f.default)) for f in dataclasses.fields(library)]
+
+    def post_init(self):
+        library(**{f.name: getattr(self, f.name) for f in dataclasses.fields(library)})
+
+    return dataclasses.make_dataclass(name, extra, bases=(base,),
+                                      namespace={"__post_init__": post_init})
+
+
+@dataclass
+class _ModulationBase(MethodSchema):
+    task: str | None = None        # the task whose position primitive drives it
+    checkpoint: str | None = None  # a first-order position PUMA (puma=position)
+
+
+ModulationIkMethod = _with_fields_of("ModulationIkMethod", _ModulationBase, ModulationIKParams)
+
+#: method name -> the dataclass of its options (a method without one cannot be configured)
+METHODS: dict[str, type] = {
+    "joint_attractor": JointAttractorMethod,
+    "puma": PumaMethod,
+    "fabrics": FabricsMethod,
+    "fpm": FpmMethod,
+    "cpm": CpmMethod,
+    "modulation_ik": ModulationIkMethod,
+}
+
+
+# ----------------------------------------------------------------------------- whole configs
+
+
+@dataclass
+class RunConfig:
+    """One episode (``conf/sweep.yaml``): ``python -m tamedpuma.sweep``."""
+
+    robot: RobotSchema = MISSING
+    task: TaskSchema = MISSING
+    scenario: ScenarioSchema = MISSING
+    method: Any = MISSING            # checked against METHODS[method.name]
+    recorder: RecorderSchema = field(default_factory=RecorderSchema)
+    sim: SimConfig = field(default_factory=SimConfig)
+    disturbance: Disturbance = field(default_factory=Disturbance)
+    seed: int = 0
+    output_root: str = "runs"        # every run writes into a new folder below this
+    stop_on_success: bool = True     # end the episode settle_time after the first reach
+    settle_time: float = 2.0         # [s] the run continues this long after the first reach
+    without_obstacles: bool = False  # drop the scenario's obstacles (path-difference runs)
+    clutter: ClutterSchema = field(default_factory=ClutterSchema)
+
+    def __post_init__(self):
+        _check(self.seed >= 0, "seed", "an integer >= 0", self.seed)
+        _nonneg("settle_time", self.settle_time)
+        sim = self.sim
+        _check(_finite(sim.substep) and 0 < sim.substep <= 0.1, "sim.substep", "in (0, 0.1] s",
+               sim.substep)
+        _check(_finite(sim.gravity), "sim.gravity", "finite", sim.gravity)
+        _positive("sim.max_joint_force", sim.max_joint_force)
+        ratio = self.scenario.dt / sim.substep
+        _check(abs(ratio - round(ratio)) <= 1e-6 * max(1.0, ratio), "scenario.dt",
+               f"a multiple of sim.substep = {sim.substep:g} s", self.scenario.dt)
+        _check(round(ratio) <= MAX_SUBSTEPS_PER_STEP, "scenario.dt / sim.substep",
+               f"at most {MAX_SUBSTEPS_PER_STEP} physics substeps per control period",
+               round(ratio))
+
+
+@dataclass
+class PumaSchema:
+    """The PUMA primitive and its training (``conf/puma/*.yaml``)."""
+
+    orientation: bool = True         # R3 x S3 (false: position only)
+    order: int = 2                   # 2: acceleration model; 1: velocity model
+    dt: float = 0.03                 # model step [s]
+    smoothing: float = 0.0           # Gaussian smoothing of the demonstrations [samples]
+    hold: int = 10                   # rest samples appended on the goal per demonstration
+    network: NetConfig = field(default_factory=NetConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+
+    def __post_init__(self):
+        _check(self.order in (1, 2), "puma.order", "1 or 2", self.order)
+        _check(_finite(self.dt) and 0 < self.dt <= 1.0, "puma.dt", "in (0, 1] s", self.dt)
+        _nonneg("puma.smoothing", self.smoothing)
+        _check(0 <= self.hold <= 10_000, "puma.hold", "in [0, 10000]", self.hold)
+
+
+@dataclass
+class TrainRunConfig:
+    """One training (``conf/train.yaml``): ``python -m tamedpuma.train``."""
+
+    task: TaskSchema = MISSING
+    puma: PumaSchema = field(default_factory=PumaSchema)
+    seed: int = 0
+    out_dir: str = MISSING           # checkpoint puma.pt and report.json go here
+    overwrite: bool = False          # replace an existing checkpoint in out_dir
+    save_every: int = 100            # save the resumable state every N iterations (0: never)
+    evaluate: bool = True            # evaluate after training (stored in the checkpoint)
+    progress: bool = True            # progress bar with the losses
+    bench_out: str | None = None  # if set, also write a benchmark summary JSON there
+
+    def __post_init__(self):
+        _check(self.seed >= 0, "seed", "an integer >= 0", self.seed)
+        _check(self.save_every >= 0, "save_every", "an integer >= 0", self.save_every)
+
+
+# ----------------------------------------------------------------------------- merging
+
+
+def _writable(node) -> None:
+    """Structured nodes of frozen dataclasses are read-only: let YAML values merge into them."""
+    OmegaConf.set_readonly(node, False)
+    if isinstance(node, DictConfig):
+        for key in node.keys():
+            child = node._get_node(key)
+            if isinstance(child, (DictConfig, ListConfig)):
+                _writable(child)
+    elif isinstance(node, ListConfig):
+        for child in node._iter_ex(resolve=False):
+            if isinstance(child, (DictConfig, ListConfig)):
+                _writable(child)
+
+
+def _one_line(exc: Exception) -> str:
+    return " ".join(str(exc).splitlines()[0].split())
+
+
+def typed(schema: type, cfg, where: str = ""):
+    """``cfg`` (a mapping or DictConfig) merged into ``schema`` and built: an instance of
+    ``schema``. A wrong type, unknown key, missing value or out-of-range value raises
+    :class:`ConfigError` naming the key (prefixed by ``where``)."""
+    base = OmegaConf.structured(schema)
+    _writable(base)
+    try:
+        merged = OmegaConf.merge(base, cfg)
+        return OmegaConf.to_object(merged)
+    except ConfigError:
+        raise
+    except OmegaConfBaseException as exc:
+        cause = exc.__cause__ or exc.__context__
+        if isinstance(cause, ConfigError):
+            raise cause from None
+        if isinstance(cause, (ValueError, TypeError)) and not isinstance(
+                cause, OmegaConfBaseException):  # a library dataclass's own check
+            raise ConfigError(" ".join(str(cause).split())) from None
+        key = getattr(exc, "full_key", None) or ""
+        prefix = ".".join(k for k in (where, key) if k)
+        text = _one_line(exc)
+        if "not in" in text and key:
+            text = f"unknown key (misspelt?): {text}"
+        raise ConfigError(f"{prefix}: {text}" if prefix else text) from None
+    except (TypeError, ValueError) as exc:  # a library dataclass's own check
+        raise ConfigError(f"{where}: {_one_line(exc)}" if where else _one_line(exc)) from None
+
+
+def method_options(cfg) -> MethodSchema:
+    """A method config checked against its method's dataclass (:data:`METHODS`)."""
+    if "name" not in cfg:
+        raise ConfigError("method.name is not set")
+    name = str(cfg["name"])
+    if name not in METHODS:
+        raise ConfigError(f"unknown method {name!r}; choose one of {sorted(METHODS)}")
+    return typed(METHODS[name], cfg, "method")
+
+
+def run_config(cfg) -> RunConfig:
+    """The whole run config (resolved), typed and range-checked."""
+    if not isinstance(cfg, DictConfig):
+        cfg = OmegaConf.create(cfg)
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    method = method_options(plain.get("method") or {})
+    run = typed(RunConfig, {**plain, "method": {}})
+    run.method = method
+    return run
+
+
+def train_config(cfg) -> TrainRunConfig:
+    """The whole training config (resolved), typed and range-checked."""
+    if not isinstance(cfg, DictConfig):
+        cfg = OmegaConf.create(cfg)
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    plain.pop("command", None)
+    return typed(TrainRunConfig, plain)
+
+
+def as_dict(obj) -> dict:
+    """A typed config object as a plain dict (tuples as lists), e.g. for a method's ``make``."""
+    def plain(v):
+        if isinstance(v, dict):
+            return {k: plain(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        return v
+    return plain(dataclasses.asdict(obj))
 
 
 def validate(cfg) -> None:
-    """Raise :class:`ConfigError` naming the key if a fixed group has a wrong type or key."""
-    for group, schema in _GROUPS.items():
-        if group not in cfg:
-            continue
-        try:
-            OmegaConf.merge(OmegaConf.structured(schema), cfg[group])
-        except OmegaConfBaseException as exc:
-            key = getattr(exc, "full_key", None) or "?"
-            message = str(exc).splitlines()[0]
-            raise ConfigError(f"{group}.{key}: {message}") from None
-    for key, kind in _TOP.items():
-        if key in cfg:
-            value = cfg[key]
-            kinds = kind if isinstance(kind, tuple) else (kind,)
-            ok = isinstance(value, kinds) and not (bool not in kinds and isinstance(value, bool))
-            if not ok:
-                what = " or ".join(k.__name__ for k in kinds)
-                raise ConfigError(f"{key} must be {what}, got {value!r}")
-    if "settle_time" in cfg and not cfg["settle_time"] >= 0:
-        raise ConfigError(f"settle_time must be >= 0 s, got {cfg['settle_time']!r}")
+    """Raise :class:`ConfigError` naming the key if any value has a wrong type, an unknown key or
+    is out of range (the run config)."""
+    run_config(cfg)
+
+
+def _node(schema: type):
+    node = OmegaConf.structured(schema)
+    _writable(node)
+    return node
+
+
+def register() -> None:
+    """Register the schemas in Hydra's ConfigStore: ``tamedpuma_sweep`` and ``tamedpuma_train``
+    head the defaults lists of ``conf/sweep.yaml`` and ``conf/train.yaml`` (so every schema key
+    exists in the composed config with its default, and the YAML overrides it),
+    ``tamedpuma_method/<name>`` are the method option groups."""
+    from hydra.core.config_store import ConfigStore
+
+    store = ConfigStore.instance()
+    store.store(name="tamedpuma_sweep", node=_node(RunConfig))
+    store.store(name="tamedpuma_train", node=_node(TrainRunConfig))
+    for name, schema in METHODS.items():
+        store.store(group="tamedpuma_method", name=name, node=_node(schema))
+
+
+register()

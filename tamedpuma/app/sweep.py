@@ -6,21 +6,34 @@ One episode by default (``conf/sweep.yaml``); Hydra's multirun sweeps the groups
 
 Each run folder holds ``episode.mcap`` (Foxglove), ``episode.rrd`` (Rerun), ``summary.json`` and
 Hydra's ``.hydra/`` (the resolved config and the overrides). The entry point is the only place
-that imports Hydra; a user mistake (unknown option, malformed override, bad scenario, unwritable
-output folder) prints one line ``error: ...`` on stderr and exits with status 2.
+that imports Hydra; a user mistake (unknown option, malformed override, a value out of range,
+unwritable output folder) prints one line ``error: ...`` on stderr and exits with status 2.
+
+Inside a multirun (``-m``) a run's failure is that run's alone: a user error (e.g. a missing
+checkpoint) or an exception is written to the run folder's ``summary.json`` (``"status":
+"failed"``, the reason, and ``failure.txt`` with the traceback) and the sweep goes on; a
+controller returning NaN/inf ends its episode with ``stop_reason: nonfinite_command``. At the end
+the sweep prints how many runs completed, were skipped or failed, and exits with status 1 if any
+failed. Re-running a sweep into existing folders (fixed ``hydra.sweep.subdir``, e.g. Table 1)
+skips every run whose ``summary.json`` says complete and reruns the missing, incomplete and failed
+ones (an interrupted attempt's files are kept in ``previous_attempt/``).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
+import shutil
 import signal
 import sys
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from tamedpuma.app.cli import fail, precheck_overrides
@@ -30,46 +43,33 @@ from tamedpuma.errors import ConfigError, TamedPumaError
 log = logging.getLogger("tamedpuma.sweep")
 
 
-def _recorders(cfg: DictConfig, run_dir: Path):
-    from tamedpuma.recording.mcap_writer import McapRecorder
-    from tamedpuma.recording.rerun_writer import RerunRecorder
-
-    recorders, files = [], {}
-    if cfg.recorder.mcap:
-        files["mcap"] = run_dir / "episode.mcap"
-        recorders.append(McapRecorder(files["mcap"], flush_every=int(cfg.recorder.flush_every)))
-    if cfg.recorder.rerun:
-        files["rrd"] = run_dir / "episode.rrd"
-        recorders.append(RerunRecorder(files["rrd"]))
-    return recorders, files
-
-
 @dataclass(frozen=True)
 class Built:
     """Everything one episode needs, built from the config before anything runs."""
 
+    run: object          # the typed config (tamedpuma.app.schema.RunConfig)
     spec: object
     scenario: object
     controller: object
     sim_config: object
-    disturbance: object = None
+    disturbance: object
     model: object = None  # the trained model the method uses (store.ModelChoice) or None
 
 
 def build(cfg: DictConfig) -> Built:
-    """Config -> robot, scenario, controller, simulator settings. Any invalid value (wrong type,
-    missing key, bad number) becomes a :class:`ConfigError` with a one-line message."""
+    """Config -> typed config (:func:`tamedpuma.app.schema.run_config`: types, unknown keys and
+    ranges checked) -> robot, scenario, controller, simulator settings. Any invalid value becomes
+    a :class:`ConfigError` with a one-line message."""
     from tamedpuma import methods
-    from tamedpuma.app.schema import validate
+    from tamedpuma.app.schema import as_dict, run_config
     from tamedpuma.puma import store
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
     from tamedpuma.worlds import demo_scenarios
-    from tamedpuma.worlds.bullet import Disturbance, SimConfig
     from tamedpuma.worlds.scenarios import build_scenario
 
-    validate(cfg)
+    run = run_config(cfg)
     try:
-        plain = OmegaConf.to_container(cfg, resolve=True)
+        plain = as_dict(run)
         spec = robot_spec_from_config(plain["robot"])
         kinematics = Kinematics(spec)
         plain = demo_scenarios.apply(plain, kinematics)  # derived goal, generated scenario
@@ -82,27 +82,52 @@ def build(cfg: DictConfig) -> Built:
         model = store.resolve_for_method(plain["method"])
         if model is not None:  # the method loads exactly the file that is recorded
             plain["method"]["checkpoint"] = str(model.path)
-        controller = methods.make(cfg.method.name, plain["method"], kinematics)
-        sim_config = SimConfig(**plain["sim"])
-        disturbance = Disturbance(**(plain.get("disturbance") or {}))
+        controller = methods.make(run.method.name, plain["method"], kinematics)
+        sim_config, disturbance = run.sim, run.disturbance
     except TamedPumaError:
         raise
     except (ValueError, TypeError, KeyError) as exc:
         raise ConfigError(f"invalid configuration: {type(exc).__name__}: {exc}") from exc
-    return Built(spec, scenario, controller, sim_config, disturbance, model)
+    return Built(run, spec, scenario, controller, sim_config, disturbance, model)
+
+
+EPISODE_FILES = ("episode.mcap", "episode.rrd", "summary.json", "failure.txt")
+
+
+def _finite_json(value):
+    """``value`` with every NaN/±inf float replaced by None (strict JSON)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_json(v) for v in value]
+    return value
+
+
+def write_summary(run_dir: Path, summary: dict) -> Path:
+    """``run_dir/summary.json``: strict JSON (non-finite numbers as null), written atomically."""
+    path = run_dir / "summary.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(_finite_json(summary), indent=2, allow_nan=False) + "\n")
+    tmp.replace(path)
+    return path
 
 
 def run_one(cfg: DictConfig, run_dir: Path) -> dict:
     """Config -> scenario -> controller -> simulator -> recorders -> files. Returns the summary."""
     from tamedpuma.episode import run_episode
+    from tamedpuma.recording import make_recorders, recorder_files
     from tamedpuma.recording.records import RunInfo
     from tamedpuma.worlds.bullet import Simulator
 
     built = build(cfg)
-    spec, scenario = built.spec, built.scenario
-    recorders, files = _recorders(cfg, run_dir)
-    info = RunInfo(run_id=run_dir.name, method=cfg.method.name, task=cfg.task.name,
-                   scenario_name=scenario.name, seed=int(cfg.seed),
+    run, spec, scenario = built.run, built.spec, built.scenario
+    kinds = [k for k in ("mcap", "rerun") if getattr(run.recorder, k)]
+    recorders = make_recorders(kinds, run_dir, flush_every=run.recorder.flush_every)
+    files = recorder_files(kinds, run_dir)
+    info = RunInfo(run_id=run_dir.name, method=run.method.name, task=run.task.name,
+                   scenario_name=scenario.name, seed=run.seed,
                    config_yaml=OmegaConf.to_yaml(cfg, resolve=True), urdf_path=spec.urdf_path,
                    joint_names=spec.joint_names, link_names=spec.link_names,
                    body_sphere_radii=spec.sphere_radii, dt=scenario.dt,
@@ -110,11 +135,10 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                    model=built.model.metadata() if built.model else {})
     with Simulator(spec, built.sim_config, built.disturbance) as sim:
         result = run_episode(scenario, built.controller, sim, recorders, info,
-                             stop_on_success=bool(cfg.stop_on_success),
-                             settle_time=float(cfg.get("settle_time", 0.0)))
-    summary = {"run_dir": str(run_dir), "method": cfg.method.name,
-               "method_label": method_label(cfg.method), "task": cfg.task.name,
-               "scenario": scenario.name, "seed": int(cfg.seed),
+                             stop_on_success=run.stop_on_success, settle_time=run.settle_time)
+    summary = {"status": "complete", "run_dir": str(run_dir), "method": run.method.name,
+               "method_label": run.method.label or run.method.name, "task": run.task.name,
+               "scenario": scenario.name, "seed": run.seed,
                "n_obstacles": len(scenario.obstacles),
                "disturbance": built.disturbance.name or built.disturbance.kind,
                "control": built.sim_config.control,
@@ -123,7 +147,7 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                "model": built.model.metadata() if built.model else None,
                # every step's controller time [ms] (pooled statistics across runs)
                "step_compute_ms": [round(float(v), 5) for v in result.compute_ms]}
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_summary(run_dir, summary)
     return summary
 
 
@@ -131,6 +155,62 @@ def method_label(method_cfg) -> str:
     """The name a method's runs carry in tables: ``label`` if the method config sets one (e.g.
     ``cpm_literal``), else its ``name``."""
     return str(method_cfg.get("label") or method_cfg.name)
+
+
+def run_state(run_dir: Path) -> str:
+    """'complete' (its summary.json says so), 'failed', 'incomplete' (files but no complete
+    summary: killed or interrupted) or 'missing'."""
+    path = run_dir / "summary.json"
+    if path.is_file():
+        try:
+            status = json.loads(path.read_text()).get("status", "complete")
+        except (OSError, ValueError):
+            return "incomplete"
+        return "complete" if status == "complete" else "failed"
+    if any((run_dir / name).exists() or (run_dir / f"{name}.active").exists()
+           for name in EPISODE_FILES):
+        return "incomplete"
+    return "missing"
+
+
+def _set_aside(run_dir: Path) -> None:
+    """Move an earlier attempt's files into ``run_dir/previous_attempt/`` (replacing an older
+    one), so a rerun writes fresh files and nothing recorded is deleted."""
+    old = [p for name in EPISODE_FILES for p in (run_dir / name, run_dir / f"{name}.active")
+           if p.exists()]
+    if not old:
+        return
+    keep = run_dir / "previous_attempt"
+    shutil.rmtree(keep, ignore_errors=True)
+    keep.mkdir()
+    for p in old:
+        p.replace(keep / p.name)
+
+
+def record_failure(cfg: DictConfig, run_dir: Path, exc: BaseException) -> dict:
+    """Write a failed run's ``summary.json`` (status, reason) and ``failure.txt`` (traceback)."""
+    user_error = isinstance(exc, TamedPumaError)
+    reason = " ".join(str(exc).split()) or type(exc).__name__
+    summary = {"status": "failed", "failure": "user_error" if user_error else "exception",
+               "error_type": type(exc).__name__, "reason": reason, "run_dir": str(run_dir),
+               "method": OmegaConf.select(cfg, "method.name", default=None),
+               "method_label": OmegaConf.select(cfg, "method.label", default=None)
+               or OmegaConf.select(cfg, "method.name", default=None),
+               "task": OmegaConf.select(cfg, "task.name", default=None),
+               "scenario": OmegaConf.select(cfg, "scenario.name", default=None),
+               "seed": OmegaConf.select(cfg, "seed", default=None)}
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "failure.txt").write_text(
+            "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)))
+        write_summary(run_dir, summary)
+    except OSError as write_error:  # the failure itself could not be recorded: say so
+        print(f"error: cannot record the failure in {run_dir}: {write_error}", file=sys.stderr)
+    return summary
+
+
+#: outcome of each job of this process's multirun: (run_dir, 'complete'|'skipped'|'failed', why)
+_OUTCOMES: list[tuple[str, str, str]] = []
 
 
 def _report(summary: dict) -> None:
@@ -160,14 +240,58 @@ def _report(summary: dict) -> None:
     print(f"replay: python -m tamedpuma.replay {m['run_dir']}")
 
 
+def _partial_log_line(run_dir: Path) -> str:
+    files = sorted(str(p) for p in run_dir.glob("episode.*") if p.is_file())
+    where = ", ".join(files) if files else f"nothing was written in {run_dir}"
+    return (f"interrupted: partial log (incomplete) in {where}; "
+            "recover an .mcap.active with tamedpuma.recording.recover_mcap")
+
+
 @hydra.main(config_path=str(CONF_DIR), config_name="sweep", version_base="1.3")
 def _hydra_main(cfg: DictConfig) -> None:
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    hydra_cfg = HydraConfig.get()
+    run_dir = Path(hydra_cfg.runtime.output_dir)
+    multirun = hydra_cfg.mode == RunMode.MULTIRUN
+    if multirun:
+        state = run_state(run_dir)
+        if state == "complete":
+            _OUTCOMES.append((str(run_dir), "skipped", "already complete"))
+            print(f"skipped (already complete): {run_dir}")
+            return
+        _set_aside(run_dir)
     try:
         summary = run_one(cfg, run_dir)
-    except TamedPumaError as exc:
-        fail(str(exc))
+    except (KeyboardInterrupt, SystemExit) as exc:
+        if isinstance(exc, SystemExit) and exc.code in (0, None):
+            raise
+        print(_partial_log_line(run_dir), file=sys.stderr)
+        raise
+    except Exception as exc:  # noqa: BLE001 - a sweep survives its worst run
+        if not multirun:
+            if isinstance(exc, TamedPumaError):
+                fail(str(exc))
+            raise
+        failure = record_failure(cfg, run_dir, exc)
+        _OUTCOMES.append((str(run_dir), "failed", failure["reason"]))
+        print(f"error: run failed ({failure['failure']}): {failure['reason']} "
+              f"[recorded in {run_dir / 'summary.json'}]", file=sys.stderr)
+        return
+    if multirun:
+        failed = summary["stop_reason"] == "nonfinite_command"
+        _OUTCOMES.append((str(run_dir), "failed" if failed else "complete",
+                          "controller returned NaN/inf" if failed else ""))
     _report(summary)
+
+
+def _sweep_report() -> int:
+    """Print the multirun's counts and failed runs; 1 if any run failed, else 0."""
+    counts = {k: sum(1 for o in _OUTCOMES if o[1] == k) for k in ("complete", "skipped", "failed")}
+    print(f"sweep: {len(_OUTCOMES)} runs: {counts['complete']} executed and complete, "
+          f"{counts['skipped']} skipped (already complete), {counts['failed']} failed")
+    for run_dir, outcome, why in _OUTCOMES:
+        if outcome == "failed":
+            print(f"  failed: {run_dir}: {why}")
+    return 1 if counts["failed"] else 0
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -177,7 +301,13 @@ def main(argv: list[str] | None = None) -> None:
     error = precheck_overrides("sweep", argv)
     if error:
         fail(error)
-    _hydra_main()
+    _OUTCOMES.clear()
+    try:
+        _hydra_main()
+    except KeyboardInterrupt:
+        sys.exit(130)  # the job printed where its partial log is
+    if _OUTCOMES:
+        sys.exit(_sweep_report())
 
 
 if __name__ == "__main__":

@@ -24,7 +24,9 @@ def _one_line(exc: BaseException) -> str:
 
 
 def compose(config_name: str, overrides: list[str]) -> dict:
-    """Hydra compose of ``conf/<config_name>.yaml`` → plain dict; Hydra errors → ConfigError."""
+    """Hydra compose of ``conf/<config_name>.yaml`` → plain dict; Hydra errors → ConfigError.
+    A training config is checked against the schema (types, unknown keys, ranges) and comes
+    back complete (every key, schema defaults filled in)."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
@@ -38,6 +40,10 @@ def compose(config_name: str, overrides: list[str]) -> dict:
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             cfg = hydra_compose(config_name=config_name, overrides=overrides)
+            if config_name == "train":
+                from tamedpuma.app.schema import as_dict, train_config
+
+                return as_dict(train_config(cfg))
             return OmegaConf.to_container(cfg, resolve=True)
     except (HydraException, OmegaConfBaseException) as exc:
         raise ConfigError(_one_line(exc)) from None
@@ -68,14 +74,16 @@ def evaluate_checkpoint(path: str, overrides: list[str]) -> dict:
     from tamedpuma.puma import checkpoint, evaluation, pipeline
 
     net, meta = checkpoint.load(pipeline.resolve_path(path))
-    cfg = meta.config
+    from tamedpuma.app.schema import as_dict, train_config
+
+    cfg = as_dict(train_config({k: v for k, v in meta.config.items() if k != "command"}))
     if overrides:
         raise ConfigError("--evaluate takes no overrides")
     demos = pipeline.load_demos(cfg["task"], cfg["puma"])
     if demos.data_hash != meta.data_hash:
         raise ConfigError(f"the configured demonstrations ({demos.source}) differ from the "
                           "checkpoint's training data (hash mismatch)")
-    eval_kw = dict(cfg["puma"].get("eval", {}))
+    eval_kw = dict(cfg["puma"]["eval"])
     stored = (meta.report.get("evaluation") or {}).get("convergence") or {}
     eval_kw.update({k: stored[k] for k in ("pos_tol", "ang_tol") if k in stored})
     eval_cfg = evaluation.EvalConfig(**eval_kw)

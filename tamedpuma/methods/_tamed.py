@@ -52,13 +52,13 @@ class PumaController:
 def damping_rule(cfg: Mapping) -> Damping:
     """The pseudo-inverse damping of a method config: ``pinv_damping`` λ₀, ``pinv_damping_max``
     λ_max (0: constant λ₀), ``manipulability_threshold`` w₀ (see :mod:`tamedpuma.methods.puma`)."""
-    return Damping(float(cfg["pinv_damping"]), float(cfg.get("pinv_damping_max", 0.0)),
-                   float(cfg.get("manipulability_threshold", 0.02)))
+    return Damping(float(cfg["pinv_damping"]), float(cfg["pinv_damping_max"]),
+                   float(cfg["manipulability_threshold"]))
 
 
 def feed_goal_velocity(cfg: Mapping) -> bool:
     """``goal_velocity: feedforward`` (True) or ``ignore`` (False) of a method config."""
-    mode = str(cfg.get("goal_velocity", "feedforward"))
+    mode = str(cfg["goal_velocity"])
     if mode not in ("feedforward", "ignore"):
         raise ConfigError(f"method.goal_velocity must be 'feedforward' or 'ignore', got {mode!r}")
     return mode == "feedforward"
@@ -125,10 +125,7 @@ class ControlRate:
         unknown = sorted(set(cfg) - keys)
         if unknown:
             raise ConfigError(f"unknown method.control_rate keys {unknown}")
-        rate = ControlRate(bool(cfg.get("barrier_step", False)), float(cfg.get("kappa", 0.5)),
-                           bool(cfg.get("speed_limit", False)),
-                           bool(cfg.get("semi_implicit", False)), bool(cfg.get("ground", False)),
-                           float(cfg.get("ground_height", 0.0)))
+        rate = ControlRate(**cfg)  # missing keys: the dataclass defaults
         if not 0.0 < rate.kappa < 1.0:
             raise ConfigError(f"method.control_rate.kappa must be in (0, 1), got {rate.kappa}")
         return rate
@@ -164,7 +161,7 @@ def bounded_alpha(alpha: float, alpha_min: float | None) -> float:
 
 def alpha_floor(cfg: Mapping) -> float | None:
     """α_min of a method config: ``energization: exact`` → None, ``bounded`` → −alpha_bound."""
-    mode = str(cfg.get("energization", "exact"))
+    mode = str(cfg["energization"])
     if mode not in ("exact", "bounded"):
         raise ConfigError(f"method.energization must be 'exact' or 'bounded', got {mode!r}")
-    return -abs(float(cfg.get("alpha_bound", 20.0))) if mode == "bounded" else None
+    return -abs(float(cfg["alpha_bound"])) if mode == "bounded" else None

@@ -77,10 +77,9 @@ class CpmController:
     eps: ε [(rad/s)²] of the regulator's denominator; variant: 'paper' or 'original';
     regulator_scale: factor on the ψ term (1 in the paper, 0.05 in the original code)."""
 
-    def __init__(self, puma: PumaController, fabric: Fabric, beta: float, eps: float = 1e-6,
-                 variant: str = "paper", regulator_scale: float = 1.0,
-                 potential_scale: float = 1.0, damping: str = "constant",
-                 semi_implicit: bool = True, alpha_min: float | None = None,
+    def __init__(self, puma: PumaController, fabric: Fabric, *, beta: float, eps: float,
+                 variant: str, regulator_scale: float, potential_scale: float, damping: str,
+                 semi_implicit: bool, alpha_min: float | None = None,
                  rate: ControlRate | None = None):
         if variant not in VARIANTS:
             raise ConfigError(f"cpm variant must be one of {VARIANTS}, got {variant!r}")
@@ -149,15 +148,16 @@ class CpmController:
 
 
 def make(cfg: Mapping, kinematics) -> CpmController:
+    """``cfg``: a complete cpm config (every key of ``CpmMethod`` in ``app/schema.py``)."""
     puma, fabric = puma_and_fabric(cfg, kinematics)
-    variant = str(cfg.get("variant", "paper"))
-    rate = ControlRate.from_mapping(cfg.get("control_rate"))
-    if variant == "original":
-        return CpmController(puma, fabric, beta=0.0, eps=float(cfg.get("eps", 1e-6)),
-                             variant=variant, regulator_scale=0.05, rate=rate)
-    return CpmController(puma, fabric, beta=float(cfg["beta"]), eps=float(cfg.get("eps", 1e-6)),
-                         variant=variant, regulator_scale=float(cfg.get("regulator_scale", 1.0)),
-                         potential_scale=float(cfg.get("potential_scale", 1.0)),
-                         damping=str(cfg.get("damping", "constant")),
-                         semi_implicit=bool(cfg.get("semi_implicit", True)),
+    rate = ControlRate.from_mapping(cfg["control_rate"])
+    if cfg["variant"] == "original":  # the authors' code: no energization, β = 0, ψ × 0.05
+        return CpmController(puma, fabric, beta=0.0, eps=float(cfg["eps"]), variant="original",
+                             regulator_scale=0.05, potential_scale=1.0, damping="constant",
+                             semi_implicit=bool(cfg["semi_implicit"]), rate=rate)
+    return CpmController(puma, fabric, beta=float(cfg["beta"]), eps=float(cfg["eps"]),
+                         variant=str(cfg["variant"]),
+                         regulator_scale=float(cfg["regulator_scale"]),
+                         potential_scale=float(cfg["potential_scale"]),
+                         damping=str(cfg["damping"]), semi_implicit=bool(cfg["semi_implicit"]),
                          alpha_min=alpha_floor(cfg), rate=rate)

@@ -94,7 +94,7 @@ def gains_from_config(cfg: Mapping | None) -> FabricGains:
     unknown = sorted(set(cfg) - _KEYS)
     if unknown:
         raise ConfigError(f"unknown keys {unknown} in method fabrics; known: {sorted(_KEYS)}")
-    if cfg.get("name", "fabrics") != "fabrics":
+    if cfg.get("name") not in (None, "fabrics"):
         raise ConfigError(f"method config is for {cfg['name']!r}, not 'fabrics'")
     return FabricGains.from_mapping(cfg.get("fabric"))
 

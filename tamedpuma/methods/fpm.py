@@ -65,4 +65,4 @@ class FpmController:
 
 def make(cfg: Mapping, kinematics) -> FpmController:
     return FpmController(*puma_and_fabric(cfg, kinematics), alpha_floor(cfg),
-                         ControlRate.from_mapping(cfg.get("control_rate")))
+                         ControlRate.from_mapping(cfg["control_rate"]))

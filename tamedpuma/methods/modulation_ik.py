@@ -52,13 +52,13 @@ import numpy as np
 from tamedpuma.errors import CheckpointError, ConfigError
 from tamedpuma.ik_solvers import BACKENDS, IKProblem, solve_ik, warm_up
 from tamedpuma.methods._modulation import modulate
+from tamedpuma.paths import resolve
 from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
 
 log = logging.getLogger(__name__)
 
-_REPO = Path(__file__).resolve().parents[2]
 
 
 class VelocityField(Protocol):
@@ -224,10 +224,7 @@ def _exp_so3(omega: np.ndarray) -> np.ndarray:
 
 
 def _resolve(path: str) -> Path:
-    p = Path(path).expanduser()
-    if p.is_absolute() or p.exists():
-        return p
-    return _REPO / p
+    return resolve(path)
 
 
 def _train_hint(cfg: Mapping, path: str) -> str:

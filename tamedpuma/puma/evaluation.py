@@ -11,14 +11,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 
 from . import dynamics, manifold
 from .data import Demonstrations
 from .network import PumaNet, potential
+from .settings import EvalConfig
 from .training import Workspace
 
 
@@ -88,18 +87,6 @@ def imitation_metrics(net: PumaNet, demos: Demonstrations) -> dict:
     return out
 
 
-@dataclass(frozen=True)
-class EvalConfig:
-    """Evaluation settings: starts, horizon [s], tolerances [unit, rad], compatibility samples."""
-
-    random_starts: int = 1000
-    horizon: float = 40.0
-    pos_tol: float = 0.01
-    ang_tol: float = 0.05
-    compat_samples: int = 2000
-    compat_min_dist: float = 0.02
-    seed: int = 12345
-    chunk: int = 1000
 
 
 def convergence(net: PumaNet, ws: Workspace, dt: float, cfg: EvalConfig) -> dict:

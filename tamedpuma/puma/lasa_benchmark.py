@@ -27,11 +27,11 @@ def grid_starts(ws, grid: int) -> np.ndarray:
 def run_shape(cfg: dict, shape: str, grid: int, log=print) -> dict:
     """Train and evaluate one shape; returns one table row."""
     cfg = {**cfg, "task": {**cfg["task"], "shape": shape},
-           "out_dir": str(Path(cfg.get("out_dir", "runs/lasa")) / shape)}
+           "out_dir": str(Path(cfg["out_dir"]) / shape)}
     report = pipeline.run(cfg, log=log)
     net, meta = checkpoint.load(report["checkpoint"])
     ev = report["evaluation"]
-    eval_cfg = evaluation.EvalConfig(**{**cfg["puma"].get("eval", {}),
+    eval_cfg = evaluation.EvalConfig(**{**cfg["puma"]["eval"],
                                         "pos_tol": ev["convergence"]["pos_tol"]})
     conv = evaluation.convergence_from(net, grid_starts(meta.workspace, grid), None, meta.dt,
                                        eval_cfg)
@@ -67,20 +67,20 @@ def markdown(rows: list[dict], note: str = "") -> str:
 def run(cfg: dict, log=print) -> list[dict]:
     """All configured shapes; writes the Markdown table and a JSON beside it after each shape."""
     task = cfg["task"]
-    shapes = task.get("shapes", "all")
+    shapes = task["shapes"]
     names = data.lasa_names() if shapes in ("all", None) else [str(s) for s in shapes]
     known = set(data.lasa_names())
     bad = [s for s in names if s not in known]
     if bad:
         raise data.DataError(f"unknown LASA shape(s) {', '.join(bad)}")
-    table = pipeline.resolve_path(str(task.get("table", "benchmarks/lasa.md")))
+    table = pipeline.resolve_path(str(task["table"]))
     table.parent.mkdir(parents=True, exist_ok=True)
     rows, t0 = [], time.perf_counter()
     for name in names:
-        rows.append(run_shape(cfg, name, int(task.get("grid", 20)), log=log))
+        rows.append(run_shape(cfg, name, int(task["grid"]), log=log))
         p = cfg["puma"]
         note = (f"Second-order 2-D PUMA, {p['train']['iterations']} iterations, width "
-                f"{p['network']['width']}, seed {cfg.get('seed', 0)}; every {task.get('every')}th "
+                f"{p['network']['width']}, seed {cfg['seed']}; every {task.get('every')}th "
                 f"sample; a rollout converges when it ends within 1% of its shape's workspace size "
                 f"({min(r['pos_tol'] for r in rows):.2g}-{max(r['pos_tol'] for r in rows):.2g} mm) "
                 f"after {p['eval']['horizon']} s; {len(rows)}/{len(names)} shapes done in "

@@ -34,6 +34,7 @@ import torch
 from torch import nn
 
 from . import manifold
+from .settings import NetConfig
 
 
 @dataclass(frozen=True)
@@ -59,14 +60,6 @@ class StateSpec:
             self.tangent_dim if self.order == 2 else 0)
 
 
-@dataclass(frozen=True)
-class NetConfig:
-    """Widths of the network: hidden ``width``, latent ``latent_dim``."""
-
-    width: int = 128
-    latent_dim: int = 64
-    pin_goal: bool = True
-    skip: float = 1.0
 
 
 class PumaNet(nn.Module):

@@ -7,6 +7,7 @@ The entry points (``tamedpuma.train``, ``tamedpuma.lasa``) compose the config wi
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import asdict, fields
 from pathlib import Path
@@ -14,11 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
+from ..paths import resolve
 from . import checkpoint, data, demo_formats, demos_synthetic, evaluation, task_from_demos
 from .network import NetConfig, StateSpec
 from .training import TrainConfig, Workspace, train
-
-REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def _dataclass(cls, d: dict | None, where: str):
@@ -35,11 +35,9 @@ def _dataclass(cls, d: dict | None, where: str):
 
 
 def resolve_path(p: str) -> Path:
-    """Absolute, else relative to the working directory if it exists there, else the repo root."""
-    path = Path(p).expanduser()
-    if path.is_absolute() or path.exists():
-        return path
-    return REPO_ROOT / path
+    """A configured path (see :func:`tamedpuma.paths.resolve`: working directory, then the
+    package)."""
+    return resolve(p)
 
 
 def _require(cfg: dict, key: str, where: str):
@@ -54,11 +52,11 @@ def load_raws(task: dict, puma: dict) -> tuple[list[data.RawDemo], str, str]:
     name = _require(task, "name", "task")
     src = task.get("demos")
     if src is None:
-        syn = task.get("synthetic") or {}
+        syn = task["synthetic"]
         raws = demos_synthetic.generate(str(syn.get("kind", name)),
                                         _require(task, "goal_position", "task"),
                                         _require(task, "goal_quaternion", "task"),
-                                        int(syn.get("n_demos", 10)), int(syn.get("seed", 0)))
+                                        int(syn["n_demos"]), int(syn["seed"]))
         return raws, f"synthetic:{name}", "m"
     if src == "lasa":
         shape = str(_require(task, "shape", "task"))
@@ -102,11 +100,11 @@ def workspace_of(task: dict, demos: data.Demonstrations) -> Workspace:
     if ws == "derived":
         raise ConfigError("task.workspace 'derived' needs task.derive=true")
     if ws is None:
-        return Workspace.around(demos, float(task.get("margin", 0.1)))
+        return Workspace.around(demos, float(task["margin"]))
     try:
         return Workspace(tuple(float(v) for v in ws["position_low"]),
                          tuple(float(v) for v in ws["position_high"]),
-                         float(ws.get("max_angle", 0.0)))
+                         float(ws["max_angle"]))
     except (KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f"invalid task.workspace ({exc}); needs position_low, position_high, "
                           "max_angle") from None
@@ -140,6 +138,63 @@ def scenario_starts(task: dict) -> list[tuple[str, np.ndarray, np.ndarray, np.nd
         raise ConfigError(f"task.workspace_check.robot: {exc}") from None
     out = []
     for f in files:
+STATE_FILE = "train_state.pt"  # a training's resumable state, removed when it finishes
+
+
+def prepare_out_dir(out_dir: Path, overwrite: bool) -> Path:
+    """Check ``out_dir`` before the first iteration: an existing ``puma.pt`` is refused unless
+    ``overwrite``; the folder must be writable. Returns the checkpoint path."""
+    path = out_dir / "puma.pt"
+    if path.exists() and not overwrite:
+        raise ConfigError(f"{path} exists: pass overwrite=true to replace it, or choose another "
+                          "out_dir")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        probe = out_dir / f".write-test-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"output folder {out_dir} is not writable: "
+                          f"{exc.strerror or exc}") from None
+    return path
+
+
+def _resumable(out_dir: Path, cfg: dict, overwrite: bool, log) -> dict | None:
+    """The saved state of a killed training of the same config in ``out_dir``, if any."""
+    import torch
+
+    path = out_dir / STATE_FILE
+    if not path.exists():
+        return None
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # a state cut short by the kill itself: start over
+        log(f"ignoring an unreadable {path} ({type(exc).__name__}); training from the start")
+        return None
+    if saved.get("config") != _training_part(cfg):
+        if overwrite:
+            return None
+        raise ConfigError(f"{path} holds a partial training of another config: delete it, pass "
+                          "overwrite=true, or choose another out_dir")
+    log(f"resuming from iteration {saved['state']['it']} ({path})")
+    return saved["state"]
+
+
+def _training_part(cfg: dict) -> dict:
+    """The keys that decide a training's result (not progress bars, evaluation or paths)."""
+    return {k: cfg[k] for k in ("task", "puma", "seed")}
+
+
+def _saver(out_dir: Path, cfg: dict):
+    import torch
+
+    def save(state: dict) -> None:
+        tmp = out_dir / (STATE_FILE + ".tmp")
+        torch.save({"config": _training_part(cfg), "state": state}, tmp)
+        tmp.replace(out_dir / STATE_FILE)
+    return save
+
+
         if not f.is_file():
             raise ConfigError(f"task.workspace_check.scenarios: no scenario file {f}")
         sc = OmegaConf.to_container(OmegaConf.load(f), resolve=False)
@@ -211,13 +266,18 @@ def inference_timing(prim, repeats: int = 300) -> dict:
 
 
 def run(cfg: dict, log=print) -> dict:
-    """Train, save, (re)load and evaluate as configured; returns the report (also on disk)."""
+    """Train, save, (re)load and evaluate as configured; returns the report (also on disk).
+
+    Before the first iteration: an existing checkpoint is refused unless ``overwrite``, the output
+    folder must be writable. Every ``save_every`` iterations the state is saved in
+    ``out_dir/train_state.pt``; a killed training started again with the same config resumes
+    from it (the result is the same as uninterrupted)."""
     t_start, cpu_start = time.perf_counter(), time.process_time()
-    task, puma = cfg.get("task") or {}, cfg.get("puma") or {}
-    if not isinstance(task, dict) or not isinstance(puma, dict):
-        raise ConfigError("config needs 'task' and 'puma' groups")
-    seed = int(cfg.get("seed", 0))
-    out_dir = resolve_path(str(cfg.get("out_dir", f"runs/puma/{task.get('name', 'task')}")))
+    task, puma = cfg["task"], cfg["puma"]
+    seed = int(cfg["seed"])
+    out_dir = resolve_path(str(cfg["out_dir"]))
+    ckpt_path = prepare_out_dir(out_dir, bool(cfg["overwrite"]))
+    resume = _resumable(out_dir, cfg, bool(cfg["overwrite"]), log)
     train_cfg = _dataclass(TrainConfig, puma.get("train"), "puma.train")
     net_cfg = _dataclass(NetConfig, puma.get("network"), "puma.network")
     eval_cfg = _dataclass(evaluation.EvalConfig, puma.get("eval"), "puma.eval")
@@ -240,11 +300,11 @@ def run(cfg: dict, log=print) -> dict:
         # tolerances scale with the workspace for non-metric data (e.g. LASA in mm)
         size = float(np.max(np.subtract(ws.high, ws.low)))
         eval_cfg = evaluation.EvalConfig(**{**asdict(eval_cfg),
-                                            "pos_tol": float(task.get("pos_tol", 0.01 * size)),
+                                            "pos_tol": float(task["pos_tol"] or 0.01 * size),
                                             "compat_min_dist": 0.02 * size})
     try:
-        spec = StateSpec(demos.n_pos, bool(puma.get("orientation", True)) and demos.orientation,
-                         int(puma.get("order", 2)))
+        spec = StateSpec(demos.n_pos, bool(puma["orientation"]) and demos.orientation,
+                         int(puma["order"]))
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     if spec.orientation and spec.order != 2:
@@ -254,7 +314,8 @@ def run(cfg: dict, log=print) -> dict:
     log(f"PUMA {task.get('name')}: {len(demos)} demonstrations from {demos.source}, "
         f"spec {spec}, dt {demos.dt} s")
     result = train(demos, ws, spec, net_cfg, train_cfg, seed=seed,
-                   progress=bool(cfg.get("progress", True)),
+                   progress=bool(cfg["progress"]), resume=resume,
+                   save=_saver(out_dir, cfg), save_every=int(cfg["save_every"]),
                    validator=evaluation.validator(demos, ws, eval_cfg))
     report = {"task": task.get("name"), "data_source": demos.source, "data_hash": demos.data_hash,
               "n_demos": len(demos), "spec": asdict(spec), "seed": seed,
@@ -269,8 +330,9 @@ def run(cfg: dict, log=print) -> dict:
     goal = {"position": task.get("goal_position"), "quaternion": task.get("goal_quaternion")}
     meta = checkpoint.Meta(demos.dt, data.GOAL_CONVENTION, goal, demos.unit, ws, cfg,
                            demos.data_hash, demos.source, report)
-    path = checkpoint.save(out_dir / "puma.pt", result.net, meta)
-    if cfg.get("evaluate", True):
+    path = checkpoint.save(ckpt_path, result.net, meta)
+    (out_dir / STATE_FILE).unlink(missing_ok=True)
+    if cfg["evaluate"]:
         from .primitive import load_primitive
 
         net, _ = checkpoint.load(path)  # evaluate what was saved
@@ -284,7 +346,7 @@ def run(cfg: dict, log=print) -> dict:
     report["pipeline_seconds"] = round(time.perf_counter() - t_start, 2)
     report["pipeline_cpu_seconds"] = round(time.process_time() - cpu_start, 2)
     (out_dir / "report.json").write_text(json.dumps(report, indent=2) + "\n")
-    if cfg.get("bench_out") and "evaluation" in report:
+    if cfg["bench_out"] and "evaluation" in report:
         bench = resolve_path(str(cfg["bench_out"]))
         bench.parent.mkdir(parents=True, exist_ok=True)
         bench.write_text(json.dumps(benchmark_summary(report, cfg), indent=2) + "\n")
@@ -305,7 +367,7 @@ def benchmark_summary(report: dict, cfg: dict) -> dict:
         "data_hash": report["data_hash"], "n_demos": report["n_demos"],
         "config": {"iterations": report["iterations"], "seed": report["seed"],
                    "network": cfg["puma"]["network"], "dt": cfg["puma"]["dt"],
-                   "threads": cfg["puma"]["train"].get("threads", 1)},
+                   "threads": cfg["puma"]["train"]["threads"]},
         "train_seconds": report["train_seconds"],
         "pipeline_seconds": report.get("pipeline_seconds"),
         "pipeline_cpu_seconds": report.get("pipeline_cpu_seconds"),
@@ -326,5 +388,5 @@ def benchmark_summary(report: dict, cfg: dict) -> dict:
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "torch": torch.__version__,
                     "load_average_at_end": [round(x, 2) for x in os.getloadavg()]},
-        "command": cfg.get("command", ""),
+        "command": cfg.get("command") or "",  # set by the entry point
     }

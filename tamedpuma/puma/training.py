@@ -27,7 +27,8 @@ import torch
 from ..errors import ConfigError
 from . import dynamics, losses, manifold
 from .data import Demonstrations
-from .network import NetConfig, PumaNet, StateSpec
+from .network import PumaNet, StateSpec
+from .settings import NetConfig, TrainConfig
 
 
 @dataclass(frozen=True)
@@ -67,33 +68,6 @@ class Workspace:
         return pos, quat
 
 
-@dataclass(frozen=True)
-class TrainConfig:
-    """Optimisation settings (see ``conf/puma/default.yaml`` for meanings and units)."""
-
-    iterations: int = 3000
-    lr: float = 2e-3
-    batch_windows: int = 48
-    window: int = 25
-    stability_batch: int = 64
-    stability_horizon: int = 10
-    stability_weight: float = 1.0
-    margin: float = 1e-6
-    decay_rate: float = 0.0
-    near_goal_fraction: float = 0.0
-    persist: float = 0.95
-    select_every: int = 0
-    select_from: float = 0.5
-    squared_hinge: bool = False
-    compat_weight: float = 0.1
-    compat_eps: float = 0.01
-    path_weight: float = 0.0
-    sample_pad: float = 0.0
-    boundary_weight: float = 0.0
-    vel_weight: float = 0.1
-    grad_clip: float = 1.0
-    threads: int = 1
-    log_every: int = 25
 
 
 @dataclass
@@ -190,16 +164,150 @@ def build_net(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: Ne
     return PumaNet(spec, net_cfg, pos_scale, vel_scale, out_scale)
 
 
-def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetConfig,
-          cfg: TrainConfig, seed: int = 0, progress: bool = True,
-          validator: Callable[[PumaNet], tuple[tuple, dict]] | None = None) -> TrainResult:
-    """Train a primitive on ``demos``; returns the network (eval mode) and the loss history.
+@dataclass
+class _Sampler:
+    """Demonstration windows: padded tensors and, per sample, (demonstration, index)."""
 
-    With ``validator`` and ``cfg.select_every`` > 0, the weights are validated every
-    ``select_every`` iterations from ``select_from`` of the run on (and at the end); the weights
-    with the best score (a tuple, larger is better) are returned. The validator must use its own
-    random starts, not the evaluation's.
-    """
+    P: torch.Tensor
+    Q: torch.Tensor | None
+    V: torch.Tensor
+    demo: np.ndarray
+    k: np.ndarray
+    offsets: np.ndarray
+
+    @staticmethod
+    def of(demos: Demonstrations, window: int, orientation: bool) -> _Sampler:
+        P, Q, V, lengths = _padded(demos, window, orientation)
+        return _Sampler(P, Q, V, np.repeat(np.arange(len(lengths)), lengths),
+                        np.concatenate([np.arange(L) for L in lengths]), np.arange(window + 1))
+
+    def batch(self, rng, n: int):
+        """n windows of W+1 samples: (positions, quaternions or None, velocities)."""
+        pick = rng.integers(0, len(self.k), n)
+        di = torch.as_tensor(self.demo[pick])[:, None]
+        ki = torch.as_tensor(self.k[pick][:, None] + self.offsets)
+        return self.P[di, ki], self.Q[di, ki] if self.Q is not None else None, self.V[di, ki]
+
+
+@dataclass
+class _Selection:
+    """Validation-based selection of the weights (``select_every``): keeps the best score."""
+
+    best: tuple | None = None
+    best_state: dict | None = None
+    records: list[dict] = field(default_factory=list)
+
+    def due(self, cfg: TrainConfig, it: int) -> bool:
+        return cfg.select_every > 0 and (it == cfg.iterations - 1 or (
+            it + 1 >= cfg.select_from * cfg.iterations and (it + 1) % cfg.select_every == 0))
+
+    def validate(self, net: PumaNet, validator, it: int) -> None:
+        net.eval()
+        net.cache_goal()
+        with torch.no_grad():
+            score, info = validator(net)
+        net.train()
+        self.records.append({"it": it, **info, "score": list(score)})
+        if self.best is None or score > self.best:
+            self.best, self.best_state = score, copy.deepcopy(net.state_dict())
+        chosen = max(self.records, key=lambda r: r["score"])
+        for r in self.records:
+            r["chosen"] = r is chosen
+
+
+@dataclass
+class _Run:
+    """Everything one training iteration reads and updates (and a resumed run restores)."""
+
+    net: PumaNet
+    opt: torch.optim.Optimizer
+    sched: object
+    rng: np.random.Generator
+    sampler: _Sampler
+    start_ws: Workspace
+    low: torch.Tensor
+    high: torch.Tensor
+    dt: float
+    it: int = 0
+    chain: tuple | None = None
+    chain_rest: torch.Tensor | None = None
+    history: list[dict] = field(default_factory=list)
+    selection: _Selection = field(default_factory=_Selection)
+
+    def state(self) -> dict:
+        """The resumable state (weights, optimiser, schedule, every RNG, persistent rollouts)."""
+        return {"it": self.it, "net": self.net.state_dict(), "opt": self.opt.state_dict(),
+                "sched": self.sched.state_dict(), "rng": self.rng.bit_generator.state,
+                "torch_rng": torch.get_rng_state(), "chain": self.chain,
+                "chain_rest": self.chain_rest, "history": self.history,
+                "selection": {"best": self.selection.best, "best_state": self.selection.best_state,
+                              "records": self.selection.records}}
+
+    def restore(self, state: dict) -> None:
+        self.it = int(state["it"])
+        self.net.load_state_dict(state["net"])
+        self.opt.load_state_dict(state["opt"])
+        self.sched.load_state_dict(state["sched"])
+        self.rng.bit_generator.state = state["rng"]
+        torch.set_rng_state(state["torch_rng"])
+        self.chain, self.chain_rest = state["chain"], state["chain_rest"]
+        self.history = list(state["history"])
+        sel = state["selection"]
+        self.selection = _Selection(None if sel["best"] is None else tuple(sel["best"]),
+                                    sel["best_state"], list(sel["records"]))
+
+
+def _stability(run: _Run, spec: StateSpec, cfg: TrainConfig):
+    """Stability rollouts from fresh or continued starts: (l_st, l_b, states, rest, pos0, quat0)."""
+    net, rng = run.net, run.rng
+    pos0, quat0, vel0 = _random_starts(rng, run.start_ws, spec, cfg, net.vel_scale.numpy())
+    rest = (torch.all(vel0 == 0, dim=-1) if vel0 is not None
+            else torch.ones(len(pos0), dtype=torch.bool))  # rollouts that started at rest
+    if run.chain is not None:  # continue earlier rollouts (long horizons at no extra cost)
+        keep = _keep(rng, run.chain, cfg.persist, run.low, run.high)
+        pos0 = torch.where(keep, run.chain[0], pos0)
+        quat0 = torch.where(keep, run.chain[1], quat0) if quat0 is not None else None
+        vel0 = torch.where(keep, run.chain[2], vel0) if vel0 is not None else None
+        rest = torch.where(keep[:, 0], run.chain_rest, rest)
+    states = dynamics.rollout(net, (pos0, quat0, vel0), run.dt, cfg.stability_horizon)
+    l_st, l_b = losses.stability_terms(
+        net, states, run.dt, cfg.margin, cfg.squared_hinge,
+        run.low if cfg.boundary_weight > 0 else None, run.high, cfg.decay_rate)
+    if cfg.persist > 0:
+        run.chain = tuple(None if s is None else s.detach() for s in states[-1])
+        run.chain_rest = rest
+    return l_st, l_b, states, rest, pos0, quat0
+
+
+def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
+    """One optimisation step; returns the loss terms (floats)."""
+    net = run.net
+    target = run.sampler.batch(run.rng, cfg.batch_windows)
+    l_il = losses.imitation_loss(net, target, run.dt, cfg.vel_weight)
+    l_st, l_b, states, rest, pos0, quat0 = _stability(run, spec, cfg)
+    loss = l_il + cfg.stability_weight * l_st + cfg.boundary_weight * l_b
+    l_p = torch.zeros(())
+    if cfg.path_weight > 0:
+        own = dynamics.stack(states)
+        l_p = (losses.path_potential_loss(net, target[0], target[1], cfg.margin)
+               + losses.path_potential_loss(net, own[0], own[1], cfg.margin, rest))
+        loss = loss + cfg.path_weight * l_p
+    l_c = torch.zeros(())
+    if cfg.compat_weight > 0:
+        l_c = losses.compat_loss(net, pos0, quat0, cfg.compat_eps, cfg.margin)
+        loss = loss + cfg.compat_weight * l_c
+    run.opt.zero_grad(set_to_none=True)
+    loss.backward()
+    if cfg.grad_clip > 0:
+        torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+    run.opt.step()
+    run.sched.step()
+    return {"loss": loss.item(), "il": l_il.item(), "stable": l_st.item(), "compat": l_c.item(),
+            "path": l_p.item(), "boundary": l_b.item()}
+
+
+def _start(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetConfig,
+           cfg: TrainConfig, seed: int) -> _Run:
     if spec.orientation and not demos.orientation:
         raise ConfigError("orientation requested but the demonstrations have none")
     if spec.n_pos != demos.n_pos or spec.n_pos != len(ws.low):
@@ -212,100 +320,58 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
     net.train()
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(1, cfg.iterations), cfg.lr * 0.02)
-    P, Q, V, lengths = _padded(demos, cfg.window, spec.orientation)
-    sample_demo = np.repeat(np.arange(len(lengths)), lengths)
-    sample_k = np.concatenate([np.arange(L) for L in lengths])
-    offsets = np.arange(cfg.window + 1)
-    low = torch.as_tensor(ws.low, dtype=torch.float32)
-    high = torch.as_tensor(ws.high, dtype=torch.float32)
-    dt = demos.dt
     # stability starts also beyond the box (sample_pad): the field just outside the evaluated
     # workspace is trained too, else rollouts from its edges leave it into untrained space
     start_ws = ws.padded(cfg.sample_pad) if cfg.sample_pad > 0 else ws
-    history: list[dict] = []
-    chain = chain_rest = None
+    return _Run(net, opt, sched, rng, _Sampler.of(demos, cfg.window, spec.orientation), start_ws,
+                torch.as_tensor(ws.low, dtype=torch.float32),
+                torch.as_tensor(ws.high, dtype=torch.float32), demos.dt)
+
+
+def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetConfig,
+          cfg: TrainConfig, seed: int = 0, progress: bool = True,
+          validator: Callable[[PumaNet], tuple[tuple, dict]] | None = None,
+          resume: dict | None = None, save: Callable[[dict], None] | None = None,
+          save_every: int = 0) -> TrainResult:
+    """Train a primitive on ``demos``; returns the network (eval mode) and the loss history.
+
+    With ``validator`` and ``cfg.select_every`` > 0, the weights are validated every
+    ``select_every`` iterations from ``select_from`` of the run on (and at the end); the weights
+    with the best score (a tuple, larger is better) are returned. The validator must use its own
+    random starts, not the evaluation's.
+    ``save(state)`` is called every ``save_every`` iterations with the resumable state; passing
+    that state back as ``resume`` continues the run exactly (same result as uninterrupted).
+    """
+    run = _start(demos, ws, spec, net_cfg, cfg, seed)
+    if resume is not None:
+        run.restore(resume)
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=cfg.iterations, desc="PUMA", unit="it", dynamic_ncols=True)
+        bar = tqdm(total=cfg.iterations, initial=run.it, desc="PUMA", unit="it",
+                   dynamic_ncols=True)
     t0 = time.perf_counter()
-    best: tuple | None = None
-    best_state = None
-    selection: list[dict] = []
-
-    def validate(it):
-        nonlocal best, best_state
-        net.eval()
-        net.cache_goal()
-        with torch.no_grad():
-            score, info = validator(net)
-        net.train()
-        selection.append({"it": it, **info, "score": list(score)})
-        if best is None or score > best:
-            best, best_state = score, copy.deepcopy(net.state_dict())
-        for s in selection:
-            s["chosen"] = False
-        best_rec = max(selection, key=lambda s: s["score"])
-        best_rec["chosen"] = True
-
-    for it in range(cfg.iterations):
-        pick = rng.integers(0, len(sample_k), cfg.batch_windows)
-        di = torch.as_tensor(sample_demo[pick])[:, None]
-        ki = torch.as_tensor(sample_k[pick][:, None] + offsets)
-        target = (P[di, ki], Q[di, ki] if Q is not None else None, V[di, ki])
-        l_il = losses.imitation_loss(net, target, dt, cfg.vel_weight)
-
-        pos0, quat0, vel0 = _random_starts(rng, start_ws, spec, cfg, net.vel_scale.numpy())
-        rest = (torch.all(vel0 == 0, dim=-1) if vel0 is not None
-                else torch.ones(len(pos0), dtype=torch.bool))  # rollouts that started at rest
-        if chain is not None:  # continue earlier rollouts (long horizons at no extra cost)
-            keep = _keep(rng, chain, cfg.persist, low, high)
-            pos0 = torch.where(keep, chain[0], pos0)
-            quat0 = torch.where(keep, chain[1], quat0) if quat0 is not None else None
-            vel0 = torch.where(keep, chain[2], vel0) if vel0 is not None else None
-            rest = torch.where(keep[:, 0], chain_rest, rest)
-        states = dynamics.rollout(net, (pos0, quat0, vel0), dt, cfg.stability_horizon)
-        l_st, l_b = losses.stability_terms(
-            net, states, dt, cfg.margin, cfg.squared_hinge,
-            low if cfg.boundary_weight > 0 else None, high, cfg.decay_rate)
-        if cfg.persist > 0:
-            chain = tuple(None if s is None else s.detach() for s in states[-1])
-            chain_rest = rest
-        loss = l_il + cfg.stability_weight * l_st + cfg.boundary_weight * l_b
-        l_p = torch.zeros(())
-        if cfg.path_weight > 0:
-            own = dynamics.stack(states)
-            l_p = (losses.path_potential_loss(net, target[0], target[1], cfg.margin)
-                   + losses.path_potential_loss(net, own[0], own[1], cfg.margin, rest))
-            loss = loss + cfg.path_weight * l_p
-        l_c = torch.zeros(())
-        if cfg.compat_weight > 0:
-            l_c = losses.compat_loss(net, pos0, quat0, cfg.compat_eps, cfg.margin)
-            loss = loss + cfg.compat_weight * l_c
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        if cfg.grad_clip > 0:
-            torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
-        opt.step()
-        sched.step()
+    while run.it < cfg.iterations:
+        it = run.it
+        terms = _iteration(run, spec, cfg)
         if it % cfg.log_every == 0 or it == cfg.iterations - 1:
-            rec = {"it": it, "loss": loss.item(), "il": l_il.item(), "stable": l_st.item(),
-                   "compat": l_c.item(), "path": l_p.item(), "boundary": l_b.item()}
-            history.append(rec)
+            run.history.append({"it": it, **terms})
             if bar is not None:
-                bar.set_postfix(il=f"{rec['il']:.2e}", st=f"{rec['stable']:.2e}",
-                                cp=f"{rec['compat']:.2e}", refresh=False)
+                bar.set_postfix(il=f"{terms['il']:.2e}", st=f"{terms['stable']:.2e}",
+                                cp=f"{terms['compat']:.2e}", refresh=False)
         if bar is not None:
             bar.update(1)
-        if validator is not None and cfg.select_every > 0 and (
-                it == cfg.iterations - 1 or (it + 1 >= cfg.select_from * cfg.iterations
-                                             and (it + 1) % cfg.select_every == 0)):
-            validate(it + 1)
+        if validator is not None and run.selection.due(cfg, it):
+            run.selection.validate(run.net, validator, it + 1)
+        run.it = it + 1
+        if save is not None and save_every > 0 and run.it % save_every == 0 \
+                and run.it < cfg.iterations:
+            save(run.state())
     if bar is not None:
         bar.close()
-    if best_state is not None:
-        net.load_state_dict(best_state)
-    net.eval()
-    net.cache_goal()
-    return TrainResult(net, time.perf_counter() - t0, history, selection)
+    if run.selection.best_state is not None:
+        run.net.load_state_dict(run.selection.best_state)
+    run.net.eval()
+    run.net.cache_goal()
+    return TrainResult(run.net, time.perf_counter() - t0, run.history, run.selection.records)

@@ -36,15 +36,27 @@ from .rerun_writer import RerunRecorder
 RECORDERS = {"mcap": (McapRecorder, "episode.mcap"), "rerun": (RerunRecorder, "episode.rrd")}
 
 
-def make_recorders(kinds: Iterable[str], run_dir: str | os.PathLike) -> list[Recorder]:
-    """One recorder per kind (``"mcap"`` -> ``run_dir/episode.mcap``, ``"rerun"`` ->
-    ``run_dir/episode.rrd``), with default options. Raises ValueError for an unknown kind."""
-    out = []
+def recorder_files(kinds: Iterable[str], run_dir: str | os.PathLike) -> dict[str, Path]:
+    """The file each recorder kind writes: ``{"mcap": run_dir/episode.mcap, "rrd": ...}``."""
+    out = {}
     for kind in kinds:
         if kind not in RECORDERS:
             raise ValueError(f"unknown recorder {kind!r}; choose from {sorted(RECORDERS)}")
-        cls, name = RECORDERS[kind]
-        out.append(cls(Path(run_dir) / name))
+        name = RECORDERS[kind][1]
+        out[Path(name).suffix[1:]] = Path(run_dir) / name
+    return out
+
+
+def make_recorders(kinds: Iterable[str], run_dir: str | os.PathLike,
+                   flush_every: int = 100) -> list[Recorder]:
+    """One recorder per kind (``"mcap"`` -> ``run_dir/episode.mcap``, ``"rerun"`` ->
+    ``run_dir/episode.rrd``); ``flush_every``: the MCAP chunk period [steps]. Raises ValueError
+    for an unknown kind."""
+    kinds = list(kinds)
+    out = []
+    for kind, path in zip(kinds, recorder_files(kinds, run_dir).values()):
+        cls = RECORDERS[kind][0]
+        out.append(cls(path, flush_every=flush_every) if kind == "mcap" else cls(path))
     return out
 
 
@@ -60,6 +72,7 @@ __all__ = [
     "StepRecord",
     "active_path",
     "make_recorders",
+    "recorder_files",
     "read_mcap",
     "read_rrd_joints",
     "read_rrd_scalars",

@@ -1,5 +1,5 @@
 """A 2-D point-mass world for fast tests and figures: the same loop, methods and recorders as the
-arm, without PyBullet or pinocchio.
+arm, without PyBullet (the kinematics types come from :mod:`tamedpuma.robot.kinematics`).
 
 The robot is a disc of radius 0.2 at q = (x, y) [m] in the plane z = 0; its "kinematics" is the
 identity (end effector = body sphere = (x, y, 0), J = [I₂; 0]). The world integrates the same

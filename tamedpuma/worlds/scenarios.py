@@ -6,9 +6,12 @@ A scenario config (``conf/scenario/*.yaml``, goal usually interpolated from ``co
     q0: [7 joint angles, rad]   # null: the robot config's home
     goal: {position: [x, y, z], quaternion: [x, y, z, w], velocity: [vx, vy, vz]}
     obstacles: [{center: [x, y, z], radius: r, velocity: [vx, vy, vz]}, ...]
-    dt: 0.02           # control period [s]
-    max_steps: 2000    # episode length limit (40 s)
-    goal_tolerance: 0.05  # success radius [m]
+    dt: control period [s]
+    max_steps: episode length limit
+    goal_tolerance: success radius [m]
+
+Defaults and ranges live in the config schema (``tamedpuma/app/schema.py``); these functions
+receive complete configs.
 """
 
 from __future__ import annotations
@@ -77,7 +80,7 @@ def obstacles_from_config(items) -> Obstacles:
     radii = [float(o["radius"]) for o in items]
     if any(not r > 0 for r in radii):
         raise ScenarioError("every obstacle radius must be positive")
-    vels = [_vec(o.get("velocity") or [0, 0, 0], 3, f"obstacles[{i}].velocity")
+    vels = [_vec(o["velocity"], 3, f"obstacles[{i}].velocity")
             for i, o in enumerate(items)]
     return Obstacles(np.array(centers), np.array(radii), np.array(vels))
 
@@ -90,7 +93,7 @@ def scenario_from_config(cfg: Mapping, spec: RobotSpec, *, task: str, seed: int 
         goal = Goal(
             position=_vec(goal_cfg["position"], 3, "goal.position"),
             quaternion=_vec(goal_cfg["quaternion"], 4, "goal.quaternion"),
-            velocity=_vec(goal_cfg.get("velocity") or [0, 0, 0], 3, "goal.velocity"),
+            velocity=_vec(goal_cfg["velocity"], 3, "goal.velocity"),
         )
         q0_cfg = cfg["q0"] if cfg["q0"] is not None else spec.home  # null: the robot's home
         if q0_cfg is None:
@@ -101,10 +104,10 @@ def scenario_from_config(cfg: Mapping, spec: RobotSpec, *, task: str, seed: int 
             task=task,
             q0=q0,
             goal=goal,
-            obstacles=obstacles_from_config(cfg.get("obstacles")),
-            dt=float(cfg.get("dt", 0.02)),
-            max_steps=int(cfg.get("max_steps", 2000)),
-            goal_tolerance=float(cfg.get("goal_tolerance", 0.05)),
+            obstacles=obstacles_from_config(cfg["obstacles"]),
+            dt=float(cfg["dt"]),
+            max_steps=int(cfg["max_steps"]),
+            goal_tolerance=float(cfg["goal_tolerance"]),
             seed=int(seed),
         )
     except KeyError as exc:
@@ -119,7 +122,8 @@ def with_clutter(scenario: Scenario, count: int, radius: float, low, high, keep_
     """Add ``count`` static sphere obstacles of ``radius`` [m], uniform in the box
     [low, high] [m], each at least ``min_distance`` [m] (surface to point) from every point of
     ``keep_out`` (e.g. the start's body spheres, the end effector's start and the goal) and not
-    overlapping the scenario's own obstacles. Seeded by ``rng``: same seed, same clutter."""
+    overlapping the scenario's own obstacles or each other. Seeded by ``rng``: same seed, same
+    clutter. Gives up with :class:`ScenarioError` after ``max_tries`` candidate centres."""
     if count <= 0:
         return scenario
     low, high = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
@@ -136,7 +140,11 @@ def with_clutter(scenario: Scenario, count: int, radius: float, low, high, keep_
             gap = (np.linalg.norm(batch[:, None] - own.centers[None], axis=-1)
                    - radius - own.radii[None])
             ok &= gap.min(axis=1) > 0
-        chosen.extend(batch[ok][: count - len(chosen)])
+        for center in batch[ok]:  # no two clutter spheres overlap
+            if len(chosen) == count:
+                break
+            if not chosen or np.linalg.norm(np.asarray(chosen) - center, axis=1).min() > 2 * radius:
+                chosen.append(center)
         if tries > max_tries and len(chosen) < count:
             raise ScenarioError(f"cannot place {count} clutter obstacles of radius {radius} m in "
                                 f"the box {low.tolist()}..{high.tolist()}: only {len(chosen)} fit")
@@ -165,13 +173,13 @@ def arm_points(kinematics, q: np.ndarray, per_segment: int = 8) -> np.ndarray:
 def clutter_count(clutter: Mapping, own: int) -> int:
     """How many clutter obstacles to add: ``clutter.total`` − the scenario's own ``own`` when a
     total is set (the obstacle-count sweep: 2, 10, 100, 1000 in all), else ``clutter.count``."""
-    total = clutter.get("total")
+    total = clutter["total"]
     if total is not None:
         if int(total) < own:
             raise ScenarioError(f"clutter.total={total} is below the scenario's own {own} "
                                 f"obstacles")
         return int(total) - own
-    return int(clutter.get("count", 0))
+    return int(clutter["count"])
 
 
 def table1_starts(task: str) -> list[list[float]]:
@@ -202,10 +210,9 @@ def random_scenario(cfg: Mapping, kinematics) -> Scenario:
         raise ScenarioError(f"task {task_cfg['name']!r} has no workspace: "
                             "scenario=random needs one")
     params = RandomParams.from_mapping(
-        {**(sc_cfg.get("random") or {}), "dt": sc_cfg.get("dt", 0.02),
-         "max_steps": sc_cfg.get("max_steps", 2000),
-         "goal_tolerance": sc_cfg.get("goal_tolerance", 0.05)},
-        str(sc_cfg.get("start_kind") or "near_table1"))
+        {**(sc_cfg["random"] or {}), "dt": sc_cfg["dt"], "max_steps": sc_cfg["max_steps"],
+         "goal_tolerance": sc_cfg["goal_tolerance"]},
+        str(sc_cfg["start_kind"] or "near_table1"))
     region = TaskRegion.from_task_config(task_cfg)
     region = replace(region, goal_position=np.asarray(sc_cfg["goal"]["position"], dtype=float),
                      goal_quaternion=np.asarray(sc_cfg["goal"]["quaternion"], dtype=float))
@@ -226,15 +233,15 @@ def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
         raise ScenarioError(f"scenario {sc_cfg['name']!r} belongs to task {sc_cfg['task']!r}, "
                             f"not {task!r}: add task={sc_cfg['task']}")
     robot = cfg["robot"]
-    if sc_cfg.get("random_seed") is not None:
+    if sc_cfg.get("random_seed") is not None:  # optional key: absent from fixed scenarios
         scenario = random_scenario(cfg, kinematics)
     else:
-        scenario = scenario_from_config(sc_cfg, spec, task=task, seed=int(cfg.get("seed", 0)),
+        scenario = scenario_from_config(sc_cfg, spec, task=task, seed=int(cfg["seed"]),
                                         limit_tolerance=float(robot["limit_tolerance"]),
                                         limit_margin=float(robot["limit_margin"]))
-    if cfg.get("without_obstacles"):
+    if cfg["without_obstacles"]:
         scenario = without_obstacles(scenario)
-    clutter = cfg.get("clutter") or {}
+    clutter = cfg["clutter"]
     count = clutter_count(clutter, len(scenario.obstacles))
     if count > 0:
         keep_out = np.concatenate([arm_points(kinematics, scenario.q0),
@@ -242,5 +249,5 @@ def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
         scenario = with_clutter(scenario, count, float(clutter["radius"]),
                                 clutter["low"], clutter["high"], keep_out,
                                 float(clutter["min_distance"]),
-                                np.random.default_rng([int(cfg.get("seed", 0)), 7919]))
+                                np.random.default_rng([int(cfg["seed"]), 7919]))
     return scenario

@@ -1,0 +1,39 @@
+"""The one place a configured path becomes a file system path (demonstrations, checkpoints,
+output folders, tables).
+
+Rules: ``~`` is expanded; an absolute path is used as given; a relative path is relative to the
+working directory, or, if it does not exist there but does inside the installed package (shipped
+data), to the package. Never to a checkout: an installed package has none. Entry points and the
+loaders call :func:`resolve`; everything below them receives resolved paths.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from tamedpuma.errors import ConfigError
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+
+
+def candidates(path: str | os.PathLike) -> list[Path]:
+    """Where ``path`` is looked for, in order."""
+    p = Path(path).expanduser()
+    if p.is_absolute():
+        return [p]
+    return [Path.cwd() / p, PACKAGE_DIR / p]
+
+
+def resolve(path: str | os.PathLike, *, must_exist: bool = False, what: str = "path") -> Path:
+    """The first existing candidate of ``path`` (see the module), else its working-directory
+    form (a file to be written). ``must_exist``: a missing path is a :class:`ConfigError`
+    naming where it was looked for."""
+    found = candidates(path)
+    for c in found:
+        if c.exists():
+            return c
+    if must_exist:
+        raise ConfigError(f"{what} not found: {path} (looked in "
+                          f"{', '.join(str(c) for c in found)})")
+    return found[0]

@@ -1,0 +1,99 @@
+"""PUMA's settings: the network's widths, the optimisation and the evaluation (numpy-free,
+torch-free frozen dataclasses; their defaults are the config defaults, see ``app/schema.py``).
+
+Each checks its ranges on construction and raises :class:`~tamedpuma.errors.ConfigError` naming
+the key (``puma.train.iterations must be ...``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+from tamedpuma.errors import ConfigError
+
+
+def _check(obj, where: str, positive=(), nonneg=(), fraction=()) -> None:
+    """Raise ConfigError for the first field of ``obj`` outside its range."""
+    names = {f.name for f in fields(obj)}
+    for group, rule, ok in ((positive, "> 0", lambda v: v > 0), (nonneg, ">= 0", lambda v: v >= 0),
+                            (fraction, "in [0, 1]", lambda v: 0 <= v <= 1)):
+        for name in group:
+            assert name in names, name
+            value = getattr(obj, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                    not math.isfinite(value) or not ok(value):
+                raise ConfigError(f"{where}.{name} must be a finite number {rule}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class NetConfig:
+    """Widths of the network: hidden ``width``, latent ``latent_dim``."""
+
+    width: int = 128
+    latent_dim: int = 64
+    pin_goal: bool = True
+    skip: float = 1.0
+
+    def __post_init__(self):
+        _check(self, "puma.network", positive=("width", "latent_dim"), nonneg=("skip",))
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation settings (see ``conf/puma/default.yaml`` for meanings and units)."""
+
+    iterations: int = 3000
+    lr: float = 2e-3
+    batch_windows: int = 48
+    window: int = 25
+    stability_batch: int = 64
+    stability_horizon: int = 10
+    stability_weight: float = 1.0
+    margin: float = 1e-6
+    decay_rate: float = 0.0
+    near_goal_fraction: float = 0.0
+    persist: float = 0.95
+    select_every: int = 0
+    select_from: float = 0.5
+    squared_hinge: bool = False
+    compat_weight: float = 0.1
+    compat_eps: float = 0.01
+    path_weight: float = 0.0
+    sample_pad: float = 0.0
+    boundary_weight: float = 0.0
+    vel_weight: float = 0.1
+    grad_clip: float = 1.0
+    threads: int = 1
+    log_every: int = 25
+
+    def __post_init__(self):
+        _check(self, "puma.train",
+               positive=("iterations", "lr", "batch_windows", "window", "stability_horizon",
+                         "compat_eps", "threads", "log_every"),
+               nonneg=("stability_batch", "stability_weight", "margin", "decay_rate",
+                       "select_every", "compat_weight", "path_weight", "sample_pad",
+                       "boundary_weight", "vel_weight", "grad_clip"),
+               fraction=("persist", "near_goal_fraction", "select_from"))
+        if self.iterations > 1_000_000:
+            raise ConfigError(f"puma.train.iterations must be at most 1000000 (time limit), "
+                              f"got {self.iterations}")
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Evaluation settings: starts, horizon [s], tolerances [unit, rad], compatibility samples."""
+
+    random_starts: int = 1000
+    horizon: float = 40.0
+    pos_tol: float = 0.01
+    ang_tol: float = 0.05
+    compat_samples: int = 2000
+    compat_min_dist: float = 0.02
+    seed: int = 12345
+    chunk: int = 1000
+
+    def __post_init__(self):
+        _check(self, "puma.eval", positive=("random_starts", "horizon", "pos_tol", "ang_tol",
+                                            "compat_samples", "chunk"),
+               nonneg=("compat_min_dist", "seed"))

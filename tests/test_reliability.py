@@ -1,0 +1,282 @@
+"""Fault injection and bad input (issue 14): each test is a row of README's "Faults and bad input"
+table. A sweep survives its worst run; killed runs and trainings leave what they wrote and
+resume; analysis counts what it could not score."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hydra.core.global_hydra import GlobalHydra
+
+from tamedpuma.errors import ConfigError
+from tamedpuma.types import Command
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def _strict_json(path: Path) -> dict:
+    def refuse(name):
+        raise ValueError(f"{path} holds {name}: not JSON")
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+class _Faulty:
+    """Wraps a controller; by the scenario's seed: 3 = user error at reset, 7 = exception at
+    step 2, 11 = NaN command from step 2."""
+
+    def __init__(self, inner):
+        self.inner, self.fault = inner, None
+
+    def reset(self, scenario):
+        if scenario.seed == 3:
+            raise ConfigError("injected user error (seed 3)")
+        self.fault = {7: "exception", 11: "nan"}.get(scenario.seed)
+        self.inner.reset(scenario)
+
+    def step(self, obs):
+        command = self.inner.step(obs)
+        if obs.step >= 2 and self.fault == "exception":
+            raise RuntimeError("injected exception (seed 7)")
+        if obs.step >= 2 and self.fault == "nan":
+            return Command(qdd=np.full_like(command.qdd, np.nan), scalars=command.scalars)
+        return command
+
+
+def _multirun(tmp_path, monkeypatch, *overrides) -> int:
+    from tamedpuma.app import sweep
+
+    GlobalHydra.instance().clear()
+    argv = ["-m", "method=joint_attractor", "scenario=free", "scenario.max_steps=6",
+            "recorder=mcap", f"output_root={tmp_path}", f"hydra.sweep.dir={tmp_path}/sweep",
+            "hydra.sweep.subdir=${seed}", *overrides]
+    monkeypatch.setattr(sys, "argv", ["tamedpuma.sweep", *argv])
+    with pytest.raises(SystemExit) as exit_:
+        sweep.main(argv)
+    GlobalHydra.instance().clear()
+    return exit_.value.code
+
+
+def test_a_20_run_sweep_with_3_injected_failures_completes_the_other_17(tmp_path, monkeypatch,
+                                                                         capsys):
+    from tamedpuma import methods
+
+    real_make = methods.make
+    with monkeypatch.context() as patch:
+        patch.setattr(methods, "make", lambda name, cfg, kin: _Faulty(real_make(name, cfg, kin)))
+        code = _multirun(tmp_path, patch, "seed=range(0,20)")
+    out = capsys.readouterr()
+    assert code == 1
+    assert "sweep: 20 runs: 17 executed and complete, 0 skipped (already complete), 3 failed" \
+        in out.out
+    summaries = {int(p.parent.name): _strict_json(p)
+                 for p in (tmp_path / "sweep").glob("*/summary.json")}
+    assert sorted(summaries) == list(range(20))
+    assert summaries[3]["status"] == "failed" and summaries[3]["failure"] == "user_error"
+    assert "injected user error" in summaries[3]["reason"]
+    assert summaries[7]["status"] == "failed" and summaries[7]["failure"] == "exception"
+    assert "RuntimeError" in (tmp_path / "sweep/7/failure.txt").read_text()
+    assert summaries[11]["stop_reason"] == "nonfinite_command"
+    good = [s for k, s in summaries.items() if k not in (3, 7, 11)]
+    assert len(good) == 17 and all(s["status"] == "complete" and s["steps"] == 6 for s in good)
+    for seed in (3, 7, 11):
+        assert f"/sweep/{seed}:" in out.out  # each failure listed at the end
+
+    # the same sweep again (no faults): only the two failed runs run again
+    code = _multirun(tmp_path, monkeypatch, "seed=range(0,20)")
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    assert "sweep: 20 runs: 2 executed and complete, 18 skipped (already complete), 0 failed" \
+        in out.out
+    assert _strict_json(tmp_path / "sweep/7/summary.json")["status"] == "complete"
+    assert (tmp_path / "sweep/7/previous_attempt/failure.txt").is_file()
+
+
+def test_a_pybullet_disconnect_and_a_full_disk_are_that_runs_failure(tmp_path, monkeypatch,
+                                                                      capsys):
+    import pybullet as pb
+
+    from tamedpuma.recording.mcap_writer import McapRecorder
+    from tamedpuma.worlds.bullet import Simulator
+
+    real_step, real_write = Simulator.step, McapRecorder.write
+
+    def step(self, qdd):
+        if self._scenario.seed == 0 and self._scenario is not None:
+            pb.disconnect(self._client)
+        return real_step(self, qdd)
+
+    def write(self, record):
+        if record.step == 3 and self.path.parent.name == "1":
+            raise OSError(28, "No space left on device")
+        return real_write(self, record)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(Simulator, "step", step)
+        patch.setattr(McapRecorder, "write", write)
+        code = _multirun(tmp_path, patch, "seed=0,1,2")
+    out = capsys.readouterr()
+    assert code == 1
+    assert "1 executed and complete, 0 skipped (already complete), 2 failed" in out.out
+    assert "physics server" in _strict_json(tmp_path / "sweep/0/summary.json")["reason"].lower()
+    assert "No space left" in _strict_json(tmp_path / "sweep/1/summary.json")["reason"]
+    assert _strict_json(tmp_path / "sweep/2/summary.json")["status"] == "complete"
+
+
+def _start_sweep(tmp_path, *extra):
+    cmd = [sys.executable, "-m", "tamedpuma.sweep", "-m", "method=joint_attractor", "seed=0,1",
+           "scenario.max_steps=100000", "stop_on_success=false", "recorder=mcap",
+           f"output_root={tmp_path}", f"hydra.sweep.dir={tmp_path}/sweep",
+           "hydra.sweep.subdir=${seed}", *extra]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    active = tmp_path / "sweep/0/episode.mcap.active"
+    deadline = time.monotonic() + 60
+    while not active.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.1)
+    assert active.exists(), proc.communicate()[1] if proc.poll() is not None else "timeout"
+    time.sleep(0.5)  # some steps written
+    return proc
+
+
+@pytest.mark.parametrize("sig,status", [(signal.SIGTERM, 143), (signal.SIGINT, 130),
+                                        (signal.SIGKILL, -9)],
+                         ids=["SIGTERM", "Ctrl-C", "SIGKILL"])
+def test_a_killed_worker_leaves_its_partial_log_and_the_sweep_resumes(tmp_path, sig, status):
+    proc = _start_sweep(tmp_path)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == status
+    lines = [x for x in err.splitlines() if x.strip() and not x.startswith("pybullet build")]
+    if sig != signal.SIGKILL:
+        assert lines[-1].startswith("interrupted: partial log (incomplete) in "), err
+        assert "Traceback" not in err
+        assert "/sweep/0/episode.mcap" in lines[-1]
+    logs = list((tmp_path / "sweep/0").glob("episode.mcap*"))
+    assert logs, "the partial log is kept"
+    from tamedpuma.recording import read_mcap
+
+    partial = read_mcap(logs[0])
+    assert not partial.complete and len(partial.scalars) > 0
+    # the same sweep, shorter: the interrupted run is run again, its partial log kept aside
+    again = subprocess.run(
+        [sys.executable, "-m", "tamedpuma.sweep", "-m", "method=joint_attractor", "seed=0,1",
+         "scenario.max_steps=5", "recorder=mcap", f"output_root={tmp_path}",
+         f"hydra.sweep.dir={tmp_path}/sweep", "hydra.sweep.subdir=${seed}"],
+        cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
+    assert "sweep: 2 runs: 2 executed and complete" in again.stdout
+    assert list((tmp_path / "sweep/0/previous_attempt").glob("episode.mcap*"))
+    assert _strict_json(tmp_path / "sweep/0/summary.json")["steps"] == 5
+
+
+def test_analysis_lists_and_excludes_incomplete_truncated_and_failed_runs(tmp_path, capsys):
+    from tamedpuma.analysis import tables
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "tamedpuma.sweep", "-m", "method=joint_attractor", "seed=0,1",
+         "scenario.max_steps=300", "stop_on_success=false", "recorder=default",
+         "recorder.flush_every=20", f"output_root={tmp_path}",
+         f"hydra.sweep.dir={tmp_path}/runs", "hydra.sweep.subdir=${seed}"],
+        cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    runs = tmp_path / "runs"
+    # a truncated copy of run 1 (MCAP and RRD cut in half), and a failed run's folder
+    shutil.copytree(runs / "1", runs / "1_truncated")
+    for name in ("episode.mcap", "episode.rrd"):
+        path = runs / "1_truncated" / name
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    (runs / "2").mkdir()
+    (runs / "2/summary.json").write_text(json.dumps({"status": "failed", "reason": "boom"}))
+    (runs / "3").mkdir()
+    (runs / "3/episode.mcap").write_bytes(b"not an mcap file")
+
+    assert tables.main([str(runs)]) == 0
+    out = capsys.readouterr().out
+    assert "runs: 2 complete, 1 incomplete (excluded from the rates), 1 failed, 1 unreadable" \
+        in out
+    assert "incomplete: " in out and "1_truncated" in out and "failed: " in out
+    assert tables.main([str(runs), "--include-incomplete"]) == 0
+    assert "1 incomplete (included in the rates)" in capsys.readouterr().out
+
+    from tamedpuma.errors import TamedPumaError
+    from tamedpuma.recording import read_rrd_scalars
+
+    try:  # a truncated .rrd: readable up to the cut, or one clear error
+        read_rrd_scalars(runs / "1_truncated/episode.rrd")
+    except TamedPumaError as exc:
+        assert str(exc)
+
+
+# ----------------------------------------------------------------------------- training
+
+
+def _train(out_dir, *extra, timeout=120):
+    return subprocess.run(
+        [sys.executable, "-m", "tamedpuma.train", "puma=tiny", f"out_dir={out_dir}",
+         "progress=false", "evaluate=false", *extra],
+        cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=timeout)
+
+
+def _one_line_error(proc) -> str:
+    lines = [x for x in proc.stderr.splitlines() if not x.startswith("pybullet build")]
+    assert proc.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: "), \
+        proc.stderr
+    return lines[0]
+
+
+def test_a_second_training_into_the_same_folder_refuses_to_overwrite(tmp_path):
+    (tmp_path / "puma.pt").write_bytes(b"a good model")
+    line = _one_line_error(_train(tmp_path))
+    assert "puma.pt exists: pass overwrite=true" in line
+    assert (tmp_path / "puma.pt").read_bytes() == b"a good model"
+
+
+def test_an_unwritable_output_is_refused_before_training(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    line = _one_line_error(_train(blocker / "sub"))
+    assert "is not writable" in line
+
+
+@pytest.mark.parametrize("override", ["puma.train.iterations=0", "puma.train.lr=abc",
+                                      "+puma.train.iteration=5", "save_every=-1"])
+def test_bad_training_settings_are_refused_up_front(tmp_path, override):
+    line = _one_line_error(_train(tmp_path, override))
+    assert override.lstrip("+").split("=")[0].split(".")[-1] in line
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_killed_training_resumes_from_its_last_save(tmp_path):
+    settings = ("puma.train.iterations=20", "save_every=4", "seed=3")
+    full = _train(tmp_path / "full", *settings)
+    assert full.returncode == 0, full.stderr
+    cmd = [sys.executable, "-m", "tamedpuma.train", "puma=tiny", f"out_dir={tmp_path / 'cut'}",
+           "progress=false", "evaluate=false", *settings]
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    state = tmp_path / "cut/train_state.pt"
+    deadline = time.monotonic() + 120
+    while not state.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    proc.kill()
+    proc.communicate()
+    assert state.exists() and not (tmp_path / "cut/puma.pt").exists()
+    resumed = _train(tmp_path / "cut", *settings)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "resuming from iteration " in resumed.stderr
+    assert not state.exists()  # removed once the checkpoint is written
+    a = torch.load(tmp_path / "full/puma.pt", weights_only=False)["state_dict"]
+    b = torch.load(tmp_path / "cut/puma.pt", weights_only=False)["state_dict"]
+    assert a.keys() == b.keys()
+    assert all(torch.equal(a[k], b[k]) for k in a), "resumed training differs from uninterrupted"

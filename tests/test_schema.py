@@ -1,0 +1,190 @@
+"""The typed configuration (tamedpuma/app/schema.py): every shipped YAML loads against the schema,
+a key the schema does not know is refused, every out-of-range value is refused naming the key and
+the limit, and no library code keeps a default of its own (``cfg.get(key, default)``)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+
+from tamedpuma import methods
+from tamedpuma.app import schema
+from tamedpuma.app.config import CONF_DIR
+from tamedpuma.errors import ConfigError
+
+PKG = Path(__file__).resolve().parents[1] / "tamedpuma"
+
+
+@pytest.fixture(scope="module")
+def hydra_conf():
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        yield
+    GlobalHydra.instance().clear()
+
+
+def _options(group: str) -> list[str]:
+    return sorted(p.relative_to(CONF_DIR / group).with_suffix("").as_posix()
+                  for p in (CONF_DIR / group).rglob("*.yaml"))
+
+
+def _run_overrides(group: str, option: str) -> list[str]:
+    if group == "scenario" and "/" in option:
+        return [f"scenario={option}", f"task={option.split('/')[0]}"]
+    if group == "fabric":
+        return ["method=fabrics", f"fabric@method.fabric={option}"]
+    if group in ("experiment", "case"):
+        return [f"+{group}={option}"]
+    return [f"{group}={option}"]
+
+
+RUN_GROUPS = ("robot", "task", "scenario", "method", "recorder", "sim", "fabric", "experiment",
+              "case", "disturbance")
+RUN_CASES = [(g, o) for g in RUN_GROUPS for o in _options(g) if (g, o) != ("task", "lasa")]
+TRAIN_CASES = [(g, o) for g in ("task", "puma") for o in _options(g)]
+
+
+def test_every_yaml_is_covered():
+    groups = {p.name for p in CONF_DIR.iterdir() if p.is_dir()}
+    assert groups == {*RUN_GROUPS, "puma"}, "a new config group needs its case here"
+    assert len(RUN_CASES) + len(TRAIN_CASES) > 40
+
+
+@pytest.mark.parametrize("group,option", RUN_CASES, ids=lambda v: str(v))
+def test_run_yaml_loads_against_the_schema(hydra_conf, group, option):
+    run = schema.run_config(compose("sweep", overrides=_run_overrides(group, option)))
+    assert isinstance(run.method, schema.METHODS[run.method.name])
+    assert run.scenario.dt > 0 and run.sim.substep > 0
+
+
+@pytest.mark.parametrize("group,option", TRAIN_CASES, ids=lambda v: str(v))
+def test_train_yaml_loads_against_the_schema(hydra_conf, group, option):
+    cfg = schema.train_config(compose("train", overrides=[f"{group}={option}"]))
+    assert cfg.puma.train.iterations > 0
+
+
+def test_every_method_has_a_schema():
+    assert set(methods.available()) == set(schema.METHODS)
+
+
+@pytest.mark.parametrize("method", sorted(schema.METHODS))
+def test_a_misspelt_method_option_is_refused(hydra_conf, method):
+    cfg = compose("sweep", overrides=[f"method={method}", "+method.stifness=100"])
+    with pytest.raises(ConfigError, match=r"method\.stifness: unknown key"):
+        schema.run_config(cfg)
+
+
+@pytest.mark.parametrize("override,match", [
+    ("+robot.colour=red", r"robot\.colour: unknown key"),
+    ("+scenario.dtt=0.01", r"scenario\.dtt: unknown key"),
+    ("+sim.substeps=0.001", r"sim\.substeps: unknown key"),
+    ("+recorder.csv=true", r"recorder\.csv: unknown key"),
+    ("+clutter.size=0.1", r"clutter\.size: unknown key"),
+    ("+task.goal=1", r"task\.goal: unknown key"),
+    ("+sedd=1", r"sedd: unknown key"),
+    ("+disturbance.forse=1", r"disturbance\.forse: unknown key"),
+    ("sim.control=torque", r"sim\.control must be one of"),
+    ("method=fpm", None),
+])
+def test_an_unknown_key_is_refused(hydra_conf, override, match):
+    cfg = compose("sweep", overrides=[override])
+    if match is None:
+        schema.run_config(cfg)  # the control case loads
+        return
+    with pytest.raises(ConfigError, match=match):
+        schema.run_config(cfg)
+
+
+@pytest.mark.parametrize("override,match", [
+    ("scenario.dt=inf", r"scenario\.dt must be a finite number > 0"),
+    ("scenario.dt=-0.02", r"scenario\.dt must be a finite number > 0"),
+    ("scenario.dt=0.0025", r"scenario\.dt must be a multiple of sim\.substep"),
+    ("scenario.dt=5", r"at most 3600 s \(time limit\)"),
+    ("scenario.max_steps=1000000000", r"scenario\.max_steps must be in \[1, 200000\]"),
+    ("scenario.max_steps=0", r"scenario\.max_steps"),
+    ("scenario.goal_tolerance=-1", r"scenario\.goal_tolerance"),
+    ("scenario.goal_tolerance=nan", r"scenario\.goal_tolerance"),
+    ("sim.substep=0", r"sim\.substep must be in \(0, 0\.1\]"),
+    ("sim.substep=0.00001", r"at most 1000 physics substeps"),
+    ("clutter.count=100000", r"clutter\.count must be in \[0, 1000\]"),
+    ("clutter.radius=0", r"clutter\.radius"),
+    ("clutter.low=[2,0,0]", r"clutter\.low/high"),
+    ("seed=-1", r"seed must be"),
+    ("settle_time=-1", r"settle_time"),
+    ("recorder.flush_every=0", r"recorder\.flush_every"),
+])
+def test_a_value_out_of_range_is_refused(hydra_conf, override, match):
+    with pytest.raises(ConfigError, match=match):
+        schema.run_config(compose("sweep", overrides=[override]))
+
+
+@pytest.mark.parametrize("override,match", [
+    ("method.beta=-1", r"method\.beta"),
+    ("method.potential_scale=0", r"method\.potential_scale"),
+    ("method.damping=soft", r"method\.damping must be matched or constant"),
+    ("method.fabric.goal_weight=-1", r"fabric\.goal_weight"),
+    ("method.fabric.obstacle.energy_gain=0", r"energy_gain must be positive"),
+])
+def test_a_method_value_out_of_range_is_refused(hydra_conf, override, match):
+    with pytest.raises(ConfigError, match=match):
+        schema.run_config(compose("sweep", overrides=["method=cpm", override]))
+
+
+@pytest.mark.parametrize("override,match", [
+    ("puma.train.iterations=0", r"puma\.train\.iterations must be a finite number > 0"),
+    ("puma.train.iterations=100000000", r"at most 1000000"),
+    ("puma.train.lr=-1", r"puma\.train\.lr"),
+    ("puma.train.persist=2", r"puma\.train\.persist must be a finite number in \[0, 1\]"),
+    ("puma.network.width=0", r"puma\.network\.width"),
+    ("puma.eval.horizon=0", r"puma\.eval\.horizon"),
+    ("puma.order=3", r"puma\.order must be 1 or 2"),
+    ("puma.dt=0", r"puma\.dt"),
+    ("+puma.train.iteration=10", r"puma\.train\.iteration: unknown key"),
+])
+def test_a_training_value_out_of_range_is_refused(hydra_conf, override, match):
+    with pytest.raises(ConfigError, match=match):
+        schema.train_config(compose("train", overrides=[override]))
+
+
+@pytest.mark.parametrize("config,override", [("sweep", "scenario.dt=abc"),
+                                             ("train", "puma.train.lr=abc"),
+                                             ("sweep", "method.fabric.goal_weight=abc")])
+def test_a_wrong_type_is_refused_at_composition(hydra_conf, config, override):
+    """The schema heads each defaults list, so Hydra itself refuses a wrong type."""
+    from hydra.errors import HydraException
+
+    with pytest.raises((ConfigError, HydraException), match=re.escape(override.split("=")[0])):
+        cfg = compose(config, overrides=[override])
+        (schema.run_config if config == "sweep" else schema.train_config)(cfg)
+
+
+def test_defaults_are_typed_objects_and_complete(hydra_conf):
+    run = schema.run_config(compose("sweep", overrides=["method=cpm_literal"]))
+    assert run.method.damping == "constant" and run.method.label == "cpm_literal"
+    plain = schema.as_dict(run.method)
+    assert {"beta", "eps", "variant", "potential_scale", "semi_implicit", "pinv_damping",
+            "checkpoint", "null_space", "fabric"} <= set(plain)
+    from tamedpuma.worlds.bullet import SimConfig
+
+    assert isinstance(run.sim, SimConfig)
+
+
+_DEFAULTED_GET = re.compile(
+    r"\b(cfg|task|puma|syn|ws|clutter|sc_cfg|robot)\.get\(\s*['\"]\w+['\"]\s*,")
+
+
+def test_no_library_default_besides_the_schema():
+    """Library code reads complete configs. (analysis/ reads the configs stored in old logs,
+    where a missing key means the run predates it: its fallbacks are not config defaults.)"""
+    offenders = []
+    for path in PKG.rglob("*.py"):
+        if path.name == "schema.py" or path.relative_to(PKG).parts[0] == "analysis":
+            continue
+        for n, line in enumerate(path.read_text().splitlines(), 1):
+            if _DEFAULTED_GET.search(line):
+                offenders.append(f"{path.relative_to(PKG)}:{n}: {line.strip()}")
+    assert not offenders, "config defaults belong in app/schema.py:\n" + "\n".join(offenders)
