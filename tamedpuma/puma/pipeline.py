@@ -138,63 +138,6 @@ def scenario_starts(task: dict) -> list[tuple[str, np.ndarray, np.ndarray, np.nd
         raise ConfigError(f"task.workspace_check.robot: {exc}") from None
     out = []
     for f in files:
-STATE_FILE = "train_state.pt"  # a training's resumable state, removed when it finishes
-
-
-def prepare_out_dir(out_dir: Path, overwrite: bool) -> Path:
-    """Check ``out_dir`` before the first iteration: an existing ``puma.pt`` is refused unless
-    ``overwrite``; the folder must be writable. Returns the checkpoint path."""
-    path = out_dir / "puma.pt"
-    if path.exists() and not overwrite:
-        raise ConfigError(f"{path} exists: pass overwrite=true to replace it, or choose another "
-                          "out_dir")
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        probe = out_dir / f".write-test-{os.getpid()}"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise ConfigError(f"output folder {out_dir} is not writable: "
-                          f"{exc.strerror or exc}") from None
-    return path
-
-
-def _resumable(out_dir: Path, cfg: dict, overwrite: bool, log) -> dict | None:
-    """The saved state of a killed training of the same config in ``out_dir``, if any."""
-    import torch
-
-    path = out_dir / STATE_FILE
-    if not path.exists():
-        return None
-    try:
-        saved = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # a state cut short by the kill itself: start over
-        log(f"ignoring an unreadable {path} ({type(exc).__name__}); training from the start")
-        return None
-    if saved.get("config") != _training_part(cfg):
-        if overwrite:
-            return None
-        raise ConfigError(f"{path} holds a partial training of another config: delete it, pass "
-                          "overwrite=true, or choose another out_dir")
-    log(f"resuming from iteration {saved['state']['it']} ({path})")
-    return saved["state"]
-
-
-def _training_part(cfg: dict) -> dict:
-    """The keys that decide a training's result (not progress bars, evaluation or paths)."""
-    return {k: cfg[k] for k in ("task", "puma", "seed")}
-
-
-def _saver(out_dir: Path, cfg: dict):
-    import torch
-
-    def save(state: dict) -> None:
-        tmp = out_dir / (STATE_FILE + ".tmp")
-        torch.save({"config": _training_part(cfg), "state": state}, tmp)
-        tmp.replace(out_dir / STATE_FILE)
-    return save
-
-
         if not f.is_file():
             raise ConfigError(f"task.workspace_check.scenarios: no scenario file {f}")
         sc = OmegaConf.to_container(OmegaConf.load(f), resolve=False)
@@ -265,6 +208,63 @@ def inference_timing(prim, repeats: int = 300) -> dict:
     return out
 
 
+STATE_FILE = "train_state.pt"  # a training's resumable state, removed when it finishes
+
+
+def prepare_out_dir(out_dir: Path, overwrite: bool) -> Path:
+    """Check ``out_dir`` before the first iteration: an existing ``puma.pt`` is refused unless
+    ``overwrite``; the folder must be writable. Returns the checkpoint path."""
+    path = out_dir / "puma.pt"
+    if path.exists() and not overwrite:
+        raise ConfigError(f"{path} exists: pass overwrite=true to replace it, or choose another "
+                          "out_dir")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        probe = out_dir / f".write-test-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"output folder {out_dir} is not writable: "
+                          f"{exc.strerror or exc}") from None
+    return path
+
+
+def _resumable(out_dir: Path, cfg: dict, overwrite: bool, log) -> dict | None:
+    """The saved state of a killed training of the same config in ``out_dir``, if any."""
+    import torch
+
+    path = out_dir / STATE_FILE
+    if not path.exists():
+        return None
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # a state cut short by the kill itself: start over
+        log(f"ignoring an unreadable {path} ({type(exc).__name__}); training from the start")
+        return None
+    if saved.get("config") != _training_part(cfg):
+        if overwrite:
+            return None
+        raise ConfigError(f"{path} holds a partial training of another config: delete it, pass "
+                          "overwrite=true, or choose another out_dir")
+    log(f"resuming from iteration {saved['state']['it']} ({path})")
+    return saved["state"]
+
+
+def _training_part(cfg: dict) -> dict:
+    """The keys that decide a training's result (not progress bars, evaluation or paths)."""
+    return {k: cfg[k] for k in ("task", "puma", "seed")}
+
+
+def _saver(out_dir: Path, cfg: dict):
+    import torch
+
+    def save(state: dict) -> None:
+        tmp = out_dir / (STATE_FILE + ".tmp")
+        torch.save({"config": _training_part(cfg), "state": state}, tmp)
+        tmp.replace(out_dir / STATE_FILE)
+    return save
+
+
 def run(cfg: dict, log=print) -> dict:
     """Train, save, (re)load and evaluate as configured; returns the report (also on disk).
 
@@ -277,7 +277,6 @@ def run(cfg: dict, log=print) -> dict:
     seed = int(cfg["seed"])
     out_dir = resolve_path(str(cfg["out_dir"]))
     ckpt_path = prepare_out_dir(out_dir, bool(cfg["overwrite"]))
-    resume = _resumable(out_dir, cfg, bool(cfg["overwrite"]), log)
     train_cfg = _dataclass(TrainConfig, puma.get("train"), "puma.train")
     net_cfg = _dataclass(NetConfig, puma.get("network"), "puma.network")
     eval_cfg = _dataclass(evaluation.EvalConfig, puma.get("eval"), "puma.eval")
@@ -313,6 +312,7 @@ def run(cfg: dict, log=print) -> dict:
         ws = Workspace(ws.low, ws.high, 0.0)
     log(f"PUMA {task.get('name')}: {len(demos)} demonstrations from {demos.source}, "
         f"spec {spec}, dt {demos.dt} s")
+    resume = _resumable(out_dir, cfg, bool(cfg["overwrite"]), log)
     result = train(demos, ws, spec, net_cfg, train_cfg, seed=seed,
                    progress=bool(cfg["progress"]), resume=resume,
                    save=_saver(out_dir, cfg), save_every=int(cfg["save_every"]),
