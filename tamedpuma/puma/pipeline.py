@@ -53,7 +53,7 @@ def load_raws(task: dict, puma: dict) -> tuple[list[data.RawDemo], str, str]:
     src = task.get("demos")
     if src is None:
         syn = task["synthetic"]
-        raws = demos_synthetic.generate(str(syn.get("kind", name)),
+        raws = demos_synthetic.generate(str(syn.get("kind") or name),
                                         _require(task, "goal_position", "task"),
                                         _require(task, "goal_quaternion", "task"),
                                         int(syn["n_demos"]), int(syn["seed"]))

@@ -121,7 +121,7 @@ def task_raws(task: dict) -> list[RawDemo]:
     src = task.get("demos")
     if src is None:
         syn = task.get("synthetic") or {}
-        return demos_synthetic.generate(str(syn.get("kind", task["name"])), task["goal_position"],
+        return demos_synthetic.generate(str(syn.get("kind") or task["name"]), task["goal_position"],
                                         task["goal_quaternion"], int(syn.get("n_demos", 10)),
                                         int(syn.get("seed", 0)))
     path = Path(str(src)).expanduser()
