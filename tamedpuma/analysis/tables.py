@@ -168,13 +168,9 @@ def main(argv: list[str] | None = None) -> int:
     runs.to_csv(out / "runs.csv", index=False)
     notes = model_notes(runs) or ["no trained model used"]
     md = table.to_markdown(index=False, disable_numparse=True)
-    (out / "table1.md").write_text(md + "
-
-" + "".join(f"- {n}
-" for n in notes))
+    (out / "table1.md").write_text(md + "\n\n" + "".join(f"- {n}\n" for n in notes))
     (out / "table1.tex").write_text(table.to_latex(index=False)
-                                    + "".join(f"% {n}
-" for n in notes))
+                                    + "".join(f"% {n}\n" for n in notes))
     print(md)
     for n in notes:
         print(n)
