@@ -59,8 +59,8 @@ LAYERS = [{"errors"}, {"types", "paths"}, {"robot"}, {"fabrics", "puma", "ik_sol
 _ALLOWED = {("episode", "tamedpuma.recording.records"),
             # known, to move: puma/demo_formats.py reads MCAP demonstrations through recording/
             ("puma", "tamedpuma.recording")}
-_SHIMS = {"sweep", "train", "lasa", "bench_fabrics", "bench", "replay", "body_model", "__init__",
-          "__main__"}
+_SHIMS = {"sweep", "train", "lasa", "bench_fabrics", "bench", "replay", "body_model", "models",
+          "__init__", "__main__"}
 
 
 def _layer(part: str) -> int:

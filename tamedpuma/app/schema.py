@@ -263,9 +263,14 @@ class NullSpaceSchema:
         _nonneg("method.null_space.damping", self.damping)
 
 
+MODEL_CHOICES = ("auto", "real", "shipped")
+
+
 @dataclass
 class PumaMethod(MethodSchema):
-    checkpoint: str | None = None  # python -m tamedpuma.train task=<task> writes one
+    task: str | None = None        # whose model to use (conf: ${task.name})
+    checkpoint: str | None = None  # a puma.pt; null: the best model at hand (puma/store.py)
+    model: str = "auto"            # with checkpoint null: auto | real (error if none) | shipped
     pinv_damping: float = 0.01        # λ₀ of J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹
     pinv_damping_max: float = 0.0     # λ_max of the singularity-robust inverse (0: constant λ₀)
     manipulability_threshold: float = 0.02  # w₀: λ grows below this manipulability
@@ -273,6 +278,7 @@ class PumaMethod(MethodSchema):
     null_space: NullSpaceSchema | None = field(default_factory=NullSpaceSchema)
 
     def __post_init__(self):
+        _check(self.model in MODEL_CHOICES, "method.model", " | ".join(MODEL_CHOICES), self.model)
         _nonneg("method.pinv_damping", self.pinv_damping)
         _nonneg("method.pinv_damping_max", self.pinv_damping_max)
         _positive("method.manipulability_threshold", self.manipulability_threshold)
@@ -339,7 +345,8 @@ def _with_fields_of(name: str, base: type, library: type) -> type:
 @dataclass
 class _ModulationBase(MethodSchema):
     task: str | None = None        # the task whose position primitive drives it
-    checkpoint: str | None = None  # a first-order position PUMA (puma=position)
+    checkpoint: str | None = None  # a first-order position PUMA (puma=position); null: best at hand
+    model: str = "auto"            # with checkpoint null: auto | real (error if none) | shipped
 
 
 ModulationIkMethod = _with_fields_of("ModulationIkMethod", _ModulationBase, ModulationIKParams)

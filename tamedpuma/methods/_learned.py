@@ -33,7 +33,7 @@ def model_path(cfg: Mapping, order: int) -> Path:
         raise ConfigError("method.checkpoint and method.task are not set")
     from tamedpuma.puma import store
 
-    return store.resolve(str(cfg["task"]), order, None, str(cfg.get("model", "auto"))).path
+    return store.resolve(str(cfg["task"]), order, None, str(cfg["model"])).path
 
 
 def load_task(cfg: Mapping):

@@ -246,7 +246,7 @@ def load_position_primitive(cfg: Mapping) -> VelocityField:
     elif cfg.get("task"):
         from tamedpuma.puma import store
 
-        resolved = store.resolve(str(cfg["task"]), 1, None, str(cfg.get("model", "auto"))).path
+        resolved = store.resolve(str(cfg["task"]), 1, None, str(cfg["model"])).path
         path = str(resolved)
     else:
         raise ConfigError("method.checkpoint and method.task are not set; name a first-order "
