@@ -193,9 +193,12 @@ class SyntheticSchema:
     kind: str | None = None          # the generator's shape (default: the task's name)
     n_demos: int = 10
     seed: int = 0
+    time_law: str = "approach"       # approach (critically damped) | min_jerk
 
     def __post_init__(self):
         _check(1 <= self.n_demos <= 1000, "task.synthetic.n_demos", "in [1, 1000]", self.n_demos)
+        _check(self.time_law in ("approach", "min_jerk"), "task.synthetic.time_law",
+               "approach or min_jerk", self.time_law)
 
 
 @dataclass

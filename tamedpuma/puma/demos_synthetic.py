@@ -51,9 +51,20 @@ def _approach(tau: np.ndarray, a: float = 8.0) -> np.ndarray:
     return (1.0 - (1.0 + a * tau) * np.exp(-a * tau)) / (1.0 - (1.0 + a) * np.exp(-a))
 
 
+def _min_jerk(tau: np.ndarray) -> np.ndarray:
+    """Minimum-jerk time law ``s(τ) = 10τ³ − 15τ⁴ + 6τ⁵`` (rest to rest; slow polynomial tail)."""
+    return 10 * tau**3 - 15 * tau**4 + 6 * tau**5
+
+
+TIME_LAWS = {"approach": _approach, "min_jerk": _min_jerk}
+
+
 def generate(task: str, goal_position, goal_quaternion, n_demos: int = 10, seed: int = 0,
-             period: float = 0.030) -> list[RawDemo]:
-    """``n_demos`` seeded demonstrations of ``task`` (a key of ``TASKS``) ending at the goal."""
+             period: float = 0.030, time_law: str = "approach") -> list[RawDemo]:
+    """``n_demos`` seeded demonstrations of ``task`` (a key of ``TASKS``) ending at the goal,
+    along ``time_law`` (a key of ``TIME_LAWS``)."""
+    if time_law not in TIME_LAWS:
+        raise ConfigError(f"unknown synthetic time law {time_law!r}; one of {sorted(TIME_LAWS)}")
     if task not in TASKS:
         raise ConfigError(f"no synthetic demonstrations for task '{task}' "
                           f"(one of: {', '.join(TASKS)}); set task.demos to a folder")
@@ -74,8 +85,11 @@ def generate(task: str, goal_position, goal_quaternion, n_demos: int = 10, seed:
         dts = period + rng.normal(scale=2e-4, size=int(duration / period) + 1)
         t = np.concatenate(([0.0], np.cumsum(dts[1:])))
         tau = np.clip(t / t[-1], 0.0, 1.0)
-        s = _approach(tau)[:, None]
-        bump = 16 * s**2 * (1 - s) ** 2  # the detour peaks half way along the path
+        if time_law == "min_jerk":  # the detour as first generated: a bump in time
+            s, bump = _min_jerk(tau)[:, None], (16 * tau**2 * (1 - tau) ** 2)[:, None]
+        else:
+            s = TIME_LAWS[time_law](tau)[:, None]
+            bump = 16 * s**2 * (1 - s) ** 2  # the detour peaks half way along the path
         pos = start + s * (goal_p - start) + bump * via
         rel = manifold.np_quat_exp((1.0 - s) * rotvec0)
         quat = manifold.np_quat_mul(rel, goal_q[None])

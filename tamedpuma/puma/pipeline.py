@@ -56,7 +56,8 @@ def load_raws(task: dict, puma: dict) -> tuple[list[data.RawDemo], str, str]:
         raws = demos_synthetic.generate(str(syn.get("kind") or name),
                                         _require(task, "goal_position", "task"),
                                         _require(task, "goal_quaternion", "task"),
-                                        int(syn["n_demos"]), int(syn["seed"]))
+                                        int(syn["n_demos"]), int(syn["seed"]),
+                                        time_law=str(syn["time_law"]))
         return raws, f"synthetic:{name}", "m"
     if src == "lasa":
         shape = str(_require(task, "shape", "task"))
