@@ -181,8 +181,8 @@ def test_cpm_matched_forcing_follows_puma_and_still_dissipates():
     puma = PumaController(PlanarTask(LinearTaskPrimitive(1.0, 2.0)), kin)
 
     def make():
-        return CpmController(puma, _fabric(), beta=0.5, potential_scale=5.0,
-                             damping="matched_forcing")
+        return CpmController(puma, _fabric(), **{**CPM, "beta": 0.5, "potential_scale": 5.0,
+                                                  "damping": "matched_forcing"})
 
     ref = _run("puma", obstacles=False)
     run = run_episode(point_scenario(obstacles=False), make(), PointMassWorld(SPEC))
