@@ -15,14 +15,13 @@ Everything is read from the MCAP logs alone (:mod:`tamedpuma.analysis.runs`).
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from tamedpuma.analysis.runs import load_runs
+from tamedpuma.analysis.runs import load_runs, runs_parser
 from tamedpuma.analysis.stats import bootstrap_ci
 from tamedpuma.analysis.tables import _labels, ordered_labels
 from tamedpuma.errors import LogError
@@ -320,10 +319,7 @@ def make_figures(runs: pd.DataFrame, paths: dict, out: Path,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="output folder (default: RUNS/figures)")
+    parser = runs_parser(__doc__, "output folder (default: RUNS/figures)")
     parser.add_argument("--formats", default="png,pdf",
                         help="comma-separated file formats (default: png,pdf)")
     args = parser.parse_args(argv)

@@ -12,13 +12,11 @@ joint_limit, stall, time, late). Writes ``random_suite.md``, ``random_suite.csv`
 
 from __future__ import annotations
 
-import argparse
 import sys
-from pathlib import Path
 
 import pandas as pd
 
-from tamedpuma.analysis.runs import load_runs
+from tamedpuma.analysis.runs import load_runs, runs_parser
 from tamedpuma.analysis.summaries import bootstrap_ci
 from tamedpuma.analysis.tables import _pm, failure_counts, ordered_labels, path_differences
 
@@ -49,9 +47,7 @@ def random_table(runs: pd.DataFrame) -> pd.DataFrame:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (default: RUNS)")
+    parser = runs_parser(__doc__, "output folder (default: RUNS)")
     args = parser.parse_args(argv)
     if not args.runs.is_dir():
         print(f"error: {args.runs} is not a folder", file=sys.stderr)

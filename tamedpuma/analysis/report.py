@@ -10,7 +10,6 @@ is reported, never a crash.
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from pathlib import Path
@@ -19,7 +18,7 @@ import pandas as pd
 import yaml
 
 from tamedpuma.analysis.figures import make_figures, method_summary
-from tamedpuma.analysis.runs import load_runs
+from tamedpuma.analysis.runs import load_runs, runs_parser
 from tamedpuma.analysis.tables import _labels, path_differences, table1
 
 
@@ -183,9 +182,7 @@ def render(root: Path, runs: pd.DataFrame, paths: dict, times: dict, out: Path,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (default: RUNS)")
+    parser = runs_parser(__doc__, "output folder (default: RUNS)")
     parser.add_argument("--no-figures", action="store_true", help="tables only")
     args = parser.parse_args(argv)
     if not args.runs.is_dir():

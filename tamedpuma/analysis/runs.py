@@ -6,6 +6,7 @@ loop uses (:func:`tamedpuma.metrics.run_metrics`); ``summary.json`` is not read.
 
 from __future__ import annotations
 
+import argparse
 import logging
 from pathlib import Path
 
@@ -21,6 +22,15 @@ log = logging.getLogger(__name__)
 
 #: the trained model a run used (RunInfo.model in the MCAP metadata; empty for model-free methods)
 MODEL_KEYS = ("model_name", "model_origin", "model_data", "model_data_source", "model_sha256")
+
+
+def runs_parser(doc: str | None, out_help: str = "output folder (default: RUNS)"
+                ) -> argparse.ArgumentParser:
+    """The analysis commands' shared arguments: RUNS (a folder of run folders) and ``--out``."""
+    parser = argparse.ArgumentParser(description=(doc or "").splitlines()[0] if doc else None)
+    parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
+    parser.add_argument("--out", type=Path, default=None, help=out_help)
+    return parser
 
 
 def find_logs(root: str | Path) -> list[Path]:

@@ -9,12 +9,12 @@ runs (median and p99 [ms]; the first step of each run is included). Writes ``sca
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import pandas as pd
 
+from tamedpuma.analysis.runs import runs_parser
 from tamedpuma.analysis.summaries import load_summaries, pooled_step_times
 from tamedpuma.analysis.tables import ordered_labels
 
@@ -82,9 +82,7 @@ def figure(table: pd.DataFrame, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (default: RUNS)")
+    parser = runs_parser(__doc__, "output folder (default: RUNS)")
     args = parser.parse_args(argv)
     if not args.runs.is_dir():
         print(f"error: {args.runs} is not a folder", file=sys.stderr)

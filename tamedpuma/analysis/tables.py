@@ -20,16 +20,14 @@ Writes ``table1.md``, ``table1.tex`` and ``runs.csv`` to the output folder.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections import Counter
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from tamedpuma.analysis.path_difference import path_difference
-from tamedpuma.analysis.runs import load_runs
+from tamedpuma.analysis.runs import load_runs, runs_parser
 
 METHOD_ORDER = ["puma", "modulation_ik", "fabrics", "fpm", "cpm", "cpm_literal", "cpm_original"]
 
@@ -140,9 +138,7 @@ def model_notes(runs: pd.DataFrame) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (default: RUNS)")
+    parser = runs_parser(__doc__, "output folder (default: RUNS)")
     parser.add_argument("--include-incomplete", action="store_true",
                         help="score killed/truncated runs too (default: listed and excluded)")
     args = parser.parse_args(argv)

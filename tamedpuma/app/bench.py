@@ -28,7 +28,6 @@ import argparse
 import dataclasses
 import json
 import os
-import re
 import subprocess
 import sys
 import tempfile
@@ -37,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tamedpuma.app.bench_fabrics import ROOT, machine_info, random_obstacles
+from tamedpuma.app.bench_fabrics import ROOT, machine_info, random_obstacles, update_markdown
 
 COUNTS = (2, 10, 100, 1000)
 METHODS = ("puma", "fabrics", "fpm", "cpm", "modulation_ik")
@@ -289,17 +288,7 @@ def main(argv=None) -> int:
         out = args.root / "benchmarks" / "bench.json"
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(report, indent=2) + "\n")
-        update_section(args.root / "BENCHMARKS.md", markdown_section(report))
+        update_markdown(args.root / "BENCHMARKS.md", markdown_section(report), SECTION)
         print(f"wrote {out} and {args.root / 'BENCHMARKS.md'}", file=sys.stderr)
     return 0
 
-
-def update_section(path: Path, section: str) -> None:
-    """Replace (or append) this command's section of ``path``, keeping every other section."""
-    text = path.read_text() if path.exists() else "# Benchmarks\n\n"
-    pattern = re.compile(rf"^## {SECTION}\n.*?(?=^## |\Z)", re.M | re.S)
-    if pattern.search(text):
-        text = pattern.sub(lambda _: section + "\n", text, count=1)
-    else:
-        text = text.rstrip("\n") + "\n\n" + section + "\n"
-    path.write_text(text.rstrip("\n") + "\n")

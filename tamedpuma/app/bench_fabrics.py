@@ -192,10 +192,10 @@ def markdown_section(report: dict) -> str:
     return "\n".join(lines)
 
 
-def update_markdown(path: Path, section: str) -> None:
-    """Replace (or append) the "## Fabrics" section of ``path``, keeping every other section."""
+def update_markdown(path: Path, section: str, title: str = "Fabrics") -> None:
+    """Replace (or append) the "## <title>" section of ``path``, keeping every other section."""
     text = path.read_text() if path.exists() else "# Benchmarks\n\n"
-    pattern = re.compile(r"^## Fabrics\n.*?(?=^## |\Z)", re.M | re.S)
+    pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.M | re.S)
     if pattern.search(text):
         text = pattern.sub(lambda _: section + "\n", text, count=1)
     else:
