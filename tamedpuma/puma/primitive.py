@@ -5,8 +5,11 @@
 Modulation-IK, or 2-D LASA models). Every call converts the world-frame state to the goal-relative
 state the network was trained on (goal convention ``final_pose``: ``e = p − p_g``,
 ``ζ_rel = ζ ⊗ ζ_g⁻¹``; velocities are unchanged: ``ζ̇_rel = ½ ω ⊗ ζ_rel`` for a fixed goal) and runs
-a float64 numpy copy of the network (``fastnet``; ≈ 10× faster than torch for one state, and
-checked against it); no module is built per call. Angular velocities are
+a float64 numpy copy of the network: for one state :class:`~tamedpuma.puma.single.SingleState`
+(a fixed, small number of numpy calls on preallocated buffers), for batches, and as the reference
+the one-state path is tested against, ``fastnet`` (itself checked against torch); no module is
+built per call. ``primitive.single = None`` selects the reference for single states too (the
+benchmark's before/after). Angular velocities are
 world-frame ω [rad/s]: the network works with ω natively, so no quaternion-derivative conversion
 happens at all on this path.
 """
@@ -23,6 +26,7 @@ from . import checkpoint
 from .checkpoint import Meta
 from .fastnet import FastNet
 from .network import PumaNet
+from .single import SingleState, relative_rotation
 
 
 def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -44,6 +48,16 @@ def _relative_quat(quat, goal_quat) -> np.ndarray:
     return _qmul(q, g)
 
 
+def _floats(x) -> list[float]:
+    return x.tolist() if isinstance(x, np.ndarray) else [float(v) for v in x]
+
+
+def _pose_error(p, quat, goal_p, goal_quat) -> tuple[list[float], list[float]]:
+    """``(p − p_g, entries of R(ζ ⊗ ζ_g⁻¹))`` of one pose, as Python floats."""
+    (px, py, pz), (gx, gy, gz) = _floats(p), _floats(goal_p)
+    return [px - gx, py - gy, pz - gz], relative_rotation(_floats(quat), _floats(goal_quat))
+
+
 class _Base:
     def __init__(self, net: PumaNet, meta: Meta):
         self.net, self.meta = net, meta
@@ -54,6 +68,7 @@ class _Base:
         for p in net.parameters():
             p.requires_grad_(False)
         self.fast = FastNet(net)
+        self.single: SingleState | None = SingleState(self.fast)  # None: the reference path
 
     @property
     def goal(self) -> dict:
@@ -67,6 +82,11 @@ class PosePrimitive(_Base):
     def acceleration(self, p, quat_xyzw, v, omega, goal_p, goal_quat):
         """``(a (3,) [m/s²], α (3,) [rad/s²])`` world frame, at pose (p [m], ζ) and twist
         (v [m/s], ω [rad/s], world frame) for the goal (goal_p [m], goal_quat (x, y, z, w))."""
+        one = self.single
+        if one is not None:
+            e, rot = _pose_error(p, quat_xyzw, goal_p, goal_quat)
+            out = one.forward(e, rot, [*_floats(v), *_floats(omega)])
+            return out[:3], out[3:]
         a = self.acceleration_batch(np.reshape(p, (1, 3)), np.reshape(quat_xyzw, (1, 4)),
                                     np.reshape(v, (1, 3)), np.reshape(omega, (1, 3)),
                                     goal_p, goal_quat)
@@ -86,6 +106,8 @@ class PosePrimitive(_Base):
         ∂ψ/∂θ is w.r.t. a small world-frame rotation δθ applied as ``ζ ← exp(δθ) ⊗ ζ``, so a
         joint-space gradient is ``∂ψ/∂q = ∂ψ/∂p · J_v + ∂ψ/∂θ · J_ω``.
         """
+        if self.single is not None:
+            return self.single.potential(*_pose_error(p, quat, goal_p, goal_quat))
         psi, gp, gt = self.potential_batch(np.reshape(p, (1, 3)), np.reshape(quat, (1, 4)),
                                            goal_p, goal_quat)
         return float(psi[0]), gp[0], gt[0]
@@ -116,6 +138,8 @@ class VectorPrimitive(_Base):
             raise CheckpointError("velocity() needs a first-order primitive; this one is second "
                                   "order (use acceleration)")
         e = self._rel(x, goal)
+        if e.ndim == 1 and self.single is not None:
+            return self.single.forward(e.tolist(), None, None)
         return self.fast.forward(np.atleast_2d(e)).reshape(e.shape)
 
     def acceleration(self, x, xd, goal=None) -> np.ndarray:
@@ -124,12 +148,17 @@ class VectorPrimitive(_Base):
             raise CheckpointError("acceleration() needs a second-order primitive; this one is "
                                   "first order (use velocity)")
         e = self._rel(x, goal)
+        if e.ndim == 1 and self.single is not None:
+            return self.single.forward(e.tolist(), None, np.asarray(xd, np.float64).tolist())
         xd = np.atleast_2d(np.asarray(xd, np.float64))
         return self.fast.forward(np.atleast_2d(e), None, xd).reshape(e.shape)
 
     def potential(self, x, goal=None):
         """``(ψ, ∂ψ/∂x)`` with ``ψ = ‖ρ(x_g, 0) − ρ(x, 0)‖²``; x (n,) or (B, n)."""
         e = self._rel(x, goal)
+        if e.ndim == 1 and self.single is not None:
+            psi, g, _ = self.single.potential(e.tolist(), None)
+            return psi, g
         psi, g, _ = self.fast.potential(np.atleast_2d(e))
         return (float(psi[0]), g[0]) if e.ndim == 1 else (psi, g)
 

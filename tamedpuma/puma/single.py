@@ -1,0 +1,249 @@
+"""The PUMA network for one state per call: the control loop's path (numpy, float64).
+
+Same maths as :class:`~tamedpuma.puma.fastnet.FastNet` (the batched numpy reference, itself tested
+against the torch network), rearranged so that one evaluation is a fixed, small number of numpy
+calls on preallocated buffers (for one state the time is per-call overhead, not arithmetic):
+
+- constants folded into the weights once: the input normalisation ``f = x ⊙ s_in`` (kept for the
+  skip part of the latent), each LayerNorm's centring ``h − mean(h) = f (W − W̄) + (b − b̄)``
+  (W̄ the row means), GELU's ½ (``gelu(u) = ½ u (1 + erf(u/√2))``, the ½ moved into the next
+  layer), the decoder's LayerNorm gain and bias ``(x̂ ⊙ γ + β) W + b = x̂ (γ ⊙ W) + (β W + b)`` and
+  the output ``(φ − φ_g) ⊙ s_out``; every bias rides in a trailing 1 of the layer's input;
+- the rotation matrix of ``ζ ⊗ ζ_g⁻¹`` from Python floats, not array calls;
+- ψ's gradient by hand (as FastNet), and the world-frame rotation part
+  ``∂ψ/∂δθ_k = ⟨[e_k]× R, G⟩ = vee(A − Aᵀ)_k`` with ``A = G Rᵀ`` (G = ∂ψ/∂R);
+- once :meth:`potential` has been asked for (CPM), every :meth:`forward` also encodes the state at
+  rest ``(x, 0)`` as a second row of the same products, and :meth:`potential` at that same pose
+  reuses it (only the backward pass is left): ψ costs CPM a few calls, not a second network pass.
+
+Tested against FastNet and against the torch network in float64 (1e-10).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.special import erf
+
+from .fastnet import FastNet
+
+_INV_SQRT2 = 1.0 / math.sqrt(2.0)
+_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+_dot = np.dot
+_add, _mul, _sub = np.add, np.multiply, np.subtract
+
+
+def rotation_entries(x, y, z, w) -> list[float]:
+    """Row-major entries of the rotation matrix of a unit quaternion (x, y, z, w)."""
+    return [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]
+
+
+def relative_rotation(quat, goal_quat) -> list[float]:
+    """Entries of R(ζ ⊗ ζ_g⁻¹) (both normalised first), as ``primitive._relative_quat``."""
+    ax, ay, az, aw = quat
+    na = 1.0 / math.sqrt(ax * ax + ay * ay + az * az + aw * aw)
+    ax, ay, az, aw = ax * na, ay * na, az * na, aw * na
+    bx, by, bz, bw = goal_quat
+    nb = 1.0 / math.sqrt(bx * bx + by * by + bz * bz + bw * bw)
+    bx, by, bz, bw = -bx * nb, -by * nb, -bz * nb, bw * nb
+    return rotation_entries(aw * bx + ax * bw + ay * bz - az * by,
+                            aw * by - ax * bz + ay * bw + az * bx,
+                            aw * bz + ax * by - ay * bx + az * bw,
+                            aw * bw - ax * bx - ay * by - az * bz)
+
+
+def _centred(w: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``[[W − W̄], [b − b̄]]`` (in + 1, out): a linear layer whose output has zero mean."""
+    return np.vstack((w - w.mean(axis=1, keepdims=True), (b - b.mean())[None]))
+
+
+class _Rows:
+    """Buffers of one batch size B (1: the state; 2: the state and the same pose at rest)."""
+
+    def __init__(self, B: int, d: int, w: int, z: int, skip: bool):
+        self.f = np.ones((B, d + 1))  # normalised input and the bias 1
+        self.raw = np.ones((B, d + 1))
+        self.c1, self.c2 = np.empty((B, w)), np.empty((B, w))
+        self.a1, self.a2 = np.ones((B, w + 1)), np.ones((B, w + 1))
+        self.t1, self.t2 = np.empty((B, w)), np.empty((B, w))
+        self.y = np.empty((B, z + (d if skip else 0)))
+        self.var = np.empty(B)
+
+
+class SingleState:
+    """One-state evaluation of a :class:`FastNet` (see the module docstring). Not thread-safe."""
+
+    def __init__(self, fast: FastNet):
+        spec = self.spec = fast.spec
+        self.n = spec.n_pos
+        self.ori = spec.orientation
+        self.order = spec.order
+        d = self.d = spec.input_dim
+        w = self.w = fast.e1.w.shape[1]
+        z = self.z = fast.e3.w.shape[1]
+        self.skip = fast.skip
+        s_in = [1.0 / np.asarray(fast.pos_scale, float).reshape(-1) * np.ones(self.n)]
+        if self.ori:
+            s_in.append(np.ones(9))
+        if self.order == 2:
+            s_in.append(1.0 / np.asarray(fast.vel_scale, float).reshape(-1)
+                        * np.ones(spec.tangent_dim))
+        self.s_in = np.concatenate(s_in + [np.ones(1)])
+        # encoder: centred layers 1 and 2 (their LayerNorms' means folded in), GELU's ½ folded
+        # into the next layer's weights (the bias row, multiplied by the trailing 1, is not)
+        self.W1 = _centred(fast.e1.w, fast.e1.b)
+        self.W2 = _centred(fast.e2.w, fast.e2.b)
+        self.W2[:-1] *= 0.5
+        self.W3 = np.vstack((fast.e3.w, fast.e3.b[None]))
+        self.W3[:-1] *= 0.5
+        self.g1, self.b1, self.eps1 = fast.n1.g, fast.n1.b, fast.n1.eps
+        self.g2, self.b2, self.eps2 = fast.n2.g, fast.n2.b, fast.n2.eps
+        # decoder: LayerNorm gain/bias folded into d1; ½ of each GELU into the next layer;
+        # output (φ − φ_g) ⊙ s_out folded into d3
+        d0 = fast.d0
+        self.eps0 = d0.eps
+        self.D1 = np.vstack((d0.g[:, None] * fast.d1.w, (d0.b @ fast.d1.w + fast.d1.b)[None]))
+        self.D2 = np.vstack((0.5 * fast.d2.w, fast.d2.b[None]))
+        out_scale = np.asarray(fast.out_scale, float).reshape(-1)
+        self.D3 = np.vstack((0.5 * fast.d3.w, (fast.d3.b - fast.goal_out)[None])) * out_scale
+        # ψ: the goal latent, and the unscaled weights for the backward pass
+        self.y_goal = np.array(fast.y_goal, dtype=float)
+        self.e2T, self.e3T = fast.e2.w.T.copy(), fast.e3.w.T.copy()
+        self.e1T = fast.e1.w.T.copy()
+        self.pos_scale = np.asarray(fast.pos_scale, float).reshape(-1)
+        self._rows = {B: _Rows(B, d, w, z, self.skip > 0) for B in (1, 2)}
+        self._h = np.ones(w + 1)  # decoder hidden, with the bias 1
+        self._t = np.empty(w)
+        self.want_rest = False  # set by the first potential(): forward then encodes (x, 0) too
+        self._rest_key: list | None = None  # pose of the cached rest row
+        self._rest: tuple | None = None
+
+    # ------------------------------------------------------------------ pieces
+
+    @staticmethod
+    def _ln_gelu(c, t, a, g, b, eps, var, width):
+        """In place: ``a[:, :w] = 2 gelu(x̂ ⊙ γ + β)``, x̂ = c/σ (c centred); returns (x̂ in c, σ)."""
+        np.einsum("ij,ij->i", c, c, out=var)
+        sig = np.sqrt(var / width + eps)
+        c /= sig[:, None]  # x̂
+        u = a[:, :width]
+        _mul(c, g, out=u)
+        u += b  # u = x̂γ + β
+        _mul(u, _INV_SQRT2, out=t)
+        erf(t, out=t)
+        t += 1.0
+        u *= t  # 2 gelu(u)
+        return sig
+
+    def _encode(self, rows: _Rows):
+        """Encoder of every row of rows.f; fills rows.y = [ρ_net(f), c f]. Returns the LayerNorm
+        caches (x̂₁, σ₁, u₁, x̂₂, σ₂, u₂) — u the GELU inputs, recovered as x̂γ + β."""
+        w = self.w
+        _dot(rows.f, self.W1, out=rows.c1)
+        s1 = self._ln_gelu(rows.c1, rows.t1, rows.a1, self.g1, self.b1, self.eps1, rows.var, w)
+        _dot(rows.a1, self.W2, out=rows.c2)
+        s2 = self._ln_gelu(rows.c2, rows.t2, rows.a2, self.g2, self.b2, self.eps2, rows.var, w)
+        z = self.z
+        np.matmul(rows.a2, self.W3, out=rows.y[:, :z])
+        if self.skip > 0:
+            _mul(rows.f[:, :-1], self.skip, out=rows.y[:, z:])
+        return s1, s2
+
+    def _decode(self, y) -> np.ndarray:
+        """Fresh output ``(φ(y) − φ_g) ⊙ s_out`` (tangent,) for one latent y."""
+        c = y - _add.reduce(y) / y.shape[0]
+        sig = math.sqrt(float(_dot(c, c)) / y.shape[0] + self.eps0)
+        c /= sig
+        h, t, w = self._h, self._t, self.w
+        u = h[:w]
+        _dot(c, self.D1[:-1], out=u)
+        u += self.D1[-1]
+        for layer in (self.D2, None):
+            _mul(u, _INV_SQRT2, out=t)
+            erf(t, out=t)
+            t += 1.0
+            u *= t
+            if layer is None:
+                break
+            _dot(h, layer, out=t)
+            u[:] = t
+        return _dot(h, self.D3)
+
+    def _pose_entries(self, e, rot) -> list:
+        return [*e, *rot] if self.ori else list(e)
+
+    def _backward(self, rows: _Rows, i: int, sig1, sig2):
+        """``(ψ, ∂ψ/∂f)`` of row i (a state at rest) from its forward caches."""
+        z = self.z
+        diff = rows.y[i] - self.y_goal
+        psi = float(_dot(diff, diff))
+        g = _dot(diff[:z], self.e3T)
+        g *= 2.0
+        for c, a, gam, bet, sig, WT in ((rows.c2, rows.t2, self.g2, self.b2, sig2, self.e2T),
+                                        (rows.c1, rows.t1, self.g1, self.b1, sig1, self.e1T)):
+            xh = c[i]
+            u = xh * gam
+            u += bet  # the GELU input u = x̂γ + β
+            # d gelu/du = Φ(u) + u φ(u) = ½(1 + erf(u/√2)) + u e^{−u²/2}/√(2π); 1 + erf is in t
+            dg = np.exp(-0.5 * u * u)
+            dg *= u * _INV_SQRT_2PI
+            dg += 0.5 * a[i]
+            g *= dg
+            g *= gam
+            g -= _add.reduce(g) / self.w + xh * (float(_dot(g, xh)) / self.w)
+            g /= sig[i]
+            g = _dot(g, WT)
+        if self.skip > 0:
+            g += (2.0 * self.skip) * diff[z:]
+        return psi, g
+
+    # ------------------------------------------------------------------ API
+
+    def forward(self, e, rot, vel) -> np.ndarray:
+        """Acceleration (order 2) or velocity (order 1) (tangent,) at the goal-relative state:
+        e (n,) position error, rot the 9 entries of R(ζ ⊗ ζ_g⁻¹) (pose nets; else None), vel
+        (tangent,) (order 2; else None)."""
+        pose = self._pose_entries(e, rot)
+        rest = self.want_rest and self.order == 2
+        rows = self._rows[2 if rest else 1]
+        k = len(pose)
+        raw = rows.raw
+        raw[0, :k] = pose
+        if self.order == 2:
+            raw[0, k:-1] = vel
+        if rest:
+            raw[1, :k] = pose
+            raw[1, k:-1] = 0.0
+        _mul(raw, self.s_in, out=rows.f)
+        s1, s2 = self._encode(rows)
+        if rest:
+            self._rest_key, self._rest = pose, (rows, s1, s2)
+        return self._decode(rows.y[0])
+
+    def potential(self, e, rot) -> tuple[float, np.ndarray, np.ndarray | None]:
+        """``(ψ, ∂ψ/∂e (n,), ∂ψ/∂δθ (3,) | None)`` at rest, δθ a world-frame rotation applied
+        as ζ ← exp(δθ) ⊗ ζ (pose nets)."""
+        self.want_rest = True
+        pose = self._pose_entries(e, rot)
+        if self._rest is not None and pose == self._rest_key:
+            rows, s1, s2 = self._rest
+            i = 1
+        else:
+            rows, k = self._rows[1], len(pose)
+            rows.raw[0, :k] = pose
+            rows.raw[0, k:-1] = 0.0
+            _mul(rows.raw, self.s_in, out=rows.f)
+            s1, s2 = self._encode(rows)
+            i = 0
+        self._rest = None  # the caches are overwritten by the next call
+        psi, g = self._backward(rows, i, s1, s2)
+        n = self.n
+        dpos = g[:n] / self.pos_scale
+        if not self.ori:
+            return psi, dpos, None
+        # A = G Rᵀ (G = ∂ψ/∂R, R the input rotation); ∂ψ/∂δθ = vee(A − Aᵀ)
+        a = _dot(g[n:n + 9].reshape(3, 3), rows.raw[i, n:n + 9].reshape(3, 3).T).ravel().tolist()
+        return psi, dpos, np.array([a[7] - a[5], a[2] - a[6], a[3] - a[1]])

@@ -1,0 +1,151 @@
+"""The one-state network path (puma/single.py) against its references: the batched numpy copy
+(puma/fastnet.py) and the torch network in float64 (forward pass and autograd ∂ψ), to 1e-10."""
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from tamedpuma.puma import checkpoint, manifold
+from tamedpuma.puma.network import NetConfig, PumaNet, StateSpec
+from tamedpuma.puma.primitive import load_primitive, wrap
+from tamedpuma.puma.training import Workspace
+
+SHIPPED = Path(__file__).resolve().parents[1] / "tamedpuma" / "puma" / "shipped"
+TOL = 1e-10
+
+
+def _meta(n):
+    return checkpoint.Meta(0.03, "final_pose", {}, "m",
+                           Workspace((-0.3,) * n, (0.3,) * n, 1.0), {}, "", "", {})
+
+
+def _random_net(spec, seed=0, skip=1.0, pin_goal=True):
+    torch.manual_seed(seed)
+    t = spec.tangent_dim
+    net = PumaNet(spec, NetConfig(32, 16, pin_goal=pin_goal, skip=skip),
+                  np.linspace(0.3, 0.7, spec.n_pos), np.linspace(0.2, 1.0, t),
+                  np.linspace(1.0, 5.0, t))
+    with torch.no_grad():  # LayerNorm gains/biases away from their (1, 0) initialisation
+        for m in net.modules():
+            if isinstance(m, torch.nn.LayerNorm):
+                m.weight.uniform_(0.5, 1.5)
+                m.bias.uniform_(-0.3, 0.3)
+    return wrap(net, _meta(spec.n_pos))
+
+
+@pytest.fixture(scope="module", params=["random", "shipped"])
+def pose(request):
+    if request.param == "shipped":
+        return load_primitive(SHIPPED / "tomato" / "puma.pt")
+    return _random_net(StateSpec(3, True, 2))
+
+
+def _random_state(rng):
+    gp = rng.normal(size=3) * 0.3
+    gq = rng.normal(size=4)
+    gq /= np.linalg.norm(gq)
+    p = gp + rng.normal(size=3) * 0.3
+    q = manifold.np_quat_mul(manifold.np_quat_exp(rng.normal(size=3)), gq)
+    return p, q * rng.uniform(0.5, 2.0), rng.normal(size=3) * 0.3, rng.normal(size=3), gp, gq
+
+
+def _both(prim, *calls):
+    """The last of ``calls`` ((method name, args), run in order) with the one-state path, then
+    with the reference (batched numpy) path."""
+    one = prim.single
+    try:
+        fast = [getattr(prim, name)(*args) for name, args in calls][-1]
+        prim.single = None
+        ref = [getattr(prim, name)(*args) for name, args in calls][-1]
+    finally:
+        prim.single = one
+    return fast, ref
+
+
+def _close(a, b, scale=1.0):
+    a, b = np.atleast_1d(np.asarray(a, float)), np.atleast_1d(np.asarray(b, float))
+    assert a.shape == b.shape
+    np.testing.assert_allclose(a, b, rtol=TOL, atol=TOL * scale)
+
+
+def test_pose_single_state_matches_the_batched_reference(pose):
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        p, q, v, w, gp, gq = _random_state(rng)
+        (a1, al1), (a0, al0) = _both(pose, ("acceleration", (p, q, v, w, gp, gq)))
+        _close(a1, a0)
+        _close(al1, al0)
+        # ψ right after the acceleration at the same pose reuses the rest row of that pass
+        pot1, pot0 = _both(pose, ("acceleration", (p, q, v, w, gp, gq)),
+                           ("potential", (p, q, gp, gq)))
+        assert pose.single.want_rest
+        for x, y in zip(pot1, pot0):
+            _close(x, y, scale=max(1.0, abs(pot0[0])))
+        # ψ at another pose than the last acceleration's: a pass of its own
+        p2 = p + rng.normal(size=3) * 0.05
+        pot1, pot0 = _both(pose, ("acceleration", (p, q, v, w, gp, gq)),
+                           ("potential", (p2, q, gp, gq)))
+        for x, y in zip(pot1, pot0):
+            _close(x, y, scale=max(1.0, abs(pot0[0])))
+
+
+def _torch64(prim):
+    net = copy.deepcopy(prim.net).double()
+    goal = [None if x is None else x.double() for x in net.goal_state((1,))]
+    return net, goal
+
+
+def test_pose_single_state_matches_torch_float64_and_autograd(pose):
+    net, (g_pos, g_quat, g_vel) = _torch64(pose)
+    rng = np.random.default_rng(4)
+    t = lambda x: torch.tensor(np.atleast_2d(x), dtype=torch.float64)  # noqa: E731
+    with torch.no_grad():
+        goal_out = net.decoder(net.encode(g_pos, g_quat, g_vel))
+        y_goal = net.encode(g_pos, g_quat)
+    for _ in range(20):
+        p, q, v, w, gp, gq = _random_state(rng)
+        a, alpha = pose.acceleration(p, q, v, w, gp, gq)
+        qn, gn = q / np.linalg.norm(q), gq / np.linalg.norm(gq)
+        qrel = t(manifold.np_quat_mul(qn, manifold.np_quat_conj(gn)))
+        with torch.no_grad():
+            out = (net.decoder(net.encode(t(p - gp), qrel, t(np.r_[v, w]))) - goal_out)
+            ref = (out * net.out_scale).numpy()[0]
+        _close(np.r_[a, alpha], ref, scale=np.abs(ref).max())
+        pos = t(p - gp).requires_grad_(True)
+        dtheta = torch.zeros((1, 3), dtype=torch.float64, requires_grad=True)
+        quat = manifold.quat_mul(manifold.quat_exp(dtheta), qrel)
+        psi = ((net.encode(pos, quat) - y_goal) ** 2).sum()
+        gp_ref, gt_ref = torch.autograd.grad(psi, (pos, dtheta))
+        psi1, gp1, gt1 = pose.potential(p, q, gp, gq)
+        scale = max(1.0, psi.item())
+        _close(psi1, psi.item(), scale)
+        _close(gp1, gp_ref.numpy()[0], scale)
+        _close(gt1, gt_ref.numpy()[0], scale)
+
+
+@pytest.mark.parametrize("order", [1, 2])
+@pytest.mark.parametrize("skip,pin_goal", [(1.0, True), (0.0, False)])
+def test_vector_single_state_matches_the_batched_reference(order, skip, pin_goal):
+    prim = _random_net(StateSpec(2, False, order), seed=order, skip=skip, pin_goal=pin_goal)
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        x, xd, goal = rng.normal(size=2), rng.normal(size=2), rng.normal(size=2)
+        if order == 1:
+            out1, out0 = _both(prim, ("velocity", (x, goal)))
+        else:
+            out1, out0 = _both(prim, ("acceleration", (x, xd, goal)))
+        _close(out1, out0, scale=np.abs(out0).max())
+        (psi1, g1), (psi0, g0) = _both(prim, ("potential", (x, goal)))
+        _close(psi1, psi0, max(1.0, psi0))
+        _close(g1, g0, max(1.0, psi0))
+
+
+def test_goal_is_an_equilibrium_on_the_single_state_path(pose):
+    gp, gq = np.array([0.5, -0.2, 0.1]), np.array([0.0, 0.0, 0.0, 1.0])
+    a, alpha = pose.acceleration(gp, gq, np.zeros(3), np.zeros(3), gp, gq)
+    assert np.abs(a).max() < 1e-12 and np.abs(alpha).max() < 1e-12
+    psi, dp, dt = pose.potential(gp, -gq, gp, gq)
+    assert psi < 1e-20 and np.abs(dp).max() < 1e-9 and np.abs(dt).max() < 1e-9
