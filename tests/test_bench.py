@@ -50,3 +50,54 @@ def test_command_writes_json_and_keeps_other_sections(tmp_path):
 def test_bad_arguments_exit_2(capsys):
     assert bench.main(["--counts", "-1", "--no-write"]) == 2
     assert capsys.readouterr().err.startswith("error:")
+
+
+def test_baseline_rows_get_before_figures_and_ratios():
+    cell = {"p10_ms": 0.1, "p90_ms": 0.3, "n_calls": 9, "first_call_ms": 1.0}
+    rows = [{"method": "fpm", "n_obstacles": 2, "median_ms": 0.2, **cell},
+            {"method": "fpm", "n_obstacles": 10, "median_ms": 0.25, **cell}]
+    before = [{"method": "fpm", "n_obstacles": 2, "median_ms": 0.5, "p10_ms": 0.4,
+               "p90_ms": 0.6, "n_calls": 7}]
+    bench.attach_baseline(rows, before)
+    assert rows[0]["speedup"] == pytest.approx(2.5) and rows[0]["before_p90_ms"] == 0.6
+    assert "speedup" not in rows[1]
+    section = bench.markdown_section({"date": "d", "controller": rows, "baseline": {
+        "rev": "HEAD~1", "commit": "0123456789"}, "machine": {
+        "cpu_model": "c", "cores": 2, "python": "3", "numpy": "2",
+        "load_averages_start": [1.0, 2.0, 3.0]}})
+    assert "| fpm | 2 | 0.200 |" in section and "| 0.500 | 0.400 | 0.600 | 2.5× |" in section
+    assert "| fpm | 10 | 0.250 |" in section and "1.00 / 2.00 / 3.00" in section
+
+
+def test_report_is_found_after_other_output():
+    text = 'noise\n{"not": 1}\n{\n  "controller": [\n    {\n      "a": 1\n    }\n  ]\n}\n'
+    assert bench._report_from_stdout(text) == {"controller": [{"a": 1}]}
+
+
+def test_readme_summary_between_markers(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("a <!-- bench-summary -->old<!-- /bench-summary --> b\n")
+    report = {"date": "d", "machine": {"load_averages_start": [1.5, 1, 1]}, "controller": [
+        {"method": "fpm", "n_obstacles": 2, "median_ms": 0.15},
+        {"method": "fpm", "n_obstacles": 1000, "median_ms": 0.5}]}
+    assert bench.update_readme(readme, bench.readme_summary(report))
+    text = readme.read_text()
+    assert "old" not in text and "fpm 0.150 ms (2) / 0.500 ms (1000)" in text
+    assert text.startswith("a <!-- bench-summary -->") and text.endswith("--> b\n")
+    assert not bench.update_readme(tmp_path / "missing.md", "x")
+
+
+def test_baseline_revision_is_timed_by_its_own_code(capsys):
+    code = bench.main(["--methods", "fabrics", "--counts", "2", "--calls", "10", "--budget",
+                       "0.3", "--episodes", "0", "--baseline", "HEAD", "--no-write"])
+    assert code == 0
+    report = bench._report_from_stdout(capsys.readouterr().out)
+    assert not report["errors"] and len(report["baseline"]["commit"]) == 40
+    row = report["controller"][0]
+    assert row["before_median_ms"] > 0 and row["speedup"] > 0
+
+
+def test_unknown_baseline_revision_is_one_line_error(capsys):
+    assert bench.main(["--methods", "fabrics", "--baseline", "no-such-rev", "--no-write"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --baseline no-such-rev") and err.count("\n") == 1

@@ -8,6 +8,10 @@ Sections (each regenerated, never typed in):
    (``bench_fabrics.random_obstacles``). Each method is built exactly as ``tamedpuma.sweep``
    builds it (same config, same model lookup). Median, p10, p90 [ms]; the first call at each
    count is reported apart (it allocates that count's buffers), warm-up calls are not timed.
+   With ``--baseline REV`` the same cells are also timed on revision REV of this repository
+   (``git archive`` into a temporary folder, the same command run there), method by method
+   alternating which goes first, so "before" and "after" share the machine's load; the table
+   gives both medians and their ratio.
 2. **Episode speed**: one FPM episode of the default scenario run through the sweep's own
    ``run_one`` with each recorder setting (none, MCAP, Rerun, both): simulated seconds per wall
    second, and each recorder's overhead against ``recorder=none``.
@@ -17,9 +21,11 @@ Sections (each regenerated, never typed in):
 
     python -m tamedpuma.bench                       # sections 1-2, writes the files below
     python -m tamedpuma.bench --methods fpm cpm --counts 2 1000 --no-write
+    python -m tamedpuma.bench --baseline 93ed4a1      # also time revision 93ed4a1, side by side
 
-Writes ``benchmarks/bench.json`` (every figure, machine, load average at start and end) and the
-"## Controller step" section of ``BENCHMARKS.md`` (other sections are kept).
+Writes ``benchmarks/bench.json`` (every figure, machine, load averages at start and end), the
+"## Controller step" section of ``BENCHMARKS.md`` (other sections are kept) and the one-line
+summary between README.md's ``<!-- bench-summary -->`` markers.
 """
 
 from __future__ import annotations
@@ -87,6 +93,11 @@ def time_controller(method: str, counts, calls: int, budget_s: float, overrides=
 
     built = build(compose([f"method={method}", "recorder=none", *overrides]))
     kin_spec, scenario, controller = built.spec, built.scenario, built.controller
+    model = None
+    if built.model is not None:
+        meta = built.model.metadata()
+        model = (f"{meta['model_origin']} `{Path(meta['model_path']).parent.name}` "
+                 f"(sha256 {meta['model_sha256'][:12]})")
     rng = np.random.default_rng(seed)
     q0 = np.asarray(scenario.q0, dtype=float)
     states = [(np.clip(q0 + rng.normal(scale=0.05, size=q0.size), kin_spec.q_min,
@@ -122,7 +133,7 @@ def time_controller(method: str, counts, calls: int, budget_s: float, overrides=
                      "p10_ms": round(float(np.percentile(ms, 10)), 5),
                      "p90_ms": round(float(np.percentile(ms, 90)), 5),
                      "mean_ms": round(float(ms.mean()), 5), "n_calls": int(ms.size),
-                     "first_call_ms": round(first_ms, 5)})
+                     "first_call_ms": round(first_ms, 5), "model": model})
     return rows
 
 
@@ -161,6 +172,59 @@ def time_episodes(method: str = "fpm", repeats: int = 3, overrides=()) -> list[d
     return rows
 
 
+def load_averages() -> list[float] | None:
+    """The 1, 5 and 15 minute load averages (None where the OS has none)."""
+    return [round(x, 2) for x in os.getloadavg()] if hasattr(os, "getloadavg") else None
+
+
+def export_revision(root: Path, rev: str, dest: Path) -> str:
+    """Write the tree of ``rev`` into ``dest`` (``git archive``, no git metadata touched);
+    returns the full commit id. Raises RuntimeError with git's message on failure."""
+    def git(*args, **kw):
+        proc = subprocess.run(["git", "-C", str(root), *args], capture_output=True, **kw)
+        if proc.returncode != 0:
+            raise RuntimeError(f"git {args[0]} {rev}: {proc.stderr.decode().strip()}")
+        return proc.stdout
+
+    commit = git("rev-parse", "--verify", f"{rev}^{{commit}}").decode().strip()
+    archive = git("archive", "--format=tar", commit)
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    return commit
+
+
+def _report_from_stdout(text: str) -> dict:
+    """The JSON report a ``--no-write`` bench run prints (the last top-level object)."""
+    start = text.rfind("\n{\n") + 1  # 0 when the report is all there is
+    return json.loads(text[start:text.rindex("}") + 1])
+
+
+def time_baseline(tree: Path, method: str, args) -> list[dict]:
+    """The controller cells of ``method`` timed by the bench command of another source tree."""
+    argv = [sys.executable, "-m", "tamedpuma.bench", "--methods", method, "--counts",
+            *map(str, args.counts), "--calls", str(args.calls), "--budget", str(args.budget),
+            "--episodes", "0", "--no-write", *args.overrides]
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    proc = subprocess.run(argv, cwd=tree, env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(proc.stderr.strip().splitlines()[-1] if proc.stderr.strip()
+                           else f"exit {proc.returncode}")
+    report = _report_from_stdout(proc.stdout)
+    if report.get("errors"):
+        raise RuntimeError(report["errors"][0]["error"])
+    return report["controller"]
+
+
+def attach_baseline(rows: list[dict], before: list[dict]) -> None:
+    """Add ``before_*`` figures and ``speedup`` (before median / median) to matching rows."""
+    by = {(r["method"], r["n_obstacles"]): r for r in before}
+    for row in rows:
+        old = by.get((row["method"], row["n_obstacles"]))
+        if old:
+            for key in ("median_ms", "p10_ms", "p90_ms", "n_calls"):
+                row[f"before_{key}"] = old[key]
+            row["speedup"] = round(old["median_ms"] / row["median_ms"], 3)
+
+
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split("Config search path")[0].split()) or type(exc).__name__
 
@@ -191,29 +255,52 @@ def _fmt(x: float) -> str:
     return f"{x:.3f}" if x < 10 else f"{x:.0f}"
 
 
+def _ratio(x: float) -> str:
+    return f"{x:.1f}×" if x < 10 else f"{x:.0f}×"
+
+
+def _loads(m: dict, key: str) -> str:
+    loads = m.get(key)
+    return " / ".join(f"{x:.2f}" for x in loads) if loads else "?"
+
+
 def markdown_section(report: dict) -> str:
     """The "## Controller step" section of BENCHMARKS.md, from ``report`` alone."""
     m = report["machine"]
+    base = report.get("baseline")
     lines = [f"## {SECTION}", "",
-             "Regenerated by `python -m tamedpuma.bench` (figures: `benchmarks/bench.json`, "
-             f"{report['date']}). One whole `controller.step` (kinematics, network, fabric, "
-             "regulator, pullback, solve) on fixed states near the default tomato start, each "
-             "method built as the sweep builds it (models: "
+             f"Regenerated by `{report.get('command', 'python -m tamedpuma.bench')}` (figures: "
+             f"`benchmarks/bench.json`, {report['date']}). One whole `controller.step` "
+             "(kinematics, network, fabric, regulator, pullback, solve) on fixed states near the "
+             "default tomato start, each method built as the sweep builds it (models: "
              f"{report.get('models', 'the sweep defaults')}); obstacles seeded, clear of the arm.",
-             "",
-             "| method | obstacles | median [ms] | p10 [ms] | p90 [ms] | calls | first call [ms] "
-             "| target [ms] | paper [ms] |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             ""]
+    if base:
+        lines += [f"\"before\": the same cells timed by the same command on commit "
+                  f"`{base['commit'][:7]}` (`--baseline {base['rev']}`), in the same run, method "
+                  "by method alternating which side goes first; ratio = before median / median.",
+                  ""]
+    head = "| method | obstacles | median [ms] | p10 [ms] | p90 [ms] | calls | first call [ms] "
+    rule = "|---|---:|---:|---:|---:|---:|---:|"
+    if base:
+        head += "| before: median [ms] | p10 [ms] | p90 [ms] | ratio "
+        rule += "---:|---:|---:|---:|"
+    lines += [head + "| target [ms] | paper [ms] |", rule + "---:|---:|"]
     for row in report["controller"]:
         key = (row["method"], row["n_obstacles"])
         target, paper = TARGET_MS.get(key), PAPER_MS.get(key)
-        lines.append(
-            f"| {row['method']} | {row['n_obstacles']} | {_fmt(row['median_ms'])} | "
-            f"{_fmt(row['p10_ms'])} | {_fmt(row['p90_ms'])} | {row['n_calls']} | "
-            f"{_fmt(row['first_call_ms'])} | {f'≤ {target}' if target else '—'} | "
-            f"{paper if paper else '—'} |")
+        cells = (f"| {row['method']} | {row['n_obstacles']} | {_fmt(row['median_ms'])} | "
+                 f"{_fmt(row['p10_ms'])} | {_fmt(row['p90_ms'])} | {row['n_calls']} | "
+                 f"{_fmt(row['first_call_ms'])} |")
+        if base:
+            cells += (f" {_fmt(row['before_median_ms'])} | {_fmt(row['before_p10_ms'])} | "
+                      f"{_fmt(row['before_p90_ms'])} | {_ratio(row['speedup'])} |"
+                      if "speedup" in row else " — | — | — | — |")
+        met = "" if target is None else (" ✓" if row["median_ms"] <= target else " ✗")
+        cells += f" {f'≤ {target}{met}' if target else '—'} | {paper if paper else '—'} |"
+        lines.append(cells)
     for row in report.get("errors", []):
-        lines.append(f"| {row['method']} | — | not measured: {row['error']} | | | | | | |")
+        lines.append(f"| {row['method']} | — | not measured: {row['error']} |")
     if report.get("episodes"):
         lines += ["", "Episode speed (default tomato scenario, "
                   f"{report['episodes'][0]['method']}, median of "
@@ -233,10 +320,43 @@ def markdown_section(report: dict) -> str:
         lines += ["", f"{key} (cited from `{item['source']}`, not re-measured in this run): "
                   f"{item['wall_s']:.0f} s wall (file dated {item['date']})."]
     lines += ["", f"Machine: {m['cpu_model']}, {m['cores']} cores, Python {m['python']}, "
-              f"numpy {m['numpy']}; load average {m.get('load_average_1min', '?')} at start, "
-              f"{m.get('load_average_1min_end', '?')} at the end (a shared machine inflates "
-              "every figure; compare ratios measured in one run).", ""]
+              f"numpy {m['numpy']}; load average (1 / 5 / 15 min) "
+              f"{_loads(m, 'load_averages_start')} at the start, "
+              f"{_loads(m, 'load_averages_end')} at the end (a shared machine inflates every "
+              "figure; compare ratios measured in one run).", ""]
     return "\n".join(lines)
+
+
+README_MARKERS = ("<!-- bench-summary -->", "<!-- /bench-summary -->")
+
+
+def readme_summary(report: dict) -> str:
+    """One sentence for README.md: the 2- and 1000-obstacle medians of every method timed."""
+    by = {(r["method"], r["n_obstacles"]): r for r in report["controller"]}
+    parts = []
+    for method in dict.fromkeys(r["method"] for r in report["controller"]):
+        cells = [f"{_fmt(by[(method, n)]['median_ms'])} ms ({n})" for n in (2, 1000)
+                 if (method, n) in by]
+        if cells:
+            parts.append(f"{method} " + " / ".join(cells))
+    if not parts:
+        return ""
+    loads = report["machine"].get("load_averages_start") or ["?"]
+    return (f"Median controller step (obstacles), {report['date']}, load average {loads[0]}: "
+            + "; ".join(parts) + ".")
+
+
+def update_readme(path: Path, summary: str) -> bool:
+    """Replace the text between README's bench-summary markers (False if there are none)."""
+    if not summary or not path.is_file():
+        return False
+    text = path.read_text()
+    start, end = README_MARKERS
+    i, j = text.find(start), text.find(end)
+    if i < 0 or j < i:
+        return False
+    path.write_text(text[:i + len(start)] + summary + text[j:])
+    return True
 
 
 def main(argv=None) -> int:
@@ -249,6 +369,8 @@ def main(argv=None) -> int:
                         help="repeats per recorder setting (0: skip episode speed)")
     parser.add_argument("--training", action="store_true", help="also time PUMA training")
     parser.add_argument("--table1", action="store_true", help="also time +experiment=table1")
+    parser.add_argument("--baseline", metavar="REV",
+                        help="also time the controller cells on git revision REV, side by side")
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root to write into")
     parser.add_argument("overrides", nargs="*", help="config overrides for every build")
@@ -257,15 +379,36 @@ def main(argv=None) -> int:
         print("error: counts must be ≥ 0, calls ≥ 1 and budget > 0", file=sys.stderr)
         return 2
     machine = machine_info()
+    machine["load_averages_start"] = load_averages()
     report = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "controller": [],
-              "errors": [], "machine": machine, "overrides": args.overrides}
-    for method in args.methods:
-        try:
-            report["controller"] += time_controller(method, args.counts, args.calls,
-                                                    args.budget, args.overrides)
-        except Exception as exc:  # a missing model; Hydra's errors (unknown method, bad override)
-            report["errors"].append({"method": method, "error": _one_line(exc)})
-        print(f"bench: {method} done", file=sys.stderr)
+              "errors": [], "machine": machine, "overrides": args.overrides,
+              "command": "python -m tamedpuma.bench " + " ".join(argv if argv is not None
+                                                                  else sys.argv[1:])}
+    with tempfile.TemporaryDirectory() as baseline_tree:
+        if args.baseline:
+            try:
+                report["baseline"] = {"rev": args.baseline, "commit": export_revision(
+                    args.root, args.baseline, Path(baseline_tree))}
+            except (RuntimeError, OSError, subprocess.CalledProcessError) as exc:
+                print(f"error: --baseline {args.baseline}: {_one_line(exc)}", file=sys.stderr)
+                return 2
+        for i, method in enumerate(args.methods):
+            rows, before = [], []
+            # alternate which goes first, so that a change of load hits both sides alike
+            order = ("now", "before") if i % 2 else ("before", "now")
+            for side in order if args.baseline else ("now",):
+                try:
+                    if side == "now":
+                        rows = time_controller(method, args.counts, args.calls, args.budget,
+                                               args.overrides)
+                    else:
+                        before = time_baseline(Path(baseline_tree), method, args)
+                except Exception as exc:  # a missing model; Hydra's errors; the baseline's
+                    report["errors"].append({"method": method if side == "now" else
+                                             f"{method} (baseline)", "error": _one_line(exc)})
+            attach_baseline(rows, before)
+            report["controller"] += rows
+            print(f"bench: {method} done", file=sys.stderr)
     if args.episodes > 0:
         try:
             report["episodes"] = time_episodes("fpm", args.episodes, args.overrides)
@@ -281,14 +424,20 @@ def main(argv=None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             report["commands"]["table1"] = _timed_command(
                 ["-m", "tamedpuma.sweep", "+experiment=table1", f"output_root={tmp}"])
+    models = [r["model"] for r in report["controller"] if r.get("model")]
+    if models:
+        report["models"] = ", ".join(dict.fromkeys(models))
     report["cited"] = cited(args.root)
-    machine["load_average_1min_end"] = round(os.getloadavg()[0], 2)
+    machine["load_averages_end"] = load_averages()
+    machine["load_average_1min_end"] = (machine["load_averages_end"] or [None])[0]
     print(json.dumps(report, indent=2))
     if not args.no_write:
         out = args.root / "benchmarks" / "bench.json"
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(report, indent=2) + "\n")
         update_markdown(args.root / "BENCHMARKS.md", markdown_section(report), SECTION)
-        print(f"wrote {out} and {args.root / 'BENCHMARKS.md'}", file=sys.stderr)
+        update_readme(args.root / "README.md", readme_summary(report))
+        print(f"wrote {out}, {args.root / 'BENCHMARKS.md'} and the README summary",
+              file=sys.stderr)
     return 0
 
