@@ -6,9 +6,11 @@ calls on preallocated buffers (for one state the time is per-call overhead, not 
 
 - constants folded into the weights once: the input normalisation ``f = x ⊙ s_in`` (kept for the
   skip part of the latent), each LayerNorm's centring ``h − mean(h) = f (W − W̄) + (b − b̄)``
-  (W̄ the row means), GELU's ½ (``gelu(u) = ½ u (1 + erf(u/√2))``, the ½ moved into the next
-  layer), the decoder's LayerNorm gain and bias ``(x̂ ⊙ γ + β) W + b = x̂ (γ ⊙ W) + (β W + b)`` and
-  the output ``(φ − φ_g) ⊙ s_out``; every bias rides in a trailing 1 of the layer's input;
+  (W̄ the row means), the decoder's LayerNorm gain and bias
+  ``(x̂ ⊙ γ + β) W + b = x̂ (γ ⊙ W) + (β W + b)`` and the output ``(φ − φ_g) ⊙ s_out``; every bias
+  rides in a trailing 1 of the layer's input;
+- exact GELU as ``u Φ(u)`` with the normal CDF ``Φ(u) = ½(1 + erf(u/√2))`` (scipy's ``ndtr``, one
+  call) and its derivative ``Φ(u) + u e^{−u²/2}/√(2π)``;
 - the rotation matrix of ``ζ ⊗ ζ_g⁻¹`` from Python floats, not array calls;
 - ψ's gradient by hand (as FastNet), and the world-frame rotation part
   ``∂ψ/∂δθ_k = ⟨[e_k]× R, G⟩ = vee(A − Aᵀ)_k`` with ``A = G Rᵀ`` (G = ∂ψ/∂R);
@@ -24,11 +26,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.special import erf
+from scipy.special import ndtr
 
 from .fastnet import FastNet
 
-_INV_SQRT2 = 1.0 / math.sqrt(2.0)
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 _dot = np.dot
 _add, _mul, _sub = np.add, np.multiply, np.subtract
@@ -70,7 +71,6 @@ class _Rows:
         self.a1, self.a2 = np.ones((B, w + 1)), np.ones((B, w + 1))
         self.t1, self.t2 = np.empty((B, w)), np.empty((B, w))
         self.y = np.empty((B, z + (d if skip else 0)))
-        self.var = np.empty(B)
 
 
 class SingleState:
@@ -92,23 +92,19 @@ class SingleState:
             s_in.append(1.0 / np.asarray(fast.vel_scale, float).reshape(-1)
                         * np.ones(spec.tangent_dim))
         self.s_in = np.concatenate(s_in + [np.ones(1)])
-        # encoder: centred layers 1 and 2 (their LayerNorms' means folded in), GELU's ½ folded
-        # into the next layer's weights (the bias row, multiplied by the trailing 1, is not)
+        # encoder: centred layers 1 and 2 (their LayerNorms' means folded in)
         self.W1 = _centred(fast.e1.w, fast.e1.b)
         self.W2 = _centred(fast.e2.w, fast.e2.b)
-        self.W2[:-1] *= 0.5
         self.W3 = np.vstack((fast.e3.w, fast.e3.b[None]))
-        self.W3[:-1] *= 0.5
         self.g1, self.b1, self.eps1 = fast.n1.g, fast.n1.b, fast.n1.eps
         self.g2, self.b2, self.eps2 = fast.n2.g, fast.n2.b, fast.n2.eps
-        # decoder: LayerNorm gain/bias folded into d1; ½ of each GELU into the next layer;
-        # output (φ − φ_g) ⊙ s_out folded into d3
+        # decoder: LayerNorm gain/bias folded into d1; output (φ − φ_g) ⊙ s_out folded into d3
         d0 = fast.d0
         self.eps0 = d0.eps
         self.D1 = np.vstack((d0.g[:, None] * fast.d1.w, (d0.b @ fast.d1.w + fast.d1.b)[None]))
-        self.D2 = np.vstack((0.5 * fast.d2.w, fast.d2.b[None]))
+        self.D2 = np.vstack((fast.d2.w, fast.d2.b[None]))
         out_scale = np.asarray(fast.out_scale, float).reshape(-1)
-        self.D3 = np.vstack((0.5 * fast.d3.w, (fast.d3.b - fast.goal_out)[None])) * out_scale
+        self.D3 = np.vstack((fast.d3.w, (fast.d3.b - fast.goal_out)[None])) * out_scale
         # ψ: the goal latent, and the unscaled weights for the backward pass
         self.y_goal = np.array(fast.y_goal, dtype=float)
         self.e2T, self.e3T = fast.e2.w.T.copy(), fast.e3.w.T.copy()
@@ -124,18 +120,19 @@ class SingleState:
     # ------------------------------------------------------------------ pieces
 
     @staticmethod
-    def _ln_gelu(c, t, a, g, b, eps, var, width):
-        """In place: ``a[:, :w] = 2 gelu(x̂ ⊙ γ + β)``, x̂ = c/σ (c centred); returns (x̂ in c, σ)."""
-        np.einsum("ij,ij->i", c, c, out=var)
-        sig = np.sqrt(var / width + eps)
-        c /= sig[:, None]  # x̂
+    def _ln_gelu(c, t, a, g, b, eps, width):
+        """In place: ``a[:, :w] = gelu(u)``, ``u = x̂ ⊙ γ + β``, x̂ = c/σ (c centred, overwritten
+        by x̂), ``t = Φ(u)``; returns σ per row."""
+        sig = []
+        for row in c:  # one or two rows: Python floats are cheaper than (B,)-array calls
+            s = math.sqrt(float(_dot(row, row)) / width + eps)
+            row *= 1.0 / s  # x̂
+            sig.append(s)
         u = a[:, :width]
         _mul(c, g, out=u)
         u += b  # u = x̂γ + β
-        _mul(u, _INV_SQRT2, out=t)
-        erf(t, out=t)
-        t += 1.0
-        u *= t  # 2 gelu(u)
+        ndtr(u, out=t)  # Φ(u)
+        u *= t  # gelu(u) = u Φ(u)
         return sig
 
     def _encode(self, rows: _Rows):
@@ -143,9 +140,9 @@ class SingleState:
         caches (x̂₁, σ₁, u₁, x̂₂, σ₂, u₂) — u the GELU inputs, recovered as x̂γ + β."""
         w = self.w
         _dot(rows.f, self.W1, out=rows.c1)
-        s1 = self._ln_gelu(rows.c1, rows.t1, rows.a1, self.g1, self.b1, self.eps1, rows.var, w)
+        s1 = self._ln_gelu(rows.c1, rows.t1, rows.a1, self.g1, self.b1, self.eps1, w)
         _dot(rows.a1, self.W2, out=rows.c2)
-        s2 = self._ln_gelu(rows.c2, rows.t2, rows.a2, self.g2, self.b2, self.eps2, rows.var, w)
+        s2 = self._ln_gelu(rows.c2, rows.t2, rows.a2, self.g2, self.b2, self.eps2, w)
         z = self.z
         np.matmul(rows.a2, self.W3, out=rows.y[:, :z])
         if self.skip > 0:
@@ -156,20 +153,17 @@ class SingleState:
         """Fresh output ``(φ(y) − φ_g) ⊙ s_out`` (tangent,) for one latent y."""
         c = y - _add.reduce(y) / y.shape[0]
         sig = math.sqrt(float(_dot(c, c)) / y.shape[0] + self.eps0)
-        c /= sig
+        c *= 1.0 / sig
         h, t, w = self._h, self._t, self.w
         u = h[:w]
         _dot(c, self.D1[:-1], out=u)
         u += self.D1[-1]
-        for layer in (self.D2, None):
-            _mul(u, _INV_SQRT2, out=t)
-            erf(t, out=t)
-            t += 1.0
-            u *= t
-            if layer is None:
-                break
-            _dot(h, layer, out=t)
-            u[:] = t
+        ndtr(u, out=t)
+        u *= t  # gelu
+        _dot(h, self.D2, out=t)
+        u[:] = t
+        ndtr(t, out=t)
+        u *= t  # gelu
         return _dot(h, self.D3)
 
     def _pose_entries(self, e, rot) -> list:
@@ -187,10 +181,10 @@ class SingleState:
             xh = c[i]
             u = xh * gam
             u += bet  # the GELU input u = x̂γ + β
-            # d gelu/du = Φ(u) + u φ(u) = ½(1 + erf(u/√2)) + u e^{−u²/2}/√(2π); 1 + erf is in t
+            # d gelu/du = Φ(u) + u e^{−u²/2}/√(2π); Φ(u) is in t
             dg = np.exp(-0.5 * u * u)
             dg *= u * _INV_SQRT_2PI
-            dg += 0.5 * a[i]
+            dg += a[i]
             g *= dg
             g *= gam
             g -= _add.reduce(g) / self.w + xh * (float(_dot(g, xh)) / self.w)
