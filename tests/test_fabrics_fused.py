@@ -132,3 +132,37 @@ def test_kinematic_states_own_their_arrays(kinematics):
         kinematics.evaluate(Q0 + 0.1 * i, np.full(7, -0.2 * i))
     for name, value in before.items():
         np.testing.assert_array_equal(getattr(st, name), value)
+
+
+@pytest.mark.parametrize("changes", [{}, {"ground_enabled": True, "ground_height": 0.3},
+                                     {"obstacle": {"energy_exponent": 1.5}}])
+def test_many_pairs_path_matches_the_leaf_by_leaf_reference(kinematics, changes):
+    """Above 256 rows the products are split by block and the pair powers x^{−p} are products
+    of 1/x (integer exponents; np.power otherwise): the same metric, forces and energy."""
+    gains = FabricGains.from_mapping(changes)
+    spec = kinematics.spec
+    fab = Fabric(gains, spec.q_min, spec.q_max)
+    rng = np.random.default_rng(13)
+    for n_obs in (60, 400):
+        q, qd = Q0 + rng.normal(scale=0.2, size=7), rng.normal(size=7)
+        st = kinematics.evaluate(q, qd)
+        obs = _obstacles(rng, n_obs, st)
+        M, f, f_e, energy, clearance, n_clamped, n_limit = _reference_avoidance(
+            fab, st, q, qd, obs)
+        av = fab.avoidance(st, q, qd, *obs)
+        assert fab._workspace(st.sphere_centers.shape[0], n_obs).split
+        np.testing.assert_allclose(av.M, M, rtol=1e-11, atol=1e-11)
+        np.testing.assert_allclose(av.f, f, rtol=1e-11, atol=1e-11)
+        np.testing.assert_allclose(av.f_energy, f_e, rtol=1e-11, atol=1e-11)
+        assert av.energy == pytest.approx(energy, rel=1e-12)
+        assert (av.n_clamped, av.n_limit_clamped) == (n_clamped, n_limit)
+        # barrier rows (pairs, then limits): Jacobian rows, so rows · q̇ = ẋ of each barrier
+        k, P = st.sphere_centers.shape[0], st.sphere_centers.shape[0] * n_obs
+        assert av.barrier_rows.shape == (P + 14 + (k if gains.ground_enabled else 0), 7)
+        pairs = sphere_obstacle_pairs(st.sphere_centers, st.sphere_jacobians, st.sphere_jdqd,
+                                      st.sphere_radii, qd, *obs, gains.barrier_margin)
+        v_obs = np.tile(obs[2], (k, 1))  # pair (i, j) ↦ row i·m + j: obstacle j's velocity
+        u = pairs.u.reshape(3, -1).T
+        np.testing.assert_allclose(av.barrier_rows[:P] @ qd - np.einsum("pd,pd->p", u, v_obs),
+                                   pairs.xd.reshape(-1), rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(av.barrier_rows[P:P + 14] @ qd, np.r_[qd, -qd], atol=1e-15)

@@ -78,9 +78,11 @@ class Workspace:
         K = self.K = 1 + n_axes
         R = Rb + 3 * K
         self.k, self.m, self.n = k, m, n
+        self.split = Rb > 256  # many rows: products split by row block (see systems())
         self.ground = bool(ground)
-        # barrier rows without the base rows: pairs, limits, ground (fancy index: copies)
+        # barrier rows without the base rows: pairs, limits, ground (two contiguous blocks)
         self.barrier_index = np.r_[0:P + 2 * n, L:Rb]
+        self.barrier_blocks = (slice(0, P + 2 * n), slice(L, Rb))
         # design matrix Z = [a | h + J̇q̇ | κ + J̇q̇]; constant parts written once
         Z = self.Z = np.zeros((R, n + 2))
         eye = np.eye(n)
@@ -97,7 +99,6 @@ class Workspace:
             self.Zground = Z[L:Rb, :n]
         self.C = np.empty((R, n + 2))
         self.ZT, self.C_sys = Z[:, :n].T, self.C[:, :n + 1]
-        self.split = Rb > 256
         self.ZgT, self.Cg = Z[Rb:, :n].T, self.C[Rb:, :n + 1]
         self.Cb = self.C[:Rb]
         # barrier kernel inputs/outputs: x, ẋ, J̇q̇ of every barrier-like row
@@ -133,6 +134,12 @@ class Workspace:
             cols.append(np.repeat(np.array(col)[:, :, None], count, axis=2))
         negexp, gain, threshold = np.concatenate(cols, axis=2).transpose(1, 0, 2)
         self.negexp, self.gain, self.threshold = negexp.copy(), gain.copy(), threshold.copy()
+        # with many pairs, their x^{−p} (p = p_L, p_h, 1) as products of 1/x when every p is a
+        # small non-negative integer (np.power with float exponents dominates the kernel there)
+        pair_p = [-float(e) for e in self.negexp[:, 0]] if P else []
+        self.pair_powers = (tuple(int(p) for p in pair_p) if self.split and pair_p and all(
+            p == int(p) and 0 <= p <= 8 for p in pair_p) else None)
+        self.inv_x = np.empty(P)
         self.S = np.empty((3, Rb), dtype=bool)
         self.xd2 = np.empty(Rb)
         # W[:, :Rb]: kernel rows (W[0] = m); goal rows: W[0] = g_k, W[1] = ratio c_k (∇ψ = c e)
@@ -263,7 +270,16 @@ class Workspace:
         x, xd = self.x, self.xd
         np.less(xd, self.threshold, out=self.S)  # s(ẋ)
         Wb = self.Wb
-        np.power(x, self.negexp, out=Wb)
+        if self.pair_powers is None:
+            np.power(x, self.negexp, out=Wb)
+        else:  # many pairs: x^{−p} of the pair rows by products of 1/x (p small integers)
+            P = self.P
+            np.power(x[P:], self.negexp[:, P:], out=Wb[:, P:])
+            inv = np.divide(1.0, x[:P], out=self.inv_x)
+            for row, p in zip(Wb[:, :P], self.pair_powers):
+                row[...] = inv if p else 1.0
+                for _ in range(p - 1):
+                    row *= inv
         Wb *= self.gain
         Wb *= self.S  # Wb = [m, −k_h s_h x^{−p_h}, −p_L/(2x)]
         xd2 = np.multiply(xd, xd, out=self.xd2)
