@@ -70,6 +70,7 @@ class _Rows:
         self.c1, self.c2 = np.empty((B, w)), np.empty((B, w))
         self.a1, self.a2 = np.ones((B, w + 1)), np.ones((B, w + 1))
         self.t1, self.t2 = np.empty((B, w)), np.empty((B, w))
+        self.u1, self.u2 = np.empty((B, w)), np.empty((B, w))
         self.y = np.empty((B, z + (d if skip else 0)))
 
 
@@ -105,10 +106,12 @@ class SingleState:
         self.D2 = np.vstack((fast.d2.w, fast.d2.b[None]))
         out_scale = np.asarray(fast.out_scale, float).reshape(-1)
         self.D3 = np.vstack((fast.d3.w, (fast.d3.b - fast.goal_out)[None])) * out_scale
-        # ψ: the goal latent, and the unscaled weights for the backward pass
+        # ψ: the goal latent, and the weights of the backward pass: the centred ones for the
+        # layers followed by a LayerNorm, whose backward centring they make redundant
+        # (W̄ = row means: (g − mean g) (W − W̄1ᵀ)ᵀ = g (W − W̄1ᵀ)ᵀ and Σ(LayerNorm grad) = 0)
         self.y_goal = np.array(fast.y_goal, dtype=float)
-        self.e2T, self.e3T = fast.e2.w.T.copy(), fast.e3.w.T.copy()
-        self.e1T = fast.e1.w.T.copy()
+        self.e3T = fast.e3.w.T.copy()
+        self.e2T, self.e1T = self.W2[:-1].T.copy(), self.W1[:-1].T.copy()
         self.pos_scale = np.asarray(fast.pos_scale, float).reshape(-1)
         self._rows = {B: _Rows(B, d, w, z, self.skip > 0) for B in (1, 2)}
         self._h = np.ones(w + 1)  # decoder hidden, with the bias 1
@@ -120,29 +123,28 @@ class SingleState:
     # ------------------------------------------------------------------ pieces
 
     @staticmethod
-    def _ln_gelu(c, t, a, g, b, eps, width):
-        """In place: ``a[:, :w] = gelu(u)``, ``u = x̂ ⊙ γ + β``, x̂ = c/σ (c centred, overwritten
-        by x̂), ``t = Φ(u)``; returns σ per row."""
+    def _ln_gelu(c, u, t, a, g, b, eps, width):
+        """In place: ``a[:, :w] = gelu(u)`` with ``u = x̂ ⊙ γ + β``, x̂ = c/σ (c centred,
+        overwritten by x̂), ``t = Φ(u)``; returns σ per row."""
         sig = []
         for row in c:  # one or two rows: Python floats are cheaper than (B,)-array calls
             s = math.sqrt(float(_dot(row, row)) / width + eps)
             row *= 1.0 / s  # x̂
             sig.append(s)
-        u = a[:, :width]
         _mul(c, g, out=u)
         u += b  # u = x̂γ + β
         ndtr(u, out=t)  # Φ(u)
-        u *= t  # gelu(u) = u Φ(u)
+        _mul(u, t, out=a[:, :width])  # gelu(u) = u Φ(u)
         return sig
 
     def _encode(self, rows: _Rows):
-        """Encoder of every row of rows.f; fills rows.y = [ρ_net(f), c f]. Returns the LayerNorm
-        caches (x̂₁, σ₁, u₁, x̂₂, σ₂, u₂) — u the GELU inputs, recovered as x̂γ + β."""
+        """Encoder of every row of rows.f; fills rows.y = [ρ_net(f), c f] and the caches of the
+        backward pass (x̂ in c, GELU inputs u, Φ(u) in t); returns the LayerNorms' σ per row."""
         w = self.w
         _dot(rows.f, self.W1, out=rows.c1)
-        s1 = self._ln_gelu(rows.c1, rows.t1, rows.a1, self.g1, self.b1, self.eps1, w)
+        s1 = self._ln_gelu(rows.c1, rows.u1, rows.t1, rows.a1, self.g1, self.b1, self.eps1, w)
         _dot(rows.a1, self.W2, out=rows.c2)
-        s2 = self._ln_gelu(rows.c2, rows.t2, rows.a2, self.g2, self.b2, self.eps2, w)
+        s2 = self._ln_gelu(rows.c2, rows.u2, rows.t2, rows.a2, self.g2, self.b2, self.eps2, w)
         z = self.z
         np.matmul(rows.a2, self.W3, out=rows.y[:, :z])
         if self.skip > 0:
@@ -176,20 +178,23 @@ class SingleState:
         psi = float(_dot(diff, diff))
         g = _dot(diff[:z], self.e3T)
         g *= 2.0
-        for c, a, gam, bet, sig, WT in ((rows.c2, rows.t2, self.g2, self.b2, sig2, self.e2T),
-                                        (rows.c1, rows.t1, self.g1, self.b1, sig1, self.e1T)):
-            xh = c[i]
-            u = xh * gam
-            u += bet  # the GELU input u = x̂γ + β
-            # d gelu/du = Φ(u) + u e^{−u²/2}/√(2π); Φ(u) is in t
-            dg = np.exp(-0.5 * u * u)
-            dg *= u * _INV_SQRT_2PI
-            dg += a[i]
+        for c, u, t, gam, sig, WT in ((rows.c2, rows.u2, rows.t2, self.g2, sig2, self.e2T),
+                                      (rows.c1, rows.u1, rows.t1, self.g1, sig1, self.e1T)):
+            xh, u = c[i], u[i]
+            # d gelu/du = Φ(u) + u e^{−u²/2}/√(2π) (Φ(u) in t), times γ: ∂ψ/∂x̂
+            dg = u * u
+            dg *= -0.5
+            np.exp(dg, out=dg)
+            dg *= u
+            dg *= _INV_SQRT_2PI
+            dg += t[i]
             g *= dg
             g *= gam
-            g -= _add.reduce(g) / self.w + xh * (float(_dot(g, xh)) / self.w)
-            g /= sig[i]
+            # LayerNorm: ∂h = (∂x̂ − mean ∂x̂ − x̂ mean(∂x̂ x̂))/σ; mean ∂x̂ vanishes in the
+            # product with the centred weights
+            g -= xh * (float(_dot(g, xh)) / self.w)
             g = _dot(g, WT)
+            g *= 1.0 / sig[i]
         if self.skip > 0:
             g += (2.0 * self.skip) * diff[z:]
         return psi, g

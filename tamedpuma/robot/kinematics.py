@@ -183,6 +183,7 @@ class Kinematics:
         self.model = model
         self.data = model.createData()
         self._zeros = np.zeros(model.nv)
+        self._link_ids: dict[str, int] = {}  # link_position_jacobian's frame ids, by name
         self._radii = spec.sphere_radii
         self._radii.setflags(write=False)
 
@@ -226,7 +227,9 @@ class Kinematics:
     def link_position_jacobian(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         """Origin (3,) [m] and its 3×n position Jacobian of ``link`` at the q of the last
         :meth:`evaluate` call (no new forward pass)."""
-        fid = self._frame_id(self.model, link)
+        fid = self._link_ids.get(link)
+        if fid is None:
+            fid = self._link_ids[link] = self._frame_id(self.model, link)
         jac = pin.getFrameJacobian(self.model, self.data, fid, _WORLD)[:3]
         return self.data.oMf[fid].translation.copy(), np.array(jac)
 
