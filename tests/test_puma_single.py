@@ -149,3 +149,14 @@ def test_goal_is_an_equilibrium_on_the_single_state_path(pose):
     assert np.abs(a).max() < 1e-12 and np.abs(alpha).max() < 1e-12
     psi, dp, dt = pose.potential(gp, -gq, gp, gq)
     assert psi < 1e-20 and np.abs(dp).max() < 1e-9 and np.abs(dt).max() < 1e-9
+
+
+def test_non_finite_and_degenerate_inputs_propagate_as_nan(pose):
+    """No exception where the reference gives NaN (a zero quaternion, a NaN position)."""
+    gp, gq = np.array([0.5, -0.2, 0.1]), np.array([0.0, 0.0, 0.0, 1.0])
+    for p, q in ((gp, np.zeros(4)), (gp + np.nan, gq)):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            (a1, _), (a0, _) = _both(pose, ("acceleration", (p, q, np.zeros(3), np.zeros(3),
+                                                             gp, gq)))
+            (psi1, _, _), (psi0, _, _) = _both(pose, ("potential", (p, q, gp, gq)))
+        assert np.isnan(a1).all() and np.isnan(a0).all() and np.isnan(psi1) and np.isnan(psi0)

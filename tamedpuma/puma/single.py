@@ -42,13 +42,18 @@ def rotation_entries(x, y, z, w) -> list[float]:
             2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]
 
 
+def _inv_norm(sq: float) -> float:
+    """1/√sq; NaN for a zero (or NaN) quaternion, as numpy's 0/0 (no ZeroDivisionError)."""
+    return 1.0 / math.sqrt(sq) if sq > 0.0 else math.nan
+
+
 def relative_rotation(quat, goal_quat) -> list[float]:
     """Entries of R(ζ ⊗ ζ_g⁻¹) (both normalised first), as ``primitive._relative_quat``."""
     ax, ay, az, aw = quat
-    na = 1.0 / math.sqrt(ax * ax + ay * ay + az * az + aw * aw)
+    na = _inv_norm(ax * ax + ay * ay + az * az + aw * aw)
     ax, ay, az, aw = ax * na, ay * na, az * na, aw * na
     bx, by, bz, bw = goal_quat
-    nb = 1.0 / math.sqrt(bx * bx + by * by + bz * bz + bw * bw)
+    nb = _inv_norm(bx * bx + by * by + bz * bz + bw * bw)
     bx, by, bz, bw = -bx * nb, -by * nb, -bz * nb, bw * nb
     return rotation_entries(aw * bx + ax * bw + ay * bz - az * by,
                             aw * by - ax * bz + ay * bw + az * bx,
