@@ -15,6 +15,7 @@ from tamedpuma import methods
 from tamedpuma.app import schema
 from tamedpuma.app.config import CONF_DIR
 from tamedpuma.errors import ConfigError
+from tamedpuma.methods import cpm
 
 PKG = Path(__file__).resolve().parents[1] / "tamedpuma"
 
@@ -126,13 +127,19 @@ def test_a_value_out_of_range_is_refused(hydra_conf, override, match):
 @pytest.mark.parametrize("override,match", [
     ("method.beta=-1", r"method\.beta"),
     ("method.potential_scale=0", r"method\.potential_scale"),
-    ("method.damping=soft", r"method\.damping must be matched or constant"),
+    ("method.damping=soft", r"method\.damping must be constant or matched or matched_forcing"),
     ("method.fabric.goal_weight=-1", r"fabric\.goal_weight"),
     ("method.fabric.obstacle.energy_gain=0", r"energy_gain must be positive"),
 ])
 def test_a_method_value_out_of_range_is_refused(hydra_conf, override, match):
     with pytest.raises(ConfigError, match=match):
         schema.run_config(compose("sweep", overrides=["method=cpm", override]))
+
+
+@pytest.mark.parametrize("damping", cpm.DAMPINGS)
+def test_the_schema_accepts_every_damping_the_cpm_controller_accepts(hydra_conf, damping):
+    run = schema.run_config(compose("sweep", overrides=["method=cpm", f"method.damping={damping}"]))
+    assert run.method.damping == damping
 
 
 @pytest.mark.parametrize("override,match", [

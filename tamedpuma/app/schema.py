@@ -34,6 +34,8 @@ from omegaconf.errors import OmegaConfBaseException
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics.gains import FabricGains
 from tamedpuma.methods._tamed import ControlRate
+from tamedpuma.methods.cpm import DAMPINGS as CPM_DAMPINGS
+from tamedpuma.methods.cpm import VARIANTS as CPM_VARIANTS
 from tamedpuma.methods.modulation_ik import ModulationIKParams
 from tamedpuma.puma.settings import EvalConfig, NetConfig, TrainConfig
 from tamedpuma.worlds.settings import Disturbance, SimConfig
@@ -315,6 +317,7 @@ class CpmMethod(FpmMethod):
     variant: str = "paper"           # paper | original (the authors' code)
     beta: float = 0.5                # β [1/s] > 0: the damping (its floor with damping: matched)
     damping: str = "matched"         # matched: β(q, q̇) = max(β, r − α) | constant: the paper's β
+    #                                  | matched_forcing: see tamedpuma/methods/cpm.py (DAMPINGS)
     potential_scale: float = 0.3     # k_ψ > 0 on ψ in the regulator
     semi_implicit: bool = True       # take the q̇-proportional terms implicitly over Δt
     eps: float = 1.0e-6              # ε [(rad/s)²] of the regulator's denominator
@@ -322,9 +325,9 @@ class CpmMethod(FpmMethod):
 
     def __post_init__(self):
         super().__post_init__()
-        _check(self.variant in ("paper", "original"), "method.variant", "paper or original",
+        _check(self.variant in CPM_VARIANTS, "method.variant", " or ".join(CPM_VARIANTS),
                self.variant)
-        _check(self.damping in ("matched", "constant"), "method.damping", "matched or constant",
+        _check(self.damping in CPM_DAMPINGS, "method.damping", " or ".join(CPM_DAMPINGS),
                self.damping)
         _nonneg("method.beta", self.beta)
         _positive("method.potential_scale", self.potential_scale)
