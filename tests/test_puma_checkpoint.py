@@ -1,5 +1,7 @@
 """Checkpoints round-trip and load strictly, with one-line errors."""
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -85,7 +87,58 @@ def test_corrupt_missing_and_foreign_files(tmp_path, saved):
     _, path = saved
     data = path.read_bytes()
     (tmp_path / "trunc.pt").write_bytes(data[: len(data) // 2])
-    _expect(tmp_path / "trunc.pt", "unreadable")
+    _expect(tmp_path / "trunc.pt", "truncated or corrupt PyTorch archive")
     _expect(tmp_path / "none.pt", "file not found")
     torch.save({"weights": torch.zeros(2)}, tmp_path / "other.pt")
     _expect(tmp_path / "other.pt", "not a PUMA checkpoint")
+
+
+class _RunsCode:
+    def __reduce__(self):
+        import os
+
+        return (os.system, ("true",))
+
+
+def _bad_files(tmp_path, path):
+    """Every kind of broken checkpoint file: (file, the message's expected words)."""
+    data = path.read_bytes()
+    cases = {"empty.pt": (b"", "empty file"),
+             "trunc.pt": (data[: len(data) - 30], "truncated or corrupt PyTorch archive"),
+             "random.pt": (np.random.default_rng(0).bytes(4000), "not a PyTorch checkpoint")}
+    out = []
+    for name, (content, match) in cases.items():
+        (tmp_path / name).write_bytes(content)
+        out.append((tmp_path / name, match))
+    torch.save({"x": _RunsCode()}, tmp_path / "code.pt", _use_new_zipfile_serialization=False)
+    out.append((tmp_path / "code.pt", "refused: loading it would run code"))
+    (tmp_path / "folder.pt").mkdir()
+    out.append((tmp_path / "folder.pt", "is a folder, not a checkpoint file"))
+    ck = torch.load(path, weights_only=True)
+    torch.save({**ck, "dt": "fast"}, tmp_path / "dt.pt")
+    out.append((tmp_path / "dt.pt", "invalid header .*could not convert string to float"))
+    torch.save({**ck, "workspace": {"low": 1}}, tmp_path / "ws.pt")
+    out.append((tmp_path / "ws.pt", "invalid header"))
+    return out
+
+
+def test_every_broken_file_is_one_line_naming_the_file_and_the_fault(tmp_path, saved):
+    for path, match in _bad_files(tmp_path, saved[1]):
+        _expect(path, f"checkpoint {path}: {match}")
+
+
+def test_a_broken_checkpoint_given_to_the_sweep_is_one_line_and_status_2(tmp_path, saved):
+    """The command line: each broken file (a folder, a truncated archive, random bytes) → one
+    line ``error: checkpoint FILE: ...`` on stderr, status 2, no traceback."""
+    import subprocess
+    import sys
+
+    cases = {p.name: (p, m) for p, m in _bad_files(tmp_path, saved[1])}
+    for name in ("folder.pt", "trunc.pt", "random.pt"):
+        path, match = cases[name]
+        proc = subprocess.run([sys.executable, "-m", "tamedpuma.sweep", "method=fpm",
+                               f"method.checkpoint={path}", f"output_root={tmp_path / 'runs'}"],
+                              capture_output=True, text=True, timeout=300)
+        lines = [ln for ln in proc.stderr.splitlines() if not ln.startswith("pybullet build")]
+        assert proc.returncode == 2, proc.stderr
+        assert len(lines) == 1 and re.match(f"error: checkpoint {path}: {match}", lines[0]), lines

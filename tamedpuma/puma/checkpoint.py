@@ -92,17 +92,41 @@ def _fail(path, msg) -> CheckpointError:
     return CheckpointError(f"checkpoint {path}: {msg}")
 
 
-def load(path: str | Path) -> tuple[PumaNet, Meta]:
-    """Load strictly; the network is returned in eval mode with its goal output cached."""
-    path = Path(path)
+_ZIP_MAGIC = b"PK\x03\x04"  # torch.save's archive format
+_PICKLE_MAGIC = b"\x80"      # torch.save's legacy format (a pickle, protocol >= 2)
+
+
+def _read_problem(path: Path, exc: BaseException) -> str:
+    """What is wrong with a file ``torch.load`` could not read, in a few words."""
+    text = " ".join(str(exc).split())
+    with open(path, "rb") as fh:
+        head = fh.read(4)
+    if not (head == _ZIP_MAGIC or head.startswith(_PICKLE_MAGIC)):
+        return f"not a PyTorch checkpoint (unrecognised content, first bytes {head.hex()})"
+    unsafe = [ln.strip() for ln in str(exc).splitlines()
+              if "unsupported global" in ln.lower()]  # torch's wording differs by version
+    if unsafe:
+        found = unsafe[0]
+        return f"refused: loading it would run code ({found[:120]})"
+    kind = "archive" if head == _ZIP_MAGIC else "file"
+    return f"truncated or corrupt PyTorch {kind} ({text[:80] or type(exc).__name__})"
+
+
+def _read(path: Path) -> dict:
+    """The checkpoint's payload (``torch.load`` with ``weights_only=True``); every way the file
+    can be unreadable is a one-line :class:`CheckpointError` naming the file."""
+    if path.is_dir():
+        raise _fail(path, "is a folder, not a checkpoint file (the file is its puma.pt)")
     if not path.is_file():
         raise _fail(path, "file not found")
+    if path.stat().st_size == 0:
+        raise _fail(path, "empty file (0 bytes)")
     try:
         ck = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # corrupt, truncated or not a torch file
-        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()] or [type(exc).__name__]
-        why = next((ln for ln in lines if "Unsupported global" in ln), lines[0])
-        raise _fail(path, f"unreadable or unsafe ({why[:160]})") from None
+    except PermissionError as exc:
+        raise _fail(path, f"cannot be read ({exc.strerror or exc})") from None
+    except Exception as exc:  # noqa: BLE001 - corrupt, truncated or not a torch file
+        raise _fail(path, _read_problem(path, exc)) from None
     if not isinstance(ck, dict) or ck.get("format") != FORMAT:
         fmt = ck.get("format") if isinstance(ck, dict) else type(ck).__name__
         raise _fail(path, f"not a PUMA checkpoint (format {fmt!r})")
@@ -112,6 +136,13 @@ def load(path: str | Path) -> tuple[PumaNet, Meta]:
     missing = [k for k in REQUIRED_KEYS if k not in ck]
     if missing:
         raise _fail(path, f"missing key(s) {', '.join(missing)}")
+    return ck
+
+
+def load(path: str | Path) -> tuple[PumaNet, Meta]:
+    """Load strictly; the network is returned in eval mode with its goal output cached."""
+    path = Path(path)
+    ck = _read(path)
     try:
         spec = StateSpec(**ck["spec"])
         cfg = NetConfig(**ck["network"])
@@ -119,8 +150,12 @@ def load(path: str | Path) -> tuple[PumaNet, Meta]:
         workspace = Workspace(tuple(ws["low"]), tuple(ws["high"]), float(ws["max_angle"]))
         norm = ck["normalisation"]
         net = PumaNet(spec, cfg, norm["pos_scale"], norm["vel_scale"], norm["out_scale"])
-    except Exception as exc:
-        raise _fail(path, f"invalid header ({type(exc).__name__}: {exc})") from None
+        meta = Meta(float(ck["dt"]), str(ck["goal_convention"]), ck["goal"], str(ck["unit"]),
+                    workspace, ck["config"], str(ck["data_hash"]), str(ck["data_source"]),
+                    ck["report"])
+    except Exception as exc:  # noqa: BLE001 - any malformed header value
+        raise _fail(path, f"invalid header ({type(exc).__name__}: "
+                          f"{' '.join(str(exc).split())[:120]})") from None
     sd = ck["state_dict"]
     want = net.state_dict()
     if not isinstance(sd, dict):
@@ -140,6 +175,4 @@ def load(path: str | Path) -> tuple[PumaNet, Meta]:
     net.load_state_dict(sd, strict=True)
     net.eval()
     net.cache_goal()
-    meta = Meta(float(ck["dt"]), str(ck["goal_convention"]), ck["goal"], str(ck["unit"]),
-                workspace, ck["config"], str(ck["data_hash"]), str(ck["data_source"]), ck["report"])
     return net, meta

@@ -210,6 +210,9 @@ def resolve(task: str, order: int, checkpoint: str | None = None,
         raise ConfigError(f"method.model must be auto, real or shipped, got {model!r}")
     if checkpoint:
         path = resolve_explicit(str(checkpoint))
+        if path.is_dir():
+            raise CheckpointError(f"checkpoint {checkpoint}: is a folder, not a checkpoint file "
+                                  "(the file is its puma.pt)")
         if not path.is_file():
             hint = (f"python -m tamedpuma.train task={task}"
                     + (" puma=position" if int(order) == 1 else "")
