@@ -280,3 +280,42 @@ def test_a_killed_training_resumes_from_its_last_save(tmp_path):
     b = torch.load(tmp_path / "cut/puma.pt", weights_only=False)["state_dict"]
     assert a.keys() == b.keys()
     assert all(torch.equal(a[k], b[k]) for k in a), "resumed training differs from uninterrupted"
+
+
+@pytest.mark.parametrize("group", ["scenario", "task", "method", "robot"])
+def test_an_unknown_option_lists_every_option_of_its_group(group, capsys):
+    """``scenario=nope`` (and task, method, robot): one line, status 2, naming every option of
+    the group, nested ones included (``tomato/00`` ... ``pouring/14``, ``random``)."""
+    from tamedpuma.app import sweep
+    from tamedpuma.app.config import CONF_DIR
+
+    GlobalHydra.instance().clear()
+    with pytest.raises(SystemExit) as exit_:
+        sweep.main([f"{group}=nope"])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and "\n" not in err and err.startswith("error: ")
+    listed = err.split(f"Available options in '{group}': ")[1].split(", ")
+    folder = CONF_DIR / group
+    every = sorted(p.relative_to(folder).with_suffix("").as_posix()
+                   for p in folder.rglob("*.yaml"))
+    assert listed == every
+    if group == "scenario":
+        assert {"tomato/00", "tomato/14", "pouring/00", "pouring/14", "random",
+                "from_demos"} <= set(listed)
+
+
+def test_an_unknown_training_option_lists_every_option_and_a_wrong_type_says_why(capsys):
+    from tamedpuma.app import train
+
+    GlobalHydra.instance().clear()
+    assert train.main(["puma=nope"]) == 2
+    err = capsys.readouterr().err.strip()
+    from tamedpuma.app.config import CONF_DIR
+
+    every = ", ".join(sorted(p.stem for p in (CONF_DIR / "puma").glob("*.yaml")))
+    assert err == ("error: In 'train': Could not find 'puma/nope' Available options in 'puma': "
+                   + every)
+    assert "position, small, tiny" in every
+    assert train.main(["puma.train.lr=abc"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "puma.train.lr=abc" in err and "could not be converted" in err

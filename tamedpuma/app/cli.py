@@ -11,11 +11,12 @@ A user's own config folder works the Hydra way: ``--config-dir DIR`` (``-cd DIR`
 
 from __future__ import annotations
 
+import re
 import sys
 import uuid
 from pathlib import Path
 
-from tamedpuma.app.config import CONF_DIR
+from tamedpuma.app.config import CONF_DIR, group_options
 
 
 def fail(message: str, status: int = 2) -> None:
@@ -46,6 +47,31 @@ def _one_line(exc: BaseException) -> str:
         else:
             lines.append(text)
     return " ".join(lines) or type(exc).__name__
+
+
+def hydra_error_line(exc: BaseException, search: list[str] = ()) -> str:
+    """A Hydra composition error as one line; an unknown group option lists every option, and
+    "Error merging override k=v" says why (its cause: e.g. "'abc' ... could not be converted to
+    Float")."""
+    line = _all_options(_one_line(exc), list(search))
+    cause = exc.__cause__
+    if line.startswith("Error merging override") and cause is not None:
+        line = f"{line}: {_one_line(cause)}"
+    return line
+
+
+def _all_options(message: str, search: list[str]) -> str:
+    """Hydra's "Could not find 'scenario/x' Available options in 'scenario': default, ..." lists
+    only a group's top level; this lists every option, nested ones (``tomato/00``) included."""
+    missing = re.search(r"Could not find '([^']+)'", message)
+    listed = re.search(r"Available options in '([^']+)':", message)
+    if not (missing and listed):
+        return message
+    group = listed.group(1)
+    extra = tuple(Path(s.removeprefix("file://")) for s in search if s.startswith("file://"))
+    options = group_options(group, extra)
+    return (f"{message[:listed.start()].rstrip()} Available options in '{group}': "
+            f"{', '.join(options)}")
 
 
 def _check_writable(root: str) -> str | None:
@@ -169,7 +195,7 @@ def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
                     cfg = compose(config_name, overrides=overrides)
                     OmegaConf.to_container(cfg, resolve=True)
                 except Exception as exc:  # composition and interpolation errors
-                    return _one_line(exc)
+                    return hydra_error_line(exc, search)
                 problem = _schema_problem(config_name, cfg)
                 if problem:
                     return problem

@@ -16,12 +16,24 @@ from tamedpuma.errors import ConfigError
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"  # tamedpuma/conf (package data)
 
 
+def group_options(group: str, extra_dirs: tuple[Path, ...] = ()) -> list[str]:
+    """Every option of config group ``group``, nested ones included (``tomato/00``), in the
+    package's ``conf/`` and in ``extra_dirs`` (a user's ``--config-dir``), sorted."""
+    found = set()
+    for root in (CONF_DIR, *extra_dirs):
+        folder = Path(root) / group
+        if folder.is_dir():
+            found.update(p.relative_to(folder).with_suffix("").as_posix()
+                         for p in folder.rglob("*.yaml"))
+    return sorted(found)
+
+
 def load_group(group: str, name: str) -> dict:
     """Load ``conf/<group>/<name>.yaml`` as a plain dict (interpolations left unresolved)."""
     path = CONF_DIR / group / f"{name}.yaml"
     if not path.is_file():
-        options = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
-        raise ConfigError(f"unknown {group} {name!r}; choose one of {options}")
+        raise ConfigError(f"unknown {group} {name!r}; choose one of "
+                          f"{', '.join(group_options(group))}")
     return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
 
 

@@ -46,7 +46,9 @@ def compose(config_name: str, overrides: list[str]) -> dict:
                 return as_dict(train_config(cfg))
             return OmegaConf.to_container(cfg, resolve=True)
     except (HydraException, OmegaConfBaseException) as exc:
-        raise ConfigError(_one_line(exc)) from None
+        from tamedpuma.app.cli import hydra_error_line
+
+        raise ConfigError(hydra_error_line(exc)) from None
     finally:
         GlobalHydra.instance().clear()
 
