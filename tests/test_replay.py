@@ -83,6 +83,30 @@ def test_replay_mistakes_are_one_line_errors(tmp_path):
         assert len(proc.stderr.strip().splitlines()) == 1
 
 
+def test_a_truncated_rrd_is_rebuilt_from_its_mcap_or_refused_in_one_line(sweep, tmp_path):
+    """A truncated ``.rrd`` (cut inside a message) next to its MCAP is rebuilt from it (run
+    folder or the ``.rrd`` itself given); alone, it is one line ``error: ...``, status 2."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "episode.mcap").write_bytes((sweep[1] / "episode.mcap").read_bytes())
+    assert _replay(str(run), "--build", "--reference", "none").returncode == 0
+    whole = (run / "episode.rrd").read_bytes()
+    for arg in (run, run / "episode.rrd"):
+        (run / "episode.rrd").write_bytes(whole[: len(whole) * 2 // 3])
+        proc = _replay(str(arg), "--build", "--reference", "none")
+        assert proc.returncode == 0, proc.stderr
+        assert "is truncated or corrupt" in proc.stdout.splitlines()[0]
+        assert proc.stdout.startswith(f"rebuilt {run / 'episode.rrd'} from ")
+        assert len(read_rrd_joints(run / "episode.rrd")) == STEPS
+    alone = tmp_path / "alone.rrd"
+    alone.write_bytes(whole[: len(whole) * 2 // 3])
+    proc = _replay(str(alone), "--build")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]
+    assert proc.stderr.startswith(f"error: rerun log {alone} is truncated or corrupt (")
+    assert proc.stderr.strip().endswith("and no alone.mcap next to it to rebuild it from")
+
+
 def test_plots_split_by_quantity_and_camera_frames_every_point():
     groups = dict(plot_groups(["psi", "psi_rate", "clearance_m", "energy_total", "alpha",
                                "compute_time_ms", "position_error_m"]))

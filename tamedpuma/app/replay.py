@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tamedpuma.app.cli import fail
-from tamedpuma.errors import TamedPumaError
+from tamedpuma.errors import LogError, TamedPumaError
 
 MCAP_NAME = "episode.mcap"
 RRD_NAME = "episode.rrd"
@@ -51,6 +51,7 @@ class Replay:
     overlay: Path | None
     rebuilt: bool
     reference_run: Path | None
+    why: str = ""  # why the .rrd was rebuilt although it existed (it was unreadable)
 
     @property
     def files(self) -> list[Path]:
@@ -119,11 +120,22 @@ def prepare(run: Path, rebuild: bool = False,
     """Find or build the replay files of ``run`` (see the module docstring); ``reference``: the
     method whose obstacle-free run in the same sweep is overlaid (None: none)."""
     from tamedpuma.recording.convert import mcap_to_rrd
-    from tamedpuma.recording.reader import read_mcap
+    from tamedpuma.recording.reader import check_rrd, read_mcap
     from tamedpuma.recording.rerun_writer import write_reference_overlay
 
     mcap, rrd = locate(run)
-    rebuilt = False
+    rebuilt, why = False, ""
+    if rrd.is_file() and not rebuild:
+        try:
+            check_rrd(rrd)
+        except LogError as exc:
+            mcap = mcap or next((p for p in (rrd.with_suffix(".mcap"),
+                                             rrd.with_suffix(".mcap.active")) if p.is_file()),
+                                None)
+            if mcap is None:
+                raise LogError(f"{exc}, and no {rrd.with_suffix('.mcap').name} next to it "
+                               "to rebuild it from") from None
+            rebuild, why = True, str(exc)
     if mcap is not None and (rebuild or not rrd.is_file()):
         mcap_to_rrd(mcap, rrd, overwrite=True)
         rebuilt = True
@@ -135,7 +147,8 @@ def prepare(run: Path, rebuild: bool = False,
             run_id = read_mcap(mcap).info.get("run_id", mcap.parent.name)
             overlay = write_reference_overlay(rrd.with_name(OVERLAY_NAME), run_id, points,
                                               label=f"{reference}, no obstacles")
-    return Replay(rrd=rrd, mcap=mcap, overlay=overlay, rebuilt=rebuilt, reference_run=ref_run)
+    return Replay(rrd=rrd, mcap=mcap, overlay=overlay, rebuilt=rebuilt, reference_run=ref_run,
+                  why=why)
 
 
 # -- ways to look ----------------------------------------------------------------------------
@@ -232,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
         reference = None if args.reference.lower() == "none" else args.reference
         replay = prepare(args.run, rebuild=args.rebuild, reference=reference)
         if replay.rebuilt:
-            print(f"rebuilt {replay.rrd} from {replay.mcap}")
+            print(f"rebuilt {replay.rrd} from {replay.mcap}"
+                  + (f" ({replay.why})" if replay.why else ""))
         if replay.reference_run is not None:
             print(f"reference path: {replay.reference_run.parent.name} ({reference}, "
                   "no obstacles)")

@@ -305,6 +305,21 @@ def recover_mcap(src: str | os.PathLike, dst: str | os.PathLike) -> int:
 # -- Rerun (.rrd) -------------------------------------------------------------------------------
 
 
+def check_rrd(path: str | os.PathLike) -> None:
+    """Raise :class:`LogError` (one line) if the ``.rrd`` file cannot be read to its end (e.g.
+    truncated within a message); a killed run's file without a footer is readable."""
+    from rerun.chunk import RrdReader
+
+    try:
+        with warnings.catch_warnings():  # no footer: whole-file scan
+            warnings.simplefilter("ignore")
+            RrdReader(Path(path)).stream().collect()
+    except Exception as exc:  # noqa: BLE001 - rerun raises assorted errors for bad files
+        why = (str(exc).splitlines() or [type(exc).__name__])[-1]
+        why = why.replace(f"Failed to read RRD file at {path}: ", "")
+        raise LogError(f"rerun log {path} is truncated or corrupt ({why})") from None
+
+
 def read_rrd_series(path: str | os.PathLike, root: str) -> pd.DataFrame:
     """Every ``Scalars`` series under ``root`` (e.g. ``/metrics``) of a ``.rrd`` file.
 
