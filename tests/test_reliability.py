@@ -319,3 +319,30 @@ def test_an_unknown_training_option_lists_every_option_and_a_wrong_type_says_why
     assert train.main(["puma.train.lr=abc"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "puma.train.lr=abc" in err and "could not be converted" in err
+
+
+def test_the_end_of_sweep_counts_hold_when_jobs_run_in_other_processes(tmp_path):
+    """Hydra's joblib launcher (``hydra/launcher=cores``) runs the jobs in worker processes: the
+    main process still reports every run, from the outcomes the jobs wrote into the sweep
+    folder; a run with a broken checkpoint (a user error) is that run's failure."""
+    conf = tmp_path / "conf" / "method"
+    conf.mkdir(parents=True)
+    (tmp_path / "empty.pt").write_bytes(b"")
+    (conf / "broken.yaml").write_text("defaults:\n  - fpm\n  - _self_\n"
+                                      f"checkpoint: {tmp_path / 'empty.pt'}\n")
+    cmd = [sys.executable, "-m", "tamedpuma.sweep", "-m", "--config-dir", str(tmp_path / "conf"),
+           "hydra/launcher=cores", "hydra.launcher.n_jobs=2", "method=joint_attractor,broken",
+           "scenario=free", "scenario.max_steps=6", "recorder=mcap", "seed=0,1",
+           f"output_root={tmp_path}", f"hydra.sweep.dir={tmp_path}/sweep",
+           "hydra.sweep.subdir=${hydra.job.num}"]
+    proc = subprocess.run(cmd, cwd=tmp_path, env=ENV, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert ("sweep: 4 runs: 2 executed and complete, 0 skipped (already complete), 2 failed"
+            in proc.stdout), proc.stdout[-2000:]
+    failed = [ln for ln in proc.stdout.splitlines() if ln.startswith("  failed: ")]
+    assert len(failed) == 2 and all("empty.pt: empty file (0 bytes)" in ln for ln in failed)
+    again = subprocess.run(cmd, cwd=tmp_path, env=ENV, capture_output=True, text=True,
+                           timeout=300)
+    assert "sweep: 4 runs: 0 executed and complete, 2 skipped (already complete), 2 failed" \
+        in again.stdout, again.stdout[-2000:]

@@ -1,4 +1,5 @@
-"""Hydra callbacks of the Table-1 experiment (``conf/experiment/table1.yaml``).
+"""Hydra callbacks: every multirun's outcome count (:class:`SweepOutcomes`, ``conf/sweep.yaml``)
+and the Table-1 experiment's (``conf/experiment/table1.yaml``).
 
 Before the sweep (main process): build the real-data models that are missing from the cache
 (:func:`tamedpuma.app.models.ensure_real_models`), or say that the shipped synthetic models are
@@ -34,6 +35,30 @@ def sweep_size(config: DictConfig) -> int | None:
             params[key] = value
     sizes = [len(v.split(",")) for v in params.values()]
     return math.prod(sizes) if sizes else None
+
+
+class SweepOutcomes(Callback):
+    """Every multirun (``conf/sweep.yaml``): in the main process, collect the outcome each job
+    appended to the sweep folder's ``sweep_outcomes.jsonl`` (jobs may run in other processes)
+    into :data:`tamedpuma.app.sweep._OUTCOMES`, which ``main`` reports and turns into the exit
+    status."""
+
+    def __init__(self) -> None:
+        self._path: Path | None = None
+        self._offset = 0
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        from tamedpuma.app import sweep
+
+        sweep._OUTCOMES.clear()
+        self._path = Path(str(config.hydra.sweep.dir)) / sweep.OUTCOMES_FILE
+        self._offset = self._path.stat().st_size if self._path.is_file() else 0
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        from tamedpuma.app import sweep
+
+        if self._path is not None:
+            sweep._OUTCOMES[:] = sweep.outcomes_since(self._path, self._offset)
 
 
 class Table1(Callback):

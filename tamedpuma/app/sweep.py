@@ -209,8 +209,42 @@ def record_failure(cfg: DictConfig, run_dir: Path, exc: BaseException) -> dict:
     return summary
 
 
-#: outcome of each job of this process's multirun: (run_dir, 'complete'|'skipped'|'failed', why)
+#: outcome of each job of the last multirun: (run_dir, 'complete'|'skipped'|'failed', why), read
+#: by the main process at the end of the sweep from the sweep folder's OUTCOMES_FILE (the jobs may
+#: run in other processes: Hydra's joblib launcher)
 _OUTCOMES: list[tuple[str, str, str]] = []
+#: one JSON line per job ({"run_dir", "outcome", "why"}), appended by the job (O_APPEND: lines of
+#: concurrent jobs do not mix)
+OUTCOMES_FILE = "sweep_outcomes.jsonl"
+
+
+def _record_outcome(run_dir: Path, outcome: str, why: str = "") -> None:
+    """Append this job's outcome to its sweep folder's :data:`OUTCOMES_FILE`."""
+    path = Path(HydraConfig.get().sweep.dir) / OUTCOMES_FILE
+    line = json.dumps({"run_dir": str(run_dir), "outcome": outcome, "why": why}) + "\n"
+    try:
+        with open(path, "a", encoding="utf-8") as fh:
+            fh.write(line)
+    except OSError as exc:  # the run's own summary.json still says what happened
+        print(f"error: cannot record the outcome in {path}: {exc}", file=sys.stderr)
+
+
+def outcomes_since(path: Path, offset: int) -> list[tuple[str, str, str]]:
+    """The outcomes appended to ``path`` after byte ``offset`` (this sweep's jobs)."""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(offset)
+            lines = fh.read().decode("utf-8", errors="replace").splitlines()
+    except OSError:
+        return []
+    out = []
+    for line in lines:
+        try:
+            o = json.loads(line)
+            out.append((str(o["run_dir"]), str(o["outcome"]), str(o.get("why", ""))))
+        except (ValueError, KeyError, TypeError):
+            continue  # a line cut by a killed job
+    return out
 
 
 def _report(summary: dict) -> None:
@@ -255,7 +289,7 @@ def _hydra_main(cfg: DictConfig) -> None:
     if multirun:
         state = run_state(run_dir)
         if state == "complete":
-            _OUTCOMES.append((str(run_dir), "skipped", "already complete"))
+            _record_outcome(run_dir, "skipped", "already complete")
             print(f"skipped (already complete): {run_dir}")
             return
         _set_aside(run_dir)
@@ -272,14 +306,14 @@ def _hydra_main(cfg: DictConfig) -> None:
                 fail(str(exc))
             raise
         failure = record_failure(cfg, run_dir, exc)
-        _OUTCOMES.append((str(run_dir), "failed", failure["reason"]))
+        _record_outcome(run_dir, "failed", failure["reason"])
         print(f"error: run failed ({failure['failure']}): {failure['reason']} "
               f"[recorded in {run_dir / 'summary.json'}]", file=sys.stderr)
         return
     if multirun:
         failed = summary["stop_reason"] == "nonfinite_command"
-        _OUTCOMES.append((str(run_dir), "failed" if failed else "complete",
-                          "controller returned NaN/inf" if failed else ""))
+        _record_outcome(run_dir, "failed" if failed else "complete",
+                        "controller returned NaN/inf" if failed else "")
     _report(summary)
 
 
