@@ -282,6 +282,26 @@ def test_a_killed_training_resumes_from_its_last_save(tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a), "resumed training differs from uninterrupted"
 
 
+@pytest.mark.parametrize("sig,status", [(signal.SIGTERM, 143), (signal.SIGINT, 130)],
+                         ids=["SIGTERM", "Ctrl-C"])
+def test_an_interrupted_training_says_where_its_resumable_state_is(tmp_path, sig, status):
+    cmd = [sys.executable, "-m", "tamedpuma.train", "puma=tiny", f"out_dir={tmp_path}",
+           "progress=false", "evaluate=false", "puma.train.iterations=100000", "save_every=2"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    state = tmp_path / "train_state.pt"
+    deadline = time.monotonic() + 120
+    while not state.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == status, err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == (
+        f"interrupted: the training's last save is {state} (every 2 iterations); run the same "
+        "command again to resume from it")
+
+
 @pytest.mark.parametrize("group", ["scenario", "task", "method", "robot"])
 def test_an_unknown_option_lists_every_option_of_its_group(group, capsys):
     """``scenario=nope`` (and task, method, robot): one line, status 2, naming every option of

@@ -12,6 +12,7 @@ User errors print one line ``error: ...`` on stderr and exit with status 2.
 from __future__ import annotations
 
 import json
+import signal
 import sys
 from pathlib import Path
 
@@ -94,6 +95,19 @@ def evaluate_checkpoint(path: str, overrides: list[str]) -> dict:
     return report
 
 
+def _interrupted_line(cfg: dict) -> str:
+    """Where an interrupted training's resumable state is (or that there is none yet)."""
+    from tamedpuma.paths import resolve
+    from tamedpuma.puma.pipeline import STATE_FILE
+
+    state = resolve(str(cfg["out_dir"])) / STATE_FILE
+    if state.is_file():
+        return (f"interrupted: the training's last save is {state} (every {cfg['save_every']} "
+                "iterations); run the same command again to resume from it")
+    return (f"interrupted before the first save (save_every={cfg['save_every']}): nothing to "
+            f"resume, no model written in {state.parent}")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in ("-h", "--help"):
@@ -120,7 +134,15 @@ def main(argv: list[str] | None = None) -> int:
         cfg["command"] = " ".join(["python -m tamedpuma.train", *argv])
         from tamedpuma.puma import pipeline
 
-        report = pipeline.run(cfg, log=lambda m: print(m, file=sys.stderr))
+        # SIGTERM unwinds like Ctrl-C, so both say where the resumable state is
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+        try:
+            report = pipeline.run(cfg, log=lambda m: print(m, file=sys.stderr))
+        except (KeyboardInterrupt, SystemExit) as exc:
+            if isinstance(exc, SystemExit) and exc.code in (0, None):
+                raise
+            print(_interrupted_line(cfg), file=sys.stderr)
+            return 130 if isinstance(exc, KeyboardInterrupt) else 143
         print(_summary(report))
         return 0
     except TamedPumaError as exc:
