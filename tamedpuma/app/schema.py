@@ -204,6 +204,20 @@ class SyntheticSchema:
 
 
 @dataclass
+class WorkspaceCheckSchema:
+    """Demonstrations and scenario starts checked against the task's workspace before training
+    (:func:`tamedpuma.puma.pipeline.check_workspace`)."""
+
+    action: str = "warn"             # warn | error | off
+    robot: str = "iiwa14"            # the robot whose scenario starts are checked
+    scenarios: Any = "auto"          # auto: every conf/scenario/<task>/*.yaml; or a list of names
+
+    def __post_init__(self):
+        _check(self.action in ("warn", "error", "off"), "task.workspace_check.action",
+               "warn, error or off", self.action)
+
+
+@dataclass
 class TaskSchema:
     """A task: goal and demonstrations (robot tasks) or a LASA shape (2-D, mm)."""
 
@@ -220,7 +234,7 @@ class TaskSchema:
     spread_limit: float = 0.5236     # derive: final orientations spreading more: medoid goal
     dt: Any = None                   # model step [s], 'auto' (from the data) or null: puma.dt
     min_dt: float = 0.02             # derive / dt auto: smallest model step [s]
-    workspace_check: Any = None      # {action: warn|error|off, robot, scenarios}
+    workspace_check: WorkspaceCheckSchema = field(default_factory=WorkspaceCheckSchema)
     margin: float = 0.1              # fraction of the box size added on each side
     unit: str = "mm"                 # LASA data unit
     shape: str | None = None      # LASA shape

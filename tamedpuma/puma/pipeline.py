@@ -61,8 +61,7 @@ def load_raws(task: dict, puma: dict) -> tuple[list[data.RawDemo], str, str]:
         return raws, f"synthetic:{name}", "m"
     if src == "lasa":
         shape = str(_require(task, "shape", "task"))
-        return data.load_lasa(shape, int(task.get("every", 10))), f"lasa:{shape}", \
-            task.get("unit", "mm")
+        return data.load_lasa(shape, int(task["every"])), f"lasa:{shape}", task["unit"]
     return demo_formats.load_any(resolve_path(str(src))), str(src), "m"
 
 
@@ -70,17 +69,15 @@ def derived_task(task: dict, raws: list[data.RawDemo]) -> task_from_demos.Derive
     """Goal, workspace and Δt from the data, with the task's margins (``task.margin`` [m],
     ``task.angle_margin`` [rad], ``task.spread_limit`` [rad], ``task.min_dt`` [s])."""
     return task_from_demos.derive(
-        raws, margin=float(task.get("margin", 0.05)),
-        angle_margin=float(task.get("angle_margin", 0.15)),
-        spread_limit=float(task.get("spread_limit", np.deg2rad(30.0))),
-        min_dt=float(task.get("min_dt", 0.02)))
+        raws, margin=float(task["margin"]), angle_margin=float(task["angle_margin"]),
+        spread_limit=float(task["spread_limit"]), min_dt=float(task["min_dt"]))
 
 
 def model_dt(task: dict, puma: dict, raws: list[data.RawDemo]) -> float:
     """``task.dt`` if set (``auto``: derived from the data), else ``puma.dt`` [s]."""
-    dt = task.get("dt")
+    dt = task["dt"]
     if dt == "auto":
-        return task_from_demos.model_step(raws, float(task.get("min_dt", 0.02)))[0]
+        return task_from_demos.model_step(raws, float(task["min_dt"]))[0]
     return float(dt if dt is not None else _require(puma, "dt", "puma"))
 
 
@@ -91,8 +88,8 @@ def load_demos(task: dict, puma: dict) -> data.Demonstrations:
 
 def prepare_demos(task: dict, puma: dict, raws: list[data.RawDemo], source: str,
                   unit: str) -> data.Demonstrations:
-    kw = {"smoothing": float(puma.get("smoothing", 0.0)), "hold": int(puma.get("hold", 10)),
-          "use_orientation": bool(puma.get("orientation", True)) and source[:5] != "lasa:"}
+    kw = {"smoothing": float(puma["smoothing"]), "hold": int(puma["hold"]),
+          "use_orientation": bool(puma["orientation"]) and source[:5] != "lasa:"}
     return data.prepare(raws, model_dt(task, puma, raws), source=source, unit=unit, **kw)
 
 
@@ -117,14 +114,14 @@ CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 def scenario_starts(task: dict) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray, object]]:
     """The end-effector poses of the scenario starts to check against the workspace:
     ``task.workspace_check.scenarios`` (``auto``: every ``conf/scenario/<task>/*.yaml``; or a list
-    of scenario names / yaml paths) on ``task.workspace_check.robot`` (default iiwa14).
+    of scenario names / yaml paths) on ``task.workspace_check.robot``.
     Returns (name, position, quaternion, goal position, goal quaternion) per start."""
     from omegaconf import OmegaConf
 
     from ..robot.kinematics import Kinematics, robot_spec_from_config
 
-    wc = task.get("workspace_check") or {}
-    names = wc.get("scenarios", "auto")
+    wc = task["workspace_check"]
+    names = wc["scenarios"]
     if names == "auto":
         files = sorted((CONF_DIR / "scenario" / str(task.get("name"))).glob("*.yaml"))
     else:
@@ -132,7 +129,7 @@ def scenario_starts(task: dict) -> list[tuple[str, np.ndarray, np.ndarray, np.nd
                  for n in (names or [])]
     if not files:
         return []
-    robot_file = CONF_DIR / "robot" / f"{wc.get('robot', 'iiwa14')}.yaml"
+    robot_file = CONF_DIR / "robot" / f"{wc['robot']}.yaml"
     try:
         kin = Kinematics(robot_spec_from_config(OmegaConf.to_container(OmegaConf.load(robot_file))))
     except OSError as exc:
@@ -156,11 +153,10 @@ def scenario_starts(task: dict) -> list[tuple[str, np.ndarray, np.ndarray, np.nd
 
 def check_workspace(task: dict, raws: list[data.RawDemo], ws: Workspace,
                     log=print) -> list[str]:
-    """Warn (``task.workspace_check.action: warn``, the default), refuse (``error``) or skip
+    """Warn (``task.workspace_check.action: warn``), refuse (``error``) or skip
     (``off``) when a demonstration (relative to its own final pose) or a scenario start
     (relative to its goal) leaves the workspace; returns the problems, each naming how far."""
-    wc = task.get("workspace_check") or {}
-    action = str(wc.get("action", "warn"))
+    action = str(task["workspace_check"]["action"])
     if action not in ("warn", "error", "off"):
         raise ConfigError(f"task.workspace_check.action must be warn, error or off, not {action!r}")
     if action == "off":

@@ -112,22 +112,19 @@ def generate(raws: list[RawDemo], goal_position, kin, home, cfg: DemoScenarioCon
 
 
 def task_raws(task: dict) -> list[RawDemo]:
-    """The task's raw demonstrations without torch: synthetic (``demos: null``) or a folder/file
-    (relative paths: the working directory, then the repository root)."""
-    from pathlib import Path
-
+    """The task's raw demonstrations without torch, exactly those its model is trained on
+    (:func:`tamedpuma.puma.pipeline.load_raws`): synthetic (``demos: null``) or a folder/file
+    (relative paths: :func:`tamedpuma.paths.resolve`)."""
+    from tamedpuma.paths import resolve
     from tamedpuma.puma import demo_formats, demos_synthetic
 
-    src = task.get("demos")
+    src = task["demos"]
     if src is None:
-        syn = task.get("synthetic") or {}
-        return demos_synthetic.generate(str(syn.get("kind") or task["name"]), task["goal_position"],
-                                        task["goal_quaternion"], int(syn.get("n_demos", 10)),
-                                        int(syn.get("seed", 0)))
-    path = Path(str(src)).expanduser()
-    if not path.is_absolute() and not path.exists():
-        path = Path(__file__).resolve().parents[2] / path
-    return demo_formats.load_any(path)
+        syn = task["synthetic"]
+        return demos_synthetic.generate(str(syn["kind"] or task["name"]), task["goal_position"],
+                                        task["goal_quaternion"], int(syn["n_demos"]),
+                                        int(syn["seed"]), time_law=str(syn["time_law"]))
+    return demo_formats.load_any(resolve(str(src)))
 
 
 def apply(plain: dict, kinematics) -> dict:
@@ -157,7 +154,7 @@ def apply(plain: dict, kinematics) -> dict:
     if need_goal:
         from tamedpuma.puma.task_from_demos import derive_goal
 
-        gp, gq, _ = derive_goal(raws, float(task.get("spread_limit", np.deg2rad(30.0))))
+        gp, gq, _ = derive_goal(raws, float(task["spread_limit"]))
         if task.get("goal_position") is not None:  # a derive task with its goal set by hand
             gp = np.asarray(task["goal_position"], float)
             gq = None if task.get("goal_quaternion") is None else np.asarray(
@@ -167,8 +164,8 @@ def apply(plain: dict, kinematics) -> dict:
         if task.get("workspace") is None:  # the derived one (scenario=random needs it)
             from tamedpuma.puma.task_from_demos import workspace_numbers
 
-            lo, hi, ang = workspace_numbers(raws, gp, gq, float(task.get("margin", 0.05)),
-                                            float(task.get("angle_margin", 0.15)))
+            lo, hi, ang = workspace_numbers(raws, gp, gq, float(task["margin"]),
+                                            float(task["angle_margin"]))
             task["workspace"] = {"position_low": lo.tolist(), "position_high": hi.tolist(),
                                  "max_angle": ang}
     goal = dict(sc.get("goal") or {})
