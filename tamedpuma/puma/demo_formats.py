@@ -10,7 +10,7 @@
 - NPZ files, one demonstration per file, arrays ``t`` (N,) [s], ``position`` (N,3) [m] and
   optionally ``quaternion`` (N,4) (x, y, z, w);
 - MCAP logs of recorded runs (``episode.mcap``; teach from a log): the end-effector path
-  ``/ee_pose`` as read by :func:`tamedpuma.recording.read_mcap` (``log.ee``: t, x, y, z, qx..qw).
+  ``/ee_pose`` as read by :func:`tamedpuma.runlog.read_mcap` (``log.ee``: t, x, y, z, qx..qw).
 
 A folder may hold one kind of file (``*.pk``, ``*.csv``, ``*.npz`` or ``*.mcap``, searched one
 level down for MCAP run folders). Every demonstration is checked by :func:`check_demo`; bad data
@@ -140,7 +140,7 @@ def load_npz(path: Path) -> RawDemo:
 
 def load_mcap(path: Path) -> RawDemo:
     """The end-effector path of one recorded run (``/ee_pose`` of an ``episode.mcap``)."""
-    from tamedpuma.recording import read_mcap
+    from tamedpuma.runlog import read_mcap
 
     try:
         log = read_mcap(path)

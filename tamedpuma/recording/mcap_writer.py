@@ -56,15 +56,11 @@ from foxglove.messages import (
     Vector3,
 )
 
+from ..runlog import ACTIVE_SUFFIX, ATTACH_URDF, META_CONFIG, META_RUN_INFO, META_SUMMARY
 from .records import RunInfo, StepRecord
 
 WORLD_FRAME = "world"
-ACTIVE_SUFFIX = ".active"
-META_RUN_INFO = "tamedpuma.run_info"
-META_CONFIG = "tamedpuma.app.config"
-META_SUMMARY = "tamedpuma.summary"
 ATTACH_CONFIG = "config.yaml"
-ATTACH_URDF = "model.urdf"
 GOAL_MARKER_RADIUS = 0.03  # [m], display only
 
 _OBSTACLE_COLOR = dict(r=0.85, g=0.2, b=0.2, a=0.6)
