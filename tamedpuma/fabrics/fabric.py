@@ -2,8 +2,9 @@
 
 :class:`Fabric` holds only gains and robot limits; nothing depends on the obstacle count, which is
 run-time data of every call (no build step, nothing rebuilt when it changes; the only per-count
-state is a cache of preallocated work buffers, :class:`~tamedpuma.fabrics.fused.Workspace`, one per
-(spheres, obstacles) layout, allocated on first use in well under a millisecond). Per call:
+state is a cache of preallocated work buffers,
+:class:`~tamedpuma.fabrics.fused.LayoutBuffers`, one per (spheres, obstacles) layout, allocated
+on first use in well under a millisecond). Per call:
 
 1. avoidance (the unforced fabric, method.md §2): base ``(m_b I, 0)`` plus the pullback of every
    barrier leaf spec ``(M_L, M_L h)`` (body sphere × obstacle pairs, joint limits, optional ground)
@@ -33,7 +34,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from tamedpuma.fabrics.energy import attractor_blocks
-from tamedpuma.fabrics.fused import Workspace, orientation_maps
+from tamedpuma.fabrics.fused import LayoutBuffers, orientation_maps
 from tamedpuma.fabrics.gains import FabricGains
 from tamedpuma.fabrics.leaves import goal_errors
 from tamedpuma.fabrics.spec import FabricError, Spec, solve_acceleration
@@ -163,22 +164,22 @@ class Fabric:
         self._offsets = gains.orientation_offset * np.eye(3)[axes]
         self._tx, self._tb = orientation_maps(axes, gains.orientation_offset)
         self._weight_list = [gains.goal_weight] + [gains.orientation_weight] * len(axes)
-        self._workspaces: dict[tuple[int, int], Workspace] = {}  # per (spheres, obstacles)
+        self._layouts: dict[tuple[int, int], LayoutBuffers] = {}  # per (spheres, obstacles)
 
-    def _workspace(self, k: int, m: int) -> Workspace:
+    def _buffers(self, k: int, m: int) -> LayoutBuffers:
         """The buffers of the layout (k spheres, m obstacles): built on first use (cheap; no
         geometry is built, only arrays), then reused."""
-        ws = self._workspaces.get((k, m))
+        ws = self._layouts.get((k, m))
         if ws is None:
-            if len(self._workspaces) > 64:
-                self._workspaces.clear()
-            ws = self._workspaces[(k, m)] = Workspace(self.gains, k, m, self._n,
+            if len(self._layouts) > 64:
+                self._layouts.clear()
+            ws = self._layouts[(k, m)] = LayoutBuffers(self.gains, k, m, self._n,
                                                       len(self._axes), self.q_min, self.q_max)
         return ws
 
     def _barriers(self, state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities):
-        """Fill a workspace's barrier rows; returns (workspace, H_{L_e}, n_clamped, n_limit)."""
-        ws = self._workspace(state.sphere_centers.shape[0], obstacle_centers.shape[0])
+        """Fill a layout's barrier rows; returns (its buffers, H_{L_e}, n_clamped, n_limit)."""
+        ws = self._buffers(state.sphere_centers.shape[0], obstacle_centers.shape[0])
         n_clamped, n_limit = ws.barrier_rows(state, q, qd, obstacle_centers, obstacle_radii,
                                              obstacle_velocities, self.gains)
         return ws, ws.barrier_kernel(), n_clamped, n_limit

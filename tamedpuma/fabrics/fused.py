@@ -28,7 +28,7 @@ One matrix product therefore gives the metric and both pulled forces. Row blocks
   rows gives the unforced ``[M | f | f_L]``, the product over all rows the forced
   ``[M + M_ψ | f + f_ψ]`` (or, with many pairs, the goal rows' product added to the former).
 
-A :class:`Workspace` holds the buffers and their views for one layout (k spheres, m obstacles);
+A :class:`LayoutBuffers` holds the buffers and their views for one layout (k spheres, m obstacles);
 :class:`~tamedpuma.fabrics.fabric.Fabric` caches one per layout. Not thread-safe (one per Fabric).
 numpy only.
 """
@@ -65,7 +65,7 @@ def orientation_maps(axes, offset: float) -> tuple[np.ndarray, np.ndarray]:
     return tx, tb.T.reshape(3 * A, 3, 9)
 
 
-class Workspace:
+class LayoutBuffers:
     """Buffers and views of one layout: k body spheres, m obstacles, n joints, K goal blocks,
     optional ground rows (see the module docstring for the row layout)."""
 

@@ -15,7 +15,7 @@ from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 
 
 @dataclass(frozen=True)
-class IKResult:
+class PoseIKSolution:
     """q: solution [rad]; position_error [m]; orientation_error [rad]; iterations; converged."""
 
     q: np.ndarray
@@ -44,7 +44,7 @@ def _dls(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tolerance, max
 def solve_pose_ik(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
                   q_init: np.ndarray, damping: float = 1e-2, tolerance: float = 1e-5,
                   max_iterations: int = 300, margin: float = 0.05, restarts: int = 16,
-                  seed: int = 0) -> IKResult:
+                  seed: int = 0) -> PoseIKSolution:
     """Joint configuration reaching the pose (position [m], quaternion (x, y, z, w)).
 
     Starts from ``q_init``; if that does not converge (a local minimum at the joint limits), from
@@ -69,6 +69,6 @@ def solve_pose_ik(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
         if np.linalg.norm(err) < tolerance:
             break
     q, err = best
-    return IKResult(q=q, position_error=float(np.linalg.norm(err[:3])),
+    return PoseIKSolution(q=q, position_error=float(np.linalg.norm(err[:3])),
                     orientation_error=float(np.linalg.norm(err[3:])), iterations=total,
                     converged=bool(np.linalg.norm(err) < tolerance))
