@@ -22,8 +22,9 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from tamedpuma.metrics import RunMetrics, orientation_error, run_metrics
+from tamedpuma.metrics import RunMetrics, run_metrics
 from tamedpuma.recording.records import Recorder, RunInfo, StepRecord
+from tamedpuma.robot.rotations import orientation_error
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Controller, Scenario
 from tamedpuma.worlds.bullet import Simulator
 

@@ -43,12 +43,6 @@ CAUSES = ("sphere_penetration", "obstacle_contact", "ground_contact", "joint_lim
 PAPER_CAUSES = ("sphere_penetration",)
 
 
-def orientation_error(quat: np.ndarray, goal_quat: np.ndarray) -> np.ndarray:
-    """Angle [rad] of the rotation between unit quaternions (…, 4) and (…, 4), in [0, π]."""
-    dot = np.abs(np.sum(np.asarray(quat) * np.asarray(goal_quat), axis=-1))
-    return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
-
-
 @dataclass(frozen=True)
 class RunMetrics:
     """Scalars of one run; times in seconds except ``compute_ms_*`` (milliseconds).

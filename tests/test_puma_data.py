@@ -8,6 +8,7 @@ import pytest
 
 from tamedpuma.errors import DataError
 from tamedpuma.puma import data, demos_synthetic, manifold
+from tamedpuma.robot import rotations
 
 GOAL_P = [0.58, -0.214, 0.115]
 GOAL_Q = [-0.5459, 0.5806, -0.4112, 0.4426]
@@ -16,7 +17,7 @@ GOAL_Q = [-0.5459, 0.5806, -0.4112, 0.4426]
 def _demo_dict(n=40, seed=0):
     raw = demos_synthetic.generate("tomato", GOAL_P, GOAL_Q, 1, seed)[0]
     idx = np.linspace(0, len(raw.pos) - 1, n).astype(int)
-    return {"x_pos": list(raw.pos[idx]), "x_rot": list(manifold.np_quat_to_matrix(raw.quat[idx])),
+    return {"x_pos": list(raw.pos[idx]), "x_rot": list(rotations.quats_to_matrices(raw.quat[idx])),
             "x_dot": list(np.zeros((n, 6))), "delta_t": np.full(n, 0.03)}
 
 

@@ -54,7 +54,7 @@ from tamedpuma.ik_solvers import BACKENDS, IKProblem, solve_ik, warm_up
 from tamedpuma.methods._modulation import modulate
 from tamedpuma.paths import resolve
 from tamedpuma.robot.kinematics import Kinematics
-from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
+from tamedpuma.robot.rotations import exp_so3, quat_to_matrix, rotation_error
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
 
 log = logging.getLogger(__name__)
@@ -157,7 +157,7 @@ class ModulationIK:
                               power=prm.gamma_power)
         rot_goal = quat_to_matrix(obs.goal_quaternion)
         omega = rotation_error(state.ee_rotation, rot_goal)
-        rot_target = _exp_so3(min(prm.orientation_gain * dt, 1.0) * omega) @ state.ee_rotation
+        rot_target = exp_so3(min(prm.orientation_gain * dt, 1.0) * omega) @ state.ee_rotation
         return p + v_mod * dt, rot_target, v, v_mod, mod
 
     def step(self, obs: Observation) -> Command:
@@ -210,17 +210,6 @@ def _clearance(problem: IKProblem, q: np.ndarray) -> float:
     from tamedpuma.ik_solvers import violation
 
     return violation(problem, q)[1]
-
-
-def _exp_so3(omega: np.ndarray) -> np.ndarray:
-    """Rotation matrix exp([ω]×) of a rotation vector ω [rad] (Rodrigues)."""
-    angle = float(np.linalg.norm(omega))
-    k = np.array([[0.0, -omega[2], omega[1]], [omega[2], 0.0, -omega[0]],
-                  [-omega[1], omega[0], 0.0]])
-    if angle < 1e-9:
-        return np.eye(3) + k
-    return (np.eye(3) + np.sin(angle) / angle * k
-            + (1.0 - np.cos(angle)) / angle**2 * k @ k)
 
 
 def _resolve(path: str) -> Path:

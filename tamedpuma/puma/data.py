@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
+from ..robot import rotations
 from . import manifold
 
 GOAL_CONVENTION = "final_pose"
@@ -108,7 +109,7 @@ def validate_ee_state(d: object, where: str) -> RawDemo:
         raise DataError(f"{where}: x_rot is not a rotation matrix (orthogonality error {err:.2g})")
     if np.any(dt[1:] <= 0):
         raise DataError(f"{where}: delta_t must be positive after the first sample")
-    return RawDemo(pos, manifold.np_matrix_to_quat(rot), dt, where)
+    return RawDemo(pos, rotations.matrix_to_quat(rot), dt, where)
 
 
 def _natural_key(p: Path):
@@ -233,9 +234,9 @@ def prepare(raws: list[RawDemo], dt: float, *, smoothing: float = 0.0, hold: int
         vel = np.diff(pos, axis=0, prepend=pos[:1]) / dt
         gp.append(r.pos[-1])
         if orient:
-            q = manifold.np_continuous(r.quat)
+            q = rotations.continuous_quats(r.quat)
             rel = manifold.np_quat_mul(q, manifold.np_quat_conj(q[-1])[None])
-            rotvec = _smooth(manifold.np_quat_log(manifold.np_continuous(rel)), smoothing)
+            rotvec = _smooth(manifold.np_quat_log(rotations.continuous_quats(rel)), smoothing)
             rotvec = rotvec - rotvec[-1]
             rv = np.stack([np.interp(grid, t, rotvec[:, j]) for j in range(3)], axis=1)
             quat = manifold.np_quat_exp(np.concatenate((rv, np.zeros((hold, 3)))))

@@ -150,59 +150,6 @@ def np_quat_angle(q: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.linalg.norm(q[..., :3], axis=-1), np.abs(q[..., 3]))
 
 
-def np_matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) → unit quaternions (..., 4) (x, y, z, w), w ≥ 0.
-
-    Shepperd's method: pick the largest of (w, x, y, z) to divide by, for accuracy.
-    """
-    m = np.asarray(m, float)
-    shape = m.shape[:-2]
-    m = m.reshape(-1, 3, 3)
-    tr = np.trace(m, axis1=1, axis2=2)
-    diag = np.stack((m[:, 0, 0], m[:, 1, 1], m[:, 2, 2], tr), axis=1)
-    k = np.argmax(diag, axis=1)
-    q = np.empty((len(m), 4))
-    for i in range(4):
-        sel = k == i
-        r = m[sel]
-        if i == 3:
-            s = 2.0 * np.sqrt(1.0 + tr[sel])
-            q[sel] = np.stack((r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0],
-                               r[:, 1, 0] - r[:, 0, 1], 0.25 * s * s), axis=1) / s[:, None]
-        else:
-            j, l = (i + 1) % 3, (i + 2) % 3
-            s = 2.0 * np.sqrt(1.0 + r[:, i, i] - r[:, j, j] - r[:, l, l])
-            out = np.empty((len(r), 4))
-            out[:, i] = 0.25 * s
-            out[:, j] = (r[:, j, i] + r[:, i, j]) / s
-            out[:, l] = (r[:, l, i] + r[:, i, l]) / s
-            out[:, 3] = (r[:, l, j] - r[:, j, l]) / s
-            q[sel] = out
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    q = np.where(q[:, 3:] < 0, -q, q)
-    return q.reshape(*shape, 4)
-
-
-def np_quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Unit quaternions (..., 4) (x, y, z, w) → rotation matrices (..., 3, 3)."""
-    q = np.asarray(q, float)
-    x, y, z, w = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
-    return np.stack((
-        np.stack((1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)), -1),
-        np.stack((2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)), -1),
-        np.stack((2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)), -1),
-    ), -2)
-
-
-def np_continuous(q: np.ndarray) -> np.ndarray:
-    """Flip signs along a (N, 4) sequence so consecutive quaternions have a positive dot product."""
-    q = np.array(q, float)
-    for i in range(1, len(q)):
-        if np.dot(q[i], q[i - 1]) < 0:
-            q[i] = -q[i]
-    return q
-
-
 def np_random_rotations(rng: np.random.Generator, n: int, max_angle: float) -> np.ndarray:
     """n quaternions with a uniformly random axis and angle uniform in [0, max_angle] [rad]."""
     axis = rng.normal(size=(n, 3))

@@ -29,16 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from tamedpuma.errors import ConfigError
+from tamedpuma.robot.rotations import rpy_to_matrix
 
 # ---------------------------------------------------------------- meshes and the URDF
-
-
-def _rpy_matrix(rpy) -> np.ndarray:
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
 
 
 def load_mesh(path: str) -> tuple[np.ndarray, np.ndarray]:
@@ -129,7 +122,7 @@ def urdf_collision_geometry(urdf_path: str) -> dict[str, LinkGeometry]:
             origin = col.find("origin")
             xyz = np.zeros(3) if origin is None else np.array(
                 [float(x) for x in origin.get("xyz", "0 0 0").split()])
-            rot = np.eye(3) if origin is None else _rpy_matrix(
+            rot = np.eye(3) if origin is None else rpy_to_matrix(
                 [float(x) for x in origin.get("rpy", "0 0 0").split()])
             geom = col.find("geometry")
             mesh = geom.find("mesh") if geom is not None else None
