@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LogError
-from .reader import RunLog, _by_topic, _decoded, _scan, read_mcap
+from ..runlog import RunLog, _by_topic, _decoded, _scan, read_mcap
 from .records import RunInfo, StepRecord
 from .rerun_writer import RerunRecorder
 
