@@ -66,3 +66,21 @@ def test_table1_on_an_empty_folder_is_a_one_line_error(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "analysis.tables", str(tmp_path)], cwd=REPO,
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and proc.stderr.startswith("error: ")
+
+
+@pytest.mark.parametrize("command,needs", [
+    ("tables", "readable run logs (episode.mcap)"), ("figures", "readable run logs (episode.mcap)"),
+    ("random_suite", "readable run logs (episode.mcap)"),
+    ("disturbance", "run summaries (summary.json)"), ("scaling", "run summaries (summary.json)"),
+    ("report", None)])
+def test_every_analysis_command_refuses_a_missing_or_empty_folder_in_one_line(
+        tmp_path, capsys, command, needs):
+    import importlib
+
+    main = importlib.import_module(f"tamedpuma.analysis.{command}").main
+    assert main([str(tmp_path / "missing")]) == 2
+    assert capsys.readouterr().err == f"error: {tmp_path / 'missing'} is not a folder\n"
+    if needs is None:  # the report of an empty folder says so in the report
+        return
+    assert main([str(tmp_path)]) == 2
+    assert capsys.readouterr().err == f"error: no {needs} below {tmp_path}\n"

@@ -14,8 +14,7 @@ import sys
 
 import pandas as pd
 
-from tamedpuma.analysis.runs import runs_parser
-from tamedpuma.analysis.summaries import load_summaries
+from tamedpuma.analysis.runs import runs_or_error, runs_parser
 from tamedpuma.analysis.tables import _pm, failure_counts, ordered_labels
 
 
@@ -40,13 +39,10 @@ def disturbance_table(runs: pd.DataFrame) -> pd.DataFrame:
 def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
     args = parser.parse_args(argv)
-    if not args.runs.is_dir():
-        print(f"error: {args.runs} is not a folder", file=sys.stderr)
+    loaded = runs_or_error(args.runs, summaries=True)
+    if loaded is None:
         return 2
-    runs, _ = load_summaries(args.runs)
-    if runs.empty:
-        print(f"error: no run summaries (summary.json) below {args.runs}", file=sys.stderr)
-        return 2
+    runs, _ = loaded
     table = disturbance_table(runs)
     out = args.out or args.runs
     out.mkdir(parents=True, exist_ok=True)

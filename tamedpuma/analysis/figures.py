@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from tamedpuma.analysis.runs import load_runs, runs_parser
+from tamedpuma.analysis.runs import runs_or_error, runs_parser
 from tamedpuma.analysis.stats import bootstrap_ci
 from tamedpuma.analysis.tables import _labels, ordered_labels
 from tamedpuma.errors import LogError
@@ -323,13 +323,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--formats", default="png,pdf",
                         help="comma-separated file formats (default: png,pdf)")
     args = parser.parse_args(argv)
-    if not args.runs.is_dir():
-        print(f"error: {args.runs} is not a folder", file=sys.stderr)
+    loaded = runs_or_error(args.runs)
+    if loaded is None:
         return 2
-    runs, paths, _ = load_runs(args.runs)
-    if runs.empty:
-        print(f"error: no readable run logs (episode.mcap) below {args.runs}", file=sys.stderr)
-        return 2
+    runs, paths, _ = loaded
     formats = tuple(f.strip() for f in args.formats.split(",") if f.strip())
     written = make_figures(runs, paths, args.out or args.runs / "figures", formats)
     for p in written:

@@ -16,7 +16,7 @@ import sys
 
 import pandas as pd
 
-from tamedpuma.analysis.runs import load_runs, runs_parser
+from tamedpuma.analysis.runs import runs_or_error, runs_parser
 from tamedpuma.analysis.summaries import bootstrap_ci
 from tamedpuma.analysis.tables import _pm, failure_counts, ordered_labels, path_differences
 
@@ -49,13 +49,10 @@ def random_table(runs: pd.DataFrame) -> pd.DataFrame:
 def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
     args = parser.parse_args(argv)
-    if not args.runs.is_dir():
-        print(f"error: {args.runs} is not a folder", file=sys.stderr)
+    loaded = runs_or_error(args.runs)
+    if loaded is None:
         return 2
-    runs, paths, _ = load_runs(args.runs)
-    if runs.empty:
-        print(f"error: no readable run logs (episode.mcap) below {args.runs}", file=sys.stderr)
-        return 2
+    runs, paths, _ = loaded
     runs["path_difference_m"] = path_differences(runs, paths)
     table = random_table(runs)
     out = args.out or args.runs

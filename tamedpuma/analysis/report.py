@@ -18,7 +18,7 @@ import pandas as pd
 import yaml
 
 from tamedpuma.analysis.figures import make_figures, method_summary
-from tamedpuma.analysis.runs import load_runs, runs_parser
+from tamedpuma.analysis.runs import runs_or_error, runs_parser
 from tamedpuma.analysis.tables import _labels, path_differences, table1
 
 
@@ -185,10 +185,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
     parser.add_argument("--no-figures", action="store_true", help="tables only")
     args = parser.parse_args(argv)
-    if not args.runs.is_dir():
-        print(f"error: {args.runs} is not a folder", file=sys.stderr)
+    loaded = runs_or_error(args.runs, allow_empty=True)
+    if loaded is None:
         return 2
-    runs, paths, times = load_runs(args.runs)
+    runs, paths, times = loaded
     out = args.out or args.runs
     out.mkdir(parents=True, exist_ok=True)
     text = render(args.runs, runs, paths, times, out, figures=not args.no_figures)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,26 @@ def runs_parser(doc: str | None, out_help: str = "output folder (default: RUNS)"
     parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
     parser.add_argument("--out", type=Path, default=None, help=out_help)
     return parser
+
+
+def runs_or_error(folder: Path, *, summaries: bool = False, allow_empty: bool = False):
+    """The runs below ``folder`` for an analysis command: :func:`load_runs` (the logs) or, with
+    ``summaries``, :func:`tamedpuma.analysis.summaries.load_summaries`. A missing folder, or
+    nothing readable (unless ``allow_empty``), prints one line ``error: ...`` and returns None:
+    the command then exits with status 2."""
+    if not folder.is_dir():
+        print(f"error: {folder} is not a folder", file=sys.stderr)
+        return None
+    if summaries:
+        from tamedpuma.analysis.summaries import load_summaries
+
+        loaded, what = load_summaries(folder), "run summaries (summary.json)"
+    else:
+        loaded, what = load_runs(folder), "readable run logs (episode.mcap)"
+    if loaded[0].empty and not allow_empty:
+        print(f"error: no {what} below {folder}", file=sys.stderr)
+        return None
+    return loaded
 
 
 def find_logs(root: str | Path) -> list[Path]:

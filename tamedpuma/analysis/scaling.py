@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from tamedpuma.analysis.runs import runs_parser
-from tamedpuma.analysis.summaries import load_summaries, pooled_step_times
+from tamedpuma.analysis.runs import runs_or_error, runs_parser
+from tamedpuma.analysis.summaries import pooled_step_times
 from tamedpuma.analysis.tables import ordered_labels
 
 
@@ -84,13 +84,10 @@ def figure(table: pd.DataFrame, path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
     args = parser.parse_args(argv)
-    if not args.runs.is_dir():
-        print(f"error: {args.runs} is not a folder", file=sys.stderr)
+    loaded = runs_or_error(args.runs, summaries=True)
+    if loaded is None:
         return 2
-    runs, times = load_summaries(args.runs)
-    if runs.empty:
-        print(f"error: no run summaries (summary.json) below {args.runs}", file=sys.stderr)
-        return 2
+    runs, times = loaded
     table = scaling_table(runs, times)
     out = args.out or args.runs
     out.mkdir(parents=True, exist_ok=True)

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from tamedpuma.analysis.path_difference import path_difference
-from tamedpuma.analysis.runs import load_runs, runs_parser
+from tamedpuma.analysis.runs import runs_or_error, runs_parser
 
 METHOD_ORDER = ["puma", "modulation_ik", "fabrics", "fpm", "cpm", "cpm_literal", "cpm_original"]
 
@@ -142,13 +142,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--include-incomplete", action="store_true",
                         help="score killed/truncated runs too (default: listed and excluded)")
     args = parser.parse_args(argv)
-    if not args.runs.is_dir():
-        print(f"error: {args.runs} is not a folder", file=sys.stderr)
+    loaded = runs_or_error(args.runs)
+    if loaded is None:
         return 2
-    runs, paths, times = load_runs(args.runs)
-    if runs.empty:
-        print(f"error: no readable run logs (episode.mcap) below {args.runs}", file=sys.stderr)
-        return 2
+    runs, paths, times = loaded
     attrs = dict(runs.attrs)
     incomplete = runs[~runs["complete"].astype(bool)]
     if not args.include_incomplete:
