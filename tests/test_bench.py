@@ -89,7 +89,7 @@ def test_readme_summary_between_markers(tmp_path):
 
 def test_baseline_revision_is_timed_by_its_own_code(capsys):
     code = bench.main(["--methods", "fabrics", "--counts", "2", "--calls", "10", "--budget",
-                       "0.3", "--episodes", "0", "--baseline", "HEAD", "--no-write"])
+                       "0.3", "--episodes", "0", "--parts", "--baseline", "HEAD", "--no-write"])
     assert code == 0
     report = bench._report_from_stdout(capsys.readouterr().out)
     assert not report["errors"] and len(report["baseline"]["commit"]) == 40
@@ -98,6 +98,20 @@ def test_baseline_revision_is_timed_by_its_own_code(capsys):
 
 
 def test_unknown_baseline_revision_is_one_line_error(capsys):
-    assert bench.main(["--methods", "fabrics", "--baseline", "no-such-rev", "--no-write"]) == 2
+    assert bench.main(["--methods", "fabrics", "--parts", "--baseline", "no-such-rev",
+                       "--no-write"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --baseline no-such-rev") and err.count("\n") == 1
+
+
+def test_parts_of_a_step_and_the_reference_network():
+    rows = bench.time_parts("fpm", 2, calls=3)
+    by = {r["part"]: r for r in rows}
+    assert {"step", "kinematics", "avoidance fabric", "network: acceleration",
+            "pullback J⁺ and null space"} <= set(by)
+    assert all(r["us"] > 0 for r in rows)
+    assert by["network: acceleration"]["reference_us"] > 0 and "reference_us" not in by[
+        "kinematics"]
+    section = bench.markdown_section({"date": "d", "controller": [], "parts": rows, "machine": {
+        "cpu_model": "c", "cores": 2, "python": "3", "numpy": "2"}})
+    assert "| fpm | network: acceleration |" in section

@@ -137,6 +137,85 @@ def time_controller(method: str, counts, calls: int, budget_s: float, overrides=
     return rows
 
 
+def _median_us(fn, calls: int, rounds: int = 5) -> float:
+    """Median over ``rounds`` of the mean time of ``calls`` back-to-back calls [µs]."""
+    fn()
+    per = []
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        per.append((time.perf_counter() - t0) / calls)
+    return round(float(np.median(per)) * 1e6, 2)
+
+
+def time_parts(method: str, n_obstacles: int = 2, calls: int = 200, overrides=(),
+               seed: int = 0) -> list[dict]:
+    """Where one controller step's time goes: the step's parts timed one by one at one state
+    (kinematics, avoidance fabric, network, pullback, ...; the remainder is the method's own
+    arithmetic and log scalars). For the parts that use a trained model, also with the network's
+    reference path (``primitive.single = None``: the batched numpy copy). Methods without a part
+    skip it. Rows: ``{method, part, us, reference_us}``."""
+    from tamedpuma.app.sweep import build
+    from tamedpuma.methods._policy import pull_to_joints
+    from tamedpuma.robot.kinematics import Kinematics
+    from tamedpuma.types import Obstacles
+
+    built = build(compose([f"method={method}", "recorder=none", *overrides]))
+    spec, scenario, ctrl = built.spec, built.scenario, built.controller
+    rng = np.random.default_rng(seed)
+    q0 = np.asarray(scenario.q0, dtype=float)
+    centers0 = Kinematics(spec).evaluate(q0, np.zeros(q0.size)).sphere_centers
+    obstacles = Obstacles(*random_obstacles(rng, n_obstacles, centers0, spec.sphere_radii, 0.15))
+    ctrl.reset(dataclasses.replace(scenario, obstacles=obstacles))
+    q = np.clip(q0 + rng.normal(scale=0.05, size=q0.size), spec.q_min, spec.q_max)
+    obs = _observation(scenario, q, rng.normal(scale=0.2, size=q0.size), obstacles)
+    kin = getattr(ctrl, "kinematics", None)
+    fabric = getattr(ctrl, "fabric", None)
+    puma = getattr(ctrl, "puma", ctrl if hasattr(ctrl, "task") else None)
+    parts = {"step": lambda: ctrl.step(obs)}
+    state = kin.evaluate(obs.q, obs.qd) if kin is not None else None
+    if kin is not None:
+        parts["kinematics"] = lambda: kin.evaluate(obs.q, obs.qd)
+    if fabric is not None and method == "fabrics":
+        goal_r = ctrl._rotation(obs.goal_quaternion)
+        parts["fabric (all leaves, solve, speed control)"] = lambda: fabric.evaluate(
+            state, obs.q, obs.qd, obs.obstacle_centers, obs.obstacle_radii,
+            obs.obstacle_velocities, obs.goal_position, goal_r)
+    elif fabric is not None:
+        av = fabric.avoidance(state, obs.q, obs.qd, obs.obstacle_centers, obs.obstacle_radii,
+                              obs.obstacle_velocities)
+        parts["avoidance fabric"] = lambda: fabric.avoidance(
+            state, obs.q, obs.qd, obs.obstacle_centers, obs.obstacle_radii,
+            obs.obstacle_velocities)
+        parts["its solve and energization"] = lambda: av.alpha(obs.qd, av.acceleration())
+    task = getattr(puma, "task", None)
+    primitive = getattr(task, "primitive", None)
+    if task is not None and state is not None:
+        goal = (obs.goal_position, obs.goal_quaternion)
+        parts["network: acceleration"] = lambda: task.acceleration(state, obs.qd, *goal)
+        if method == "cpm":
+            parts["network: acceleration + ψ and ∂ψ"] = lambda: (
+                task.acceleration(state, obs.qd, *goal), task.potential(state, *goal))
+        accel = task.acceleration(state, obs.qd, *goal)
+        parts["pullback J⁺ and null space"] = lambda: pull_to_joints(
+            accel, puma.damping, puma.null_space.acceleration(kin, obs.qd)
+            if puma.null_space else None)
+    rows = []
+    for part, fn in parts.items():
+        row = {"method": method, "n_obstacles": n_obstacles, "part": part,
+               "us": _median_us(fn, calls)}
+        if primitive is not None and hasattr(primitive, "single") and (
+                part == "step" or part.startswith("network")):
+            one, primitive.single = primitive.single, None
+            try:
+                row["reference_us"] = _median_us(fn, calls)
+            finally:
+                primitive.single = one
+        rows.append(row)
+    return rows
+
+
 #: Recorder settings timed, as sweep overrides.
 RECORDERS = {"none": ["recorder=none"], "mcap": ["recorder=mcap"],
              "rerun": ["recorder=none", "recorder.rerun=true"], "mcap+rerun": ["recorder=default"]}
@@ -301,6 +380,25 @@ def markdown_section(report: dict) -> str:
         lines.append(cells)
     for row in report.get("errors", []):
         lines.append(f"| {row['method']} | — | not measured: {row['error']} |")
+    if report.get("parts"):
+        lines += ["", "Where the time goes (2 obstacles, one state, each part timed alone as the "
+                  "median of 5 × 200 back-to-back calls [µs]; \"reference network\": the same "
+                  "with the network's reference path, the batched numpy copy "
+                  "`puma/fastnet.py`, selected by `primitive.single = None`; the step's "
+                  "remainder is the method's own arithmetic and log scalars):", "",
+                  "| method | part | [µs] | reference network [µs] |", "|---|---|---:|---:|"]
+        for row in report["parts"]:
+            ref = row.get("reference_us")
+            lines.append(f"| {row['method']} | {row['part']} | {row['us']:.1f} | "
+                         f"{f'{ref:.1f}' if ref is not None else ''} |")
+        lines += ["", "At a few obstacles every part is per-call overhead, not arithmetic: the "
+                  "kinematics are about 20 pinocchio calls (one per frame quantity of the end "
+                  "effector and each body sphere), the fabric about 60 numpy calls on "
+                  "preallocated buffers (`fabrics/fused.py`), the network about 25 "
+                  "(`puma/single.py`: constants folded into the weights; with ψ, CPM reuses "
+                  "the rest-state row of the same pass and adds a hand-written backward pass). "
+                  "The kinematics are computed once per step and shared by the network's task "
+                  "map, the null-space term and the fabric."]
     if report.get("episodes"):
         lines += ["", "Episode speed (default tomato scenario, "
                   f"{report['episodes'][0]['method']}, median of "
@@ -369,6 +467,9 @@ def main(argv=None) -> int:
                         help="repeats per recorder setting (0: skip episode speed)")
     parser.add_argument("--training", action="store_true", help="also time PUMA training")
     parser.add_argument("--table1", action="store_true", help="also time +experiment=table1")
+    parser.add_argument("--parts", nargs="*", default=["fabrics", "puma", "fpm", "cpm"],
+                        metavar="METHOD", help="methods whose step is broken into parts "
+                        "(2 obstacles; none: skip)")
     parser.add_argument("--baseline", metavar="REV",
                         help="also time the controller cells on git revision REV, side by side")
     parser.add_argument("--no-write", action="store_true", help="print only")
@@ -409,6 +510,12 @@ def main(argv=None) -> int:
             attach_baseline(rows, before)
             report["controller"] += rows
             print(f"bench: {method} done", file=sys.stderr)
+    report["parts"] = []
+    for method in args.parts:
+        try:
+            report["parts"] += time_parts(method, 2, overrides=args.overrides)
+        except Exception as exc:  # as above
+            report["errors"].append({"method": f"{method} (parts)", "error": _one_line(exc)})
     if args.episodes > 0:
         try:
             report["episodes"] = time_episodes("fpm", args.episodes, args.overrides)
