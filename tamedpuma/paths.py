@@ -10,6 +10,7 @@ loaders call :func:`resolve`; everything below them receives resolved paths.
 from __future__ import annotations
 
 import os
+import uuid
 from pathlib import Path
 
 from tamedpuma.errors import ConfigError
@@ -23,6 +24,20 @@ def candidates(path: str | os.PathLike) -> list[Path]:
     if p.is_absolute():
         return [p]
     return [Path.cwd() / p, PACKAGE_DIR / p]
+
+
+def writable_problem(folder: str | os.PathLike) -> str | None:
+    """Why ``folder`` (created if missing) cannot be written, in a few words, or None: checked
+    by writing and removing a probe file, before any work whose result would be lost."""
+    path = Path(folder)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f".write-test-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        return f"output folder {folder} is not writable: {exc.strerror or exc}"
+    return None
 
 
 def resolve(path: str | os.PathLike, *, must_exist: bool = False, what: str = "path") -> Path:

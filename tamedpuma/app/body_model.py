@@ -17,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tamedpuma.app.cli import command
 from tamedpuma.app.config import CONF_DIR
-from tamedpuma.errors import ConfigError, TamedPumaError
+from tamedpuma.errors import ConfigError
 
 BEGIN, END = "# BEGIN body model", "# END body model"
 
@@ -135,25 +136,18 @@ def run(cfg: dict, argv: list[str], log=print) -> dict:
     return {"fits": fits, "current": current, "generated": generated, "path": str(path)}
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in ("-h", "--help"):
-        print(__doc__)
-        return 0
-    try:
-        from tamedpuma.app.cli import split_argv, with_search_path
-        from tamedpuma.app.train import compose
+@command(__doc__)
+def main(argv: list[str]) -> int:
+    from tamedpuma.app.cli import split_argv, with_search_path
+    from tamedpuma.app.train import compose
 
-        overrides, search, flags = split_argv(argv)
-        unknown = sorted(set(flags) - {"--config-dir", "-cd"})
-        if unknown:
-            raise ConfigError(f"unknown option(s) {', '.join(unknown)}")
-        cfg = compose("body_model", with_search_path(overrides, search))
-        run(cfg, argv)
-        return 0
-    except TamedPumaError as exc:
-        print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
+    overrides, search, flags = split_argv(argv)
+    unknown = sorted(set(flags) - {"--config-dir", "-cd"})
+    if unknown:
+        raise ConfigError(f"unknown option(s) {', '.join(unknown)}")
+    cfg = compose("body_model", with_search_path(overrides, search))
+    run(cfg, argv)
+    return 0
 
 
 if __name__ == "__main__":

@@ -11,18 +11,43 @@ A user's own config folder works the Hydra way: ``--config-dir DIR`` (``-cd DIR`
 
 from __future__ import annotations
 
+import functools
 import re
 import sys
-import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 from tamedpuma.app.config import CONF_DIR, group_options
+from tamedpuma.errors import TamedPumaError
+from tamedpuma.paths import writable_problem
 
 
 def fail(message: str, status: int = 2) -> None:
     """Print ``error: message`` (one line) on stderr and exit with ``status``."""
     print(f"error: {' '.join(message.split())}", file=sys.stderr)
     sys.exit(status)
+
+
+def command(doc: str) -> Callable[[Callable[[list[str]], int]], Callable[..., int]]:
+    """The frame of the entry points that are not Hydra mains (train, lasa, body_model): the
+    decorated ``main(argv)`` gets the argument list (``sys.argv[1:]`` by default); ``-h`` or
+    ``--help`` prints ``doc``; a :class:`TamedPumaError` becomes one line ``error: ...`` on
+    stderr and status 2."""
+    def wrap(body: Callable[[list[str]], int]) -> Callable[..., int]:
+        @functools.wraps(body)
+        def main(argv: list[str] | None = None) -> int:
+            argv = list(sys.argv[1:] if argv is None else argv)
+            if argv and argv[0] in ("-h", "--help"):
+                print(doc)
+                return 0
+            try:
+                return body(argv)
+            except TamedPumaError as exc:
+                print(f"error: {' '.join(str(exc).split()) or type(exc).__name__}",
+                      file=sys.stderr)
+                return 2
+        return main
+    return wrap
 
 
 _NOISE = ("full_key:", "object_type", "reference_type", "Config search path",
@@ -72,18 +97,6 @@ def _all_options(message: str, search: list[str]) -> str:
     options = group_options(group, extra)
     return (f"{message[:listed.start()].rstrip()} Available options in '{group}': "
             f"{', '.join(options)}")
-
-
-def _check_writable(root: str) -> str | None:
-    path = Path(root)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / f".write-test-{uuid.uuid4().hex}"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        return f"output folder {root!r} is not writable: {exc.strerror or exc}"
-    return None
 
 
 # Hydra's command-line flags that take a value (the value is the next argument or after "=")
@@ -200,7 +213,7 @@ def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
                 if problem:
                     return problem
                 if "output_root" in cfg:
-                    problem = _check_writable(str(cfg.output_root))
+                    problem = writable_problem(str(cfg.output_root))
                     if problem:
                         return problem
     finally:

@@ -10,27 +10,20 @@ from __future__ import annotations
 
 import sys
 
-from tamedpuma.app.train import _one_line, compose
-from tamedpuma.errors import TamedPumaError
+from tamedpuma.app.cli import command
+from tamedpuma.app.train import compose
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in ("-h", "--help"):
-        print(__doc__)
-        return 0
-    try:
-        cfg = compose("train", ["task=lasa", "puma=lasa", "out_dir=runs/lasa", "progress=false",
-                                "overwrite=true",  # the benchmark retrains every shape
-                                *argv])
-        from tamedpuma.puma import lasa_benchmark
+@command(__doc__)
+def main(argv: list[str]) -> int:
+    cfg = compose("train", ["task=lasa", "puma=lasa", "out_dir=runs/lasa", "progress=false",
+                            "overwrite=true",  # the benchmark retrains every shape
+                            *argv])
+    from tamedpuma.puma import lasa_benchmark
 
-        rows = lasa_benchmark.run(cfg, log=lambda m: print(m, file=sys.stderr))
-        print(lasa_benchmark.markdown(rows))
-        return 0
-    except TamedPumaError as exc:
-        print(f"error: {_one_line(exc)}", file=sys.stderr)
-        return 2
+    rows = lasa_benchmark.run(cfg, log=lambda m: print(m, file=sys.stderr))
+    print(lasa_benchmark.markdown(rows))
+    return 0
 
 
 if __name__ == "__main__":

@@ -16,12 +16,9 @@ import signal
 import sys
 from pathlib import Path
 
+from tamedpuma.app.cli import command
 from tamedpuma.app.config import CONF_DIR
-from tamedpuma.errors import ConfigError, TamedPumaError
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
+from tamedpuma.errors import ConfigError
 
 
 def compose(config_name: str, overrides: list[str]) -> dict:
@@ -108,46 +105,39 @@ def _interrupted_line(cfg: dict) -> str:
             f"resume, no model written in {state.parent}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in ("-h", "--help"):
-        print(__doc__)
+@command(__doc__)
+def main(argv: list[str]) -> int:
+    if argv and argv[0] == "--evaluate":
+        if len(argv) < 2:
+            raise ConfigError("--evaluate needs a checkpoint path")
+        report = evaluate_checkpoint(argv[1], argv[2:])
+        print(json.dumps(report, indent=2))
         return 0
+    from tamedpuma.app.cli import split_argv, with_search_path
+
+    overrides, search, flags = split_argv(argv)  # --config-dir DIR, hydra.searchpath=[...]
+    for name in ("--config-dir", "-cd"):
+        if name in flags and not Path(flags[name]).expanduser().is_dir():
+            raise ConfigError(f"config folder not found: {flags[name]!r} ({name})")
+    unknown = sorted(set(flags) - {"--config-dir", "-cd"})
+    if unknown:
+        raise ConfigError(f"unknown option(s) {', '.join(unknown)} (train takes overrides, "
+                          "--config-dir DIR and --evaluate CKPT)")
+    cfg = compose("train", with_search_path(overrides, search))
+    cfg["command"] = " ".join(["python -m tamedpuma.train", *argv])
+    from tamedpuma.puma import pipeline
+
+    # SIGTERM unwinds like Ctrl-C, so both say where the resumable state is
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
-        if argv and argv[0] == "--evaluate":
-            if len(argv) < 2:
-                raise ConfigError("--evaluate needs a checkpoint path")
-            report = evaluate_checkpoint(argv[1], argv[2:])
-            print(json.dumps(report, indent=2))
-            return 0
-        from tamedpuma.app.cli import split_argv, with_search_path
-
-        overrides, search, flags = split_argv(argv)  # --config-dir DIR, hydra.searchpath=[...]
-        for name in ("--config-dir", "-cd"):
-            if name in flags and not Path(flags[name]).expanduser().is_dir():
-                raise ConfigError(f"config folder not found: {flags[name]!r} ({name})")
-        unknown = sorted(set(flags) - {"--config-dir", "-cd"})
-        if unknown:
-            raise ConfigError(f"unknown option(s) {', '.join(unknown)} (train takes overrides, "
-                              "--config-dir DIR and --evaluate CKPT)")
-        cfg = compose("train", with_search_path(overrides, search))
-        cfg["command"] = " ".join(["python -m tamedpuma.train", *argv])
-        from tamedpuma.puma import pipeline
-
-        # SIGTERM unwinds like Ctrl-C, so both say where the resumable state is
-        signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-        try:
-            report = pipeline.run(cfg, log=lambda m: print(m, file=sys.stderr))
-        except (KeyboardInterrupt, SystemExit) as exc:
-            if isinstance(exc, SystemExit) and exc.code in (0, None):
-                raise
-            print(_interrupted_line(cfg), file=sys.stderr)
-            return 130 if isinstance(exc, KeyboardInterrupt) else 143
-        print(_summary(report))
-        return 0
-    except TamedPumaError as exc:
-        print(f"error: {_one_line(exc)}", file=sys.stderr)
-        return 2
+        report = pipeline.run(cfg, log=lambda m: print(m, file=sys.stderr))
+    except (KeyboardInterrupt, SystemExit) as exc:
+        if isinstance(exc, SystemExit) and exc.code in (0, None):
+            raise
+        print(_interrupted_line(cfg), file=sys.stderr)
+        return 130 if isinstance(exc, KeyboardInterrupt) else 143
+    print(_summary(report))
+    return 0
 
 
 if __name__ == "__main__":

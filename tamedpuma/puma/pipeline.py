@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from ..paths import resolve
+from ..paths import resolve, writable_problem
 from . import checkpoint, data, demo_formats, demos_synthetic, evaluation, task_from_demos
 from .network import NetConfig, StateSpec
 from .training import TrainConfig, Workspace, train
@@ -215,14 +215,9 @@ def prepare_out_dir(out_dir: Path, overwrite: bool) -> Path:
     if path.exists() and not overwrite:
         raise ConfigError(f"{path} exists: pass overwrite=true to replace it, or choose another "
                           "out_dir")
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        probe = out_dir / f".write-test-{os.getpid()}"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise ConfigError(f"output folder {out_dir} is not writable: "
-                          f"{exc.strerror or exc}") from None
+    problem = writable_problem(out_dir)
+    if problem:
+        raise ConfigError(problem)
     return path
 
 
@@ -352,7 +347,6 @@ def run(cfg: dict, log=print) -> dict:
 
 def benchmark_summary(report: dict, cfg: dict) -> dict:
     """The headline figures of one training run (for benchmarks/puma_<task>.json)."""
-    import os
     import platform
 
     import torch
