@@ -10,30 +10,17 @@ from tamedpuma.errors import CheckpointError, ConfigError
 from tamedpuma.methods._policy import NullSpaceObjective, PlanarTask, PoseTask
 
 
-def resolve_checkpoint(path: str) -> Path:
-    """The checkpoint file: absolute, else relative to the working directory, else to the
-    repository root. A missing file is a :class:`CheckpointError` saying how to make one."""
-    p = Path(path)
-    repo = Path(__file__).resolve().parents[2]
-    candidates = [p] if p.is_absolute() else [Path.cwd() / p, repo / p]
-    for c in candidates:
-        if c.is_file():
-            return c
-    task = p.parent.name or "<task>"
-    raise CheckpointError(f"no PUMA checkpoint at {path}: train one with "
-                          f"`python -m tamedpuma.train task={task}` (or set method.checkpoint)")
-
-
 def model_path(cfg: Mapping, order: int) -> Path:
     """The checkpoint a method config names, or, with ``checkpoint`` null, the best model at hand
-    for ``cfg['task']`` (cache, user-trained, shipped: :mod:`tamedpuma.puma.store`)."""
-    if cfg.get("checkpoint"):
-        return resolve_checkpoint(str(cfg["checkpoint"]))
-    if not cfg.get("task"):
-        raise ConfigError("method.checkpoint and method.task are not set")
+    for ``cfg['task']`` (cache, user-trained, shipped): :func:`tamedpuma.puma.store.resolve`, the
+    one place a model is found."""
     from tamedpuma.puma import store
 
-    return store.resolve(str(cfg["task"]), order, None, str(cfg["model"])).path
+    checkpoint = cfg.get("checkpoint") or None
+    if not checkpoint and not cfg.get("task"):
+        raise ConfigError("method.checkpoint and method.task are not set")
+    model = "auto" if checkpoint else str(cfg["model"])  # an explicit checkpoint is used as is
+    return store.resolve(str(cfg.get("task") or "<task>"), order, checkpoint, model).path
 
 
 def load_task(cfg: Mapping):

@@ -3,15 +3,16 @@
 A method driven by PUMA (``puma``, ``fpm``, ``cpm``: the second-order R³×S³ model of the task;
 ``modulation_ik``: the first-order position model ``<task>_position``) takes, in this order:
 
-1. ``explicit``: ``method.checkpoint=PATH`` (absolute, else relative to the working directory,
-   else to the repository root);
+1. ``explicit``: ``method.checkpoint=PATH`` (found as every configured path is:
+   :func:`tamedpuma.paths.resolve`, the working directory, then the package);
 2. ``cache``: a real-data model built by ``python -m tamedpuma.models build`` in the user cache
    (``$TAMEDPUMA_CACHE`` or ``${XDG_CACHE_HOME:-~/.cache}/tamedpuma``, folder
    ``models/<key>/`` with ``puma.pt`` and ``manifest.json``; ``key`` = sha256 of the data hash,
    the training config and the training-code version, see :func:`model_key`); among several, the
    one built by the current training code first, then the newest;
 3. ``user``: a model the user trained on real data with the README's command
-   (``runs/puma/<task>[_position]/puma.pt`` whose ``report.json`` names non-synthetic data);
+   (``runs/puma/<task>[_position]/puma.pt`` below the working directory, whose ``report.json``
+   names non-synthetic data);
 4. ``shipped``: the model trained on the seeded synthetic demonstrations that ships with the
    package (``tamedpuma/puma/shipped/<task>[_position]/``).
 
@@ -31,7 +32,7 @@ from pathlib import Path
 from ..errors import CheckpointError, ConfigError
 
 PACKAGE_DIR = Path(__file__).resolve().parent
-REPO_ROOT = PACKAGE_DIR.parents[1]
+REPO_ROOT = PACKAGE_DIR.parents[1]  # a checkout's root: only for its git revision (models.py)
 SHIPPED_DIR = PACKAGE_DIR / "shipped"
 POSITION_METHODS = frozenset({"modulation_ik"})  # use the first-order position model
 ORIGINS = ("explicit", "cache", "user", "shipped")
@@ -159,12 +160,11 @@ def choice(path: Path, origin: str, name: str = "") -> ModelChoice:
 
 
 def resolve_explicit(path: str) -> Path:
-    """An explicit checkpoint path: absolute, else relative to the cwd, else to the repo root."""
-    p = Path(path).expanduser()
-    for c in ([p] if p.is_absolute() else [Path.cwd() / p, REPO_ROOT / p]):
-        if c.is_file():
-            return c
-    return p
+    """An explicit checkpoint path (:func:`tamedpuma.paths.resolve`: absolute, else relative to
+    the working directory, else to the package)."""
+    from ..paths import resolve
+
+    return resolve(path)
 
 
 def shipped_path(task: str, order: int) -> Path:
@@ -192,14 +192,12 @@ def cached_models(task: str, order: int) -> list[tuple[Path, dict]]:
 
 
 def user_model(task: str, order: int) -> Path | None:
-    """``runs/puma/<name>/puma.pt`` (cwd, then the repo root) trained on real data."""
-    rel = Path("runs") / "puma" / model_name(task, order) / "puma.pt"
-    for base in (Path.cwd(), REPO_ROOT):
-        pt = base / rel
-        if pt.is_file():
-            rep = read_manifest(pt.parent) or {}
-            if data_kind(rep.get("data_source", "")) == "real":
-                return pt
+    """``runs/puma/<name>/puma.pt`` below the working directory, trained on real data."""
+    pt = Path.cwd() / "runs" / "puma" / model_name(task, order) / "puma.pt"
+    if pt.is_file():
+        rep = read_manifest(pt.parent) or {}
+        if data_kind(rep.get("data_source", "")) == "real":
+            return pt
     return None
 
 
