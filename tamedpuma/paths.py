@@ -16,6 +16,7 @@ from pathlib import Path
 from tamedpuma.errors import ConfigError
 
 PACKAGE_DIR = Path(__file__).resolve().parent
+CONF_DIR = PACKAGE_DIR / "conf"  # the config groups ship inside the package
 
 
 def candidates(path: str | os.PathLike) -> list[Path]:

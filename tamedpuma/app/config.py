@@ -1,7 +1,7 @@
 """Read the project's YAML config groups without Hydra (for tests, benchmarks and library use).
 
-Entry points compose configs with Hydra; library code receives plain mappings. This module finds
-the top-level ``conf/`` folder of the checkout and loads one group option as a plain dict.
+Entry points compose configs with Hydra; library code receives plain mappings. This module loads
+one group option of the package's ``conf/`` (:data:`tamedpuma.paths.CONF_DIR`) as a plain dict.
 """
 
 from __future__ import annotations
@@ -12,8 +12,7 @@ from omegaconf import OmegaConf
 
 from tamedpuma.app import schema as _schema  # noqa: F401 - registers the config schema with Hydra
 from tamedpuma.errors import ConfigError
-
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"  # tamedpuma/conf (package data)
+from tamedpuma.paths import CONF_DIR  # noqa: E402 - tamedpuma/conf (package data)
 
 
 def group_options(group: str, extra_dirs: tuple[Path, ...] = ()) -> list[str]:

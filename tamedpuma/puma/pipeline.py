@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from ..paths import resolve, writable_problem
+from ..paths import CONF_DIR, resolve, writable_problem
 from . import checkpoint, data, demo_formats, demos_synthetic, evaluation, task_from_demos
 from .network import NetConfig, StateSpec
 from .training import TrainConfig, Workspace, train
@@ -108,7 +108,6 @@ def workspace_of(task: dict, demos: data.Demonstrations) -> Workspace:
                           "max_angle") from None
 
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 
 def scenario_starts(task: dict) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray, object]]:

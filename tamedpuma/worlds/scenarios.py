@@ -185,11 +185,11 @@ def clutter_count(clutter: Mapping, own: int) -> int:
 def table1_starts(task: str) -> list[list[float]]:
     """The start configurations q0 [rad] of the task's Table-1 scenarios
     (``conf/scenario/<task>/NN.yaml``); empty for a task without them."""
-    from pathlib import Path
-
     from omegaconf import OmegaConf
 
-    folder = Path(__file__).resolve().parents[1] / "conf" / "scenario" / task
+    from tamedpuma.paths import CONF_DIR
+
+    folder = CONF_DIR / "scenario" / task
     return [[float(v) for v in OmegaConf.load(p)["q0"]]
             for p in sorted(folder.glob("[0-9][0-9].yaml"))]
 
