@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -256,18 +256,27 @@ def _saver(out_dir: Path, cfg: dict):
     return save
 
 
-def run(cfg: dict, log=print) -> dict:
-    """Train, save, (re)load and evaluate as configured; returns the report (also on disk).
+@dataclass(frozen=True)
+class Prepared:
+    """Everything a training needs, checked before its first iteration: the config (with a
+    derived task's goal filled in), the prepared demonstrations, the workspace, the state spec,
+    the settings and the workspace problems found."""
 
-    Before the first iteration: an existing checkpoint is refused unless ``overwrite``, the output
-    folder must be writable. Every ``save_every`` iterations the state is saved in
-    ``out_dir/train_state.pt``; a killed training started again with the same config resumes
-    from it (the result is the same as uninterrupted)."""
-    t_start, cpu_start = time.perf_counter(), time.process_time()
+    cfg: dict
+    demos: data.Demonstrations
+    workspace: Workspace
+    spec: StateSpec
+    train_cfg: TrainConfig
+    net_cfg: NetConfig
+    eval_cfg: evaluation.EvalConfig
+    problems: list
+    derived: task_from_demos.DerivedTask | None
+
+
+def prepare(cfg: dict, log=print) -> Prepared:
+    """Demonstrations → (derived task,) workspace, its check, state spec and evaluation settings
+    (tolerances scaled to the workspace for non-metric data)."""
     task, puma = cfg["task"], cfg["puma"]
-    seed = int(cfg["seed"])
-    out_dir = resolve_path(str(cfg["out_dir"]))
-    ckpt_path = prepare_out_dir(out_dir, bool(cfg["overwrite"]))
     train_cfg = _dataclass(TrainConfig, puma.get("train"), "puma.train")
     net_cfg = _dataclass(NetConfig, puma.get("network"), "puma.network")
     eval_cfg = _dataclass(evaluation.EvalConfig, puma.get("eval"), "puma.eval")
@@ -301,25 +310,49 @@ def run(cfg: dict, log=print) -> dict:
         raise ConfigError("an R3 x S3 primitive must be second order (puma.order=2)")
     if not spec.orientation:
         ws = Workspace(ws.low, ws.high, 0.0)
-    log(f"PUMA {task.get('name')}: {len(demos)} demonstrations from {demos.source}, "
-        f"spec {spec}, dt {demos.dt} s")
-    resume = _resumable(out_dir, cfg, bool(cfg["overwrite"]), log)
-    result = train(demos, ws, spec, net_cfg, train_cfg, seed=seed,
-                   progress=bool(cfg["progress"]), resume=resume,
-                   save=_saver(out_dir, cfg), save_every=int(cfg["save_every"]),
-                   validator=evaluation.validator(demos, ws, eval_cfg))
-    report = {"task": task.get("name"), "data_source": demos.source, "data_hash": demos.data_hash,
-              "n_demos": len(demos), "spec": asdict(spec), "seed": seed,
-              "train_seconds": round(result.seconds, 2), "iterations": train_cfg.iterations,
+    return Prepared(cfg, demos, ws, spec, train_cfg, net_cfg, eval_cfg, problems, derived)
+
+
+def _training_report(p: Prepared, result, seed: int) -> dict:
+    """The report of a finished training (before its evaluation)."""
+    demos, ws = p.demos, p.workspace
+    report = {"task": p.cfg["task"].get("name"), "data_source": demos.source,
+              "data_hash": demos.data_hash, "n_demos": len(demos), "spec": asdict(p.spec),
+              "seed": seed, "train_seconds": round(result.seconds, 2),
+              "iterations": p.train_cfg.iterations,
               "final_losses": result.history[-1] if result.history else {},
               "selection": result.selection, "dt": demos.dt,
               "workspace": {"position_low": list(ws.low), "position_high": list(ws.high),
                             "max_angle": ws.max_angle},
-              "workspace_problems": problems}
-    if derived is not None:
-        report["derived"] = derived.as_dict()
+              "workspace_problems": p.problems}
+    if p.derived is not None:
+        report["derived"] = p.derived.as_dict()
+    return report
+
+
+def run(cfg: dict, log=print) -> dict:
+    """Train, save, (re)load and evaluate as configured; returns the report (also on disk).
+
+    Before the first iteration: an existing checkpoint is refused unless ``overwrite``, the output
+    folder must be writable. Every ``save_every`` iterations the state is saved in
+    ``out_dir/train_state.pt``; a killed training started again with the same config resumes
+    from it (the result is the same as uninterrupted)."""
+    t_start, cpu_start = time.perf_counter(), time.process_time()
+    seed = int(cfg["seed"])
+    out_dir = resolve_path(str(cfg["out_dir"]))
+    ckpt_path = prepare_out_dir(out_dir, bool(cfg["overwrite"]))
+    p = prepare(cfg, log)
+    cfg, task, demos = p.cfg, p.cfg["task"], p.demos
+    log(f"PUMA {task.get('name')}: {len(demos)} demonstrations from {demos.source}, "
+        f"spec {p.spec}, dt {demos.dt} s")
+    resume = _resumable(out_dir, cfg, bool(cfg["overwrite"]), log)
+    result = train(demos, p.workspace, p.spec, p.net_cfg, p.train_cfg, seed=seed,
+                   progress=bool(cfg["progress"]), resume=resume,
+                   save=_saver(out_dir, cfg), save_every=int(cfg["save_every"]),
+                   validator=evaluation.validator(demos, p.workspace, p.eval_cfg))
+    report = _training_report(p, result, seed)
     goal = {"position": task.get("goal_position"), "quaternion": task.get("goal_quaternion")}
-    meta = checkpoint.Meta(demos.dt, data.GOAL_CONVENTION, goal, demos.unit, ws, cfg,
+    meta = checkpoint.Meta(demos.dt, data.GOAL_CONVENTION, goal, demos.unit, p.workspace, cfg,
                            demos.data_hash, demos.source, report)
     path = checkpoint.save(ckpt_path, result.net, meta)
     (out_dir / STATE_FILE).unlink(missing_ok=True)
@@ -328,7 +361,7 @@ def run(cfg: dict, log=print) -> dict:
 
         net, _ = checkpoint.load(path)  # evaluate what was saved
         t0 = time.perf_counter()
-        report["evaluation"] = evaluation.evaluate(net, demos, ws, eval_cfg)
+        report["evaluation"] = evaluation.evaluate(net, demos, p.workspace, p.eval_cfg)
         report["evaluation_seconds"] = round(time.perf_counter() - t0, 2)
         report["inference"] = inference_timing(load_primitive(path, threads=1))
         meta = checkpoint.Meta(**{**meta.__dict__, "report": report})
