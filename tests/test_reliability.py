@@ -133,6 +133,13 @@ def test_a_pybullet_disconnect_and_a_full_disk_are_that_runs_failure(tmp_path, m
     assert _strict_json(tmp_path / "sweep/2/summary.json")["status"] == "complete"
 
 
+def _wait_for(path: Path, proc: subprocess.Popen, timeout: float) -> None:
+    """Until ``path`` exists, ``proc`` ends or ``timeout`` [s] passes."""
+    deadline = time.monotonic() + timeout
+    while not path.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+
+
 def _start_sweep(tmp_path, *extra):
     cmd = [sys.executable, "-m", "tamedpuma.sweep", "-m", "method=joint_attractor", "seed=0,1",
            "scenario.max_steps=100000", "stop_on_success=false", "recorder=mcap",
@@ -141,9 +148,7 @@ def _start_sweep(tmp_path, *extra):
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=ENV, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     active = tmp_path / "sweep/0/episode.mcap.active"
-    deadline = time.monotonic() + 60
-    while not active.exists() and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.1)
+    _wait_for(active, proc, 60)
     assert active.exists(), proc.communicate()[1] if proc.poll() is not None else "timeout"
     time.sleep(0.5)  # some steps written
     return proc
@@ -266,9 +271,7 @@ def test_a_killed_training_resumes_from_its_last_save(tmp_path):
     proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE)
     state = tmp_path / "cut/train_state.pt"
-    deadline = time.monotonic() + 120
-    while not state.exists() and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.05)
+    _wait_for(state, proc, 120)
     proc.kill()
     proc.communicate()
     assert state.exists() and not (tmp_path / "cut/puma.pt").exists()
@@ -290,9 +293,7 @@ def test_an_interrupted_training_says_where_its_resumable_state_is(tmp_path, sig
     proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     state = tmp_path / "train_state.pt"
-    deadline = time.monotonic() + 120
-    while not state.exists() and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.05)
+    _wait_for(state, proc, 120)
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == status, err
