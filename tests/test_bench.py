@@ -115,3 +115,16 @@ def test_parts_of_a_step_and_the_reference_network():
     section = bench.markdown_section({"date": "d", "controller": [], "parts": rows, "machine": {
         "cpu_model": "c", "cores": 2, "python": "3", "numpy": "2"}})
     assert "| fpm | network: acceleration |" in section
+
+
+def test_side_by_side_workers_time_blocks_and_report_failures():
+    from tamedpuma.app.bench_fabrics import ROOT
+
+    rows = bench.time_side_by_side("fabrics", (0, 3), calls=12, budget_s=1.0,
+                                   trees={"a": ROOT, "b": ROOT}, block=5)
+    for side in ("a", "b"):
+        assert [r["n_obstacles"] for r in rows[side]] == [0, 3]
+        assert all(r["n_calls"] == 12 and 0 < r["p10_ms"] <= r["p90_ms"] for r in rows[side])
+    with pytest.raises(RuntimeError):
+        bench.time_side_by_side("no_such_method", (2,), calls=5, budget_s=0.5,
+                                trees={"a": ROOT})

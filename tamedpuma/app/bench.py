@@ -9,9 +9,9 @@ Sections (each regenerated, never typed in):
    builds it (same config, same model lookup). Median, p10, p90 [ms]; the first call at each
    count is reported apart (it allocates that count's buffers), warm-up calls are not timed.
    With ``--baseline REV`` the same cells are also timed on revision REV of this repository
-   (``git archive`` into a temporary folder, the same command run there), method by method
-   alternating which goes first, so "before" and "after" share the machine's load; the table
-   gives both medians and their ratio.
+   (``git archive`` into a temporary folder): one timing worker per tree, the same code, blocks
+   of 100 calls alternating between them, so "before" and "after" share the machine's load;
+   the table gives both medians and their ratio.
 2. **Episode speed**: one FPM episode of the default scenario run through the sweep's own
    ``run_one`` with each recorder setting (none, MCAP, Rerun, both): simulated seconds per wall
    second, and each recorder's overhead against ``recorder=none``.
@@ -251,6 +251,153 @@ def time_episodes(method: str = "fpm", repeats: int = 3, overrides=()) -> list[d
     return rows
 
 
+#: A timing worker, run by ``python -c`` inside a source tree (this one or a baseline's), so that
+#: both sides are measured by the same code, one block of calls at a time, alternately. It reads
+#: JSON lines: {"method", "overrides", "counts", "seed"} (build), then {"cmd": "reset", "n"}
+#: (obstacles of that count; answers the first call's time), {"cmd": "time", "calls", "warm"}
+#: (answers the timed calls [s]) and {"cmd": "quit"}. It uses only APIs both trees have.
+_WORKER = r"""
+import dataclasses, json, os, sys, time
+import numpy as np
+reply = os.fdopen(os.dup(1), "w")
+os.dup2(2, 1)  # anything the project prints goes to stderr, not into the protocol
+from tamedpuma.app.bench import _observation, compose
+from tamedpuma.app.bench_fabrics import random_obstacles
+from tamedpuma.app.sweep import build
+from tamedpuma.robot.kinematics import Kinematics
+from tamedpuma.types import Obstacles
+
+def send(obj):
+    reply.write(json.dumps(obj) + "\n")
+    reply.flush()
+
+setup = json.loads(sys.stdin.readline())
+built = build(compose([f"method={setup['method']}", "recorder=none", *setup["overrides"]]))
+spec, scenario, ctrl = built.spec, built.scenario, built.controller
+rng = np.random.default_rng(setup["seed"])
+q0 = np.asarray(scenario.q0, dtype=float)
+states = [(np.clip(q0 + rng.normal(scale=0.05, size=q0.size), spec.q_min, spec.q_max),
+           rng.normal(scale=0.2, size=q0.size)) for _ in range(16)]
+centers0 = Kinematics(spec).evaluate(q0, np.zeros(q0.size)).sphere_centers
+model = None
+if getattr(built, "model", None) is not None:
+    meta = built.model.metadata()
+    folder = os.path.basename(os.path.dirname(meta["model_path"]))
+    model = f"{meta['model_origin']} `{folder}` (sha256 {meta['model_sha256'][:12]})"
+send({"ok": True, "model": model})
+observations, i = [], 0
+for line in sys.stdin:
+    cmd = json.loads(line)
+    if cmd["cmd"] == "quit":
+        break
+    if cmd["cmd"] == "reset":
+        c, r, v = random_obstacles(rng, cmd["n"], centers0, spec.sphere_radii, 0.15)
+        obstacles = Obstacles(centers=c, radii=r, velocities=v)
+        ctrl.reset(dataclasses.replace(scenario, obstacles=obstacles))
+        observations = [_observation(scenario, q, qd, obstacles) for q, qd in states]
+        t0 = time.perf_counter()
+        ctrl.step(observations[0])
+        send({"first_s": time.perf_counter() - t0})
+        i = 1
+        continue
+    for _ in range(cmd["warm"]):
+        ctrl.step(observations[i % 16])
+        i += 1
+    out = []
+    for _ in range(cmd["calls"]):
+        obs = observations[i % 16]
+        i += 1
+        t0 = time.perf_counter()
+        ctrl.step(obs)
+        out.append(time.perf_counter() - t0)
+    send({"s": out})
+"""
+
+
+class _Worker:
+    """One timing worker process in a source tree (see ``_WORKER``)."""
+
+    def __init__(self, tree: Path, method: str, overrides, seed: int = 0):
+        self.log = tempfile.TemporaryFile(mode="w+")
+        env = {**os.environ, "PYTHONPATH": str(tree)}
+        self.proc = subprocess.Popen([sys.executable, "-c", _WORKER], cwd=tree, env=env,
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=self.log, text=True)
+        self.model = self.ask({"method": method, "overrides": list(overrides),
+                               "seed": seed})["model"]
+
+    def ask(self, cmd: dict) -> dict:
+        self.proc.stdin.write(json.dumps(cmd) + "\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline()
+        if not line:
+            self.proc.wait()
+            self.log.seek(0)
+            lines = [x for x in self.log.read().splitlines() if x.strip()]
+            raise RuntimeError(lines[-1] if lines else f"worker exit {self.proc.returncode}")
+        return json.loads(line)
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            try:
+                self.proc.stdin.write('{"cmd": "quit"}\n')
+                self.proc.stdin.close()
+            except OSError:
+                pass
+            self.proc.wait(timeout=30)
+        self.log.close()
+
+
+def _cell(method: str, n: int, ms: np.ndarray, first_ms: float, model) -> dict:
+    return {"method": method, "n_obstacles": n, "median_ms": round(float(np.median(ms)), 5),
+            "p10_ms": round(float(np.percentile(ms, 10)), 5),
+            "p90_ms": round(float(np.percentile(ms, 90)), 5),
+            "mean_ms": round(float(ms.mean()), 5), "n_calls": int(ms.size),
+            "first_call_ms": round(first_ms, 5), "model": model}
+
+
+def time_side_by_side(method: str, counts, calls: int, budget_s: float, trees: dict,
+                      overrides=(), block: int = 100) -> dict[str, list[dict]]:
+    """The controller cells of ``method`` in each source tree of ``trees`` ({side: path}),
+    measured as :func:`time_controller` does but interleaved: per obstacle count, blocks of at
+    most ``block`` calls alternate between the sides (the order swapped every round), so a
+    change of the machine's load hits every side alike. A side stops at ``calls`` calls or
+    ``budget_s`` seconds of its own. Returns {side: rows}."""
+    workers = {}
+    try:
+        for side, tree in trees.items():
+            workers[side] = _Worker(Path(tree), method, overrides)
+        rows = {side: [] for side in trees}
+        for n in counts:
+            first = {side: w.ask({"cmd": "reset", "n": n})["first_s"] * 1e3
+                     for side, w in workers.items()}
+            warm = {side: max(1, min(50, int(min(1.0, budget_s / 10) * 1e3 / max(ms, 1e-3))))
+                    for side, ms in first.items()}
+            for side, w in workers.items():
+                w.ask({"cmd": "time", "calls": 0, "warm": warm[side]})
+            got = {side: [] for side in trees}
+            spent = dict.fromkeys(trees, 0.0)
+            order = list(trees)
+            while any(len(got[s]) < calls and spent[s] < budget_s for s in order):
+                for side in order:
+                    if len(got[side]) >= calls or spent[side] >= budget_s:
+                        continue
+                    per = (spent[side] / len(got[side])) if got[side] else first[side] / 1e3
+                    k = int(max(1, min(block, calls - len(got[side]),
+                                       (budget_s - spent[side]) / max(per, 1e-6))))
+                    t0 = time.perf_counter()
+                    got[side] += workers[side].ask({"cmd": "time", "calls": k, "warm": 0})["s"]
+                    spent[side] += time.perf_counter() - t0
+                order.reverse()
+            for side in trees:
+                rows[side].append(_cell(method, n, np.array(got[side]) * 1e3, first[side],
+                                        workers[side].model))
+        return rows
+    finally:
+        for w in workers.values():
+            w.close()
+
+
 def load_averages() -> list[float] | None:
     """The 1, 5 and 15 minute load averages (None where the OS has none)."""
     return [round(x, 2) for x in os.getloadavg()] if hasattr(os, "getloadavg") else None
@@ -275,22 +422,6 @@ def _report_from_stdout(text: str) -> dict:
     """The JSON report a ``--no-write`` bench run prints (the last top-level object)."""
     start = text.rfind("\n{\n") + 1  # 0 when the report is all there is
     return json.loads(text[start:text.rindex("}") + 1])
-
-
-def time_baseline(tree: Path, method: str, args) -> list[dict]:
-    """The controller cells of ``method`` timed by the bench command of another source tree."""
-    argv = [sys.executable, "-m", "tamedpuma.bench", "--methods", method, "--counts",
-            *map(str, args.counts), "--calls", str(args.calls), "--budget", str(args.budget),
-            "--episodes", "0", "--no-write", *args.overrides]
-    env = {**os.environ, "PYTHONPATH": str(tree)}
-    proc = subprocess.run(argv, cwd=tree, env=env, capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise RuntimeError(proc.stderr.strip().splitlines()[-1] if proc.stderr.strip()
-                           else f"exit {proc.returncode}")
-    report = _report_from_stdout(proc.stdout)
-    if report.get("errors"):
-        raise RuntimeError(report["errors"][0]["error"])
-    return report["controller"]
 
 
 def attach_baseline(rows: list[dict], before: list[dict]) -> None:
@@ -355,10 +486,11 @@ def markdown_section(report: dict) -> str:
              f"{report.get('models', 'the sweep defaults')}); obstacles seeded, clear of the arm.",
              ""]
     if base:
-        lines += [f"\"before\": the same cells timed by the same command on commit "
-                  f"`{base['commit'][:7]}` (`--baseline {base['rev']}`), in the same run, method "
-                  "by method alternating which side goes first; ratio = before median / median.",
-                  ""]
+        lines += [f"\"before\": the same cells on commit `{base['commit'][:7]}` "
+                  f"(`--baseline {base['rev']}`), in the same run: one timing worker per source "
+                  "tree running the same timing code, blocks of at most 100 calls alternating "
+                  "between them (order swapped every round), so both sides see the same load; "
+                  "with both numbers and their ratio = before median / median.", ""]
     head = "| method | obstacles | median [ms] | p10 [ms] | p90 [ms] | calls | first call [ms] "
     rule = "|---|---:|---:|---:|---:|---:|---:|"
     if base:
@@ -493,20 +625,19 @@ def main(argv=None) -> int:
             except (RuntimeError, OSError, subprocess.CalledProcessError) as exc:
                 print(f"error: --baseline {args.baseline}: {_one_line(exc)}", file=sys.stderr)
                 return 2
-        for i, method in enumerate(args.methods):
+        for method in args.methods:
             rows, before = [], []
-            # alternate which goes first, so that a change of load hits both sides alike
-            order = ("now", "before") if i % 2 else ("before", "now")
-            for side in order if args.baseline else ("now",):
-                try:
-                    if side == "now":
-                        rows = time_controller(method, args.counts, args.calls, args.budget,
-                                               args.overrides)
-                    else:
-                        before = time_baseline(Path(baseline_tree), method, args)
-                except Exception as exc:  # a missing model; Hydra's errors; the baseline's
-                    report["errors"].append({"method": method if side == "now" else
-                                             f"{method} (baseline)", "error": _one_line(exc)})
+            try:
+                if args.baseline:  # both trees timed by the same worker, block by block
+                    sides = time_side_by_side(method, args.counts, args.calls, args.budget,
+                                              {"now": ROOT, "before": baseline_tree},
+                                              args.overrides)
+                    rows, before = sides["now"], sides["before"]
+                else:
+                    rows = time_controller(method, args.counts, args.calls, args.budget,
+                                           args.overrides)
+            except Exception as exc:  # a missing model; Hydra's errors; a failing worker
+                report["errors"].append({"method": method, "error": _one_line(exc)})
             attach_baseline(rows, before)
             report["controller"] += rows
             print(f"bench: {method} done", file=sys.stderr)
