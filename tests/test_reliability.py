@@ -367,3 +367,21 @@ def test_the_end_of_sweep_counts_hold_when_jobs_run_in_other_processes(tmp_path)
                            timeout=300)
     assert "sweep: 4 runs: 0 executed and complete, 2 skipped (already complete), 2 failed" \
         in again.stdout, again.stdout[-2000:]
+
+
+def test_the_command_frame_turns_errors_and_ctrl_c_into_one_line(capsys):
+    """train, lasa and body_model run inside cli.command: --help prints the doc; a user error is
+    one line and status 2; Ctrl-C one line and status 130; any other exception is a bug and
+    keeps its traceback."""
+    from tamedpuma.app.cli import command
+
+    def body(argv):
+        raise {"user": ConfigError("bad value x"), "ctrl-c": KeyboardInterrupt(),
+               "bug": RuntimeError("a bug")}[argv[0]]
+
+    main = command("the doc")(body)
+    assert main(["--help"]) == 0 and capsys.readouterr().out == "the doc\n"
+    assert main(["user"]) == 2 and capsys.readouterr().err == "error: bad value x\n"
+    assert main(["ctrl-c"]) == 130 and capsys.readouterr().err == "interrupted (Ctrl-C)\n"
+    with pytest.raises(RuntimeError, match="a bug"):
+        main(["bug"])

@@ -32,7 +32,8 @@ def command(doc: str) -> Callable[[Callable[[list[str]], int]], Callable[..., in
     """The frame of the entry points that are not Hydra mains (train, lasa, body_model): the
     decorated ``main(argv)`` gets the argument list (``sys.argv[1:]`` by default); ``-h`` or
     ``--help`` prints ``doc``; a :class:`TamedPumaError` becomes one line ``error: ...`` on
-    stderr and status 2."""
+    stderr and status 2; Ctrl-C one line ``interrupted (Ctrl-C)`` and status 130 (no traceback).
+    """
     def wrap(body: Callable[[list[str]], int]) -> Callable[..., int]:
         @functools.wraps(body)
         def main(argv: list[str] | None = None) -> int:
@@ -46,6 +47,9 @@ def command(doc: str) -> Callable[[Callable[[list[str]], int]], Callable[..., in
                 print(f"error: {' '.join(str(exc).split()) or type(exc).__name__}",
                       file=sys.stderr)
                 return 2
+            except KeyboardInterrupt:  # a command with a partial result says where it is first
+                print("interrupted (Ctrl-C)", file=sys.stderr)
+                return 130
         return main
     return wrap
 
