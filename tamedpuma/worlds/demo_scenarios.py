@@ -127,6 +127,57 @@ def task_raws(task: dict) -> list[RawDemo]:
     return demo_formats.load_any(resolve(str(src)))
 
 
+def _demo_starts(raws: list[RawDemo], kinematics, home) -> list[list[float]]:
+    """The IK solutions of the demonstrations' start poses (those found), seeded."""
+    rng = np.random.default_rng(0)
+    home = np.asarray(home if home else (kinematics.spec.q_min + kinematics.spec.q_max) / 2,
+                      float)
+    starts = [start_configuration(kinematics, r.pos[0], r.quat[0] if r.quat is not None
+                                  else kinematics.ee_pose(home)[1], home, rng) for r in raws]
+    return [q.tolist() for q in starts if q is not None]
+
+
+def _with_derived_goal(task: dict, raws: list[RawDemo]) -> dict:
+    """``task`` with its goal (unless set by hand) and workspace (unless set) derived from the
+    demonstrations (:mod:`tamedpuma.puma.task_from_demos`)."""
+    from tamedpuma.puma.task_from_demos import derive_goal, workspace_numbers
+
+    task = dict(task)
+    gp, gq, _ = derive_goal(raws, float(task["spread_limit"]))
+    if task.get("goal_position") is not None:  # a derive task with its goal set by hand
+        gp = np.asarray(task["goal_position"], float)
+        gq = None if task.get("goal_quaternion") is None else np.asarray(
+            task["goal_quaternion"], float)
+    task["goal_position"] = gp.tolist()
+    task["goal_quaternion"] = None if gq is None else gq.tolist()
+    if task.get("workspace") is None:  # the derived one (scenario=random needs it)
+        lo, hi, ang = workspace_numbers(raws, gp, gq, float(task["margin"]),
+                                        float(task["angle_margin"]))
+        task["workspace"] = {"position_low": lo.tolist(), "position_high": hi.tolist(),
+                             "max_angle": ang}
+    return task
+
+
+def _generated(sc: dict, gen: dict, raws: list[RawDemo], kinematics, home) -> dict:
+    """``sc`` with the start and obstacles of its ``generator: {kind: demos, ...}`` block (the
+    obstacles added to any listed ones)."""
+    gen = dict(gen)
+    if gen.pop("kind", "demos") != "demos":
+        raise ScenarioError("scenario.generator.kind must be 'demos'")
+    try:
+        cfg = DemoScenarioConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                    for k, v in gen.items()})
+    except TypeError as exc:
+        raise ScenarioError(f"scenario.generator: {exc}") from None
+    q0, centers, radii, i = generate(raws, sc["goal"]["position"], kinematics, home, cfg)
+    return {**sc, "q0": q0.tolist(),
+            "obstacles": list(sc.get("obstacles") or []) + [
+                {"center": c.tolist(), "radius": float(r), "velocity": [0.0, 0.0, 0.0]}
+                for c, r in zip(centers, radii)],
+            "name": f"{sc.get('name', 'from_demos')}_{cfg.seed}",
+            "generated_from": raws[i].source}
+
+
 def apply(plain: dict, kinematics) -> dict:
     """A resolved run config with the demonstrations' part filled in: a task with ``derive`` and
     no goal gets the derived goal (:func:`tamedpuma.puma.task_from_demos.derive_goal`), the
@@ -145,29 +196,9 @@ def apply(plain: dict, kinematics) -> dict:
         return plain
     raws = task_raws(task) if task.get("demos") != "lasa" else []
     if random_near:
-        rng = np.random.default_rng(0)
-        home = np.asarray(plain["robot"].get("home") or (kinematics.spec.q_min
-                                                         + kinematics.spec.q_max) / 2, float)
-        starts = [start_configuration(kinematics, r.pos[0], r.quat[0] if r.quat is not None
-                                      else kinematics.ee_pose(home)[1], home, rng) for r in raws]
-        task["demo_starts"] = [q.tolist() for q in starts if q is not None]
+        task["demo_starts"] = _demo_starts(raws, kinematics, plain["robot"].get("home"))
     if need_goal:
-        from tamedpuma.puma.task_from_demos import derive_goal
-
-        gp, gq, _ = derive_goal(raws, float(task["spread_limit"]))
-        if task.get("goal_position") is not None:  # a derive task with its goal set by hand
-            gp = np.asarray(task["goal_position"], float)
-            gq = None if task.get("goal_quaternion") is None else np.asarray(
-                task["goal_quaternion"], float)
-        task["goal_position"] = gp.tolist()
-        task["goal_quaternion"] = None if gq is None else gq.tolist()
-        if task.get("workspace") is None:  # the derived one (scenario=random needs it)
-            from tamedpuma.puma.task_from_demos import workspace_numbers
-
-            lo, hi, ang = workspace_numbers(raws, gp, gq, float(task["margin"]),
-                                            float(task["angle_margin"]))
-            task["workspace"] = {"position_low": lo.tolist(), "position_high": hi.tolist(),
-                                 "max_angle": ang}
+        task = _with_derived_goal(task, raws)
     goal = dict(sc.get("goal") or {})
     if goal.get("position") is None:
         goal["position"] = task["goal_position"]
@@ -175,20 +206,5 @@ def apply(plain: dict, kinematics) -> dict:
         goal["quaternion"] = task["goal_quaternion"] or [0.0, 0.0, 0.0, 1.0]
     sc["goal"] = goal
     if gen:
-        gen = dict(gen)
-        if gen.pop("kind", "demos") != "demos":
-            raise ScenarioError("scenario.generator.kind must be 'demos'")
-        try:
-            cfg = DemoScenarioConfig(**{k: tuple(v) if isinstance(v, list) else v
-                                        for k, v in gen.items()})
-        except TypeError as exc:
-            raise ScenarioError(f"scenario.generator: {exc}") from None
-        q0, centers, radii, i = generate(raws, goal["position"], kinematics,
-                                         plain["robot"].get("home"), cfg)
-        sc["q0"] = q0.tolist()
-        sc["obstacles"] = list(sc.get("obstacles") or []) + [
-            {"center": c.tolist(), "radius": float(r), "velocity": [0.0, 0.0, 0.0]}
-            for c, r in zip(centers, radii)]
-        sc["name"] = f"{sc.get('name', 'from_demos')}_{cfg.seed}"
-        sc["generated_from"] = raws[i].source
+        sc = _generated(sc, gen, raws, kinematics, plain["robot"].get("home"))
     return {**plain, "task": task, "scenario": sc}
