@@ -174,7 +174,7 @@ def _generated(sc: dict, gen: dict, raws: list[RawDemo], kinematics, home) -> di
             "obstacles": list(sc.get("obstacles") or []) + [
                 {"center": c.tolist(), "radius": float(r), "velocity": [0.0, 0.0, 0.0]}
                 for c, r in zip(centers, radii)],
-            "name": f"{sc.get('name', 'from_demos')}_{cfg.seed}",
+            "name": f"{sc['name']}_{cfg.seed}",
             "generated_from": raws[i].source}
 
 
