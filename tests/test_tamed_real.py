@@ -63,11 +63,7 @@ def _scenario(spec, task, obstacles):
     return scenario_from_config(cfg, spec, task=task)
 
 
-@pytest.mark.parametrize("model", [
-    pytest.param("shipped", marks=pytest.mark.xfail(
-        strict=False, reason="known gap (BENCHMARKS.md, issue 11): with the shipped synthetic-data "
-        "models FPM/CPM do not reach the default scenarios' goals (ground contact, stall)")),
-    "real"])
+@pytest.mark.parametrize("model", ["shipped", "real"])
 @pytest.mark.parametrize("task", ["tomato", "pouring"])
 def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, model, robot_spec,
                                                                      kinematics):
@@ -90,14 +86,21 @@ def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, model,
         with Simulator(robot_spec) as sim:
             free = run_episode(_scenario(robot_spec, task, False), controller, sim)
         paths[name] = free.ee_position
+        if name == "puma":
+            # PUMA alone has no joint-limit avoidance: where its own path runs into a limit (the
+            # shipped pouring model: PyBullet's hard stop, 0.69 m short) FPM and CPM must still
+            # reach the goal, on another path, and there is no PUMA path to follow
+            puma_feasible = free.metrics.success_paper
+            assert puma_feasible or (model == "shipped"
+                                     and free.metrics.joint_limit_violation_steps > 0)
+            continue
         assert free.metrics.success
         if name == "cpm":  # without obstacles ψ never rises (float32 network: relative 1e-6)
             psi = np.asarray(controller.psi)
             assert np.all(np.isfinite(psi)) and psi[-1] < 0.5 * psi[0]  # stopped 5 cm out
             assert np.max(np.diff(psi)) <= 1e-6 * psi[0]
-        if name == "puma":
-            continue
-        assert path_difference(free.ee_position, paths["puma"]) <= 0.02
+        if puma_feasible:
+            assert path_difference(free.ee_position, paths["puma"]) <= 0.02
         with Simulator(robot_spec) as sim:
             run = run_episode(_scenario(robot_spec, task, True), controller, sim)
         m = run.metrics

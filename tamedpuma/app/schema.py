@@ -33,7 +33,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics.gains import FabricGains
-from tamedpuma.methods._tamed import ControlRate
+from tamedpuma.methods._tamed import ENERGIES, ControlRate, Forcing
 from tamedpuma.methods.cpm import DAMPINGS as CPM_DAMPINGS
 from tamedpuma.methods.cpm import VARIANTS as CPM_VARIANTS
 from tamedpuma.methods.modulation_ik import ModulationIKParams
@@ -315,13 +315,20 @@ class FpmMethod(PumaMethod):
     fabric: FabricGains = field(default_factory=FabricGains)
     energization: str = "exact"       # exact (α unbounded) | bounded (α ≥ −alpha_bound)
     alpha_bound: float = 20.0         # [1/s]
+    energy: str = "fabric"            # the energy energized: fabric (H_{L_e} of the leaves) |
+    #                                   execution (½‖q̇‖²: M_e = I; methods/_tamed.py)
     control_rate: ControlRate = field(default_factory=ControlRate)  # safety at the control rate
+    forcing: Forcing = field(default_factory=Forcing)  # how PUMA's forcing meets the fabric
+    limit_margin: float = 0.0         # [rad] the fabric's joint limits sit this far inside
 
     def __post_init__(self):
         super().__post_init__()
         _check(self.energization in ("exact", "bounded"), "method.energization",
                "exact or bounded", self.energization)
         _nonneg("method.alpha_bound", self.alpha_bound)
+        _check(self.energy in ENERGIES, "method.energy", " or ".join(ENERGIES), self.energy)
+        Forcing.from_mapping(dataclasses.asdict(self.forcing)
+                             if dataclasses.is_dataclass(self.forcing) else self.forcing)
         _check(0.0 < self.control_rate.kappa < 1.0, "method.control_rate.kappa", "in (0, 1)",
                self.control_rate.kappa)
 

@@ -130,6 +130,27 @@ def pull_to_joints(task: TaskAcceleration, damping: float | Damping,
     return qdd
 
 
+def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float, m_null: float,
+                        qdd_null: np.ndarray | None = None) -> np.ndarray:
+    """PUMA's task acceleration pulled to the joints through a metric (a weighted
+    pseudo-inverse): the task spec ``(w I, −w ẍ_d)`` pulled back and summed with a joint-space
+    spec ``(W, 0)`` and the secondary objective's ``(m_null I, −m_null q̈_null)``::
+
+        q̈_C = (W + w JᵀJ + m_null I)⁻¹ (w Jᵀ(ẍ_d − J̇q̇) + m_null q̈_null)        [rad/s²]
+
+    W (n, n) SPD [1]; w [1]; m_null [1]. Where W ≪ w JᵀJ q̈_C realises ẍ_d as the damped
+    least-squares inverse with λ² = W/w does (W = m_b I: exactly that); along a direction in
+    which W is large (an obstacle barrier's metric) q̈_C's component falls like 1/W. At ẍ_d = 0
+    and q̇ = 0 (PUMA's zero set) q̈_C = (…)⁻¹ m_null q̈_null, the damped elbow attractor."""
+    J = task.J
+    A = W + weight * (J.T @ J)
+    rhs = weight * (J.T @ (task.xdd - task.jdqd))
+    if qdd_null is not None and m_null > 0.0:
+        A = A + m_null * np.eye(A.shape[0])
+        rhs = rhs + m_null * qdd_null
+    return np.linalg.solve(A, rhs)
+
+
 @dataclass(frozen=True)
 class NullSpaceObjective:
     """Secondary "elbow up" objective: attract a link origin to a point [m]:

@@ -14,8 +14,15 @@ import numpy as np
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.fabrics.discrete import barrier_step, limit_speed
+from tamedpuma.fabrics.energy import barrier_energy
+from tamedpuma.fabrics.leaves import joint_limits
 from tamedpuma.methods._learned import load_task, null_objective
-from tamedpuma.methods._policy import Damping, NullSpaceObjective, pull_to_joints
+from tamedpuma.methods._policy import (
+    Damping,
+    NullSpaceObjective,
+    pull_through_metric,
+    pull_to_joints,
+)
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
 
 
@@ -37,16 +44,45 @@ class PumaController:
 
     def joint_acceleration(self, state, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         """(q̈_C, ẍ_d): the pulled PUMA acceleration at the observation (state = kinematics)."""
+        task, null = self.task_and_null(state, obs)
+        return pull_to_joints(task, self.damping, null), task.xdd
+
+    def task_and_null(self, state, obs: Observation):
+        """(PUMA's TaskAcceleration, the secondary objective's q̈_null or None)."""
         vg = obs.goal_velocity if self.feed_goal_velocity else None
         task = self.task.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
-        return pull_to_joints(task, self.damping, null), task.xdd
+        return task, null
+
+    def with_avoidance(self, state, obs: Observation, av, fabric: Fabric,
+                       forcing: Forcing) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(h, q̈_C, ẍ_d): the avoidance geometry ``h = −M⁻¹f`` of ``av`` and PUMA's forcing,
+        pulled by the damped pseudo-inverse (``additive``) or through the metric of the
+        avoidance fabric without its joint-limit leaves (``metric``; :class:`Forcing`)."""
+        if forcing.mode == "metric":
+            task, null = self.task_and_null(state, obs)
+            W = av.M - np.diag(limit_metric(fabric, obs.q, obs.qd))
+            qdd_c = pull_through_metric(task, W, forcing.weight, forcing.null_metric, null)
+            return av.acceleration(), qdd_c, task.xdd
+        qdd_c, xdd = self.joint_acceleration(state, obs)
+        return av.acceleration(), qdd_c, xdd
 
     def step(self, obs: Observation) -> Command:
         state = self.kinematics.evaluate(obs.q, obs.qd)
         qdd, xdd = self.joint_acceleration(state, obs)
         return Command(qdd=qdd, scalars={"task_acc_norm": float(np.linalg.norm(xdd)),
                                          "joint_acc_norm": float(np.linalg.norm(qdd))})
+
+
+def limit_metric(fabric: Fabric, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+    """Diagonal (n,) of the joint-limit leaves' pulled metric in ``fabric`` at (q, q̇): both
+    leaves of joint k have the Jacobian ±e_k, so each adds its metric ``2k s(ẋ)/x^p`` to
+    M_kk (:func:`~tamedpuma.fabrics.energy.barrier_energy`; the same distances and clamp as the
+    fabric's)."""
+    lt = joint_limits(q, qd, fabric.q_min, fabric.q_max, fabric.gains.barrier_margin)
+    m = barrier_energy(lt.x, lt.xd, fabric.gains.joint_limit)[1]
+    n = q.shape[0]
+    return m[:n] + m[n:]
 
 
 def damping_rule(cfg: Mapping) -> Damping:
@@ -72,10 +108,17 @@ def pulled_puma(cfg: Mapping, kinematics) -> PumaController:
 
 
 def puma_and_fabric(cfg: Mapping, kinematics) -> tuple[PumaController, Fabric]:
-    """The pulled PUMA policy and the avoidance fabric of an fpm/cpm config."""
+    """The pulled PUMA policy and the avoidance fabric of an fpm/cpm config; the fabric's
+    joint-limit leaves (and barrier rows) sit ``limit_margin`` [rad] inside the robot's limits,
+    so the tracking error of the joint controller (PyBullet's velocity motors sag by ~1e-3 rad/s
+    under gravity) cannot carry a joint past the real limit while its barrier holds."""
     gains = FabricGains.from_mapping(cfg.get("fabric"))
-    return pulled_puma(cfg, kinematics), Fabric(gains, kinematics.spec.q_min,
-                                                kinematics.spec.q_max)
+    margin = float(cfg["limit_margin"])
+    q_min, q_max = np.asarray(kinematics.spec.q_min), np.asarray(kinematics.spec.q_max)
+    if not 0.0 <= margin < 0.25 * float(np.min(q_max - q_min)):
+        raise ConfigError(f"method.limit_margin must be in [0, a quarter of the smallest joint "
+                          f"range), got {margin}")
+    return pulled_puma(cfg, kinematics), Fabric(gains, q_min + margin, q_max - margin)
 
 
 def avoidance_at(kinematics, fabric: Fabric, obs: Observation):
@@ -147,6 +190,82 @@ class ControlRate:
         if self.speed_limit:
             qd_next, scale = limit_speed(qd_next, qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}
+
+
+@dataclass(frozen=True)
+class Forcing:
+    """How FPM and CPM pull PUMA's forcing into joint space (``method.forcing``).
+
+    mode ``additive``: paper eq. 9/10 with f_θ^C = J⁺(ẍ_d − J̇q̇) + N q̈_null (damped
+    pseudo-inverse): PUMA's push is blind to the obstacles; only the barriers' geometry (∝ ‖q̇‖²,
+    so nothing at low speed) resists it, and the arm hovers against an obstacle that lies on
+    PUMA's path. ``metric``: the pullback of PUMA's task spec ``(w I, −w ẍ_d)`` summed with the
+    avoidance fabric's metric W (base and obstacle pairs, not the joint-limit leaves),
+    ``f_θ^C = (W + wJᵀJ + m_null I)⁻¹(wJᵀ(ẍ_d − J̇q̇) + m_null q̈_null)``
+    (:func:`~tamedpuma.methods._policy.pull_through_metric`): a weighted pseudo-inverse which in
+    free space realises ẍ_d as the damped one does, and near an obstacle suppresses the push
+    along the barrier's normal (W ~ 0.2/x), so the arm slides along the obstacle as a forced
+    fabric does. The joint-limit metric is left out because it switches with the direction of
+    q̇ (it exists only while approaching): in the forcing it made PUMA's push chatter on and off
+    at a limit, and a goal near a limit became unreachable (measured on the moved goal of the
+    disturbance experiment); the limits keep their geometry and the control-rate barrier step.
+    The zero set of f_θ^C is unchanged (q̇ = 0, ẍ_d = 0 leaves only the damped elbow objective),
+    h is the paper's, so FPM's and CPM's statements hold as with ``additive``.
+    weight: w [1]; null_metric: m_null [1], the metric of the secondary (elbow) objective."""
+
+    mode: str = "additive"
+    weight: float = 100.0
+    null_metric: float = 0.05
+
+    @staticmethod
+    def from_mapping(cfg: Mapping | None) -> Forcing:
+        cfg = dict(cfg or {})
+        unknown = sorted(set(cfg) - {"mode", "weight", "null_metric"})
+        if unknown:
+            raise ConfigError(f"unknown method.forcing keys {unknown}")
+        f = Forcing(**cfg)
+        if f.mode not in ("additive", "metric"):
+            raise ConfigError(f"method.forcing.mode must be 'additive' or 'metric', got {f.mode!r}")
+        if not (f.weight > 0 and f.null_metric >= 0):
+            raise ConfigError("method.forcing.weight must be > 0 and null_metric ≥ 0")
+        return f
+
+
+#: the energies a TamedPUMA method may energize (``method.energy``)
+ENERGIES = ("fabric", "execution")
+
+
+@dataclass(frozen=True)
+class EnergyMetric:
+    """The energy ``L`` that energization conserves, as its metric and force at the state:
+    ``α = q̇ᵀ(M q̈ + f)/(q̇ᵀ M q̇ + ε)`` [1/s] makes ``q̈ − α q̇`` conserve ``H_L``.
+
+    ``fabric``: the avoidance fabric's own energy ``L_e`` (sum of the leaves' Finsler energies and
+    the base), M = M_{L_e} (it grows without bound at a barrier: 0.2/x per obstacle pair).
+    ``execution``: the execution energy ``L_ex = ½‖q̇‖²`` (M = I, f = 0), as in geometric fabrics'
+    speed control (Ratliff et al. 2023; Van Wyk et al. 2022): energization then leaves the
+    speed ``‖q̇‖`` unchanged and only bends the path, so the forcing alone sets the speed. Any
+    Finsler energy leaves an HD2 geometry's paths unchanged (method.md §2), so the barrier
+    and path-consistency arguments hold for either; with ``execution``, CPM's metric is bounded
+    and strictly positive definite everywhere, the assumption of paper eq. 10 that the barrier
+    metric M_{L_e} (unbounded at contact) does not meet."""
+
+    M: np.ndarray
+    f: np.ndarray
+
+    def alpha(self, qd: np.ndarray, qdd: np.ndarray, eps: float) -> float:
+        Mqd = self.M @ qd
+        return float((Mqd @ qdd + qd @ self.f) / (qd @ Mqd + eps))
+
+
+def energy_metric(av, energy: str) -> EnergyMetric:
+    """The :class:`EnergyMetric` of ``method.energy`` for the avoidance fabric ``av``."""
+    if energy == "fabric":
+        return EnergyMetric(av.M, av.f_energy)
+    if energy == "execution":
+        n = av.M.shape[0]
+        return EnergyMetric(np.eye(n), np.zeros(n))
+    raise ConfigError(f"method.energy must be one of {ENERGIES}, got {energy!r}")
 
 
 def bounded_alpha(alpha: float, alpha_min: float | None) -> float:

@@ -33,6 +33,26 @@ Guarantee: dH_{L_e}/dt = (α_h + α_f + c) q̇ᵀMq̇ + … gives ``dH/dt = −�
 exactly as the other forms (static obstacles; ≤ with the α_h bound), so the convergence argument
 of Theorem III.5 is unchanged.
 
+``energy`` and ``forcing`` as FPM's (:mod:`tamedpuma.methods.fpm`). With ``energy: execution``
+the metric of energization and of γ is M = I: it is bounded and strictly positive definite
+everywhere and does not degenerate as q̇ → 0, which is exactly the assumption on M_{L_e} under
+which eq. 10 converges (paper, section 4.2; the barrier metric 0.2/x does not meet it). Then
+dH/dt = −β ‖q̇‖² with H = ½‖q̇‖² + ψ (static obstacles).
+With ``forcing: metric`` f_θ^C is PUMA pulled through the obstacle barriers' metric
+(:class:`~tamedpuma.methods._tamed.Forcing`), so near an obstacle PUMA's push into it is
+suppressed and the regulator's energy goes into sliding along it. f_θ^C keeps its zero set; ψ
+stays compatible with it wherever ``P = wJA⁻¹Jᵀ ≈ I`` (free space: −∂ψᵀf_θ^C = −∂ψ_xᵀ P ẍ_d);
+near an obstacle P bends f_θ^C away from PUMA's direction and compatibility is no longer
+guaranteed there, where the barrier already keeps ψ from decreasing along PUMA's path.
+
+``eps`` ε [(rad/s)²]: the regulariser of the energization and regulator denominators
+``q̇ᵀMq̇ + ε``. Below the speed √ε both fade out and the law becomes ``h + f_θ^C − β q̇``, PUMA's
+own start from rest. It must exceed the square of the joint controller's velocity noise: in
+PyBullet the velocity motors sag under gravity by ~1e-3 rad/s, and with ε = 1e-6 that sag set
+the direction of q̇ at rest: energization removed f_θ^C's push along it and the regulator saw ψ
+*rising* along it, so the arm never started (Table-1 tomato 8: 0.5 m from the goal for 40 s
+at 7e-4 rad/s, α ≈ 250 /s). Above √ε the law is eq. 10 exactly.
+
 Discretisation (``semi_implicit``, default): over one control period Δt the law is
 q̈ = a + c q̇ with a = h + f_θ^C and c = r − α − β ≤ 0 (the regulator, energization and damping
 all act along q̇); the velocity-proportional part is taken implicitly,
@@ -59,10 +79,12 @@ from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric
 from tamedpuma.methods._tamed import (
     ControlRate,
+    Forcing,
     PumaController,
     alpha_floor,
     avoidance_at,
     bounded_alpha,
+    energy_metric,
     fabric_scalars,
     puma_and_fabric,
 )
@@ -80,7 +102,8 @@ class CpmController:
     def __init__(self, puma: PumaController, fabric: Fabric, *, beta: float, eps: float,
                  variant: str, regulator_scale: float, potential_scale: float, damping: str,
                  semi_implicit: bool, alpha_min: float | None = None,
-                 rate: ControlRate | None = None):
+                 rate: ControlRate | None = None, energy: str = "fabric",
+                 forcing: Forcing | None = None):
         if variant not in VARIANTS:
             raise ConfigError(f"cpm variant must be one of {VARIANTS}, got {variant!r}")
         if variant == "paper" and not beta > 0:
@@ -97,6 +120,7 @@ class CpmController:
         self.matched = damping == "matched"
         self.matched_forcing = damping == "matched_forcing"
         self.semi_implicit = semi_implicit
+        self.energy, self.forcing = energy, forcing or Forcing()
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.dt = 0.02
@@ -108,23 +132,24 @@ class CpmController:
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
-        qdd_c, xdd = self.puma.joint_acceleration(state, obs)
+        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.fabric,
+                                                     self.forcing)
         psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
         psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
-        h = av.acceleration()
         h_plus_f = h + qdd_c
-        Mqd = av.M @ qd
+        em = energy_metric(av, self.energy)  # M of the energy energized (and of γ)
+        Mqd = em.M @ qd
         denom = qd @ Mqd + self.eps
         r_coef = -self.regulator_scale * (qd @ dpsi) / denom  # regulator: r q̇
         beta = self.beta
         if self.variant == "paper":
             if self.matched_forcing:  # α = α_h + α_f; β = max(β_min, r − α_f)
-                alpha_h = bounded_alpha(av.alpha(qd, h, self.eps), self.alpha_min)
+                alpha_h = bounded_alpha(em.alpha(qd, h, self.eps), self.alpha_min)
                 alpha_f = float(Mqd @ qdd_c) / denom
                 alpha = alpha_h + alpha_f
                 beta = max(self.beta, r_coef - alpha_f)
             else:
-                alpha = bounded_alpha(av.alpha(qd, h_plus_f, self.eps), self.alpha_min)
+                alpha = bounded_alpha(em.alpha(qd, h_plus_f, self.eps), self.alpha_min)
             if self.matched:  # β = max(β_min, r − α): exactly h + f_C whenever that dissipates
                 beta = max(self.beta, r_coef - alpha)
             c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇
@@ -160,4 +185,5 @@ def make(cfg: Mapping, kinematics) -> CpmController:
                          regulator_scale=float(cfg["regulator_scale"]),
                          potential_scale=float(cfg["potential_scale"]),
                          damping=str(cfg["damping"]), semi_implicit=bool(cfg["semi_implicit"]),
-                         alpha_min=alpha_floor(cfg), rate=rate)
+                         alpha_min=alpha_floor(cfg), rate=rate, energy=str(cfg["energy"]),
+                         forcing=Forcing.from_mapping(cfg["forcing"]))

@@ -1,11 +1,37 @@
 """TamedPUMA, Forcing Policy Method (paper eq. 9): the energized avoidance fabric forced by the
 pulled PUMA policy,
 
-    q̈ = energize_{L_e}[h](q, q̇) + f_θ^C(q, q̇)                                    [rad/s²]
+    q̈ = energize_{L}[h](q, q̇) + f_θ^C(q, q̇)                                      [rad/s²]
 
 h = −M⁻¹ f is the summed, pulled-back avoidance geometry (body spheres × obstacles, joint limits);
-energization ``h̃ = h − α q̇`` with ``α = q̇ᵀ(M h + f_e)/(q̇ᵀ M q̇ + ε)`` keeps its energy H_{L_e}
-constant; f_θ^C is :class:`~tamedpuma.methods.puma.PumaController`'s pulled acceleration.
+energization ``h̃ = h − α q̇`` with ``α = q̇ᵀ(M_L h + f_L)/(q̇ᵀ M_L q̇ + ε)`` keeps the energy H_L
+constant; f_θ^C is PUMA's task acceleration pulled to the joints.
+
+Options (``conf/method/fpm.yaml``; each measured both ways in BENCHMARKS.md, "Safety beyond
+Table 1"), and which of the paper's statements still holds with it:
+
+- ``energy``: ``fabric`` energizes w.r.t. the fabric's own energy L_e, whose metric grows without
+  bound at a barrier (0.2/x): energy the forcing injects there (where M_{L_e} is large) comes
+  back as speed when the arm leaves the barrier; in the logs this "slingshot" drove FPM at up to
+  4× PUMA's speed past the goal and, with α unbounded, through the whole joint range.
+  ``execution`` energizes w.r.t. ½‖q̇‖² (geometric fabrics' execution energy): h̃ ⟂ q̇, the
+  geometry bends the path and never changes the speed, which the forcing alone sets. Either way
+  h̃ has the paths of h (any Finsler energy; method.md §2) and conserves its energy, so the
+  paper's statement (PUMA's zero set, once reached, is kept: Prop. II.17 of Ratliff et al.
+  2023) holds unchanged.
+- ``forcing.mode``: ``additive`` is eq. 9 as written, f_θ^C = J⁺(ẍ_d − J̇q̇) + N q̈_null, blind to
+  the obstacles: at low speed h (∝ ‖q̇‖²) vanishes and PUMA pushes the arm straight into a
+  barrier, where it hovers (the ``time`` failures). ``metric`` pulls PUMA through the metric of
+  the obstacle barriers (a weighted pseudo-inverse,
+  :func:`~tamedpuma.methods._policy.pull_through_metric`; :class:`~tamedpuma.methods._tamed.Forcing`
+  says why the joint-limit leaves are left out): near an obstacle PUMA's push along the
+  barrier's normal is suppressed and the arm slides along it, as a forced fabric does. h is the
+  paper's, and the zero set of f_θ^C is unchanged (q̇ = 0, ẍ_d = 0 gives q̈ = 0 up to the damped
+  elbow objective), so the same statement holds.
+- ``energization: bounded`` (α ≥ −alpha_bound) only adds damping; ``control_rate`` filters only
+  remove energy (:mod:`tamedpuma.fabrics.discrete`); ``limit_margin`` moves the joint-limit
+  barriers inside the real limits.
+
 Scalars: ``energy_fabric`` (H_{L_e}), ``alpha`` (α [1/s]), ``min_clearance_m`` [m] (body
 spheres vs obstacles, 1e3 without obstacles), ``n_clamped``, ``n_limit_clamped``, ``task_acc_norm``.
 """
@@ -20,10 +46,12 @@ from tamedpuma.fabrics import Fabric
 from tamedpuma.fabrics.discrete import implicit_velocity_step
 from tamedpuma.methods._tamed import (
     ControlRate,
+    Forcing,
     PumaController,
     alpha_floor,
     avoidance_at,
     bounded_alpha,
+    energy_metric,
     fabric_scalars,
     puma_and_fabric,
 )
@@ -34,8 +62,10 @@ class FpmController:
     """FPM on one robot: ``fabric`` (a :class:`Fabric`) for avoidance, ``puma`` for forcing."""
 
     def __init__(self, puma: PumaController, fabric: Fabric, alpha_min: float | None = None,
-                 rate: ControlRate | None = None):
+                 rate: ControlRate | None = None, energy: str = "fabric",
+                 forcing: Forcing | None = None):
         self.puma, self.fabric = puma, fabric
+        self.energy, self.forcing = energy, forcing or Forcing()
         self.kinematics = puma.kinematics
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
@@ -48,10 +78,11 @@ class FpmController:
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
-        h = av.acceleration()
-        alpha_raw = av.alpha(qd, h, self.fabric.gains.energization_eps)
+        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.fabric,
+                                                     self.forcing)
+        alpha_raw = energy_metric(av, self.energy).alpha(qd, h,
+                                                         self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
-        qdd_c, xdd = self.puma.joint_acceleration(state, obs)
         if self.rate.semi_implicit:
             qd_next = implicit_velocity_step(qd, h + qdd_c, -alpha, self.dt)
         else:
@@ -65,4 +96,5 @@ class FpmController:
 
 def make(cfg: Mapping, kinematics) -> FpmController:
     return FpmController(*puma_and_fabric(cfg, kinematics), alpha_floor(cfg),
-                         ControlRate.from_mapping(cfg["control_rate"]))
+                         ControlRate.from_mapping(cfg["control_rate"]), str(cfg["energy"]),
+                         Forcing.from_mapping(cfg["forcing"]))

@@ -1,0 +1,136 @@
+"""PUMA's forcing resolved through the avoidance metric (``method.forcing.mode: metric``) and the
+execution energy (``method.energy: execution``): properties of the maths, on the iiwa's real
+kinematics and avoidance fabric, and the behaviour they are for on the point robot."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tamedpuma.episode import run_episode
+from tamedpuma.errors import ConfigError
+from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.methods._policy import (
+    LinearTaskPrimitive,
+    PlanarTask,
+    TaskAcceleration,
+    pull_through_metric,
+    pull_to_joints,
+)
+from tamedpuma.methods._tamed import (
+    EnergyMetric,
+    Forcing,
+    PumaController,
+    energy_metric,
+    limit_metric,
+)
+from tamedpuma.methods.cpm import CpmController
+from tamedpuma.methods.fpm import FpmController
+from tamedpuma.worlds.pointmass import PointKinematics, PointMassWorld, point_scenario, point_spec
+
+OBSTACLES = (np.array([[0.5, -0.3, 0.5], [0.3, 0.35, 0.3]]), np.array([0.05, 0.08]),
+             np.zeros((2, 3)))
+Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
+
+
+def _task(kinematics, q, qd, rng):
+    state = kinematics.evaluate(q, qd)
+    return state, TaskAcceleration(rng.normal(size=6), state.ee_jacobian, state.ee_jdqd)
+
+
+def test_in_free_space_the_metric_forcing_realises_puma_as_the_damped_inverse_does(kinematics):
+    """M_a = m_b I: q̈_C = (m_b I + wJᵀJ)⁻¹ wJᵀ(ẍ_d − J̇q̇) is the damped least-squares inverse
+    with λ² = m_b/w, and J q̈_C → ẍ_d − J̇q̇ as w grows."""
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        q = Q0 + rng.normal(scale=0.3, size=7)
+        _, task = _task(kinematics, q, rng.normal(size=7), rng)
+        M_a = 0.2 * np.eye(7)
+        for w in (20.0, 2.0e4):
+            qdd = pull_through_metric(task, M_a, w, 0.0)
+            assert np.allclose(qdd, pull_to_joints(task, np.sqrt(0.2 / w)), atol=1e-10)
+        residual = task.J @ qdd - (task.xdd - task.jdqd)
+        assert np.linalg.norm(residual) < 1e-3 * np.linalg.norm(task.xdd - task.jdqd)
+
+
+def test_a_large_barrier_metric_suppresses_pumas_push_along_its_normal(kinematics):
+    """A barrier metric μ n nᵀ along a joint-space direction n: the component of q̈_C along n
+    falls like 1/μ while the additive pullback keeps pushing along n."""
+    rng = np.random.default_rng(1)
+    q = Q0 + rng.normal(scale=0.2, size=7)
+    _, task = _task(kinematics, q, np.zeros(7), rng)
+    free = pull_to_joints(task, 0.01)
+    n = free / np.linalg.norm(free)  # the direction PUMA pushes in
+    along = []
+    for mu in (1e1, 1e3, 1e5):
+        M_a = 0.2 * np.eye(7) + mu * np.outer(n, n)
+        qdd = pull_through_metric(task, M_a, 20.0, 0.0)
+        along.append(abs(n @ qdd))
+    assert along[0] > 10 * along[1] > 100 * along[2] > 0
+    assert abs(n @ free) > 1e3 * along[2]
+
+
+def test_the_limit_metric_is_the_joint_limit_leaves_part_of_the_fabric_metric(kinematics):
+    """limit_metric(q, q̇) = M(fabric with limits) − M(same fabric, limits out of reach), with
+    joints near a limit approaching it and receding from it (the leaf is directional)."""
+    spec = kinematics.spec
+    near = Fabric(FabricGains(), spec.q_min, spec.q_max)
+    far = Fabric(FabricGains(), spec.q_min - 1e6, spec.q_max + 1e6)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        q = np.clip(Q0 + rng.normal(scale=0.2, size=7), spec.q_min + 0.05, spec.q_max - 0.05)
+        q[1], q[3] = spec.q_max[1] - 0.03, spec.q_min[3] + 0.02
+        qd = rng.normal(size=7)
+        qd[1], qd[3] = 0.4, 0.3  # joint 2 approaches its upper limit, joint 4 recedes
+        state = kinematics.evaluate(q, qd)
+        diff = (near.avoidance(state, q, qd, *OBSTACLES).M
+                - far.avoidance(state, q, qd, *OBSTACLES).M)
+        lm = limit_metric(near, q, qd)
+        assert np.allclose(diff, np.diag(lm), rtol=1e-9, atol=1e-9)
+        assert lm[1] > 10.0 and lm[3] < 0.01  # only joint 4's far upper leaf (x ≈ 4 rad)
+
+
+def test_execution_energization_keeps_the_speed_and_fabric_energization_keeps_h_le(kinematics):
+    fab = Fabric(FabricGains(), kinematics.spec.q_min, kinematics.spec.q_max)
+    rng = np.random.default_rng(3)
+    q, qd = Q0 + rng.normal(scale=0.1, size=7), rng.normal(size=7)
+    av = fab.avoidance(kinematics.evaluate(q, qd), q, qd, *OBSTACLES)
+    a = rng.normal(size=7)
+    ex = energy_metric(av, "execution")
+    alpha = ex.alpha(qd, a, 0.0)
+    assert abs(qd @ (a - alpha * qd)) < 1e-12 * np.linalg.norm(a) * np.linalg.norm(qd)
+    fb = energy_metric(av, "fabric")
+    assert isinstance(fb, EnergyMetric) and fb.alpha(qd, a, 1e-6) == av.alpha(qd, a, 1e-6)
+    with pytest.raises(ConfigError, match="method.energy"):
+        energy_metric(av, "kinetic")
+
+
+@pytest.mark.parametrize("bad", [{"mode": "sum"}, {"weight": 0.0}, {"null_metric": -1.0},
+                                 {"wieght": 3.0}])
+def test_bad_forcing_settings_are_refused(bad):
+    with pytest.raises(ConfigError, match="method.forcing"):
+        Forcing.from_mapping(bad)
+
+
+SPEC = point_spec(speed_limit=50.0)
+
+
+@pytest.mark.parametrize("name", ["fpm", "cpm"])
+def test_point_robot_reaches_the_goal_around_the_obstacle_with_metric_forcing(name):
+    """The behaviour the option is for, on the point robot (obstacle between start and goal):
+    no collision, goal reached, for both methods with the execution energy."""
+    kin = PointKinematics(SPEC)
+    puma = PumaController(PlanarTask(LinearTaskPrimitive(1.0, 2.0)), kin)
+    fabric = Fabric(FabricGains.from_mapping(None), SPEC.q_min, SPEC.q_max)
+    forcing = Forcing(mode="metric", weight=20.0, null_metric=0.0)
+    if name == "fpm":
+        ctrl = FpmController(puma, fabric, energy="execution", forcing=forcing)
+    else:
+        ctrl = CpmController(puma, fabric, beta=8.0, eps=1e-6, variant="paper",
+                             regulator_scale=1.0, potential_scale=1.0, damping="matched",
+                             semi_implicit=True, energy="execution", forcing=forcing)
+    sc = point_scenario(obstacles=True, max_steps=1500, dt=0.02)
+    run = run_episode(sc, ctrl, PointMassWorld(SPEC))
+    m = run.metrics
+    assert m.success_paper and m.success_whole_body, (m.failure_paper, m.final_position_error_m)
+    assert m.min_clearance_m > 0
