@@ -22,7 +22,6 @@ from tamedpuma.methods._tamed import (
     Forcing,
     PumaController,
     energy_metric,
-    limit_metric,
 )
 from tamedpuma.methods.cpm import CpmController
 from tamedpuma.methods.fpm import FpmController
@@ -68,26 +67,6 @@ def test_a_large_barrier_metric_suppresses_pumas_push_along_its_normal(kinematic
         along.append(abs(n @ qdd))
     assert along[0] > 10 * along[1] > 100 * along[2] > 0
     assert abs(n @ free) > 1e3 * along[2]
-
-
-def test_the_limit_metric_is_the_joint_limit_leaves_part_of_the_fabric_metric(kinematics):
-    """limit_metric(q, q̇) = M(fabric with limits) − M(same fabric, limits out of reach), with
-    joints near a limit approaching it and receding from it (the leaf is directional)."""
-    spec = kinematics.spec
-    near = Fabric(FabricGains(), spec.q_min, spec.q_max)
-    far = Fabric(FabricGains(), spec.q_min - 1e6, spec.q_max + 1e6)
-    rng = np.random.default_rng(2)
-    for _ in range(3):
-        q = np.clip(Q0 + rng.normal(scale=0.2, size=7), spec.q_min + 0.05, spec.q_max - 0.05)
-        q[1], q[3] = spec.q_max[1] - 0.03, spec.q_min[3] + 0.02
-        qd = rng.normal(size=7)
-        qd[1], qd[3] = 0.4, 0.3  # joint 2 approaches its upper limit, joint 4 recedes
-        state = kinematics.evaluate(q, qd)
-        diff = (near.avoidance(state, q, qd, *OBSTACLES).M
-                - far.avoidance(state, q, qd, *OBSTACLES).M)
-        lm = limit_metric(near, q, qd)
-        assert np.allclose(diff, np.diag(lm), rtol=1e-9, atol=1e-9)
-        assert lm[1] > 10.0 and lm[3] < 0.01  # only joint 4's far upper leaf (x ≈ 4 rad)
 
 
 def test_execution_energization_keeps_the_speed_and_fabric_energization_keeps_h_le(kinematics):

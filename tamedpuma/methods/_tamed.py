@@ -14,8 +14,6 @@ import numpy as np
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.fabrics.discrete import barrier_step, limit_speed
-from tamedpuma.fabrics.energy import barrier_energy
-from tamedpuma.fabrics.leaves import joint_limits
 from tamedpuma.methods._learned import load_task, null_objective
 from tamedpuma.methods._policy import (
     Damping,
@@ -54,15 +52,14 @@ class PumaController:
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
         return task, null
 
-    def with_avoidance(self, state, obs: Observation, av, fabric: Fabric,
+    def with_avoidance(self, state, obs: Observation, av,
                        forcing: Forcing) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(h, q̈_C, ẍ_d): the avoidance geometry ``h = −M⁻¹f`` of ``av`` and PUMA's forcing,
-        pulled by the damped pseudo-inverse (``additive``) or through the metric of the
-        avoidance fabric without its joint-limit leaves (``metric``; :class:`Forcing`)."""
+        pulled by the damped pseudo-inverse (``additive``) or through the avoidance fabric's
+        metric M (``metric``; :class:`Forcing`)."""
         if forcing.mode == "metric":
             task, null = self.task_and_null(state, obs)
-            W = av.M - np.diag(limit_metric(fabric, obs.q, obs.qd))
-            qdd_c = pull_through_metric(task, W, forcing.weight, forcing.null_metric, null)
+            qdd_c = pull_through_metric(task, av.M, forcing.weight, forcing.null_metric, null)
             return av.acceleration(), qdd_c, task.xdd
         qdd_c, xdd = self.joint_acceleration(state, obs)
         return av.acceleration(), qdd_c, xdd
@@ -72,17 +69,6 @@ class PumaController:
         qdd, xdd = self.joint_acceleration(state, obs)
         return Command(qdd=qdd, scalars={"task_acc_norm": float(np.linalg.norm(xdd)),
                                          "joint_acc_norm": float(np.linalg.norm(qdd))})
-
-
-def limit_metric(fabric: Fabric, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-    """Diagonal (n,) of the joint-limit leaves' pulled metric in ``fabric`` at (q, q̇): both
-    leaves of joint k have the Jacobian ±e_k, so each adds its metric ``2k s(ẋ)/x^p`` to
-    M_kk (:func:`~tamedpuma.fabrics.energy.barrier_energy`; the same distances and clamp as the
-    fabric's)."""
-    lt = joint_limits(q, qd, fabric.q_min, fabric.q_max, fabric.gains.barrier_margin)
-    m = barrier_energy(lt.x, lt.xd, fabric.gains.joint_limit)[1]
-    n = q.shape[0]
-    return m[:n] + m[n:]
 
 
 def damping_rule(cfg: Mapping) -> Damping:
@@ -200,17 +186,16 @@ class Forcing:
     pseudo-inverse): PUMA's push is blind to the obstacles; only the barriers' geometry (∝ ‖q̇‖²,
     so nothing at low speed) resists it, and the arm hovers against an obstacle that lies on
     PUMA's path. ``metric``: the pullback of PUMA's task spec ``(w I, −w ẍ_d)`` summed with the
-    avoidance fabric's metric W (base and obstacle pairs, not the joint-limit leaves),
-    ``f_θ^C = (W + wJᵀJ + m_null I)⁻¹(wJᵀ(ẍ_d − J̇q̇) + m_null q̈_null)``
-    (:func:`~tamedpuma.methods._policy.pull_through_metric`): a weighted pseudo-inverse which in
-    free space realises ẍ_d as the damped one does, and near an obstacle suppresses the push
-    along the barrier's normal (W ~ 0.2/x), so the arm slides along the obstacle as a forced
-    fabric does. The joint-limit metric is left out because it switches with the direction of
-    q̇ (it exists only while approaching): in the forcing it made PUMA's push chatter on and off
-    at a limit, and a goal near a limit became unreachable (measured on the moved goal of the
-    disturbance experiment); the limits keep their geometry and the control-rate barrier step.
-    The zero set of f_θ^C is unchanged (q̇ = 0, ẍ_d = 0 leaves only the damped elbow objective),
-    h is the paper's, so FPM's and CPM's statements hold as with ``additive``.
+    avoidance fabric's metric M (base, obstacle pairs, joint limits), as a forced fabric sums
+    its forcing spec: ``f_θ^C = (M + wJᵀJ + m_null I)⁻¹(wJᵀ(ẍ_d − J̇q̇) + m_null q̈_null)``
+    (:func:`~tamedpuma.methods._policy.pull_through_metric`), a weighted pseudo-inverse which in
+    free space realises ẍ_d as the damped one does (λ² ≈ (m_b + m_null)/w) and near a barrier
+    suppresses the push along its normal (M ~ 0.2/x per obstacle pair, 0.1/x² per approached
+    joint limit), so the arm slides along the obstacle instead of hovering against it. h is the
+    paper's and the zero set of f_θ^C is unchanged (q̇ = 0, ẍ_d = 0 leaves only the damped
+    elbow objective), so FPM's and CPM's statements hold as with ``additive``. The price: a goal
+    that needs a joint within a few centimetres of a barrier is approached more slowly or not
+    at all (BENCHMARKS.md names the measured case).
     weight: w [1]; null_metric: m_null [1], the metric of the secondary (elbow) objective."""
 
     mode: str = "additive"

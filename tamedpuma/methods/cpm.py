@@ -38,7 +38,7 @@ the metric of energization and of γ is M = I: it is bounded and strictly positi
 everywhere and does not degenerate as q̇ → 0, which is exactly the assumption on M_{L_e} under
 which eq. 10 converges (paper, section 4.2; the barrier metric 0.2/x does not meet it). Then
 dH/dt = −β ‖q̇‖² with H = ½‖q̇‖² + ψ (static obstacles).
-With ``forcing: metric`` f_θ^C is PUMA pulled through the obstacle barriers' metric
+With ``forcing: metric`` f_θ^C is PUMA pulled through the avoidance fabric's metric
 (:class:`~tamedpuma.methods._tamed.Forcing`), so near an obstacle PUMA's push into it is
 suppressed and the regulator's energy goes into sliding along it. f_θ^C keeps its zero set; ψ
 stays compatible with it wherever ``P = wJA⁻¹Jᵀ ≈ I`` (free space: −∂ψᵀf_θ^C = −∂ψ_xᵀ P ẍ_d);
@@ -132,8 +132,7 @@ class CpmController:
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
-        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.fabric,
-                                                     self.forcing)
+        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing)
         psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
         psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
         h_plus_f = h + qdd_c

@@ -21,12 +21,10 @@ Table 1"), and which of the paper's statements still holds with it:
   2023) holds unchanged.
 - ``forcing.mode``: ``additive`` is eq. 9 as written, f_θ^C = J⁺(ẍ_d − J̇q̇) + N q̈_null, blind to
   the obstacles: at low speed h (∝ ‖q̇‖²) vanishes and PUMA pushes the arm straight into a
-  barrier, where it hovers (the ``time`` failures). ``metric`` pulls PUMA through the metric of
-  the obstacle barriers (a weighted pseudo-inverse,
-  :func:`~tamedpuma.methods._policy.pull_through_metric`; :class:`~tamedpuma.methods._tamed.Forcing`
-  says why the joint-limit leaves are left out): near an obstacle PUMA's push along the
-  barrier's normal is suppressed and the arm slides along it, as a forced fabric does. h is the
-  paper's, and the zero set of f_θ^C is unchanged (q̇ = 0, ẍ_d = 0 gives q̈ = 0 up to the damped
+  barrier, where it hovers (the ``time`` failures). ``metric`` pulls PUMA through the avoidance
+  fabric's metric (a weighted pseudo-inverse, :class:`~tamedpuma.methods._tamed.Forcing`): near
+  an obstacle PUMA's push along the barrier's normal is suppressed and the arm slides along it,
+  as a forced fabric does. h is the paper's, and the zero set of f_θ^C is unchanged (q̇ = 0, ẍ_d = 0 gives q̈ = 0 up to the damped
   elbow objective), so the same statement holds.
 - ``energization: bounded`` (α ≥ −alpha_bound) only adds damping; ``control_rate`` filters only
   remove energy (:mod:`tamedpuma.fabrics.discrete`); ``limit_margin`` moves the joint-limit
@@ -78,8 +76,7 @@ class FpmController:
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
-        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.fabric,
-                                                     self.forcing)
+        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing)
         alpha_raw = energy_metric(av, self.energy).alpha(qd, h,
                                                          self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
