@@ -24,8 +24,8 @@ Table 1"), and which of the paper's statements still holds with it:
   barrier, where it hovers (the ``time`` failures). ``metric`` pulls PUMA through the avoidance
   fabric's metric (a weighted pseudo-inverse, :class:`~tamedpuma.methods._tamed.Forcing`): near
   an obstacle PUMA's push along the barrier's normal is suppressed and the arm slides along it,
-  as a forced fabric does. h is the paper's, and the zero set of f_θ^C is unchanged (q̇ = 0, ẍ_d = 0 gives q̈ = 0 up to the damped
-  elbow objective), so the same statement holds.
+  as a forced fabric does. h is the paper's, and the zero set of f_θ^C is unchanged (q̇ = 0,
+  ẍ_d = 0 gives q̈ = 0 up to the damped elbow objective), so the same statement holds.
 - ``energization: bounded`` (α ≥ −alpha_bound) only adds damping; ``control_rate`` filters only
   remove energy (:mod:`tamedpuma.fabrics.discrete`); ``limit_margin`` moves the joint-limit
   barriers inside the real limits.
