@@ -34,7 +34,11 @@ def test_one_episode_writes_its_files_and_says_where(tmp_path):
     summary = json.loads((run_dir / "summary.json").read_text())
     log = read_mcap(run_dir / "episode.mcap")
     assert log.complete and log.n_steps == summary["steps"]
-    assert "method:" in log.config_yaml and "joint_attractor" in log.config_yaml
+    # the default run is TamedPUMA (FPM) with the best model at hand, said on the console, and
+    # it reaches the goal without collision (issue 11: the README's first command)
+    assert "method:" in log.config_yaml and "name: fpm" in log.config_yaml
+    assert "model: " in proc.stdout and summary["model"]["model_sha256"][:12] in proc.stdout
+    assert summary["success_whole_body"] and summary["min_clearance_m"] > 0
     assert f"replay: rerun {run_dir / 'episode.rrd'}" in proc.stdout
 
 
