@@ -64,9 +64,9 @@ reaches 100 /s): the arm chattered and moved by numerical noise rather than by t
 energization, β = 0, and the regulator scaled by 0.05: ``q̈ = h + f_θ^C − 0.05 (q̇q̇ᵀ/(q̇ᵀMq̇)) ∂ψ``
 (we keep ψ squared, at the current state, with the correct quaternion Jacobian: those were bugs).
 Scalars: ``psi`` (ψ), ``psi_rate`` (∂ψ/∂q · q̇ [1/s]), ``dissipation`` (β q̇ᵀMq̇, the predicted
-−dH/dt), ``energy_fabric`` (H_{L_e}),
-``energy_total`` (H_{L_e} + ψ), ``alpha``, ``beta``, ``min_clearance_m`` [m], ``n_clamped``,
-``n_limit_clamped``, ``task_acc_norm``.
+−dH/dt), ``energy_fabric`` (H_{L_e}), ``energy_total`` (H + ψ, H the energized energy:
+H_{L_e}, or ½‖q̇‖² with ``energy: execution``), ``alpha``, ``beta``, ``min_clearance_m`` [m],
+``n_clamped``, ``n_limit_clamped``, ``task_acc_norm``.
 """
 
 from __future__ import annotations
@@ -167,8 +167,13 @@ class CpmController:
         return Command(qdd=qdd, scalars={
             **extra, **fabric_scalars(av), "psi": psi, "psi_rate": float(dpsi @ qd),
             "dissipation": float(beta * (qd @ Mqd)),
-            "energy_total": float(av.energy + psi), "alpha": float(alpha),
+            "energy_total": float(self._kinetic(av, qd, Mqd) + psi), "alpha": float(alpha),
             "beta": float(beta), "task_acc_norm": float(np.linalg.norm(xdd))})
+
+
+    def _kinetic(self, av, qd: np.ndarray, Mqd: np.ndarray) -> float:
+        """The energy the law conserves up to β: H_{L_e} (``energy: fabric``) or ½‖q̇‖²."""
+        return float(av.energy) if self.energy == "fabric" else 0.5 * float(qd @ Mqd)
 
 
 def make(cfg: Mapping, kinematics) -> CpmController:
