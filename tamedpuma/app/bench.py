@@ -137,15 +137,14 @@ def time_controller(method: str, counts, calls: int, budget_s: float, overrides=
     return rows
 
 
-def _median_us(fn, calls: int) -> float:
-    """Median of ``calls`` individually timed calls [µs] (after one untimed call)."""
-    fn()
+def _timed_calls(fn, calls: int) -> np.ndarray:
+    """``calls`` individually timed calls of ``fn`` [s]."""
     out = np.empty(calls)
     for i in range(calls):
         t0 = time.perf_counter()
         fn()
         out[i] = time.perf_counter() - t0
-    return round(float(np.median(out)) * 1e6, 2)
+    return out
 
 
 def time_parts(method: str, n_obstacles: int = 2, calls: int = 1000, overrides=(),
@@ -200,17 +199,31 @@ def time_parts(method: str, n_obstacles: int = 2, calls: int = 1000, overrides=(
         parts["pullback J⁺ and null space"] = lambda: pull_to_joints(
             accel, puma.damping, puma.null_space.acceleration(kin, obs.qd)
             if puma.null_space else None)
-    rows = []
-    for part, fn in parts.items():
-        row = {"method": method, "n_obstacles": n_obstacles, "part": part,
-               "us": _median_us(fn, calls)}
-        if primitive is not None and hasattr(primitive, "single") and (
-                part == "step" or part.startswith("network")):
-            one, primitive.single = primitive.single, None
+    # every (part, path) timed in rounds of calls/10, interleaved, so that a burst of load on
+    # the shared machine spreads over all of them instead of hitting one row
+    reference = primitive is not None and hasattr(primitive, "single")
+    jobs = [(part, False) for part in parts] + [
+        (part, True) for part in parts
+        if reference and (part == "step" or part.startswith("network"))]
+    times = {job: [] for job in jobs}
+    rounds = 10
+    for _ in range(rounds + 1):  # the first round warms up and is dropped
+        for part, ref in jobs:
+            one = primitive.single if ref else None
+            if ref:
+                primitive.single = None
             try:
-                row["reference_us"] = _median_us(fn, calls)
+                times[(part, ref)].append(_timed_calls(parts[part], max(1, calls // rounds)))
             finally:
-                primitive.single = one
+                if ref:
+                    primitive.single = one
+    rows = []
+    for part in parts:
+        row = {"method": method, "n_obstacles": n_obstacles, "part": part,
+               "us": round(float(np.median(np.concatenate(times[(part, False)][1:]))) * 1e6, 2)}
+        if (part, True) in times:
+            row["reference_us"] = round(
+                float(np.median(np.concatenate(times[(part, True)][1:]))) * 1e6, 2)
         rows.append(row)
     return rows
 
@@ -516,7 +529,8 @@ def markdown_section(report: dict) -> str:
         lines.append(f"| {row['method']} | — | not measured: {row['error']} |")
     if report.get("parts"):
         lines += ["", "Where the time goes (2 obstacles, one state, each part timed alone: the "
-                  "median of 1000 calls [µs]; \"reference network\": the same "
+                  "median of 1000 calls in 10 rounds interleaved with the other parts [µs]; "
+                  "\"reference network\": the same "
                   "with the network's reference path, the batched numpy copy "
                   "`puma/fastnet.py`, selected by `primitive.single = None`; the step's "
                   "remainder is the method's own arithmetic and log scalars):", "",
