@@ -111,7 +111,11 @@ class Table1(Callback):
                        f"no success ({s.get('failure_whole_body') or s.get('stop_reason')})")
         elif getattr(job_return, "status", None) is not None:
             outcome = str(job_return.status.name).lower()
-        print(f"[{done}/{total}] {run_dir.relative_to(root)}: {outcome}", flush=True)
+        try:  # the job's output_dir is absolute, the sweep dir as configured (often relative)
+            shown = run_dir.resolve().relative_to(root.resolve())
+        except ValueError:
+            shown = run_dir
+        print(f"[{done}/{total}] {shown}: {outcome}", flush=True)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         from tamedpuma.analysis.tables import main as tables
