@@ -185,6 +185,38 @@ def test_a_killed_worker_leaves_its_partial_log_and_the_sweep_resumes(tmp_path, 
     assert _strict_json(tmp_path / "sweep/0/summary.json")["steps"] == 5
 
 
+def _workers_of(sweep_dir: Path) -> list[int]:
+    """Pids of live processes whose working directory is ``sweep_dir``'s parent and whose
+    command line is a loky worker (Linux /proc)."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        try:
+            cmd = (proc / "cmdline").read_bytes().decode(errors="replace")
+            if "loky" in cmd and Path(os.readlink(proc / "cwd")) == sweep_dir.parent:
+                pids.append(int(proc.name))
+        except (OSError, ValueError):
+            continue
+    return pids
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and prctl: Linux")
+def test_a_sigkilled_parallel_sweep_leaves_no_worker_behind(tmp_path):
+    """SIGKILL of the main process of a joblib sweep: its loky workers get SIGTERM from the
+    kernel (parent-death signal), close their runs as incomplete and exit."""
+    proc = _start_sweep(tmp_path, "hydra/launcher=cores", "hydra.launcher.n_jobs=2")
+    assert _workers_of(tmp_path / "sweep"), "the sweep runs in loky workers"
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=60)
+    deadline = time.monotonic() + 30
+    while _workers_of(tmp_path / "sweep") and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _workers_of(tmp_path / "sweep")
+    from tamedpuma.recording import read_mcap
+
+    partial = read_mcap(next((tmp_path / "sweep/0").glob("episode.mcap*")))
+    assert not partial.complete and len(partial.scalars) > 0
+
+
 def test_analysis_lists_and_excludes_incomplete_truncated_and_failed_runs(tmp_path, capsys):
     from tamedpuma.analysis import tables
 

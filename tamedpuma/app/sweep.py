@@ -21,9 +21,11 @@ ones (an interrupted attempt's files are kept in ``previous_attempt/``).
 
 from __future__ import annotations
 
+import ctypes
 import json
 import logging
 import math
+import multiprocessing
 import shutil
 import signal
 import sys
@@ -281,12 +283,31 @@ def _partial_log_line(run_dir: Path) -> str:
             "recover an .mcap.active with tamedpuma.recording.recover_mcap")
 
 
+def _die_with_launcher() -> None:
+    """In a launcher's worker process (Hydra's joblib launcher: loky workers), ask Linux to send
+    SIGTERM when the launching process dies (``prctl(PR_SET_PDEATHSIG)``), handled as in the
+    main process (the run's logs close as incomplete, exit 143). Without it a SIGKILLed sweep
+    left its two loky workers behind, re-parented to init and spinning at ~50 % CPU each after
+    their last run. No-op in the main process (single runs, submitit and Ray jobs) and off
+    Linux."""
+    if not sys.platform.startswith("linux"):
+        return
+    if multiprocessing.current_process().name == "MainProcess":
+        return
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PDEATHSIG
+    except (OSError, AttributeError):  # pragma: no cover - no prctl in this libc
+        pass
+
+
 @hydra.main(config_path=str(CONF_DIR), config_name="sweep", version_base="1.3")
 def _hydra_main(cfg: DictConfig) -> None:
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
     if multirun:
+        _die_with_launcher()
         state = run_state(run_dir)
         if state == "complete":
             _record_outcome(run_dir, "skipped", "already complete")
