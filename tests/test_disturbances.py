@@ -71,8 +71,17 @@ def _fpm(kinematics, source):
     return make("fpm", method, kinematics)
 
 
-SOURCES = ["analytic"] + [pytest.param(p, marks=pytest.mark.slow, id="real") for p in
-                          REAL_MODELS[:1]]
+def _sources(known_gap: str | None = None) -> list:
+    """The analytic stand-in, and the real tomato model where it is at hand (slow; an expected
+    failure with ``known_gap`` as its reason)."""
+    marks = [pytest.mark.slow]
+    if known_gap:
+        marks.append(pytest.mark.xfail(strict=False, reason=f"known gap (BENCHMARKS.md, "
+                                       f"'Safety beyond Table 1'): {known_gap}"))
+    return ["analytic"] + [pytest.param(p, marks=marks, id="real") for p in REAL_MODELS[:1]]
+
+
+SOURCES = _sources()
 
 
 def _run(robot_spec, kinematics, source, scenario, sim=VELOCITY, dist=NO_DISTURBANCE):
@@ -95,11 +104,9 @@ def test_fpm_reaches_the_default_goal_under_joint_impedance_control(robot_spec, 
     assert m.min_clearance_m > 0
 
 
-PUSH_SOURCES = ["analytic"] + [pytest.param(
-    p, id="real", marks=[pytest.mark.slow, pytest.mark.xfail(
-        strict=False, reason="known gap (BENCHMARKS.md, 'Safety beyond Table 1'): pushed 10 cm "
-        "off its path, FPM with the issue-12 defaults ends hovering beside the obstacle (time/"
-        "stall); it recovered only with every issue-12 option off")]) for p in REAL_MODELS[:1]]
+PUSH_SOURCES = _sources("pushed 10 cm off its path, FPM with the issue-12 defaults ends "
+                        "hovering beside the obstacle (time/stall); it recovered only with every "
+                        "issue-12 option off")
 
 
 @pytest.mark.parametrize("source", PUSH_SOURCES)
@@ -117,12 +124,10 @@ def test_a_push_moves_the_arm_10_cm_off_its_path_and_fpm_still_reaches_the_goal(
     assert m.recovery_time_s == pytest.approx(m.time_to_success_s - dist.onset)
 
 
-GOAL_CHANGE_SOURCES = ["analytic"] + [pytest.param(
-    p, id="real", marks=[pytest.mark.slow, pytest.mark.xfail(
-        strict=False, reason="known gap (BENCHMARKS.md, 'Safety beyond Table 1'): the moved goal "
-        "needs joint 4 within 0.1 rad of its limit; PUMA pulled through the fabric's metric "
-        "(method.forcing.mode=metric) is held back there by the joint-limit metric; with "
-        "forcing.mode=additive FPM reaches it")]) for p in REAL_MODELS[:1]]
+GOAL_CHANGE_SOURCES = _sources("the moved goal needs joint 4 within 0.1 rad of its limit; PUMA "
+                               "pulled through the fabric's metric (method.forcing.mode=metric) "
+                               "is held back there by the joint-limit metric; with "
+                               "forcing.mode=additive FPM reaches it")
 
 
 @pytest.mark.parametrize("source", GOAL_CHANGE_SOURCES)

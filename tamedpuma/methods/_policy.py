@@ -146,7 +146,7 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float, m_
     A = W + weight * (J.T @ J)
     rhs = weight * (J.T @ (task.xdd - task.jdqd))
     if qdd_null is not None and m_null > 0.0:
-        A = A + m_null * np.eye(A.shape[0])
+        A[np.diag_indices_from(A)] += m_null  # A is a fresh array
         rhs = rhs + m_null * qdd_null
     return np.linalg.solve(A, rhs)
 

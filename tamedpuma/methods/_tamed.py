@@ -14,6 +14,7 @@ import numpy as np
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.fabrics.discrete import barrier_step, limit_speed
+from tamedpuma.fabrics.energy import execution_alpha
 from tamedpuma.methods._learned import load_task, null_objective
 from tamedpuma.methods._policy import (
     Damping,
@@ -220,37 +221,33 @@ class Forcing:
 ENERGIES = ("fabric", "execution")
 
 
-@dataclass(frozen=True)
-class EnergyMetric:
-    """The energy ``L`` that energization conserves, as its metric and force at the state:
-    ``α = q̇ᵀ(M q̈ + f)/(q̇ᵀ M q̇ + ε)`` [1/s] makes ``q̈ − α q̇`` conserve ``H_L``.
-
-    ``fabric``: the avoidance fabric's own energy ``L_e`` (sum of the leaves' Finsler energies and
-    the base), M = M_{L_e} (it grows without bound at a barrier: 0.2/x per obstacle pair).
-    ``execution``: the execution energy ``L_ex = ½‖q̇‖²`` (M = I, f = 0), as in geometric fabrics'
-    speed control (Ratliff et al. 2023; Van Wyk et al. 2022): energization then leaves the
-    speed ``‖q̇‖`` unchanged and only bends the path, so the forcing alone sets the speed. Any
-    Finsler energy leaves an HD2 geometry's paths unchanged (method.md §2), so the barrier
-    and path-consistency arguments hold for either; with ``execution``, CPM's metric is bounded
-    and strictly positive definite everywhere, the assumption of paper eq. 10 that the barrier
-    metric M_{L_e} (unbounded at contact) does not meet."""
-
-    M: np.ndarray
-    f: np.ndarray
-
-    def alpha(self, qd: np.ndarray, qdd: np.ndarray, eps: float) -> float:
-        Mqd = self.M @ qd
-        return float((Mqd @ qdd + qd @ self.f) / (qd @ Mqd + eps))
+def check_energy(energy: str) -> str:
+    """``method.energy`` validated: ``fabric`` or ``execution`` (see :func:`energization_alpha`)."""
+    if energy not in ENERGIES:
+        raise ConfigError(f"method.energy must be one of {ENERGIES}, got {energy!r}")
+    return energy
 
 
-def energy_metric(av, energy: str) -> EnergyMetric:
-    """The :class:`EnergyMetric` of ``method.energy`` for the avoidance fabric ``av``."""
-    if energy == "fabric":
-        return EnergyMetric(av.M, av.f_energy)
+def energization_alpha(av, energy: str, qd: np.ndarray, qdd: np.ndarray, eps: float) -> float:
+    """α [1/s] such that ``q̈ = qdd − α q̇`` conserves the energy ``method.energy`` names.
+
+    ``fabric``: the avoidance fabric's own energy L_e (:meth:`AvoidanceFabric.alpha`), whose
+    metric grows without bound at a barrier (0.2/x per obstacle pair). ``execution``: the
+    execution energy ‖q̇‖² (:func:`~tamedpuma.fabrics.energy.execution_alpha`, metric ∝ I), as in
+    geometric fabrics' speed control (Ratliff et al. 2023): energization then leaves the speed
+    unchanged and only bends the path, so the forcing alone sets the speed. Any Finsler energy
+    leaves an HD2 geometry's paths unchanged (method.md §2), so the barrier and path-consistency
+    arguments hold for either; with ``execution`` CPM's metric is bounded and strictly positive
+    definite everywhere, the assumption of paper eq. 10 that M_{L_e} does not meet."""
     if energy == "execution":
-        n = av.M.shape[0]
-        return EnergyMetric(np.eye(n), np.zeros(n))
-    raise ConfigError(f"method.energy must be one of {ENERGIES}, got {energy!r}")
+        return execution_alpha(qd, qdd, eps)
+    return av.alpha(qd, qdd, eps)
+
+
+def energy_times_velocity(av, energy: str, qd: np.ndarray) -> np.ndarray:
+    """``M q̇`` for the metric M of ``method.energy`` (q̇ itself for the execution energy,
+    whose metric is taken as I: CPM's γ and H = ½ q̇ᵀMq̇ use this scale)."""
+    return qd if energy == "execution" else av.M @ qd
 
 
 def bounded_alpha(alpha: float, alpha_min: float | None) -> float:

@@ -84,7 +84,9 @@ from tamedpuma.methods._tamed import (
     alpha_floor,
     avoidance_at,
     bounded_alpha,
-    energy_metric,
+    check_energy,
+    energization_alpha,
+    energy_times_velocity,
     fabric_scalars,
     puma_and_fabric,
 )
@@ -120,7 +122,7 @@ class CpmController:
         self.matched = damping == "matched"
         self.matched_forcing = damping == "matched_forcing"
         self.semi_implicit = semi_implicit
-        self.energy, self.forcing = energy, forcing or Forcing()
+        self.energy, self.forcing = check_energy(energy), forcing or Forcing()
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.dt = 0.02
@@ -136,19 +138,20 @@ class CpmController:
         psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
         psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
         h_plus_f = h + qdd_c
-        em = energy_metric(av, self.energy)  # M of the energy energized (and of γ)
-        Mqd = em.M @ qd
+        Mqd = energy_times_velocity(av, self.energy, qd)  # M of the energy energized and of γ
         denom = qd @ Mqd + self.eps
         r_coef = -self.regulator_scale * (qd @ dpsi) / denom  # regulator: r q̇
         beta = self.beta
         if self.variant == "paper":
             if self.matched_forcing:  # α = α_h + α_f; β = max(β_min, r − α_f)
-                alpha_h = bounded_alpha(em.alpha(qd, h, self.eps), self.alpha_min)
+                alpha_h = bounded_alpha(energization_alpha(av, self.energy, qd, h, self.eps),
+                                        self.alpha_min)
                 alpha_f = float(Mqd @ qdd_c) / denom
                 alpha = alpha_h + alpha_f
                 beta = max(self.beta, r_coef - alpha_f)
             else:
-                alpha = bounded_alpha(em.alpha(qd, h_plus_f, self.eps), self.alpha_min)
+                alpha = bounded_alpha(energization_alpha(av, self.energy, qd, h_plus_f,
+                                                         self.eps), self.alpha_min)
             if self.matched:  # β = max(β_min, r − α): exactly h + f_C whenever that dissipates
                 beta = max(self.beta, r_coef - alpha)
             c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇

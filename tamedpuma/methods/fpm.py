@@ -49,7 +49,8 @@ from tamedpuma.methods._tamed import (
     alpha_floor,
     avoidance_at,
     bounded_alpha,
-    energy_metric,
+    check_energy,
+    energization_alpha,
     fabric_scalars,
     puma_and_fabric,
 )
@@ -63,7 +64,7 @@ class FpmController:
                  rate: ControlRate | None = None, energy: str = "fabric",
                  forcing: Forcing | None = None):
         self.puma, self.fabric = puma, fabric
-        self.energy, self.forcing = energy, forcing or Forcing()
+        self.energy, self.forcing = check_energy(energy), forcing or Forcing()
         self.kinematics = puma.kinematics
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
@@ -77,8 +78,8 @@ class FpmController:
         qd = obs.qd
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
         h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing)
-        alpha_raw = energy_metric(av, self.energy).alpha(qd, h,
-                                                         self.fabric.gains.energization_eps)
+        alpha_raw = energization_alpha(av, self.energy, qd, h,
+                                       self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
         if self.rate.semi_implicit:
             qd_next = implicit_velocity_step(qd, h + qdd_c, -alpha, self.dt)
