@@ -8,6 +8,7 @@ import pytest
 
 from tamedpuma.fabrics import Fabric, FabricGains, pull_rows, quaternion_to_rotation
 from tamedpuma.fabrics.energy import barrier_leaf, energization_coefficient
+from tamedpuma.fabrics.fused import integer_powers, kernel_constants
 from tamedpuma.fabrics.leaves import (
     ground_plane,
     joint_limits,
@@ -166,3 +167,31 @@ def test_many_pairs_path_matches_the_leaf_by_leaf_reference(kinematics, changes)
         np.testing.assert_allclose(av.barrier_rows[:P] @ qd - np.einsum("pd,pd->p", u, v_obs),
                                    pairs.xd.reshape(-1), rtol=1e-10, atol=1e-12)
         np.testing.assert_allclose(av.barrier_rows[P:P + 14] @ qd, np.r_[qd, -qd], atol=1e-15)
+
+
+def test_kernel_constants_give_the_barrier_leaf_and_integer_powers_only_for_integers():
+    """The per-row constants reproduce energy.barrier_leaf on each row block; the pair rows'
+    exponents are integers only when every exponent is a small non-negative integer."""
+    gains = FabricGains(ground_enabled=True)
+    n_pairs, n, n_ground = 4, 3, 2
+    negexp, gain, threshold = kernel_constants(gains, n_pairs, n, n_ground)
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0.05, 2.0, negexp.shape[1])
+    xd = rng.normal(size=x.shape)
+    w = gain * (xd < threshold) * x ** negexp  # [m, −k_h s_h x^{−p_h}, −p_L/(2x)]
+    limits = slice(n_pairs, n_pairs + 2 * n)
+    blocks = ((gains.obstacle, slice(0, n_pairs)), (gains.joint_limit, limits),
+              (gains.ground, slice(n_pairs + 3 * n, None)))
+    for bg, rows in blocks:
+        m, f, fl, H = barrier_leaf(x[rows], xd[rows], bg)
+        np.testing.assert_allclose(w[0, rows], m, rtol=1e-14)
+        np.testing.assert_allclose(m * w[1, rows] * xd[rows] ** 2, f, rtol=1e-13, atol=1e-300)
+        np.testing.assert_allclose(m * w[2, rows] * xd[rows] ** 2, fl, rtol=1e-13, atol=1e-300)
+    base = slice(n_pairs + 2 * n, n_pairs + 3 * n)  # base rows: m = m_b, no geometry or force
+    np.testing.assert_array_equal(w[0, base], gains.base_metric)
+    np.testing.assert_array_equal(w[1:, base], 0.0)
+    assert integer_powers(negexp, n_pairs) == (
+        int(gains.obstacle.energy_exponent), int(gains.obstacle.geometry_exponent), 1)
+    assert integer_powers(negexp, 0) is None
+    odd = FabricGains.from_mapping({"obstacle": {"energy_exponent": 1.5}})
+    assert integer_powers(kernel_constants(odd, n_pairs, n, 0)[0], n_pairs) is None

@@ -65,94 +65,138 @@ def orientation_maps(axes, offset: float) -> tuple[np.ndarray, np.ndarray]:
     return tx, tb.T.reshape(3 * A, 3, 9)
 
 
+def kernel_constants(g: FabricGains, n_pairs: int, n: int,
+                     n_ground: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-row constants of the barrier kernel, three rows each (energy, geometry, energy force):
+    ``negexp`` (3, Rb) the exponents ``[−p_L, −p_h, −1]``, ``gain`` (3, Rb) the factors
+    ``[2 k_L, −k_h, −p_L/2]`` and ``threshold`` (3, Rb) of the switch ``s(ẋ) = [ẋ < threshold]``
+    (0 when directional, +inf when always on), so that ``gain s x^{negexp}`` is
+    ``[2 k_L s_L x^{−p_L}, −k_h s_h x^{−p_h}, −(p_L/2) x^{−1}]`` (times ẋ²: 2H, h, κ).
+    Row blocks as the design matrix: pairs, 2n limits, n base rows (``m = m_b``, no geometry,
+    no energy force), ground rows."""
+    parts = [(g.obstacle, n_pairs), (g.joint_limit, 2 * n), (None, n)]
+    if n_ground:
+        parts.append((g.ground, n_ground))
+    cols = []
+    for bg, count in parts:
+        if bg is None:  # base rows: m = m_b, H = ½ m_b q̇², no geometry, no energy force
+            col = ((0.0, g.base_metric, np.inf), (0.0, 0.0, np.inf), (0.0, 0.0, np.inf))
+        else:
+            col = ((-bg.energy_exponent, 2.0 * bg.energy_gain,
+                    0.0 if bg.energy_directional else np.inf),
+                   (-bg.geometry_exponent, -bg.geometry_gain,
+                    0.0 if bg.geometry_directional else np.inf),
+                   (-1.0, -0.5 * bg.energy_exponent, np.inf))
+        cols.append(np.repeat(np.array(col)[:, :, None], count, axis=2))
+    negexp, gain, threshold = np.concatenate(cols, axis=2).transpose(1, 0, 2)
+    return negexp.copy(), gain.copy(), threshold.copy()
+
+
+def integer_powers(negexp: np.ndarray, n_pairs: int) -> tuple[int, ...] | None:
+    """The pair rows' exponents ``(p_L, p_h, 1)`` as integers when each is a small
+    non-negative integer (0…8), so that ``x^{−p}`` can be taken as products of ``1/x``;
+    None otherwise or without pairs."""
+    pair_p = [-float(e) for e in negexp[:, 0]] if n_pairs else []
+    if pair_p and all(p == int(p) and 0 <= p <= 8 for p in pair_p):
+        return tuple(int(p) for p in pair_p)
+    return None
+
+
 class LayoutBuffers:
     """Buffers and views of one layout: k body spheres, m obstacles, n joints, K goal blocks,
-    optional ground rows (see the module docstring for the row layout)."""
+    optional ground rows (see the module docstring for the row layout).
+
+    Row offsets: pairs ``[0, P)``, limits ``[P, P + 2n)``, base rows ``[P + 2n, L)``, ground
+    rows ``[L, Rb)``, goal rows ``[Rb, R)``. Each ``_build_*`` method allocates one group of
+    buffers and the views into it that the evaluation methods below write and read."""
 
     def __init__(self, gains: FabricGains, k: int, m: int, n: int, n_axes: int, q_min, q_max):
-        g = gains
-        ground = k if g.ground_enabled else 0
-        P = self.P = k * m
-        L = self.L = P + 3 * n  # end of pairs, limits and base rows
-        Rb = self.Rb = L + ground  # barrier-like rows (kernel length)
-        K = self.K = 1 + n_axes
-        R = Rb + 3 * K
-        self.k, self.m, self.n = k, m, n
-        self.split = Rb > 256  # many rows: products split by row block (see systems())
+        ground = k if gains.ground_enabled else 0
+        self.k, self.m, self.n, self.n_axes = k, m, n, n_axes
+        self.P = k * m
+        self.L = self.P + 3 * n  # end of pairs, limits and base rows
+        self.Rb = self.L + ground  # barrier-like rows (kernel length)
+        self.K = 1 + n_axes
+        self.R = self.Rb + 3 * self.K
+        self.split = self.Rb > 256  # many rows: products split by row block (see systems())
         self.ground = bool(ground)
         # barrier rows without the base rows: pairs, limits, ground (two contiguous blocks)
-        self.barrier_index = np.r_[0:P + 2 * n, L:Rb]
-        self.barrier_blocks = (slice(0, P + 2 * n), slice(L, Rb))
-        # design matrix Z = [a | h + J̇q̇ | κ + J̇q̇]; constant parts written once
-        Z = self.Z = np.zeros((R, n + 2))
+        self.barrier_index = np.r_[0:self.P + 2 * n, self.L:self.Rb]
+        self.barrier_blocks = (slice(0, self.P + 2 * n), slice(self.L, self.Rb))
+        self.q_min, self.q_max = np.array(q_min, dtype=float), np.array(q_max, dtype=float)
+        self._build_design_matrix()
+        self._build_kernel_inputs()
+        self._build_kernel_constants(gains)
+        self._build_pair_scratch()
+        self._build_goal_scratch()
+        self._build_outputs()
+
+    def _build_design_matrix(self) -> None:
+        """``Z = [a | h + J̇q̇ | κ + J̇q̇]`` (R, n + 2) with its constant rows (limits ``±e_j``,
+        base ``e_j``) written once, ``C = diag(m) Z`` and their row-block views."""
+        P, L, Rb, n = self.P, self.L, self.Rb, self.n
+        Z = self.Z = np.zeros((self.R, n + 2))
         eye = np.eye(n)
         Z[P:P + n, :n] = eye
         Z[P + n:P + 2 * n, :n] = -eye
         Z[P + 2 * n:L, :n] = eye
-        self.Zp = Z[:P, :n].reshape(k, m, n)
+        self.Zp = Z[:P, :n].reshape(self.k, self.m, n)
         self.ZbT = Z[:Rb, :n].T
         self.Zg_all = Z[Rb:]
         self.Zg_ori_h = Z[Rb + 3:, n]
-        self.Y_ori = Z[Rb + 3:, n + 1].reshape(n_axes, 3)  # ω × x_k (column otherwise unused)
+        self.Y_ori = Z[Rb + 3:, n + 1].reshape(self.n_axes, 3)  # ω × x_k (column otherwise unused)
         self.Zg_h = Z[Rb:, n]
-        if ground:
+        self.Zb_hl = Z[:Rb, n:].T  # (2, Rb) view: columns h + J̇q̇ and κ + J̇q̇
+        if self.ground:
             self.Zground = Z[L:Rb, :n]
-        self.C = np.empty((R, n + 2))
+        self.C = np.empty((self.R, n + 2))
         self.ZT, self.C_sys = Z[:, :n].T, self.C[:, :n + 1]
         self.ZgT, self.Cg = Z[Rb:, :n].T, self.C[Rb:, :n + 1]
         self.Cb = self.C[:Rb]
-        # barrier kernel inputs/outputs: x, ẋ, J̇q̇ of every barrier-like row
+
+    def _build_kernel_inputs(self) -> None:
+        """``X = [x; ẋ]`` (2, Rb) and ``J̇q̇`` (Rb,) of every barrier-like row, with the views
+        each row block writes (base rows: x = 1 once, since x^0 = 1 and κ = 0 there)."""
+        P, L, Rb, n = self.P, self.L, self.Rb, self.n
         X = self.X = np.empty((2, Rb))
-        X[0, P + 2 * n:L] = 1.0  # base rows: x = 1 (x^0 = 1; no geometry, κ = 0)
+        X[0, P + 2 * n:L] = 1.0
         self.x, self.xd = X[0], X[1]
         self.x_lo, self.x_hi = X[0, P:P + n], X[0, P + n:P + 2 * n]
         self.xd_lo, self.xd_hi = X[1, P:P + n], X[1, P + n:P + 2 * n]
         self.xd_base = X[1, P + 2 * n:L]
-        if ground:
-            self.x_gr, self.xd_gr = X[0, L:Rb], X[1, L:Rb]
+        self.xp, self.xdp = X[0, :P].reshape(self.k, self.m), X[1, :P].reshape(self.k, self.m)
         self.jd = np.zeros(Rb)
-        self.jdp = self.jd[:P].reshape(k, m)
-        if ground:
+        self.jdp = self.jd[:P].reshape(self.k, self.m)
+        if self.ground:
+            self.x_gr, self.xd_gr = X[0, L:Rb], X[1, L:Rb]
             self.jd_gr = self.jd[L:Rb]
-        self.q_min, self.q_max = np.array(q_min, dtype=float), np.array(q_max, dtype=float)
-        # Per-row kernel constants, three rows each: energy, geometry and energy-force terms
-        # ``[2 k_L s_L x^{−p_L}, −k_h s_h x^{−p_h}, −(p_L/2) x^{−1}]`` (times ẋ²: 2H, h, κ).
-        # s(ẋ) = [ẋ < threshold] with threshold 0 (directional) or +inf (always on).
-        parts = [(g.obstacle, P), (g.joint_limit, 2 * n), (None, n)]
-        if ground:
-            parts.append((g.ground, ground))
-        cols = []
-        for bg, count in parts:
-            if bg is None:  # base rows: m = m_b, H = ½ m_b q̇², no geometry, no energy force
-                col = ((0.0, g.base_metric, np.inf), (0.0, 0.0, np.inf), (0.0, 0.0, np.inf))
-            else:
-                col = ((-bg.energy_exponent, 2.0 * bg.energy_gain,
-                        0.0 if bg.energy_directional else np.inf),
-                       (-bg.geometry_exponent, -bg.geometry_gain,
-                        0.0 if bg.geometry_directional else np.inf),
-                       (-1.0, -0.5 * bg.energy_exponent, np.inf))
-            cols.append(np.repeat(np.array(col)[:, :, None], count, axis=2))
-        negexp, gain, threshold = np.concatenate(cols, axis=2).transpose(1, 0, 2)
-        self.negexp, self.gain, self.threshold = negexp.copy(), gain.copy(), threshold.copy()
-        # with many pairs, their x^{−p} (p = p_L, p_h, 1) as products of 1/x when every p is a
-        # small non-negative integer (np.power with float exponents dominates the kernel there)
-        pair_p = [-float(e) for e in self.negexp[:, 0]] if P else []
-        self.pair_powers = (tuple(int(p) for p in pair_p) if self.split and pair_p and all(
-            p == int(p) and 0 <= p <= 8 for p in pair_p) else None)
-        self.inv_x = np.empty(P)
+
+    def _build_kernel_constants(self, g: FabricGains) -> None:
+        """The kernel's per-row constants (:func:`kernel_constants`), the integer exponents of
+        the pair rows when many pairs make ``np.power`` the kernel's main cost
+        (:func:`integer_powers`), and the kernel's scratch: ``W`` (3, R) with ``W[:, :Rb]`` the
+        kernel rows (``W[0] = m``) and, on the goal rows, ``W[0] = g_k``, ``W[1] = c_k``
+        (``∇ψ = c e``); ``T`` (3, Rb) = ``[2H, h, κ]``."""
+        Rb = self.Rb
+        self.negexp, self.gain, self.threshold = kernel_constants(
+            g, self.P, self.n, Rb - self.L)
+        self.pair_powers = integer_powers(self.negexp, self.P) if self.split else None
+        self.inv_x = np.empty(self.P)
         self.S = np.empty((3, Rb), dtype=bool)
         self.xd2 = np.empty(Rb)
-        # W[:, :Rb]: kernel rows (W[0] = m); goal rows: W[0] = g_k, W[1] = ratio c_k (∇ψ = c e)
-        W = self.W = np.empty((3, R))
+        W = self.W = np.empty((3, self.R))
         self.Wb = W[:, :Rb]
         self.m_col = W[0][:, None]
-        self.Wg = W[:2, Rb:].reshape(2, K, 3)
+        self.Wg = W[:2, Rb:].reshape(2, self.K, 3)
         self.ratio_rows = W[1, Rb:]
         self.T = np.empty((3, Rb))
         self.T0, self.T12 = self.T[0], self.T[1:]
-        self.Zb_hl = Z[:Rb, n:].T  # (2, Rb) view: columns h + J̇q̇ and κ + J̇q̇
-        # pair scratch, component first (contiguous over the pairs): Y = [d, v, a] (3, 3, k, m),
-        # G the Gram entries (2, 3, k, m)
+
+    def _build_pair_scratch(self) -> None:
+        """Scratch of the sphere × obstacle pairs, component first (contiguous over the pairs):
+        ``Y = [d, v, a]`` (3, 3, k, m), the Gram entries ``G`` (2, 3, k, m), distances, radii and
+        the rows ``u = ν/R`` (3, k, m)."""
+        k, m = self.k, self.m
         self.Y = np.empty((3, 3, k, m))
         self.d, self.v, self.a = self.Y[0], self.Y[1], self.Y[2]
         self.Y2 = self.Y[:2]
@@ -166,19 +210,22 @@ class LayoutBuffers:
         self.w = np.empty((k, m))
         self.clear = self.G[0, 0]  # written over d·d once ‖d‖ is known
         self.clear_flat = self.clear.reshape(-1)
-        self.xp, self.xdp = self.X[0, :P].reshape(k, m), self.X[1, :P].reshape(k, m)
         self.s = np.empty((k, m))
         self.t = np.empty((k, m))
         self.U = np.empty((3, k, m))
         self.Ut = self.U.transpose(1, 2, 0)
-        # goal scratch
+
+    def _build_goal_scratch(self) -> None:
+        """Scratch of the goal rows: errors ``E`` (3K,), ``R − R_g``, the end effector's
+        ``[J | J̇q̇ | ω]`` (6, n + 2) (ω in the angular rows) and the block map
+        ``B = diag(I₃, B_1 … B_A)`` (3K, 6), so that the goal rows ``[a | J̇q̇ | ·] = B @ ext``
+        (``ω × x_k = B_k ω``), the curvature ``ω × (ω × x_k)`` and ``[g_k, c_k]``."""
+        K, n = self.K, self.n
         self.E = np.empty(3 * K)
         self.E_pos, self.E_ori = self.E[:3], self.E[3:]
         self.EK = self.E.reshape(K, 3)
         self.dR = np.empty((3, 3))
         self.dR9 = self.dR.reshape(9)
-        # [J | J̇q̇ | ω] of the end effector (ω in the angular rows) and the block map
-        # B = diag(I₃, B_1 … B_A) (3K, 6): goal rows [a | J̇q̇ | ·] = B @ ext (ω × x_k = B_k ω)
         self.ext = np.zeros((6, n + 2))
         self.ext_J, self.ext_a = self.ext[:, :n], self.ext[:, n]
         self.ext_Jw, self.omega = self.ext[3:, :n], self.ext[3:, n + 1]
@@ -187,15 +234,18 @@ class LayoutBuffers:
         self.B = self.Bfull[3:, 3:]
         self.om_skew = np.empty(9)
         self.om_skewT = self.om_skew.reshape(3, 3).T
-        self.curv = np.empty((n_axes, 3))
+        self.curv = np.empty((self.n_axes, 3))
         self.curv_flat = self.curv.reshape(-1)
         self.gscratch = np.empty(3 * K)
         self.blocks = np.kron(np.eye(K), np.ones((3, 1)))  # (3K, K): Σ over each block's rows
         self.gk = np.empty(2 * K)  # [g_1 … g_K, c_1 … c_K]
         self.gk_rows = self.gk.reshape(2, K, 1)
-        # outputs: [M | f | f_L] of the fabric, [M_ψ | f_ψ] of the goal, and the stacked systems
-        # Ms[0] = [M | f | f_L | M⁻¹f | (M + M_ψ)⁻¹(f + f_ψ) | q̇] so that one product q̇ᵀMs[0]
-        # gives every dot product speed control needs; Ms[1, :, :n+1] = [M + M_ψ | f + f_ψ]
+
+    def _build_outputs(self) -> None:
+        """The stacked systems ``Ms`` (2, n, n + 5): ``Ms[0] = [M | f | f_L | M⁻¹f |
+        (M + M_ψ)⁻¹(f + f_ψ) | q̇]`` so that one product ``q̇ᵀMs[0]`` gives every dot product
+        speed control needs; ``Ms[1, :, :n+1] = [M + M_ψ | f + f_ψ]``."""
+        n = self.n
         self.Ms = np.empty((2, n, n + 5))
         self.Mf0 = self.Ms[0, :, :n + 2]
         self.Mf1 = self.Ms[1, :, :n + 1]
