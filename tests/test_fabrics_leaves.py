@@ -13,9 +13,9 @@ from tamedpuma.fabrics.leaves import (
     ground_plane,
     joint_limits,
     pull_sphere_pairs,
-    skew,
     sphere_obstacle_pairs,
 )
+from tamedpuma.robot.rotations import skew
 
 Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
 GOAL_P = np.array([0.58, -0.214, 0.115])

@@ -6,7 +6,8 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from tamedpuma.robot.ik import quat_to_matrix, rotation_error, solve_pose_ik
+from tamedpuma.robot.ik import solve_pose_ik
+from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 
 
 def _random_q(spec, rng, n):

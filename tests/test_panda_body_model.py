@@ -11,8 +11,9 @@ import pytest
 
 from tamedpuma.app.config import CONF_DIR, load_group
 from tamedpuma.robot import body_model as bm
-from tamedpuma.robot.ik import quat_to_matrix, rotation_error, solve_pose_ik
+from tamedpuma.robot.ik import solve_pose_ik
 from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
+from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 
 
 def _spec(name):

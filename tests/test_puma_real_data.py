@@ -5,7 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tamedpuma.puma import data, manifold
+from tamedpuma.puma import data
+from tamedpuma.robot import rotations
 
 DEMOS = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "pumafabrics-demos"
 pytestmark = pytest.mark.skipif(not DEMOS.is_dir(),
@@ -28,4 +29,4 @@ def test_real_demos_load_validate_and_prepare(folder, count, end):
     for i in range(count):
         assert np.all(np.isfinite(d.vel[i]))
         np.testing.assert_allclose(d.pos[i][-1], 0.0, atol=1e-12)
-        assert manifold.np_quat_angle(d.quat[i][-1]) < 1e-9
+        assert rotations.quat_angle(d.quat[i][-1]) < 1e-9

@@ -14,6 +14,7 @@ import pytest
 from tamedpuma.errors import DataError
 from tamedpuma.puma import demo_formats, manifold, pipeline, task_from_demos
 from tamedpuma.puma.training import Workspace
+from tamedpuma.robot import rotations
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -28,7 +29,7 @@ def _demo(rng, n=60, start=(0.5, 0.3, 0.6), goal=(0.6, -0.2, 0.2), angle0=0.8):
     axis /= np.linalg.norm(axis)
     q_goal = np.array([0.0, 1.0, 0.0, 0.0])
     rel = manifold.np_quat_exp(((1 - w) * angle0 / 2)[:, None] * axis)  # exp(θ/2 · axis)
-    quat = manifold.np_quat_mul(rel, np.tile(q_goal, (n, 1)))
+    quat = rotations.quat_mul(rel, np.tile(q_goal, (n, 1)))
     t = np.arange(n) * 0.03
     return t, pos, quat
 
@@ -142,7 +143,7 @@ def _all_within(raws, d: task_from_demos.DerivedTask):
         for rel, q_ref in ((r.pos - r.pos[-1], r.quat[-1]), (r.pos - d.goal_position,
                                                                np.array(d.goal_quaternion))):
             assert np.all(rel >= lo) and np.all(rel <= hi)
-            assert task_from_demos.angle(r.quat, q_ref).max() <= ws.max_angle + 1e-9
+            assert rotations.orientation_error(r.quat, q_ref).max() <= ws.max_angle + 1e-9
 
 
 def test_derived_workspace_contains_every_demonstration(csv_folder):
@@ -164,11 +165,11 @@ def test_spread_final_orientations_give_the_medoid_goal():
     for i, yaw in enumerate((0.0, 0.4, 2.0)):  # finals spread 2 rad (115 deg)
         t, pos, quat = _demo(rng)
         turn = np.array([0, 0, np.sin(yaw / 2), np.cos(yaw / 2)])
-        quat = manifold.np_quat_mul(np.tile(turn, (len(quat), 1)), quat)
+        quat = rotations.quat_mul(np.tile(turn, (len(quat), 1)), quat)
         raws.append(demo_formats.check_demo(t, pos, quat, f"d{i}"))
     d = task_from_demos.derive(raws)
     assert d.goal_rule == "medoid" and d.final_angle_spread == pytest.approx(2.0, abs=1e-6)
-    assert task_from_demos.angle(np.array(d.goal_quaternion), raws[1].quat[-1]) < 1e-9
+    assert rotations.orientation_error(np.array(d.goal_quaternion), raws[1].quat[-1]) < 1e-9
     _all_within(raws, d)
 
 
@@ -246,7 +247,7 @@ def test_scenarios_from_demonstrations_start_near_a_demo_with_an_obstacle_on_its
     np.testing.assert_array_equal(centers, again[1])
     p0, quat0 = kinematics.ee_pose(q0)
     assert np.linalg.norm(p0 - raws[i].pos[0]) <= 0.03 + 1e-4  # near that demo's start
-    assert task_from_demos.angle(quat0, raws[i].quat[0]) < 1e-3
+    assert rotations.orientation_error(quat0, raws[i].quat[0]) < 1e-3
     path = raws[i].pos - raws[i].pos[-1] + goal
     dist = np.linalg.norm(path[:, None] - centers[None], axis=-1).min(axis=0)
     assert np.all(dist <= 0.03 + 0.02)  # on or near the path (polyline sampling slack)

@@ -39,12 +39,8 @@ import numpy as np
 
 from tamedpuma.fabrics.energy import attractor_blocks
 from tamedpuma.fabrics.gains import FabricGains
+from tamedpuma.robot.rotations import SKEW_GENERATORS as _SKEW  # skew(v).ravel() = v @ _SKEW
 
-_SKEW = np.zeros((3, 3, 3))  # skew(v).ravel() = v @ _SKEW.reshape(3, 9)
-_SKEW[0, 1, 2], _SKEW[0, 2, 1] = -1.0, 1.0
-_SKEW[1, 0, 2], _SKEW[1, 2, 0] = 1.0, -1.0
-_SKEW[2, 0, 1], _SKEW[2, 1, 0] = -1.0, 1.0
-_SKEW = _SKEW.reshape(3, 9)
 _min, _sum = np.minimum.reduce, np.add.reduce  # without the ndarray-method wrappers
 
 

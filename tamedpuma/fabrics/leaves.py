@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tamedpuma.robot.rotations import skew
+
 
 @dataclass(slots=True)
 class PairTerms:
@@ -138,24 +140,6 @@ def ground_plane(centers, jacobians, jdqd, radii, qd, height: float, margin: flo
     rows = jacobians[:, 2, :]
     return GroundTerms(x=np.maximum(clearance, margin), xd=rows @ qd, jdqd=jdqd[:, 2],
                        rows=rows, clearance=clearance, n_clamped=n_clamped)
-
-
-def _skew_generators() -> np.ndarray:
-    """E (3, 9) with ``skew(v).ravel() = v @ E`` for v (…, 3)."""
-    E = np.zeros((3, 3, 3))
-    E[0, 1, 2], E[0, 2, 1] = -1.0, 1.0
-    E[1, 0, 2], E[1, 2, 0] = 1.0, -1.0
-    E[2, 0, 1], E[2, 1, 0] = -1.0, 1.0
-    return E.reshape(3, 9)
-
-
-_SKEW = _skew_generators()
-
-
-def skew(v):
-    """Cross-product matrices ``[v]×`` of v (…, 3), so that ``[v]× w = v × w``."""
-    v = np.asarray(v, dtype=float)
-    return (v @ _SKEW).reshape(v.shape[:-1] + (3, 3))
 
 
 @dataclass(slots=True)

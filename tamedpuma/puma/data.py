@@ -235,12 +235,12 @@ def prepare(raws: list[RawDemo], dt: float, *, smoothing: float = 0.0, hold: int
         gp.append(r.pos[-1])
         if orient:
             q = rotations.continuous_quats(r.quat)
-            rel = manifold.np_quat_mul(q, manifold.np_quat_conj(q[-1])[None])
+            rel = rotations.quat_mul(q, rotations.quat_conj(q[-1])[None])
             rotvec = _smooth(manifold.np_quat_log(rotations.continuous_quats(rel)), smoothing)
             rotvec = rotvec - rotvec[-1]
             rv = np.stack([np.interp(grid, t, rotvec[:, j]) for j in range(3)], axis=1)
             quat = manifold.np_quat_exp(np.concatenate((rv, np.zeros((hold, 3)))))
-            dq = manifold.np_quat_mul(quat[1:], manifold.np_quat_conj(quat[:-1]))
+            dq = rotations.quat_mul(quat[1:], rotations.quat_conj(quat[:-1]))
             omega = np.concatenate((np.zeros((1, 3)), manifold.np_quat_log(dq) / dt))
             vel = np.concatenate((vel, omega), axis=1)
             quat_l.append(quat)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
+from ..robot.rotations import quat_mul
 from . import manifold
 from .data import RawDemo
 
@@ -92,7 +93,7 @@ def generate(task: str, goal_position, goal_quaternion, n_demos: int = 10, seed:
             bump = 16 * s**2 * (1 - s) ** 2  # the detour peaks half way along the path
         pos = start + s * (goal_p - start) + bump * via
         rel = manifold.np_quat_exp((1.0 - s) * rotvec0)
-        quat = manifold.np_quat_mul(rel, goal_q[None])
+        quat = quat_mul(rel, goal_q[None])
         dts[0] = 1e-6
         demos.append(RawDemo(pos, quat, dts, f"synthetic:{task}[{i}]"))
     return demos

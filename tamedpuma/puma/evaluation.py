@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..robot.rotations import orientation_errors_between, quat_angle
 from . import dynamics, manifold
 from .data import Demonstrations
 from .network import PumaNet, potential
@@ -44,11 +45,6 @@ def frechet(a: np.ndarray, b: np.ndarray) -> float:
     return _dp(np.linalg.norm(a[:, None] - b[None], axis=-1), True)
 
 
-def _angle_cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    dot = np.abs(np.clip(np.einsum("id,jd->ij", a, b), -1.0, 1.0))
-    return 2.0 * np.arccos(np.minimum(dot, 1.0))
-
-
 def _t(x):
     return None if x is None else torch.as_tensor(np.asarray(x), dtype=torch.float32)
 
@@ -76,7 +72,7 @@ def imitation_metrics(net: PumaNet, demos: Demonstrations) -> dict:
              "dtw": dtw_per_point(p, p_ref), "frechet": frechet(p, p_ref)}
         if q_ref is not None:
             q = quat[i, : len(q_ref)].astype(float)
-            cost = _angle_cost(q, q_ref)
+            cost = orientation_errors_between(q, q_ref)
             r["rmse_angle"] = float(np.sqrt((np.diag(cost) ** 2).mean()))
             r["dtw_angle"] = _dp(cost, False) / len(q_ref)
             r["frechet_angle"] = _dp(cost, True)
@@ -124,7 +120,7 @@ def compatibility(net: PumaNet, ws: Workspace, cfg: EvalConfig) -> dict:
     pos0, quat0 = ws.sample(rng, cfg.compat_samples, net.spec.orientation)
     far = np.linalg.norm(pos0, axis=1) > cfg.compat_min_dist
     if quat0 is not None:
-        far |= manifold.np_quat_angle(quat0) > cfg.compat_min_dist
+        far |= quat_angle(quat0) > cfg.compat_min_dist
     pos, quat = _t(pos0[far]), _t(quat0[far]) if quat0 is not None else None
     _, gp, gt = potential(net, pos, quat)
     with torch.inference_mode():

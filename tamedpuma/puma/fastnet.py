@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import erf
 
+from ..robot.rotations import SKEW_GENERATORS, unit_quats_to_matrices
 from .network import PumaNet
 
 _SQRT2 = np.sqrt(2.0)
@@ -59,18 +60,7 @@ def _dgelu(u):
     return 0.5 * (1.0 + erf(u / _SQRT2)) + u * _INV_SQRT_2PI * np.exp(-0.5 * u * u)
 
 
-def _matrix(q):
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack((
-        np.stack((1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)), -1),
-        np.stack((2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)), -1),
-        np.stack((2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)), -1),
-    ), -2)
-
-
-_HAT = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
-                 [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
-                 [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], dtype=float)  # [e_k]×
+_HAT = SKEW_GENERATORS.reshape(3, 3, 3)  # [e_k]×
 
 
 class FastNet:
@@ -99,7 +89,7 @@ class FastNet:
     def _features(self, pos, quat, vel):
         parts = [pos / self.pos_scale]
         if self.spec.orientation:
-            parts.append(_matrix(quat).reshape(quat.shape[:-1] + (9,)))
+            parts.append(unit_quats_to_matrices(quat).reshape(quat.shape[:-1] + (9,)))
         if self.spec.order == 2:
             parts.append((vel if vel is not None else np.zeros(pos.shape[:-1] + (
                 self.spec.tangent_dim,))) / self.vel_scale)
@@ -149,6 +139,6 @@ class FastNet:
             return psi, dpos, None
         # R(exp(δθ) ⊗ ζ) = exp([δθ]×) R(ζ): ∂R/∂δθ_k = [e_k]× R
         gR = g[..., n:n + 9].reshape(-1, 3, 3)
-        dR = np.einsum("kij,bjl->bkil", _HAT, _matrix(quat))
+        dR = np.einsum("kij,bjl->bkil", _HAT, unit_quats_to_matrices(quat))
         dtheta = np.einsum("bkil,bil->bk", dR, gR)
         return psi, dpos, dtheta

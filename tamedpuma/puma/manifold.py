@@ -12,7 +12,10 @@ Two equivalent steps on S³ are provided and tested against each other:
 With ``u = ½ ω ⊗ ζ Δt`` both give the same point. Every map is finite (no NaN, finite gradients)
 at zero velocity: ``sin(a)/a`` and ``a/sin(a)`` use their Taylor series for small a.
 
-Functions prefixed ``np_`` act on numpy arrays; the others on torch tensors (..., 4) / (..., 3).
+Functions prefixed ``np_`` act on numpy arrays (the exp and log maps run through the torch ones, so
+that data preparation and training share one implementation); the others on torch tensors
+(..., 4) / (..., 3). Every other numpy rotation (product, conjugate, angle, matrices) is in
+:mod:`tamedpuma.robot.rotations`.
 """
 
 from __future__ import annotations
@@ -123,17 +126,6 @@ def step_orientation(q: torch.Tensor, omega: torch.Tensor, dt: float) -> torch.T
 # ----------------------------------------------------------------------------- numpy
 
 
-def np_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product ``a ⊗ b`` of (..., 4) arrays (x, y, z, w)."""
-    return quat_mul(torch.from_numpy(np.asarray(a, float)),
-                    torch.from_numpy(np.asarray(b, float))).numpy()
-
-
-def np_quat_conj(q: np.ndarray) -> np.ndarray:
-    q = np.asarray(q, float)
-    return np.concatenate((-q[..., :3], q[..., 3:]), axis=-1)
-
-
 def np_quat_exp(theta: np.ndarray) -> np.ndarray:
     """Rotation vector [rad] → unit quaternion (x, y, z, w)."""
     return quat_exp(torch.from_numpy(np.asarray(theta, float))).numpy()
@@ -142,12 +134,6 @@ def np_quat_exp(theta: np.ndarray) -> np.ndarray:
 def np_quat_log(q: np.ndarray) -> np.ndarray:
     """Unit quaternion → rotation vector [rad] (shortest arc)."""
     return quat_log(torch.from_numpy(np.asarray(q, float))).numpy()
-
-
-def np_quat_angle(q: np.ndarray) -> np.ndarray:
-    """Rotation angle in [0, π] [rad]."""
-    q = np.asarray(q, float)
-    return 2.0 * np.arctan2(np.linalg.norm(q[..., :3], axis=-1), np.abs(q[..., 3]))
 
 
 def np_random_rotations(rng: np.random.Generator, n: int, max_angle: float) -> np.ndarray:

@@ -22,30 +22,12 @@ import numpy as np
 import torch
 
 from ..errors import CheckpointError
+from ..robot.rotations import relative_quat, relative_rotation
 from . import checkpoint
 from .checkpoint import Meta
 from .fastnet import FastNet
 from .network import PumaNet
-from .single import SingleState, relative_rotation
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product (x, y, z, w) of (..., 4) arrays, numpy only (fast for one state)."""
-    ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack((aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw,
-                     aw * bw - ax * bx - ay * by - az * bz), axis=-1)
-
-
-def _relative_quat(quat, goal_quat) -> np.ndarray:
-    q = np.asarray(quat, dtype=np.float64)
-    g = np.asarray(goal_quat, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    g = g / np.linalg.norm(g, axis=-1, keepdims=True)
-    g = g * np.array([-1.0, -1.0, -1.0, 1.0])
-    return _qmul(q, g)
+from .single import SingleState
 
 
 def _floats(x) -> list[float]:
@@ -95,7 +77,7 @@ class PosePrimitive(_Base):
     def acceleration_batch(self, p, quat, v, omega, goal_p, goal_quat):
         """Batched :meth:`acceleration`: inputs (B, 3)/(B, 4); returns two (B, 3) arrays."""
         e = np.asarray(p, np.float64) - np.asarray(goal_p, np.float64)
-        q = _relative_quat(quat, goal_quat)
+        q = relative_quat(quat, goal_quat)
         vel = np.concatenate((np.asarray(v, np.float64), np.asarray(omega, np.float64)), axis=-1)
         out = self.fast.forward(e, q, vel)
         return out[:, :3], out[:, 3:]
@@ -114,13 +96,13 @@ class PosePrimitive(_Base):
 
     def potential_batch(self, p, quat, goal_p, goal_quat):
         e = np.asarray(p, np.float64) - np.asarray(goal_p, np.float64)
-        q = _relative_quat(quat, goal_quat)
+        q = relative_quat(quat, goal_quat)
         return self.fast.potential(e, q)
 
     def latent(self, p, quat, v, omega, goal_p, goal_quat) -> np.ndarray:
         """The encoder's latent ``y = ρ(x, ẋ)`` of one state."""
         e = np.reshape(np.asarray(p, np.float64) - goal_p, (1, 3))
-        q = _relative_quat(np.reshape(quat, (1, 4)), goal_quat)
+        q = relative_quat(np.reshape(quat, (1, 4)), goal_quat)
         vel = np.concatenate((np.ravel(v), np.ravel(omega)))[None]
         return self.fast.encode(e, q, vel)[0]
 

@@ -35,32 +35,6 @@ _dot = np.dot
 _add, _mul, _sub = np.add, np.multiply, np.subtract
 
 
-def rotation_entries(x, y, z, w) -> list[float]:
-    """Row-major entries of the rotation matrix of a unit quaternion (x, y, z, w)."""
-    return [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]
-
-
-def _inv_norm(sq: float) -> float:
-    """1/√sq; NaN for a zero (or NaN) quaternion, as numpy's 0/0 (no ZeroDivisionError)."""
-    return 1.0 / math.sqrt(sq) if sq > 0.0 else math.nan
-
-
-def relative_rotation(quat, goal_quat) -> list[float]:
-    """Entries of R(ζ ⊗ ζ_g⁻¹) (both normalised first), as ``primitive._relative_quat``."""
-    ax, ay, az, aw = quat
-    na = _inv_norm(ax * ax + ay * ay + az * az + aw * aw)
-    ax, ay, az, aw = ax * na, ay * na, az * na, aw * na
-    bx, by, bz, bw = goal_quat
-    nb = _inv_norm(bx * bx + by * by + bz * bz + bw * bw)
-    bx, by, bz, bw = -bx * nb, -by * nb, -bz * nb, bw * nb
-    return rotation_entries(aw * bx + ax * bw + ay * bz - az * by,
-                            aw * by - ax * bz + ay * bw + az * bx,
-                            aw * bz + ax * by - ay * bx + az * bw,
-                            aw * bw - ax * bx - ay * by - az * bz)
-
-
 def _centred(w: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``[[W − W̄], [b − b̄]]`` (in + 1, out): a linear layer whose output has zero mean."""
     return np.vstack((w - w.mean(axis=1, keepdims=True), (b - b.mean())[None]))

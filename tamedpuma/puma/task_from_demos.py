@@ -29,16 +29,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import ConfigError, DataError
+from ..robot.rotations import orientation_error
 from .data import RawDemo
 
 if TYPE_CHECKING:
     from .training import Workspace
-
-
-def angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Rotation angle [rad] between unit quaternions a (..., 4) and b (..., 4) (x, y, z, w)."""
-    d = np.abs(np.sum(np.asarray(a) * np.asarray(b), axis=-1))
-    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
 
 
 @dataclass(frozen=True)
@@ -89,7 +84,8 @@ def workspace_numbers(raws: list[RawDemo], goal_p, goal_q, margin: float,
     high = np.maximum(high, low + 1e-6)
     max_angle = 0.0
     if raws[0].quat is not None and goal_q is not None:
-        worst = max(max(angle(r.quat, r.quat[-1]).max(), angle(r.quat, goal_q).max())
+        worst = max(max(orientation_error(r.quat, r.quat[-1]).max(),
+                        orientation_error(r.quat, goal_q).max())
                     for r in raws)
         max_angle = float(min(np.pi, worst + angle_margin))
     return low, high, max_angle
@@ -99,7 +95,7 @@ def goal_orientation(finals: np.ndarray, spread_limit: float) -> tuple[np.ndarra
     """(goal quaternion, rule, largest pairwise angle [rad]) of final orientations (D, 4)."""
     q = finals / np.linalg.norm(finals, axis=1, keepdims=True)
     q = q * np.where(q @ q[0] < 0, -1.0, 1.0)[:, None]
-    pair = angle(q[:, None], q[None])
+    pair = orientation_error(q[:, None], q[None])
     spread = float(pair.max())
     if spread <= spread_limit:
         mean = q.mean(0)
@@ -179,7 +175,7 @@ def demo_excursions(raws: list[RawDemo], ws: Workspace) -> list[Excursion]:
     """Each demonstration that leaves ``ws`` (relative to its own final pose, as trained)."""
     out = []
     for r in raws:
-        ang = None if r.quat is None else angle(r.quat, r.quat[-1])
+        ang = None if r.quat is None else orientation_error(r.quat, r.quat[-1])
         ex = excursion(r.pos - r.pos[-1], ang, ws, f"demonstration {r.source}")
         if ex:
             out.append(ex)
@@ -191,7 +187,7 @@ def start_excursions(starts: list[tuple[str, np.ndarray, np.ndarray | None]], go
     """Each scenario start (name, ee position, ee quaternion) that leaves ``ws`` around the goal."""
     out = []
     for name, p, q in starts:
-        ang = None if q is None or goal_q is None else np.atleast_1d(angle(q, goal_q))
+        ang = None if q is None or goal_q is None else np.atleast_1d(orientation_error(q, goal_q))
         ex = excursion(np.asarray(p) - np.asarray(goal_p), ang, ws, f"scenario start {name}")
         if ex:
             out.append(ex)

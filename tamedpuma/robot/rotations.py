@@ -1,14 +1,100 @@
-"""Rotations, numpy only: quaternions (x, y, z, w) to and from matrices, the SO(3) log and exp
-maps, the angle between orientations, URDF roll-pitch-yaw.
+"""Rotations, numpy only: quaternions (x, y, z, w) to and from matrices, their product,
+conjugate and relative rotation, the SO(3) log and exp maps, cross-product matrices, the angle
+between orientations, URDF roll-pitch-yaw.
 
-Shared by the IK, the fabrics' orientation attractor, the methods, the metrics, the body model and
-PUMA's data preparation (one implementation; PUMA's differentiable torch versions are in
-:mod:`tamedpuma.puma.manifold`).
+The only rotation module: shared by the IK, the fabrics' orientation attractor, the methods, the
+metrics, the body model, the scenario generators and PUMA's data preparation and numpy networks.
+PUMA's differentiable torch versions (and the numpy ``np_quat_exp``/``np_quat_log`` that run them)
+are in :mod:`tamedpuma.puma.manifold`. :func:`rotation_entries` and :func:`relative_rotation` work
+on Python floats (one state, no array overhead); every other function on arrays.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+
+def _skew_generators() -> np.ndarray:
+    """E (3, 9) with ``skew(v).ravel() = v @ E`` for v (…, 3); row k is ``[e_k]×`` raveled."""
+    E = np.zeros((3, 3, 3))
+    E[0, 1, 2], E[0, 2, 1] = -1.0, 1.0
+    E[1, 0, 2], E[1, 2, 0] = 1.0, -1.0
+    E[2, 0, 1], E[2, 1, 0] = -1.0, 1.0
+    return E.reshape(3, 9)
+
+
+#: (3, 9): ``skew(v).ravel() = v @ SKEW_GENERATORS`` (the entries of ``[v]×`` are linear in v)
+SKEW_GENERATORS = _skew_generators()
+
+
+def skew(v):
+    """Cross-product matrices ``[v]×`` (…, 3, 3) of v (…, 3), so that ``[v]× w = v × w``."""
+    v = np.asarray(v, dtype=float)
+    return (v @ SKEW_GENERATORS).reshape(v.shape[:-1] + (3, 3))
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a ⊗ b`` of (..., 4) quaternions (x, y, z, w)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack((aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz), axis=-1)
+
+
+def quat_conj(q: np.ndarray) -> np.ndarray:
+    """Conjugate ``(−x, −y, −z, w)`` of (..., 4) quaternions (the inverse of a unit quaternion)."""
+    q = np.asarray(q, float)
+    return np.concatenate((-q[..., :3], q[..., 3:]), axis=-1)
+
+
+def relative_quat(quat, goal_quat) -> np.ndarray:
+    """``ζ ⊗ ζ_g⁻¹`` of (..., 4) quaternions (x, y, z, w), both normalised first: the rotation
+    from the goal's orientation to ζ, in the world frame."""
+    q = np.asarray(quat, dtype=np.float64)
+    g = np.asarray(goal_quat, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    g = g / np.linalg.norm(g, axis=-1, keepdims=True)
+    g = g * np.array([-1.0, -1.0, -1.0, 1.0])
+    return quat_mul(q, g)
+
+
+def quat_angle(q: np.ndarray) -> np.ndarray:
+    """Rotation angle [rad] in [0, π] of unit quaternions (..., 4): ``2 atan2(‖v‖, |w|)``."""
+    q = np.asarray(q, float)
+    return 2.0 * np.arctan2(np.linalg.norm(q[..., :3], axis=-1), np.abs(q[..., 3]))
+
+
+def rotation_entries(x, y, z, w) -> list[float]:
+    """Row-major entries of the rotation matrix of a unit quaternion (x, y, z, w), as floats
+    (not normalised)."""
+    return [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]
+
+
+def _inv_norm(sq: float) -> float:
+    """1/√sq; NaN for a zero (or NaN) quaternion, as numpy's 0/0 (no ZeroDivisionError)."""
+    return 1.0 / math.sqrt(sq) if sq > 0.0 else math.nan
+
+
+def relative_rotation(quat, goal_quat) -> list[float]:
+    """Row-major entries of R(ζ ⊗ ζ_g⁻¹) (both normalised first), as :func:`relative_quat` then
+    :func:`rotation_entries`, on Python floats (one state)."""
+    ax, ay, az, aw = quat
+    na = _inv_norm(ax * ax + ay * ay + az * az + aw * aw)
+    ax, ay, az, aw = ax * na, ay * na, az * na, aw * na
+    bx, by, bz, bw = goal_quat
+    nb = _inv_norm(bx * bx + by * by + bz * bz + bw * bw)
+    bx, by, bz, bw = -bx * nb, -by * nb, -bz * nb, bw * nb
+    return rotation_entries(aw * bx + ax * bw + ay * bz - az * by,
+                            aw * by - ax * bz + ay * bw + az * bx,
+                            aw * bz + ax * by - ay * bx + az * bw,
+                            aw * bw - ax * bx - ay * by - az * bz)
 
 
 def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
@@ -51,6 +137,13 @@ def orientation_error(quat: np.ndarray, goal_quat: np.ndarray) -> np.ndarray:
     """Angle [rad] of the rotation between unit quaternions (…, 4) and (…, 4), in [0, π]."""
     dot = np.abs(np.sum(np.asarray(quat) * np.asarray(goal_quat), axis=-1))
     return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+
+
+def orientation_errors_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angles [rad] (N, M) between every unit quaternion of a (N, 4) and of b (M, 4), in [0, π]
+    (:func:`orientation_error` of each pair, as one product)."""
+    dot = np.abs(np.clip(np.einsum("id,jd->ij", a, b), -1.0, 1.0))
+    return 2.0 * np.arccos(np.minimum(dot, 1.0))
 
 
 def rpy_to_matrix(rpy) -> np.ndarray:
@@ -96,9 +189,15 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
 
 
 def quats_to_matrices(q: np.ndarray) -> np.ndarray:
-    """Unit quaternions (..., 4) (x, y, z, w) → rotation matrices (..., 3, 3)."""
+    """Quaternions (..., 4) (x, y, z, w) → rotation matrices (..., 3, 3) (normalised first)."""
     q = np.asarray(q, float)
-    x, y, z, w = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
+    return unit_quats_to_matrices(q / np.linalg.norm(q, axis=-1, keepdims=True))
+
+
+def unit_quats_to_matrices(q: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) (x, y, z, w) → rotation matrices (..., 3, 3), not normalised
+    (a quaternion of norm s gives s² times a rotation plus (1 − s²) I)."""
+    x, y, z, w = np.moveaxis(q, -1, 0)
     return np.stack((
         np.stack((1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)), -1),
         np.stack((2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)), -1),

@@ -43,6 +43,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from tamedpuma.errors import ScenarioError
+from tamedpuma.robot.rotations import orientation_error
 from tamedpuma.types import Goal, Obstacles, Scenario
 
 START_KINDS = ("near_table1", "anywhere")
@@ -141,11 +142,6 @@ def _rng(task: str, seed: int, start_kind: str) -> np.random.Generator:
                                   START_KINDS.index(start_kind)])
 
 
-def _angle(q1: np.ndarray, q2: np.ndarray) -> float:
-    """Rotation angle [rad] between unit quaternions (x, y, z, w)."""
-    return float(2.0 * np.arccos(np.clip(abs(float(q1 @ q2)), 0.0, 1.0)))
-
-
 def _ball(rng: np.random.Generator, radius: float) -> np.ndarray:
     """A uniform point of the 3-D ball of ``radius``."""
     v = rng.normal(size=3)
@@ -172,7 +168,7 @@ def _check_start(q0, kinematics, region: TaskRegion, goal_p, goal_quat, p: Rando
     ee_p, ee_quat = kinematics.ee_pose(q0)
     rel = ee_p - goal_p
     if (np.any(rel < region.position_low) or np.any(rel > region.position_high)
-            or _angle(ee_quat, goal_quat) > region.max_angle):
+            or orientation_error(ee_quat, goal_quat) > region.max_angle):
         return "workspace", None, None
     centers = kinematics.sphere_centers(q0)
     if np.min(centers[:, 2] - spec.sphere_radii) < p.ground_clearance:
