@@ -23,14 +23,25 @@ def test_budget_stops_a_cell_early():
 
 
 def test_episode_rows_and_overheads_are_relative_to_none():
-    rows = bench.time_episodes("fabrics", repeats=1, overrides=["scenario.max_steps=20"])
+    from tamedpuma.app.bench_fabrics import ROOT
+
+    rows = bench.time_episodes("fabrics", repeats=2, overrides=["scenario.max_steps=20"],
+                               trees={"now": ROOT, "before": ROOT})
     by = {r["recorder"]: r for r in rows}
     assert set(by) == set(bench.RECORDERS)
     assert by["none"]["overhead_vs_none"] == 0.0
     for r in rows:
-        assert r["steps"] <= 20 and r["realtime_factor"] > 0
+        assert r["steps"] == r["before_steps"] <= 20 and r["realtime_factor"] > 0
+        assert r["repeats"] == 2 and r["wall_p10_s"] <= r["wall_s"] <= r["wall_p90_s"]
+        assert 0 < r["wall_s"] < r["run_wall_s"]  # the episode is part of the run
         assert r["overhead_vs_none"] == pytest.approx(r["wall_s"] / by["none"]["wall_s"] - 1,
                                                       abs=1e-3)
+        assert r["speedup"] == pytest.approx(r["before_wall_s"] / r["wall_s"], rel=1e-2)
+    section = bench.markdown_section({"date": "d", "controller": [], "episodes": rows,
+                                      "episode_baseline": {"rev": "HEAD", "commit": "0" * 40},
+                                      "machine": {"cpu_model": "c", "cores": 2, "python": "3",
+                                                  "numpy": "2"}})
+    assert "| mcap+rerun | " in section and "`0000000` (`HEAD`)" in section
 
 
 def test_command_writes_json_and_keeps_other_sections(tmp_path):

@@ -117,3 +117,49 @@ def test_contacts_are_checked_among_1000_obstacles(robot_spec, kinematics):
         assert len(obstacles) == 999 + expect
         assert contacts.obstacle_contact == expect
         assert (contacts.sphere_clearance < 0) == expect
+
+
+def test_rotation_matrices_and_sphere_centres_are_bullets_to_the_last_bit(robot_spec):
+    """The vectorised rotation is Bullet's own arithmetic (``getMatrixFromQuaternion``), unit
+    or not, and the body spheres of a moving arm are ``p_l + R(q_l) o_i`` computed one sphere
+    at a time with PyBullet's matrix: equal bit for bit, so the recorded clearances are."""
+    from dataclasses import replace
+
+    import pybullet as pb
+
+    from tamedpuma.robot.kinematics import BodySphere
+    from tamedpuma.worlds.bullet import bullet_rotation_matrices
+
+    rng = np.random.default_rng(3)
+    robot_spec = replace(robot_spec, spheres=robot_spec.spheres + tuple(  # offset spheres
+        BodySphere(link, 0.1, tuple(rng.normal(scale=0.1, size=3)))
+        for link in robot_spec.link_names[1:]))
+    quats = rng.normal(size=(200, 4)) * rng.uniform(0.5, 2.0, size=(200, 1))
+    ref = np.array([np.reshape(pb.getMatrixFromQuaternion(q.tolist()), (3, 3)) for q in quats])
+    assert np.array_equal(bullet_rotation_matrices(quats), ref)
+    offsets = np.array([s.offset for s in robot_spec.spheres])
+    assert np.any(offsets != 0)  # the check below covers offset spheres
+    link_of = [robot_spec.link_names.index(s.link) for s in robot_spec.spheres]
+    with Simulator(robot_spec) as sim:
+        sim.reset(_scenario())
+        for k in range(5):
+            sim.step(np.sin(k + np.arange(7)))
+            pos, quat = sim.link_poses()
+            expected = np.array([
+                pos[i] + np.reshape(pb.getMatrixFromQuaternion(quat[i].tolist()), (3, 3)) @ o
+                if np.any(o) else pos[i] for i, o in zip(link_of, offsets)])
+            assert np.array_equal(sim.body_sphere_centers(pos, quat), expected)
+
+
+def test_joint_state_read_once_per_physics_state_is_a_fresh_copy(robot_spec):
+    """The observation's arrays are the caller's: changing them changes neither the next
+    observation nor the state ``step`` integrates from."""
+    with Simulator(robot_spec) as sim:
+        obs = sim.reset(_scenario())
+        q0 = obs.q.copy()
+        obs.q[:] = 9.0
+        obs.qd[:] = 9.0
+        again = sim.observe()
+        assert np.array_equal(again.q, q0) and not np.any(again.qd == 9.0)
+        nxt = sim.step(np.zeros(7))
+        assert np.abs(nxt.q - q0).max() < 0.01  # integrated from the true state, not from 9

@@ -233,34 +233,116 @@ RECORDERS = {"none": ["recorder=none"], "mcap": ["recorder=mcap"],
              "rerun": ["recorder=none", "recorder.rerun=true"], "mcap+rerun": ["recorder=default"]}
 
 
-def time_episodes(method: str = "fpm", repeats: int = 3, overrides=()) -> list[dict]:
-    """Wall time of one default-scenario episode per recorder setting (median of ``repeats``).
+def time_episodes(method: str = "fpm", repeats: int = 3, overrides=(),
+                  trees: dict | None = None) -> list[dict]:
+    """Episode speed: one default-scenario episode of ``method`` per recorder setting
+    (:data:`RECORDERS`), ``repeats`` times, through the sweep's own ``run_one`` in a worker
+    process per source tree (``trees`` = {side: path}, default {"now": this tree}; with a
+    "before" side its figures are attached as ``before_*`` and ``speedup``). Every worker runs
+    one untimed episode first (imports, model load); then rounds of one episode per (recorder,
+    side), the order rotated every round, so load changes hit every cell alike.
 
-    Runs through ``tamedpuma.app.sweep.run_one`` into a temporary folder, so the figure is what
-    a user's ``python -m tamedpuma.sweep method=... recorder=...`` costs after start-up.
+    Per cell (medians): ``wall_s`` = the episode itself (``run_episode``: simulator, controller,
+    recorders from open to close), ``run_wall_s`` = the whole ``run_one`` (plus building the
+    config, model and world, and writing summary.json), ``realtime_factor`` = simulated s per
+    episode wall s, ``overhead_vs_none`` = episode wall / the same side's ``recorder=none`` − 1.
     """
-    from tamedpuma.app.sweep import run_one
+    trees = trees or {"now": ROOT}
+    workers = {}
+    try:
+        for side, tree in trees.items():
+            workers[side] = _Worker(Path(tree), {"method": method, "overrides": list(overrides),
+                                                 "recorders": RECORDERS}, _EPISODE_WORKER)
+        for w in workers.values():  # warm-up: imports, model file, first-call allocations
+            w.ask({"cmd": "run", "recorder": "none"})
+        got = {(side, rec): [] for side in trees for rec in RECORDERS}
+        recorders, sides = list(RECORDERS), list(trees)
+        for r in range(repeats):
+            for rec in recorders[r % len(recorders):] + recorders[:r % len(recorders)]:
+                for side in (sides if r % 2 == 0 else sides[::-1]):
+                    got[(side, rec)].append(workers[side].ask({"cmd": "run", "recorder": rec}))
+    finally:
+        for w in workers.values():
+            w.close()
+    rows = {side: [] for side in trees}
+    for side in trees:
+        for rec in RECORDERS:
+            runs = got[(side, rec)]
+            wall = np.array([x["loop_s"] for x in runs])
+            sim_s = float(runs[-1]["sim_s"])
+            rows[side].append({
+                "method": method, "recorder": rec, "steps": runs[-1]["steps"],
+                "sim_s": round(sim_s, 3), "wall_s": round(float(np.median(wall)), 4),
+                "wall_p10_s": round(float(np.percentile(wall, 10)), 4),
+                "wall_p90_s": round(float(np.percentile(wall, 90)), 4),
+                "run_wall_s": round(float(np.median([x["wall_s"] for x in runs])), 4),
+                "realtime_factor": round(sim_s / float(np.median(wall)), 1),
+                "repeats": len(runs)})
+        base = next(r["wall_s"] for r in rows[side] if r["recorder"] == "none")
+        for r in rows[side]:
+            r["overhead_vs_none"] = round(r["wall_s"] / base - 1.0, 4)
+    main_side = next(iter(trees))
+    out = rows[main_side]
+    if "before" in rows and main_side != "before":
+        for row, old in zip(out, rows["before"]):
+            for key in ("steps", "sim_s", "wall_s", "realtime_factor", "overhead_vs_none"):
+                row[f"before_{key}"] = old[key]
+            row["speedup"] = round(old["wall_s"] / old["sim_s"] * row["sim_s"] / row["wall_s"],
+                                   3)  # ratio of the speeds (simulated s per wall s)
+    return out
 
-    rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for recorder, recorder_overrides in RECORDERS.items():
-            cfg = compose([f"method={method}", *recorder_overrides, *overrides])
-            walls, summary = [], None
-            for r in range(repeats):
-                run_dir = Path(tmp) / f"{recorder}_{r}"
-                run_dir.mkdir()
-                t0 = time.perf_counter()
-                summary = run_one(cfg, run_dir)
-                walls.append(time.perf_counter() - t0)
-            wall = float(np.median(walls))
-            sim_s = float(summary["duration_s"])
-            rows.append({"method": method, "recorder": recorder, "steps": summary["steps"],
-                         "sim_s": round(sim_s, 3), "wall_s": round(wall, 4),
-                         "realtime_factor": round(sim_s / wall, 1), "repeats": repeats})
-    base = next(r["wall_s"] for r in rows if r["recorder"] == "none")
-    for r in rows:
-        r["overhead_vs_none"] = round(r["wall_s"] / base - 1.0, 4)
-    return rows
+
+#: An episode worker (see :func:`time_episodes`), run by ``python -c`` inside a source tree. It
+#: reads JSON lines: {"method", "overrides", "recorders"} (set-up), then {"cmd": "run",
+#: "recorder"} (one episode through ``run_one``; answers its wall times [s], steps and simulated
+#: time) and {"cmd": "quit"}. It uses only APIs both trees have.
+_EPISODE_WORKER = r"""
+import json, os, shutil, sys, tempfile, time
+from pathlib import Path
+reply = os.fdopen(os.dup(1), "w")
+os.dup2(2, 1)  # anything the project prints goes to stderr, not into the protocol
+import tamedpuma.episode as episode
+from tamedpuma.app import sweep
+from tamedpuma.app.bench import compose
+
+def send(obj):
+    reply.write(json.dumps(obj) + "\n")
+    reply.flush()
+
+loops = []
+_run_episode = episode.run_episode
+
+def timed_run_episode(*args, **kwargs):
+    t0 = time.perf_counter()
+    try:
+        return _run_episode(*args, **kwargs)
+    finally:
+        loops.append(time.perf_counter() - t0)
+
+episode.run_episode = timed_run_episode  # run_one imports it at call time
+if hasattr(sweep, "run_episode"):
+    sweep.run_episode = timed_run_episode
+setup = json.loads(sys.stdin.readline())
+configs = {name: compose([f"method={setup['method']}", *extra, *setup["overrides"]])
+           for name, extra in setup["recorders"].items()}
+tmp = Path(tempfile.mkdtemp(prefix="bench_episode_"))
+send({"ok": True})
+try:
+    for i, line in enumerate(sys.stdin):
+        cmd = json.loads(line)
+        if cmd["cmd"] == "quit":
+            break
+        run_dir = tmp / f"run{i}"
+        run_dir.mkdir()
+        t0 = time.perf_counter()
+        summary = sweep.run_one(configs[cmd["recorder"]], run_dir)
+        wall = time.perf_counter() - t0
+        send({"wall_s": wall, "loop_s": loops[-1], "steps": summary["steps"],
+              "sim_s": summary["duration_s"]})
+        shutil.rmtree(run_dir, ignore_errors=True)
+finally:
+    shutil.rmtree(tmp, ignore_errors=True)
+"""
 
 
 #: A timing worker, run by ``python -c`` inside a source tree (this one or a baseline's), so that
@@ -329,14 +411,13 @@ for line in sys.stdin:
 class _Worker:
     """One timing worker process in a source tree (see ``_WORKER``)."""
 
-    def __init__(self, tree: Path, method: str, overrides, seed: int = 0):
+    def __init__(self, tree: Path, setup: dict, script: str | None = None):
         self.log = tempfile.TemporaryFile(mode="w+")
         env = {**os.environ, "PYTHONPATH": str(tree)}
-        self.proc = subprocess.Popen([sys.executable, "-c", _WORKER], cwd=tree, env=env,
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        self.proc = subprocess.Popen([sys.executable, "-c", script or _WORKER], cwd=tree,
+                                     env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=self.log, text=True)
-        self.model = self.ask({"method": method, "overrides": list(overrides),
-                               "seed": seed})["model"]
+        self.model = self.ask(setup).get("model")
 
     def ask(self, cmd: dict) -> dict:
         self.proc.stdin.write(json.dumps(cmd) + "\n")
@@ -378,7 +459,8 @@ def time_side_by_side(method: str, counts, calls: int, budget_s: float, trees: d
     workers = {}
     try:
         for side, tree in trees.items():
-            workers[side] = _Worker(Path(tree), method, overrides)
+            workers[side] = _Worker(Path(tree), {"method": method,
+                                                 "overrides": list(overrides), "seed": 0})
         rows = {side: [] for side in trees}
         for n in counts:
             first = {side: w.ask({"cmd": "reset", "n": n})["first_s"] * 1e3
@@ -548,17 +630,38 @@ def markdown_section(report: dict) -> str:
                   "The kinematics are computed once per step and shared by the network's task "
                   "map, the null-space term and the fabric."]
     if report.get("episodes"):
+        eps = report["episodes"]
+        ebase = report.get("episode_baseline")
         lines += ["", "Episode speed (default tomato scenario, "
-                  f"{report['episodes'][0]['method']}, median of "
-                  f"{report['episodes'][0]['repeats']} runs, through the sweep's `run_one`; "
-                  "target: recorders ≤ 10% overhead, FPM ≥ 50× real time):", "",
-                  "| recorder | steps | simulated [s] | wall [s] | × real time "
-                  "| overhead vs none |",
-                  "|---|---:|---:|---:|---:|---:|"]
-        for r in report["episodes"]:
-            lines.append(f"| {r['recorder']} | {r['steps']} | {r['sim_s']:.2f} | "
-                         f"{r['wall_s']:.3f} | {r['realtime_factor']:.1f} | "
-                         f"{100 * r['overhead_vs_none']:+.1f}% |")
+                  f"{eps[0]['method']}, through the sweep's `run_one` in a worker process, "
+                  f"median of {eps[0]['repeats']} episodes per row after one warm-up, rows "
+                  "interleaved round by round; \"episode\": `run_episode` from the recorders' "
+                  "open to their close (simulator, controller, recorders), \"run\": the whole "
+                  "`run_one` (also building config, model and world, writing summary.json); "
+                  "target: recorders ≤ 10% overhead, FPM ≥ 50× real time"
+                  + (f"; \"before\": the same on commit `{ebase['commit'][:7]}` "
+                     f"(`{ebase['rev']}`), interleaved with these, ratio = speed / speed "
+                     "before" if ebase else "") + "):", ""]
+        head = ("| recorder | steps | simulated [s] | episode wall [s] (p10–p90) | × real time "
+                "| overhead vs none | run wall [s] ")
+        rule = "|---|---:|---:|---:|---:|---:|---:|"
+        if ebase:
+            head += "| before: steps | episode wall [s] | × real time | overhead | ratio "
+            rule += "---:|---:|---:|---:|---:|"
+        lines += [head + "|", rule]
+        for r in eps:
+            cells = (f"| {r['recorder']} | {r['steps']} | {r['sim_s']:.2f} | "
+                     f"{r['wall_s']:.3f} ({r.get('wall_p10_s', r['wall_s']):.3f}–"
+                     f"{r.get('wall_p90_s', r['wall_s']):.3f}) | "
+                     f"{r['realtime_factor']:.1f} | {100 * r['overhead_vs_none']:+.1f}% | "
+                     f"{r.get('run_wall_s', float('nan')):.3f} |")
+            if ebase:
+                cells += (f" {r['before_steps']} | {r['before_wall_s']:.3f} | "
+                          f"{r['before_realtime_factor']:.1f} | "
+                          f"{100 * r['before_overhead_vs_none']:+.1f}% | "
+                          f"{_ratio(r['speedup'])} |" if "speedup" in r
+                          else " — | — | — | — | — |")
+            lines.append(cells)
     for key, item in report.get("commands", {}).items():
         lines += ["", f"{key}: `{item['command']}` took {item['wall_s']} s "
                   f"(exit {item['returncode']})."]
@@ -620,6 +723,9 @@ def main(argv=None) -> int:
                         "(2 obstacles; none: skip)")
     parser.add_argument("--baseline", metavar="REV",
                         help="also time the controller cells on git revision REV, side by side")
+    parser.add_argument("--episode-baseline", metavar="REV",
+                        help="also time the episodes on git revision REV, side by side "
+                        "(default: --baseline)")
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root to write into")
     parser.add_argument("overrides", nargs="*", help="config overrides for every build")
@@ -633,13 +739,18 @@ def main(argv=None) -> int:
               "errors": [], "machine": machine, "overrides": args.overrides,
               "command": "python -m tamedpuma.bench " + " ".join(argv if argv is not None
                                                                   else sys.argv[1:])}
-    with tempfile.TemporaryDirectory() as baseline_tree:
-        if args.baseline:
+    episode_rev = args.episode_baseline or args.baseline
+    with tempfile.TemporaryDirectory() as baseline_tree, \
+            tempfile.TemporaryDirectory() as episode_tree:
+        for option, rev, tree, key in (("--baseline", args.baseline, baseline_tree, "baseline"),
+                                       ("--episode-baseline", episode_rev, episode_tree,
+                                        "episode_baseline")):
+            if not rev or (args.episodes <= 0 and key == "episode_baseline"):
+                continue
             try:
-                report["baseline"] = {"rev": args.baseline, "commit": export_revision(
-                    args.root, args.baseline, Path(baseline_tree))}
+                report[key] = {"rev": rev, "commit": export_revision(args.root, rev, Path(tree))}
             except (RuntimeError, OSError, subprocess.CalledProcessError) as exc:
-                print(f"error: --baseline {args.baseline}: {_one_line(exc)}", file=sys.stderr)
+                print(f"error: {option} {rev}: {_one_line(exc)}", file=sys.stderr)
                 return 2
         for method in args.methods:
             rows, before = [], []
@@ -657,17 +768,19 @@ def main(argv=None) -> int:
             attach_baseline(rows, before)
             report["controller"] += rows
             print(f"bench: {method} done", file=sys.stderr)
-    report["parts"] = []
-    for method in args.parts:
-        try:
-            report["parts"] += time_parts(method, 2, overrides=args.overrides)
-        except Exception as exc:  # as above
-            report["errors"].append({"method": f"{method} (parts)", "error": _one_line(exc)})
-    if args.episodes > 0:
-        try:
-            report["episodes"] = time_episodes("fpm", args.episodes, args.overrides)
-        except Exception as exc:  # a missing model, a composition error: reported, not raised
-            report["errors"].append({"method": "episode", "error": _one_line(exc)})
+        report["parts"] = []
+        for method in args.parts:
+            try:
+                report["parts"] += time_parts(method, 2, overrides=args.overrides)
+            except Exception as exc:  # as above
+                report["errors"].append({"method": f"{method} (parts)",
+                                         "error": _one_line(exc)})
+        if args.episodes > 0:
+            trees = {"now": ROOT, **({"before": episode_tree} if episode_rev else {})}
+            try:
+                report["episodes"] = time_episodes("fpm", args.episodes, args.overrides, trees)
+            except Exception as exc:  # a missing model, a composition error: reported
+                report["errors"].append({"method": "episode", "error": _one_line(exc)})
     report["commands"] = {}
     if args.training:
         for task in ("tomato", "pouring"):

@@ -47,6 +47,23 @@ from tamedpuma.worlds.settings import (  # noqa: F401 - re-exported: the simulat
 )
 
 
+def bullet_rotation_matrices(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices (k, 3, 3) of quaternions (k, 4) (x, y, z, w), operation for operation
+    as Bullet's ``btMatrix3x3::setRotation`` (what ``pybullet.getMatrixFromQuaternion`` returns,
+    to the last bit): with ``s = 2/|q|²``,
+    ``R = [[1 − s(y² + z²), s(xy − wz), s(xz + wy)], [s(xy + wz), 1 − s(x² + z²), s(yz − wx)],
+    [s(xz − wy), s(yz + wx), 1 − s(x² + y²)]]``."""
+    x, y, z, w = (np.asarray(quat, dtype=float)[:, i] for i in range(4))
+    s = 2.0 / (x * x + y * y + z * z + w * w)
+    xs, ys, zs = x * s, y * s, z * s
+    wx, wy, wz = w * xs, w * ys, w * zs
+    xx, xy, xz = x * xs, x * ys, x * zs
+    yy, yz, zz = y * ys, y * zs, z * zs
+    return np.stack([1.0 - (yy + zz), xy - wz, xz + wy,
+                     xy + wz, 1.0 - (xx + zz), yz - wx,
+                     xz - wy, yz + wx, 1.0 - (xx + yy)], axis=-1).reshape(-1, 3, 3)
+
+
 class Simulator:
     """A PyBullet world for one robot. ``reset(scenario)`` then ``step(q̈)`` per control period."""
 
@@ -61,6 +78,7 @@ class Simulator:
         self._scenario: Scenario | None = None
         self._step = 0
         self._qd_cmd = np.zeros(spec.dof)
+        self._joint_cache = None
 
     # -- set-up -----------------------------------------------------------------------------
     def reset(self, scenario: Scenario) -> Observation:
@@ -69,6 +87,7 @@ class Simulator:
             raise ValueError(f"q0 has {len(scenario.q0)} joints, robot has {self.spec.dof}")
         c = self._client
         pb.resetSimulation(physicsClientId=c)
+        self._joint_cache = None
         pb.setGravity(0, 0, -self.config.gravity, physicsClientId=c)
         n_sub = round(scenario.dt / self.config.substep)
         if n_sub < 1 or not math.isclose(n_sub * self.config.substep, scenario.dt, rel_tol=1e-9):
@@ -122,9 +141,22 @@ class Simulator:
         self._sensor_sample = -1
         self._sensed_centers = None
         self._obstacle_ids = self._add_obstacles(scenario)
+        self._obstacle_set = frozenset(self._obstacle_ids)
         self._scenario = scenario
         self._goal_marker = self._add_goal_marker(scenario)
         self._step = 0
+        # per-run constants of the hot path (``step``, ``link_poses``, ``body_sphere_centers``)
+        self._moving_obstacles = bool(np.any(scenario.obstacles.velocities != 0))
+        self._moving_goal = (bool(np.any(scenario.goal.velocity != 0))
+                             or dist.kind == "goal_change")
+        self._plain_substeps = self.config.control == "velocity" and dist.kind != "push"
+        self._motor_forces = [self.config.max_joint_force] * self.spec.dof
+        self._movable_links = [i for i in self._link_idx if i >= 0]
+        self._movable_rows = np.array([k for k, i in enumerate(self._link_idx) if i >= 0],
+                                      dtype=int)
+        self._offset_spheres = np.flatnonzero(np.any(self._sphere_offset != 0, axis=1))
+        self._offset_links = np.asarray(self._sphere_link, dtype=int)[self._offset_spheres]
+        self._joint_cache = None  # (q, qd) read since the last physics step
         return self.observe()
 
     def _add_obstacles(self, scenario: Scenario) -> list[int]:
@@ -184,23 +216,29 @@ class Simulator:
         if self.config.control == "velocity":
             pb.setJointMotorControlArray(self._robot, self._joint_idx, pb.VELOCITY_CONTROL,
                                          targetVelocities=qd_cmd.tolist(),
-                                         forces=[self.config.max_joint_force] * self.spec.dof,
-                                         physicsClientId=c)
-        acc = (qd_cmd - qd) / sc.dt
-        t0 = self.t
-        for i in range(self._n_sub):
-            tau = i * self.config.substep
-            if self.config.control == "impedance":
-                self._apply_impedance(q0 + qd * tau + 0.5 * acc * tau**2, qd + acc * tau, acc)
-            self._apply_push(t0 + tau)
-            pb.stepSimulation(physicsClientId=c)
+                                         forces=self._motor_forces, physicsClientId=c)
+        self._joint_cache = None
+        if self._plain_substeps:  # velocity motors, no push: nothing to do between substeps
+            for _ in range(self._n_sub):
+                pb.stepSimulation(physicsClientId=c)
+        else:
+            acc = (qd_cmd - qd) / sc.dt
+            t0 = self.t
+            for i in range(self._n_sub):
+                tau = i * self.config.substep
+                if self.config.control == "impedance":
+                    self._apply_impedance(q0 + qd * tau + 0.5 * acc * tau**2, qd + acc * tau,
+                                          acc)
+                self._apply_push(t0 + tau)
+                pb.stepSimulation(physicsClientId=c)
+                self._joint_cache = None
         self._step += 1
         t = self.t
-        if np.any(sc.obstacles.velocities != 0):
+        if self._moving_obstacles:
             for oid, center in zip(self._obstacle_ids, sc.obstacles.at(t)):
                 pb.resetBasePositionAndOrientation(oid, center.tolist(), [0, 0, 0, 1],
                                                    physicsClientId=c)
-        if np.any(sc.goal.velocity != 0) or self.disturbance.kind == "goal_change":
+        if self._moving_goal:
             pb.resetBasePositionAndOrientation(self._goal_marker, self.goal_position(t).tolist(),
                                                [0, 0, 0, 1], physicsClientId=c)
         return self.observe()
@@ -238,8 +276,15 @@ class Simulator:
                               pb.WORLD_FRAME, physicsClientId=c)
 
     def _joint_state(self) -> tuple[np.ndarray, np.ndarray]:
-        states = pb.getJointStates(self._robot, self._joint_idx, physicsClientId=self._client)
-        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
+        """(q, q̇) now, copies; read from PyBullet once per physics state (cached until the next
+        ``stepSimulation``: ``step`` reads the state that the last observation already read)."""
+        if self._joint_cache is None:
+            states = pb.getJointStates(self._robot, self._joint_idx,
+                                       physicsClientId=self._client)
+            self._joint_cache = (np.array([s[0] for s in states]),
+                                 np.array([s[1] for s in states]))
+        q, qd = self._joint_cache
+        return q.copy(), qd.copy()
 
     def obstacle_centers(self, t: float | None = None) -> np.ndarray:
         """True obstacle centres (n, 3) [m] at time t (default: now): what decides contacts."""
@@ -286,26 +331,25 @@ class Simulator:
     # -- queries ----------------------------------------------------------------------------
     def link_poses(self) -> tuple[np.ndarray, np.ndarray]:
         """World poses of ``spec.link_names``: positions (L, 3) [m], quaternions (L, 4) xyzw."""
-        c = self._client
-        movable = [i for i in self._link_idx if i >= 0]
-        states = pb.getLinkStates(self._robot, movable, computeForwardKinematics=True,
-                                  physicsClientId=c)
-        by_index = {i: s for i, s in zip(movable, states)}
+        states = pb.getLinkStates(self._robot, self._movable_links,
+                                  computeForwardKinematics=True, physicsClientId=self._client)
         pos = np.zeros((len(self._link_idx), 3))
-        quat = np.tile([0.0, 0.0, 0.0, 1.0], (len(self._link_idx), 1))
-        for k, i in enumerate(self._link_idx):
-            if i >= 0:
-                pos[k] = by_index[i][4]
-                quat[k] = by_index[i][5]
+        quat = np.zeros((len(self._link_idx), 4))
+        quat[:, 3] = 1.0  # the base (index -1) at the world origin
+        if len(self._movable_rows):
+            pos[self._movable_rows] = [s[4] for s in states]
+            quat[self._movable_rows] = [s[5] for s in states]
         return pos, quat
 
     def body_sphere_centers(self, link_pos: np.ndarray, link_quat: np.ndarray) -> np.ndarray:
-        """Collision-sphere centres (k, 3) [m] from link poses (as returned by link_poses)."""
-        centers = link_pos[self._sphere_link].copy()
-        for i, (k, off) in enumerate(zip(self._sphere_link, self._sphere_offset)):
-            if np.any(off):
-                rot = np.array(pb.getMatrixFromQuaternion(link_quat[k].tolist())).reshape(3, 3)
-                centers[i] += rot @ off
+        """Collision-sphere centres (k, 3) [m] from link poses (as returned by link_poses):
+        ``c_i = p_l + R(q_l) o_i`` for sphere i on link l with offset o_i, R(q) computed as
+        Bullet computes it (:func:`bullet_rotation_matrices`)."""
+        centers = link_pos[self._sphere_link]  # fancy indexing: a new array
+        if len(self._offset_spheres):
+            rot = bullet_rotation_matrices(link_quat[self._offset_links])
+            centers[self._offset_spheres] += np.matmul(
+                rot, self._sphere_offset[self._offset_spheres, :, None])[:, :, 0]
         return centers
 
     def contacts(self, sphere_centers: np.ndarray) -> Contacts:
@@ -319,7 +363,7 @@ class Simulator:
             clearance = float(gaps.min())
         else:
             clearance = math.inf
-        obstacle_set = set(self._obstacle_ids)
+        obstacle_set = self._obstacle_set
         obstacle_contact = False
         ground_contact = False
         for cp in pb.getContactPoints(bodyA=self._robot, physicsClientId=c):
