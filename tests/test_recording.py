@@ -320,3 +320,38 @@ def test_rerun_loads_kuka_urdf(tmp_path):
     assert "/world/lbr_iiwa/visual_geometries/lbr_iiwa_link_7" in entities  # meshes loaded
     assert "Asset3D:blob" in entities
     assert len(read_rrd_joints(path)) == 3
+
+
+def test_rerun_sends_after_max_wait_and_keeps_every_row(tmp_path):
+    """A step is on disk ``max_wait`` seconds after it was written whatever ``batch`` is (a
+    killed run loses at most that), and the column buffers keep every row: obstacle counts
+    that change between steps, a scalar missing at one step (NaN), the whole path."""
+    from rerun.chunk import RrdReader
+
+    urdf = _urdf(tmp_path)
+    path = tmp_path / "episode.rrd"
+    recs = [_record(i) for i in range(130)]  # the path spans two blocks (PATH_BLOCK = 100)
+    recs[7] = StepRecord(**{**recs[7].__dict__, "scalars": {"alpha": 7.0}})
+    rec = RerunRecorder(path, batch=10_000, max_wait=1e-9)
+    rec.open(_info(urdf))
+    for r in recs[:20]:
+        rec.write(r)
+    joints = read_rrd_joints(active_path(path))  # the run is still open
+    assert list(joints.index) == list(range(20))
+    for r in recs[20:]:
+        rec.write(r)
+    rec.close(complete=True, summary={})
+    scalars = read_rrd_scalars(path)
+    np.testing.assert_array_equal(scalars["alpha"].to_numpy(), np.arange(130.0))
+    assert np.isnan(scalars.loc[7, "clearance_m"]) and scalars.loc[8, "clearance_m"] == \
+        recs[8].scalars["clearance_m"]
+    store = RrdReader(path).stream().collect()
+    df = store.reader(index="step", contents="/world/**").to_pandas().set_index("step")
+    centers = df["/world/obstacles:Ellipsoids3D:centers"]
+    for i in (0, 1, 2, 99, 100, 129):
+        np.testing.assert_allclose(np.stack(centers[i]), recs[i].obstacle_centers, rtol=1e-6)
+    # the path strip of step s holds every end-effector point of its block up to s, starting
+    # at the previous block's last point
+    strip = df["/world/ee_path/00001:LineStrips3D:strips"][129][0]
+    np.testing.assert_allclose(np.stack(strip), [r.ee_position for r in recs[99:130]],
+                               rtol=1e-6)

@@ -90,15 +90,30 @@ def _stamp(t: float) -> tuple[int, Timestamp]:
     return ns, Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
 
 
-def _spheres(centers, radii, color: dict) -> list[SpherePrimitive]:
-    """Sphere primitives; size = diameter per axis [m]."""
-    out = []
-    for (x, y, z), r in zip(centers.tolist(), radii.tolist()):
-        d = 2.0 * r
-        out.append(SpherePrimitive(
-            pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion(**_IDENTITY)),
-            size=Vector3(x=d, y=d, z=d), color=Color(**color)))
-    return out
+class _Spheres:
+    """Sphere primitives of one colour, identity orientation, size = diameter per axis [m].
+
+    The constant parts (colour, orientation, one size per radius) are built once and shared by
+    every step's messages (each message copies them when it is built): per sphere only the
+    position is new."""
+
+    def __init__(self, color: dict):
+        self.color = Color(**color)
+        self.identity = Quaternion(**_IDENTITY)
+        self._sizes: dict[float, Vector3] = {}
+
+    def size(self, r: float) -> Vector3:
+        size = self._sizes.get(r)
+        if size is None:
+            d = 2.0 * r
+            size = self._sizes[r] = Vector3(x=d, y=d, z=d)
+        return size
+
+    def __call__(self, centers, radii) -> list[SpherePrimitive]:
+        color, identity, size = self.color, self.identity, self.size
+        return [SpherePrimitive(pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=identity),
+                                size=size(r), color=color)
+                for (x, y, z), r in zip(centers.tolist(), radii.tolist())]
 
 
 class McapRecorder:
@@ -153,6 +168,11 @@ class McapRecorder:
                     "properties": {"step": {"type": "integer"}, "t": {"type": "number"}},
                     "additionalProperties": {"type": ["number", "null"]}})
         self._count = 0
+        self._obstacle_spheres = _Spheres(_OBSTACLE_COLOR)
+        self._body_spheres = _Spheres(_BODY_COLOR)
+        self._goal_style = _Spheres(_GOAL_COLOR)
+        self._body_radii = info.body_sphere_radii
+        self._scalar_keys: dict[str, str] = {}  # scalar name -> its JSON key
 
         meta = info.metadata()
         meta["created_unix_s"] = repr(time.time())
@@ -195,30 +215,38 @@ class McapRecorder:
             orientation=Quaternion(x=o[0], y=o[1], z=o[2], w=o[3]))), log_time=ns)
 
         g, go = rec.goal_position.tolist(), rec.goal_quaternion.tolist()
-        d = 2 * GOAL_MARKER_RADIUS
+        goal_style = self._goal_style
         goal = SpherePrimitive(
             pose=Pose(position=Vector3(x=g[0], y=g[1], z=g[2]),
                       orientation=Quaternion(x=go[0], y=go[1], z=go[2], w=go[3])),
-            size=Vector3(x=d, y=d, z=d), color=Color(**_GOAL_COLOR))
+            size=goal_style.size(GOAL_MARKER_RADIUS), color=goal_style.color)
         self._scene.log(SceneUpdate(entities=[
             SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id="obstacles",
-                        spheres=_spheres(rec.obstacle_centers, rec.obstacle_radii,
-                                         _OBSTACLE_COLOR)),
+                        spheres=self._obstacle_spheres(rec.obstacle_centers,
+                                                       rec.obstacle_radii)),
             SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id="goal", spheres=[goal]),
             SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id="body_spheres",
-                        spheres=_spheres(rec.body_sphere_centers, info.body_sphere_radii,
-                                         _BODY_COLOR)),
+                        spheres=self._body_spheres(rec.body_sphere_centers, self._body_radii)),
         ]), log_time=ns)
 
-        scalars = {"step": int(rec.step), "t": float(rec.t)}
-        for k, v in rec.scalars.items():
-            v = float(v)
-            scalars[k] = v if math.isfinite(v) else None
-        self._scalars.log(json.dumps(scalars).encode(), log_time=ns)
+        self._scalars.log(self._scalars_json(rec), log_time=ns)
 
         self._count += 1
         if self._count % self.flush_every == 0:
             self._writer.flush()
+
+    def _scalars_json(self, rec: StepRecord) -> bytes:
+        """``{"step": .., "t": .., <name>: <value or null>, ...}`` as ``json.dumps`` writes it
+        (keys JSON-encoded once per name, floats by ``repr``, non-finite values as null)."""
+        keys = self._scalar_keys
+        parts = [f'{{"step": {int(rec.step)}, "t": {float(rec.t)!r}']
+        for k, v in rec.scalars.items():
+            key = keys.get(k)
+            if key is None:
+                key = keys[k] = json.dumps(k)
+            v = float(v)
+            parts.append(f"{key}: {v!r}" if math.isfinite(v) else f"{key}: null")
+        return (", ".join(parts) + "}").encode()
 
     def close(self, complete: bool, summary: Mapping[str, object]) -> None:
         """Write the summary metadata, finish the file and rename it to ``path``.

@@ -21,8 +21,11 @@ IIWA_LINK_NAMES: tuple[str, ...] = tuple(f"lbr_iiwa_link_{i}" for i in range(0, 
 def _array(value, shape: tuple[int | None, ...], name: str) -> np.ndarray:
     """``value`` as a float64 array of ``shape`` (None = any length); ValueError otherwise."""
     arr = np.asarray(value, dtype=float)
-    if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
+    if arr.ndim != len(shape):
         raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    for s, n in zip(shape, arr.shape):
+        if s is not None and s != n:
+            raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
     return arr
 
 

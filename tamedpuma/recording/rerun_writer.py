@@ -30,14 +30,19 @@ from __future__ import annotations
 
 import fnmatch
 import os
+import time
 import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
+import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
+from rerun.components import LineStrip3DBatch
+from rerun.encodings import Vec3DBatch
 from rerun.urdf import UrdfTree
 
 from .mcap_writer import active_path, prepare_output
@@ -218,18 +223,24 @@ class RerunRecorder:
 
     path: output file (created, with its parent directories; an existing ``path`` or
     ``<path>.active`` raises FileExistsError unless overwrite=True).
-    batch: steps buffered before they are sent column-wise (``send_columns``): logging row by row
-    costs ~2 ms per step, batching ~0.2 ms; a killed run loses at most the last ``batch`` steps.
+    batch, max_wait: buffered steps are sent column-wise (``send_columns``, about 40 entities)
+    and flushed to disk when ``batch`` steps are buffered or ``max_wait`` wall seconds have
+    passed since the last send, whichever comes first: a killed run loses at most that much.
+    Each send costs a fixed ~10 ms (one Arrow chunk per entity), so rare sends are what keeps
+    the recorder cheap: logging row by row costs ~2 ms per step.
     application_id: Rerun application id.
     """
 
-    def __init__(self, path: str | os.PathLike, batch: int = 50,
+    def __init__(self, path: str | os.PathLike, batch: int = 500, max_wait: float = 1.0,
                  application_id: str = "tamedpuma", overwrite: bool = False):
         if batch < 1:
             raise ValueError(f"batch must be >= 1, got {batch}")
+        if not max_wait > 0:
+            raise ValueError(f"max_wait must be > 0 s, got {max_wait}")
         self.path = Path(path)
         self.active_path = active_path(path)
         self.batch = int(batch)
+        self.max_wait = float(max_wait)
         self.overwrite = bool(overwrite)
         self.application_id = application_id
         self._rec: rr.RecordingStream | None = None
@@ -293,24 +304,42 @@ class RerunRecorder:
             warnings.warn(f"URDF {info.urdf_path} not found: the replay has no robot model",
                           stacklevel=2)
         self._points: list[np.ndarray] = []  # what the camera must frame [m]
-        self._last: StepRecord | None = None
+        self._last: SimpleNamespace | None = None  # the last step's scene (camera framing)
         self._scalar_names: list[str] = []
-        self._buffer: list[StepRecord] = []
-        self._path_tail: list[list[float]] = []  # EE points of the current path block
-        self._count = 0
+        self._columns: _Columns | None = None  # the steps not sent yet, one row each
+        self._ee_path = _Columns()  # every end-effector point so far (the path strips' source)
+        self._count = 0  # steps sent
+        self._last_send = time.monotonic()
 
     def write(self, rec: StepRecord) -> None:
-        """Buffer one step (arrays copied); send the buffer every ``batch`` steps."""
+        """Buffer one step (its values copied into column buffers); send the buffer when it
+        holds ``batch`` steps or ``max_wait`` seconds have passed since the last send."""
         if self._rec is None:
             raise RuntimeError("RerunRecorder.write before open")
-        if (self._count + len(self._buffer)) % FRAME_EVERY == 0:
-            self._points.append(scene_points(rec))
-        self._last = rec
-        if not self._scalar_names and self._count == 0 and not self._buffer:
+        cols = self._columns
+        if cols is None:  # the first step: its scalar names fix the plots of the layout
             self._scalar_names = list(rec.scalars)
             self._send_blueprint()
-        self._buffer.append(copy_record(rec))
-        if len(self._buffer) >= self.batch:
+            cols = self._columns = _Columns()
+            self._last_send = time.monotonic()
+        i = cols.n
+        if (self._count + i) % FRAME_EVERY == 0:
+            self._points.append(scene_points(rec))
+        scalars = rec.scalars
+        root = self._root_index
+        cols.add(step=rec.step, t=rec.t, q=rec.q, qd=rec.qd, ee=rec.ee_position,
+                 goal_position=rec.goal_position, goal_quaternion=rec.goal_quaternion,
+                 body_spheres=rec.body_sphere_centers,
+                 scalars=[scalars.get(name, np.nan) for name in self._scalar_names],
+                 **({} if root is None else {"root_position": rec.link_positions[root],
+                                             "root_quaternion": rec.link_quaternions[root]}))
+        cols.obstacles.append((rec.obstacle_centers.copy(), rec.obstacle_radii.copy()))
+        self._ee_path.add(ee=rec.ee_position)
+        self._last = SimpleNamespace(
+            link_positions=rec.link_positions.copy(), ee_position=rec.ee_position.copy(),
+            goal_position=rec.goal_position.copy(), obstacle_centers=cols.obstacles[-1][0],
+            obstacle_radii=cols.obstacles[-1][1])
+        if cols.n >= self.batch or time.monotonic() - self._last_send >= self.max_wait:
             self._send()
 
     def close(self, complete: bool, summary: Mapping[str, object]) -> None:
@@ -346,78 +375,114 @@ class RerunRecorder:
     # -- column-wise sending -----------------------------------------------------------------
 
     def _send(self) -> None:
-        recs, self._buffer = self._buffer, []
-        if not recs:
+        cols = self._columns
+        if cols is None or not cols.n:
             return
+        self._columns = _Columns()
+        self._last_send = time.monotonic()
         stream, info = self._rec, self._info
-        n = len(recs)
-        steps = np.array([r.step for r in recs], dtype=np.int64)
-        times = np.array([r.t for r in recs], dtype=float)
+        n = cols.n
+        c = cols.arrays()
+        steps, times = c["step"].astype(np.int64), c["t"]
         index = [rr.TimeColumn("step", sequence=steps), rr.TimeColumn("time", duration=times)]
 
         def send(entity: str, columns) -> None:
             stream.send_columns(entity, indexes=index, columns=columns)
 
-        q = np.array([r.q for r in recs])
+        q = c["q"]
         if self._root_index is not None:
-            i = self._root_index
             send("/world/tf/base", rr.Transform3D.columns(
-                translation=np.array([r.link_positions[i] for r in recs]),
-                quaternion=np.array([r.link_quaternions[i] for r in recs]),
+                translation=c["root_position"], quaternion=c["root_quaternion"],
                 parent_frame=[WORLD_FRAME] * n, child_frame=[self._root] * n))
         for j, joint in enumerate(self._joints):
             send(f"/world/tf/{joint.name}", joint.compute_transform_columns(q[:, j], clamp=False))
 
-        n_obs = [len(r.obstacle_radii) for r in recs]
-        radii = np.concatenate([r.obstacle_radii for r in recs])
+        n_obs = [len(r) for _, r in cols.obstacles]
+        radii = np.concatenate([r for _, r in cols.obstacles])
         send("/world/obstacles", rr.Ellipsoids3D.columns(
-            centers=np.concatenate([r.obstacle_centers for r in recs]).reshape(-1, 3),
+            centers=np.concatenate([o for o, _ in cols.obstacles]).reshape(-1, 3),
             half_sizes=np.repeat(radii, 3).reshape(-1, 3)).partition(n_obs))
         k = len(info.body_sphere_radii)
         if k:
             send("/world/body_spheres", rr.Ellipsoids3D.columns(
-                centers=np.concatenate([r.body_sphere_centers for r in recs])).partition([k] * n))
+                centers=c["body_spheres"].reshape(-1, 3)).partition([k] * n))
         send("/world/goal", rr.Ellipsoids3D.columns(
-            centers=np.array([r.goal_position for r in recs]),
-            quaternions=np.array([r.goal_quaternion for r in recs])))
-        ee = np.array([r.ee_position for r in recs])
-        send("/world/ee", rr.Points3D.columns(positions=ee))
-        self._send_path(stream, steps, times, ee)
+            centers=c["goal_position"], quaternions=c["goal_quaternion"]))
+        send("/world/ee", rr.Points3D.columns(positions=c["ee"]))
+        self._send_path(stream, steps, times)
 
         for j, name in enumerate(info.joint_names):
             send(f"/joints/{name}", rr.Scalars.columns(scalars=q[:, j]))
-        speed = np.abs(np.array([r.qd for r in recs]))
+        speed = np.abs(c["qd"])
         if len(info.velocity_limits):
             speed = speed / info.velocity_limits
             send("/joint_speed/limit", rr.Scalars.columns(scalars=np.ones(n)))
         for j, name in enumerate(info.joint_names):
             send(f"/joint_speed/{name}", rr.Scalars.columns(scalars=speed[:, j]))
-        for name in recs[0].scalars:
-            values = np.array([float(r.scalars.get(name, np.nan)) for r in recs])
-            send(f"/metrics/{name}", rr.Scalars.columns(scalars=values))
-        stream.flush()  # on disk before the next batch: a killed run loses < batch steps
+        values = c["scalars"].astype(float)
+        for j, name in enumerate(self._scalar_names):
+            send(f"/metrics/{name}", rr.Scalars.columns(scalars=values[:, j]))
+        stream.flush()  # on disk before the next batch: a killed run loses only the buffer
 
-    def _send_path(self, stream, steps, times, ee) -> None:
+    def _send_path(self, stream, steps, times) -> None:
         """EE path: strip b covers steps [b·B, (b+1)·B] (B = PATH_BLOCK), so strips join up and
-        each step re-sends at most B points."""
-        rows: dict[int, list] = {}
-        for s, t, p in zip(steps.tolist(), times.tolist(), ee.tolist()):
-            block = self._count // PATH_BLOCK
-            if self._count % PATH_BLOCK == 0:
-                self._path_tail = self._path_tail[-1:]
+        each step re-sends at most B + 1 points: the row of step g in block b holds the path
+        points [max(b·B − 1, 0), g]."""
+        path = self._ee_path.arrays()["ee"]
+        first = self._count
+        g = np.arange(first, first + len(steps))
+        blocks = g // PATH_BLOCK
+        for block in np.unique(blocks).tolist():
+            if block * PATH_BLOCK >= first:  # the block starts in this batch: its style
                 stream.log(f"/world/ee_path/{block:05d}", rr.CoordinateFrame(WORLD_FRAME),
                            rr.LineStrips3D.from_fields(colors=_EE_RGBA, radii=0.003),
                            static=True)
-            self._path_tail.append(p)
-            rows.setdefault(block, []).append((s, t, list(self._path_tail)))
-            self._count += 1
-        for block, items in rows.items():
-            strips = [np.array(pts) for _, _, pts in items]
+            rows = np.flatnonzero(blocks == block)
+            start = max(block * PATH_BLOCK - 1, 0)
+            ends = g[rows] + 1  # each row: path[start:end]
+            lengths = ends - start
+            offsets = np.zeros(len(rows) + 1, dtype=np.int32)
+            np.cumsum(lengths, out=offsets[1:])
+            # point j of the flattened strips is path[start + j − offsets[row of j]]
+            flat = np.arange(offsets[-1]) - np.repeat(offsets[:-1], lengths) + start
+            strips = pa.ListArray.from_arrays(
+                pa.array(offsets, type=pa.int32()),
+                Vec3DBatch(path[flat]).as_arrow_array(), type=LineStrip3DBatch._ARROW_DATATYPE)
             stream.send_columns(
                 f"/world/ee_path/{block:05d}",
-                indexes=[rr.TimeColumn("step", sequence=[s for s, _, _ in items]),
-                         rr.TimeColumn("time", duration=[t for _, t, _ in items])],
+                indexes=[rr.TimeColumn("step", sequence=steps[rows].tolist()),
+                         # as lists, as before: rerun rounds a list's seconds to the nearest
+                         # ns but truncates an array's (the other entities' "time")
+                         rr.TimeColumn("time", duration=times[rows].tolist())],
                 columns=rr.LineStrips3D.columns(strips=strips))
+        self._count += len(steps)
+
+
+class _Columns:
+    """Growable column buffers, one row per step: ``add(name=value, ...)`` copies each value
+    into row ``n`` of its column (allocated at the first row from the value's shape, doubled
+    when full); ``arrays()`` returns the filled rows. ``obstacles``: per-row (centres, radii)
+    (their count may change between steps)."""
+
+    def __init__(self):
+        self.n = 0
+        self._cols: dict[str, np.ndarray] = {}
+        self.obstacles: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def add(self, **values) -> None:
+        cols, i = self._cols, self.n
+        for name, value in values.items():
+            col = cols.get(name)
+            if col is None:
+                value = np.asarray(value, dtype=float)
+                col = cols[name] = np.empty((16, *value.shape))
+            elif i == len(col):
+                col = cols[name] = np.concatenate([col, np.empty_like(col)])
+            col[i] = value
+        self.n = i + 1
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {name: col[:self.n] for name, col in self._cols.items()}
 
 
 def write_reference_overlay(path: str | os.PathLike, recording_id: str, points: np.ndarray,
@@ -436,15 +501,3 @@ def write_reference_overlay(path: str | os.PathLike, recording_id: str, points: 
     rec.flush()
     rec.disconnect()
     return path
-
-
-def copy_record(rec: StepRecord) -> StepRecord:
-    """A copy of ``rec`` whose arrays the caller can no longer mutate."""
-    return StepRecord(
-        step=rec.step, t=rec.t, q=rec.q.copy(), qd=rec.qd.copy(), qdd_cmd=rec.qdd_cmd.copy(),
-        link_positions=rec.link_positions.copy(), link_quaternions=rec.link_quaternions.copy(),
-        ee_position=rec.ee_position.copy(), ee_quaternion=rec.ee_quaternion.copy(),
-        body_sphere_centers=rec.body_sphere_centers.copy(),
-        obstacle_centers=rec.obstacle_centers.copy(), obstacle_radii=rec.obstacle_radii.copy(),
-        goal_position=rec.goal_position.copy(), goal_quaternion=rec.goal_quaternion.copy(),
-        scalars=dict(rec.scalars))
