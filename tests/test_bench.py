@@ -139,3 +139,17 @@ def test_side_by_side_workers_time_blocks_and_report_failures():
     with pytest.raises(RuntimeError):
         bench.time_side_by_side("no_such_method", (2,), calls=5, budget_s=0.5,
                                 trees={"a": ROOT})
+
+
+def test_method_variants_add_their_overrides(monkeypatch):
+    from tamedpuma.fabrics import compiled
+
+    assert bench.method_overrides("fpm") == ("fpm", [])
+    with pytest.raises(ValueError, match="unknown variant"):
+        bench.method_overrides("fpm+fortran")
+    monkeypatch.setattr(compiled, "AVAILABLE", True)
+    assert bench.method_overrides("fabrics+numba") == ("fabrics",
+                                                       ["method.fabric.kernel=numba"])
+    monkeypatch.setattr(compiled, "AVAILABLE", False)
+    with pytest.raises(ValueError, match="numba is not installed"):
+        bench.method_overrides("fabrics+numba")

@@ -45,15 +45,36 @@ import numpy as np
 from tamedpuma.app.bench_fabrics import ROOT, machine_info, random_obstacles, update_markdown
 
 COUNTS = (2, 10, 100, 1000)
-METHODS = ("puma", "fabrics", "fpm", "cpm", "modulation_ik")
+METHODS = ("puma", "fabrics", "fabrics+numba", "fpm", "fpm+numba", "cpm", "modulation_ik")
+#: "<method>+<variant>": the method with extra overrides (the "before" side of a side-by-side
+#: run is timed without them: the variant's previous default)
+VARIANTS = {"numba": ["method.fabric.kernel=numba"]}
 SECTION = "Controller step"
 #: Issue 16's targets: median [ms] per (method, obstacle count).
 TARGET_MS = {("fpm", 2): 0.2, ("cpm", 2): 0.3, ("fpm", 1000): 0.6, ("cpm", 1000): 0.8,
-             ("fabrics", 2): 0.05, ("fabrics", 1000): 0.2, ("modulation_ik", 2): 1.0}
+             ("fabrics", 2): 0.05, ("fabrics", 1000): 0.2, ("modulation_ik", 2): 1.0,
+             ("fabrics+numba", 2): 0.05, ("fabrics+numba", 1000): 0.2,
+             ("fpm+numba", 2): 0.2, ("fpm+numba", 1000): 0.6}
 #: The paper's laptop figures [ms] (i7-12700H): Table 1 (2 obstacles) and the 1000-obstacle claim.
 PAPER_MS = {("puma", 2): 4.41, ("modulation_ik", 2): 7.08, ("fabrics", 2): 0.39,
             ("fpm", 2): 5.22, ("cpm", 2): 6.55, ("fpm", 1000): 5.9, ("cpm", 1000): 7.0,
             ("modulation_ik", 1000): 3.5e3}
+
+
+def method_overrides(label: str) -> tuple[str, list[str]]:
+    """``"fabrics+numba"`` -> ``("fabrics", ["method.fabric.kernel=numba"])``; a plain method
+    name -> (it, []). ValueError for an unknown variant, or numba asked for but not installed."""
+    method, _, variant = label.partition("+")
+    if not variant:
+        return method, []
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r} (known: {sorted(VARIANTS)})")
+    if variant == "numba":
+        from tamedpuma.fabrics import compiled
+
+        if not compiled.AVAILABLE:
+            raise ValueError("numba is not installed (pip install 'tamedpuma[fast]')")
+    return method, list(VARIANTS[variant])
 
 
 def compose(overrides: list[str]):
@@ -91,7 +112,8 @@ def time_controller(method: str, counts, calls: int, budget_s: float, overrides=
     from tamedpuma.app.sweep import build
     from tamedpuma.types import Obstacles
 
-    built = build(compose([f"method={method}", "recorder=none", *overrides]))
+    label, (method, extra) = method, method_overrides(method)
+    built = build(compose([f"method={method}", "recorder=none", *extra, *overrides]))
     kin_spec, scenario, controller = built.spec, built.scenario, built.controller
     model = None
     if built.model is not None:
@@ -128,7 +150,7 @@ def time_controller(method: str, counts, calls: int, budget_s: float, overrides=
             if time.perf_counter() > stop and len(out) >= 5:
                 break
         ms = np.array(out) * 1e3
-        rows.append({"method": method, "n_obstacles": n,
+        rows.append({"method": label, "n_obstacles": n,
                      "median_ms": round(float(np.median(ms)), 5),
                      "p10_ms": round(float(np.percentile(ms, 10)), 5),
                      "p90_ms": round(float(np.percentile(ms, 90)), 5),
@@ -159,7 +181,8 @@ def time_parts(method: str, n_obstacles: int = 2, calls: int = 1000, overrides=(
     from tamedpuma.robot.kinematics import Kinematics
     from tamedpuma.types import Obstacles
 
-    built = build(compose([f"method={method}", "recorder=none", *overrides]))
+    label, (method, extra) = method, method_overrides(method)
+    built = build(compose([f"method={method}", "recorder=none", *extra, *overrides]))
     spec, scenario, ctrl = built.spec, built.scenario, built.controller
     rng = np.random.default_rng(seed)
     q0 = np.asarray(scenario.q0, dtype=float)
@@ -219,7 +242,7 @@ def time_parts(method: str, n_obstacles: int = 2, calls: int = 1000, overrides=(
                     primitive.single = one
     rows = []
     for part in parts:
-        row = {"method": method, "n_obstacles": n_obstacles, "part": part,
+        row = {"method": label, "n_obstacles": n_obstacles, "part": part,
                "us": round(float(np.median(np.concatenate(times[(part, False)][1:]))) * 1e6, 2)}
         if (part, True) in times:
             row["reference_us"] = round(
@@ -456,11 +479,13 @@ def time_side_by_side(method: str, counts, calls: int, budget_s: float, trees: d
     most ``block`` calls alternate between the sides (the order swapped every round), so a
     change of the machine's load hits every side alike. A side stops at ``calls`` calls or
     ``budget_s`` seconds of its own. Returns {side: rows}."""
+    label, (method, extra) = method, method_overrides(method)
     workers = {}
     try:
         for side, tree in trees.items():
-            workers[side] = _Worker(Path(tree), {"method": method,
-                                                 "overrides": list(overrides), "seed": 0})
+            variant = [] if side == "before" else extra  # before: the variant's old default
+            workers[side] = _Worker(Path(tree), {"method": method, "seed": 0,
+                                                 "overrides": [*variant, *overrides]})
         rows = {side: [] for side in trees}
         for n in counts:
             first = {side: w.ask({"cmd": "reset", "n": n})["first_s"] * 1e3
@@ -484,7 +509,7 @@ def time_side_by_side(method: str, counts, calls: int, budget_s: float, trees: d
                     spent[side] += time.perf_counter() - t0
                 order.reverse()
             for side in trees:
-                rows[side].append(_cell(method, n, np.array(got[side]) * 1e3, first[side],
+                rows[side].append(_cell(label, n, np.array(got[side]) * 1e3, first[side],
                                         workers[side].model))
         return rows
     finally:
@@ -669,7 +694,10 @@ def markdown_section(report: dict) -> str:
         lines += ["", f"{key} (cited from `{item['source']}`, not re-measured in this run): "
                   f"{item['wall_s']:.0f} s wall (file dated {item['date']})."]
     lines += ["", f"Machine: {m['cpu_model']}, {m['cores']} cores, Python {m['python']}, "
-              f"numpy {m['numpy']}; load average (1 / 5 / 15 min) "
+              f"numpy {m['numpy']}"
+              + (f", numba {m['numba']} (the `fast` extra)" if m.get("numba") else
+                 ", numba not installed")
+              + "; load average (1 / 5 / 15 min) "
               f"{_loads(m, 'load_averages_start')} at the start, "
               f"{_loads(m, 'load_averages_end')} at the end (a shared machine inflates every "
               "figure; compare ratios measured in one run).", ""]
@@ -718,7 +746,8 @@ def main(argv=None) -> int:
                         help="repeats per recorder setting (0: skip episode speed)")
     parser.add_argument("--training", action="store_true", help="also time PUMA training")
     parser.add_argument("--table1", action="store_true", help="also time +experiment=table1")
-    parser.add_argument("--parts", nargs="*", default=["fabrics", "puma", "fpm", "cpm"],
+    parser.add_argument("--parts", nargs="*",
+                        default=["fabrics", "fabrics+numba", "puma", "fpm", "cpm"],
                         metavar="METHOD", help="methods whose step is broken into parts "
                         "(2 obstacles; none: skip)")
     parser.add_argument("--baseline", metavar="REV",
@@ -734,6 +763,12 @@ def main(argv=None) -> int:
         print("error: counts must be ≥ 0, calls ≥ 1 and budget > 0", file=sys.stderr)
         return 2
     machine = machine_info()
+    from tamedpuma.fabrics import compiled
+
+    if compiled.AVAILABLE:  # the optional fast extra (fabric.kernel=numba)
+        from importlib.metadata import version
+
+        machine["numba"] = version("numba")
     machine["load_averages_start"] = load_averages()
     report = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "controller": [],
               "errors": [], "machine": machine, "overrides": args.overrides,

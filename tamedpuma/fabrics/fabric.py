@@ -245,18 +245,22 @@ class Fabric:
             state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities)
         psi, r = ws.goal_rows(state, qd, goal_position, goal_rotation, g, self._tx, self._tb,
                               self._weight_list)
-        ws.systems()  # Ms[0] = [M | f | f_L | …], Ms[1] = [M + M_ψ | f + f_ψ | …]
-        # q̈_G = −M⁻¹f and q̈_F = −(M + M_ψ)⁻¹(f + f_ψ) in one batched solve. M is SPD (base
-        # metric m_b > 0 plus PSD leaves), so never singular; non-finite input gives NaN here,
-        # which reaches every dot product below and is reported once.
-        if _solve is not None:
-            _solve(ws.Msys, ws.rhs, out=ws.sol)  # sol = −[q̈_G, q̈_F]
-        else:  # pragma: no cover - other numpy layouts
-            ws.sol[:] = -solve_acceleration(ws.Msys, ws.rhs)
         n = self._n
-        ws.qd_col[:] = qd
-        # q̇ᵀ[M | f | f_L | −q̈_G | −q̈_F | q̇]: q̇ᵀM, q̇ᵀf, q̇ᵀf_L, −q̇ᵀq̈_G, −q̇ᵀq̈_F, ‖q̇‖²
-        dots = qd @ ws.dots
+        if ws.compiled:  # the same three steps as below, compiled (fabrics.compiled)
+            ws.compiled.systems_solve(ws.Z, ws.W[0], ws.Rb, qd, ws.Ms, ws.dot_values)
+            dots = ws.dot_values
+        else:
+            ws.systems()  # Ms[0] = [M | f | f_L | …], Ms[1] = [M + M_ψ | f + f_ψ | …]
+            # q̈_G = −M⁻¹f and q̈_F = −(M + M_ψ)⁻¹(f + f_ψ) in one batched solve. M is SPD
+            # (base metric m_b > 0 plus PSD leaves), so never singular; non-finite input gives
+            # NaN here, which reaches every dot product below and is reported once.
+            if _solve is not None:
+                _solve(ws.Msys, ws.rhs, out=ws.sol)  # sol = −[q̈_G, q̈_F]
+            else:  # pragma: no cover - other numpy layouts
+                ws.sol[:] = -solve_acceleration(ws.Msys, ws.rhs)
+            ws.qd_col[:] = qd
+            # q̇ᵀ[M | f | f_L | −q̈_G | −q̈_F | q̇]: q̇ᵀM, q̇ᵀf, q̇ᵀf_L, −q̇ᵀq̈_G, −q̇ᵀq̈_F, ‖q̇‖²
+            dots = qd @ ws.dots
         qMq = float(dots[:n] @ qd)
         qf, qfl, neg_qg, neg_qF, speed_sq = dots[n:].tolist()
         # α_G = q̇ᵀ(M q̈_G + f_L)/(q̇ᵀMq̇ + ε) = q̇ᵀ(f_L − f)/(q̇ᵀMq̇ + ε), since M q̈_G = −f.

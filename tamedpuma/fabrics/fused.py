@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tamedpuma.fabrics import compiled
 from tamedpuma.fabrics.energy import attractor_blocks
 from tamedpuma.fabrics.gains import FabricGains
 from tamedpuma.robot.rotations import SKEW_GENERATORS as _SKEW  # skew(v).ravel() = v @ _SKEW
@@ -120,6 +121,9 @@ class LayoutBuffers:
         self.barrier_index = np.r_[0:self.P + 2 * n, self.L:self.Rb]
         self.barrier_blocks = (slice(0, self.P + 2 * n), slice(self.L, self.Rb))
         self.q_min, self.q_max = np.array(q_min, dtype=float), np.array(q_max, dtype=float)
+        # fabric.kernel=numba: the pair rows, the kernel and the goal rows by :mod:`compiled`
+        # (the numpy code below is the reference it is tested against)
+        self.compiled = compiled.kernels() if gains.kernel == "numba" else None
         self._build_design_matrix()
         self._build_kernel_inputs()
         self._build_kernel_constants(gains)
@@ -234,6 +238,7 @@ class LayoutBuffers:
         self.curv_flat = self.curv.reshape(-1)
         self.gscratch = np.empty(3 * K)
         self.blocks = np.kron(np.eye(K), np.ones((3, 1)))  # (3K, K): Σ over each block's rows
+        self.sq = np.empty(K)  # ‖e_k‖²
         self.gk = np.empty(2 * K)  # [g_1 … g_K, c_1 … c_K]
         self.gk_rows = self.gk.reshape(2, K, 1)
 
@@ -251,6 +256,7 @@ class LayoutBuffers:
         self.sol_forced = self.Ms[0, :, n + 3]
         self.qd_col = self.Ms[0, :, n + 4]
         self.dots = self.Ms[0]
+        self.dot_values = np.empty(n + 5)  # q̇ᵀ Ms[0] (compiled path)
 
     def barrier_rows(self, state, q, qd, obs_centers, obs_radii, obs_velocities,
                      g: FabricGains) -> tuple[int, int]:
@@ -258,6 +264,28 @@ class LayoutBuffers:
 
         Returns ``(n_clamped, n_limit_clamped)`` (distances below the margin, clamped up to it).
         """
+        J = state.sphere_jacobians
+        if self.compiled:
+            self.compiled.pair_rows(state.sphere_centers, J, state.sphere_jdqd, state.sphere_radii,
+                               qd, obs_centers, obs_radii, obs_velocities, self.xp, self.xdp,
+                               self.jdp, self.Zp, self.clear)
+        else:
+            self._pair_rows(state, qd, obs_centers, obs_radii, obs_velocities)
+        self._other_rows(state, q, qd, g)
+        x, margin = self.x, g.barrier_margin
+        n_limit = n_clamped = 0
+        self.x_raw = None  # the distances before clamping (only kept when some are clamped)
+        if _min(x) < margin:  # rare: penetration or a start on/past a limit
+            self.x_raw = x.copy()
+            P, L, n = self.P, self.L, self.n
+            n_clamped = int(np.count_nonzero(x[:P] < margin) + np.count_nonzero(x[L:] < margin))
+            n_limit = int(np.count_nonzero(x[P:L - n] < margin))  # not the base rows
+            np.maximum(x, margin, out=x)
+        return n_clamped, n_limit
+
+    def _pair_rows(self, state, qd, obs_centers, obs_radii, obs_velocities) -> None:
+        """The sphere × obstacle pair rows: x, ẋ, J̇q̇, the clearances and the Jacobian rows
+        (the numpy reference of ``tamedpuma.fabrics.compiled._pair_rows``)."""
         J = state.sphere_jacobians
         # pairs (leaves.sphere_obstacle_pairs): d = c_i − o_j, v = J_i q̇ − ȯ_j, a = J̇_i q̇
         np.subtract(state.sphere_centers.T[:, :, None], obs_centers.T[:, None, :], out=self.d)
@@ -281,6 +309,10 @@ class LayoutBuffers:
         np.multiply(self.s, self.w, out=self.jdp)
         np.multiply(self.d, self.w, out=self.U)  # u = ν/R: pair row uᵀJ_i
         np.matmul(self.Ut, J, out=self.Zp)
+
+    def _other_rows(self, state, q, qd, g: FabricGains) -> None:
+        """Joint-limit, base and ground rows."""
+        J = state.sphere_jacobians
         # joint limits [q − q_min, q_max − q] with ẋ [q̇, −q̇], base rows ẋ = q̇ (flat 1-d calls
         # are cheaper than one broadcast call)
         np.subtract(q, self.q_min, out=self.x_lo)
@@ -288,7 +320,6 @@ class LayoutBuffers:
         self.xd_lo[:] = qd
         np.negative(qd, out=self.xd_hi)
         self.xd_base[:] = qd
-        n_clamped = 0
         if self.ground:
             Jz = J[:, 2, :]
             np.subtract(state.sphere_centers[:, 2], state.sphere_radii, out=self.x_gr)
@@ -297,22 +328,15 @@ class LayoutBuffers:
             self.jd_gr[:] = state.sphere_jdqd[:, 2]
             self.Zground[:] = Jz
             self.ground_clearance = float(self.x_gr.min())
-        x, margin = self.x, g.barrier_margin
-        n_limit = 0
-        self.x_raw = None  # the distances before clamping (only kept when some are clamped)
-        if _min(x) < margin:  # rare: penetration or a start on/past a limit
-            self.x_raw = x.copy()
-            P, L, n = self.P, self.L, self.n
-            n_clamped = int(np.count_nonzero(x[:P] < margin) + np.count_nonzero(x[L:] < margin))
-            n_limit = int(np.count_nonzero(x[P:L - n] < margin))  # not the base rows
-            np.maximum(x, margin, out=x)
-        return n_clamped, n_limit
 
     def barrier_kernel(self) -> float:
         """Metric, geometry and energy columns of every barrier-like row (energy.barrier_leaf):
         ``m = 2 k_L s_L x^{−p_L}``, ``h = −k_h s_h ẋ² x^{−p_h}``, ``κ = −p_L ẋ²/(2x)``, as
         one power, two products with per-row constants and one product with ẋ² for all three.
         Returns the energy ``Σ H = ½ Σ m ẋ²``."""
+        if self.compiled:
+            return self.compiled.kernel(self.x, self.xd, self.negexp, self.gain, self.threshold,
+                                   self.jd, self.Wb, self.T, self.Zb_hl)
         x, xd = self.x, self.xd
         np.less(xd, self.threshold, out=self.S)  # s(ẋ)
         Wb = self.Wb
@@ -343,6 +367,11 @@ class LayoutBuffers:
         ``J̇q̇_k = B_k (J̇q̇)_ω + ω × (ω × x_k)``, ``ω = J_ω q̇`` (``ω × x_k = B_k ω``).
         """
         R = state.ee_rotation
+        if self.compiled:
+            self.compiled.goal_rows(R, state.ee_jacobian, state.ee_jdqd, qd, tb, tx,
+                               state.ee_position, goal_position, goal_rotation, self.Zg_all,
+                               self.E, self.sq)
+            return self._goal_gains(g, weights, self.sq.tolist())
         self.ext_J[...] = state.ee_jacobian
         self.ext_a[...] = state.ee_jdqd
         np.matmul(self.ext_Jw, qd, out=self.omega)
@@ -356,7 +385,12 @@ class LayoutBuffers:
         np.subtract(R, goal_rotation, out=self.dR)
         np.matmul(self.dR9, tx, out=self.E_ori)
         np.multiply(self.E, self.E, out=self.gscratch)
-        psi, r, ratio, gm = attractor_blocks((self.gscratch @ self.blocks).tolist(), g, weights)
+        return self._goal_gains(g, weights, (self.gscratch @ self.blocks).tolist())
+
+    def _goal_gains(self, g: FabricGains, weights, squared: list[float]):
+        """The attractor's potential, gradient ratio c_k (∇ψ_k = c_k e_k) and metric g_k of
+        every block from its squared error; the goal rows' metric and ``J̇q̇ + ∇ψ`` column."""
+        psi, r, ratio, gm = attractor_blocks(squared, g, weights)
         self.gk[:] = gm + ratio
         self.Wg[:] = self.gk_rows
         np.multiply(self.ratio_rows, self.E, out=self.gscratch)

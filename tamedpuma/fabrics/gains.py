@@ -82,6 +82,9 @@ class FabricGains:
       ``β = ½ damping_close (tanh(−damping_slope (‖e‖ − damping_radius)) + 1) + damping_far
       + max(0, α_G − α_ex)`` [1/s].
     energization_eps: ε added to ``q̇ᵀMq̇`` in energization denominators [(rad/s)²].
+    kernel: ``numpy`` (the reference) or ``numba`` (:mod:`tamedpuma.fabrics.compiled`: the same
+      maths compiled, equal to rounding; needs the ``fast`` extra): how the pair rows and the
+      barrier kernel are computed.
     """
 
     base_metric: float = 0.2
@@ -108,6 +111,7 @@ class FabricGains:
     damping_radius: float = 0.02
     damping_far: float = 0.01
     energization_eps: float = 1.0e-6
+    kernel: str = "numpy"
 
     def __post_init__(self):
         positive = ("base_metric", "barrier_margin", "goal_potential_gain", "goal_sharpness",
@@ -127,6 +131,12 @@ class FabricGains:
         if len(set(axes)) != len(axes) or any(a not in (0, 1, 2) for a in axes):
             raise ConfigError(f"fabric.orientation_axes must be distinct of 0, 1, 2; got {axes}")
         object.__setattr__(self, "orientation_axes", axes)
+        from tamedpuma.fabrics import compiled
+
+        try:
+            compiled.check(self.kernel)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
 
     @classmethod
     def from_mapping(cls, cfg: Mapping | None) -> FabricGains:
@@ -156,6 +166,8 @@ class FabricGains:
                 kwargs[key] = tuple(int(a) for a in value)
             elif key == "ground_enabled":
                 kwargs[key] = bool(value)
+            elif key == "kernel":
+                kwargs[key] = str(value)
             else:
                 try:
                     kwargs[key] = float(value)

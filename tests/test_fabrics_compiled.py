@@ -1,0 +1,85 @@
+"""The compiled fabric kernels (``fabric.kernel=numba``, tamedpuma.fabrics.compiled) against the
+numpy reference (fused.py): the same acceleration, diagnostics, metric, forces and barrier rows
+to rounding, clamped pairs and the ground leaf included; non-finite input still refused. Skipped
+when numba is not installed (the optional ``fast`` extra)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tamedpuma.errors import ConfigError
+from tamedpuma.fabrics import Fabric, FabricError, FabricGains, compiled, quaternion_to_rotation
+
+Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
+GOAL_P = np.array([0.58, -0.214, 0.115])
+GOAL_R = quaternion_to_rotation([-0.5459, 0.5806, -0.4112, 0.4426])
+
+
+def test_kernel_option_is_checked():
+    with pytest.raises(ConfigError, match="fabric.kernel must be one of"):
+        FabricGains(kernel="fortran")
+    assert FabricGains.from_mapping({"kernel": "numpy"}).kernel == "numpy"
+
+
+def test_numba_kernel_without_numba_is_a_config_error(monkeypatch):
+    monkeypatch.setattr(compiled, "AVAILABLE", False)
+    with pytest.raises(ConfigError, match=r"needs numba: pip install 'tamedpuma\[fast\]'"):
+        FabricGains(kernel="numba")
+
+
+def _close(a, b, what, rtol=1e-9):
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    scale = 1.0 + np.abs(a).max() if a.size else 1.0
+    assert a.shape == b.shape, what
+    assert np.all(np.isfinite(a) == np.isfinite(b)), what
+    assert np.abs(np.nan_to_num(a) - np.nan_to_num(b)).max(initial=0.0) <= rtol * scale, what
+
+
+@pytest.mark.parametrize("ground", [False, True])
+def test_compiled_kernels_match_the_numpy_reference(kinematics, robot_spec, ground):
+    pytest.importorskip("numba")
+    gains = FabricGains(ground_enabled=ground, ground_height=0.3 if ground else 0.0)
+    ref = Fabric(gains, robot_spec.q_min, robot_spec.q_max)
+    fast = Fabric(dataclasses.replace(gains, kernel="numba"), robot_spec.q_min, robot_spec.q_max)
+    rng = np.random.default_rng(11)
+    seen_clamped = False
+    for n_obs in (0, 1, 2, 7, 60, 400):  # 400 obstacles: the split (many-row) layout
+        for trial in range(4):
+            q = np.clip(Q0 + rng.normal(scale=0.4, size=7), robot_spec.q_min, robot_spec.q_max)
+            if trial == 3:
+                q[1] = robot_spec.q_max[1]  # on a joint limit: a clamped limit row
+            qd = rng.normal(scale=1.0, size=7)
+            st = kinematics.evaluate(q, qd)
+            centers = rng.uniform([-0.8, -0.8, 0.0], [0.8, 0.8, 1.2], size=(n_obs, 3))
+            if n_obs and trial % 2:  # an obstacle inside a body sphere: a clamped pair
+                centers[0] = st.sphere_centers[2] + 0.01
+            obs = (centers, rng.uniform(0.02, 0.1, size=n_obs),
+                   rng.normal(scale=0.3, size=(n_obs, 3)))
+            for _ in range(2):  # twice: reused buffers give the same answer
+                a, da = ref.evaluate(st, q, qd, *obs, GOAL_P, GOAL_R)
+                b, db = fast.evaluate(st, q, qd, *obs, GOAL_P, GOAL_R)
+                _close(a, b, f"q̈ at {n_obs} obstacles")
+                for key, value in da.as_scalars().items():
+                    _close(value, db.as_scalars()[key], key)
+                ra = ref.avoidance(st, q, qd, *obs)
+                rb = fast.avoidance(st, q, qd, *obs)
+                for name in ("M", "forces", "energy", "min_clearance", "ground_clearance",
+                             "barrier_rows", "barrier_x", "barrier_jdqd"):
+                    _close(getattr(ra, name), getattr(rb, name), name)
+                assert (ra.n_clamped, ra.n_limit_clamped) == (rb.n_clamped, rb.n_limit_clamped)
+                seen_clamped |= ra.n_clamped > 0 and ra.n_limit_clamped > 0
+    assert seen_clamped  # the clamped branches were exercised
+
+
+def test_compiled_kernels_refuse_non_finite_input(kinematics, robot_spec):
+    pytest.importorskip("numba")
+    fast = Fabric(FabricGains(kernel="numba"), robot_spec.q_min, robot_spec.q_max)
+    qd = np.full(7, 0.1)
+    st = kinematics.evaluate(Q0, qd)
+    obs = (np.array([[0.4, 0.0, 0.5], [np.nan, 0.0, 0.5]]), np.array([0.05, 0.05]),
+           np.zeros((2, 3)))
+    with pytest.raises(FabricError, match="not finite"):
+        fast.evaluate(st, Q0, qd, *obs, GOAL_P, GOAL_R)
