@@ -37,11 +37,14 @@ def test_episode_rows_and_overheads_are_relative_to_none():
         assert r["overhead_vs_none"] == pytest.approx(r["wall_s"] / by["none"]["wall_s"] - 1,
                                                       abs=1e-3)
         assert r["speedup"] == pytest.approx(r["before_wall_s"] / r["wall_s"], rel=1e-2)
+        assert 0 < r["controller_s"] < r["wall_s"]
+    assert 0 < by["none"]["physics_s"] < by["none"]["wall_s"]
     section = bench.markdown_section({"date": "d", "controller": [], "episodes": rows,
                                       "episode_baseline": {"rev": "HEAD", "commit": "0" * 40},
                                       "machine": {"cpu_model": "c", "cores": 2, "python": "3",
                                                   "numpy": "2"}})
     assert "| mcap+rerun | " in section and "`0000000` (`HEAD`)" in section
+    assert "the simulator alone" in section
 
 
 def test_command_writes_json_and_keeps_other_sections(tmp_path):

@@ -283,7 +283,11 @@ def time_episodes(method: str = "fpm", repeats: int = 3, overrides=(),
         for r in range(repeats):
             for rec in recorders[r % len(recorders):] + recorders[:r % len(recorders)]:
                 for side in (sides if r % 2 == 0 else sides[::-1]):
-                    got[(side, rec)].append(workers[side].ask({"cmd": "run", "recorder": rec}))
+                    run = workers[side].ask({"cmd": "run", "recorder": rec,
+                                             "physics": rec == "none"})
+                    if rec == "none":
+                        run.update(workers[side].read())
+                    got[(side, rec)].append(run)
     finally:
         for w in workers.values():
             w.close()
@@ -300,7 +304,11 @@ def time_episodes(method: str = "fpm", repeats: int = 3, overrides=(),
                 "wall_p90_s": round(float(np.percentile(wall, 90)), 4),
                 "run_wall_s": round(float(np.median([x["wall_s"] for x in runs])), 4),
                 "realtime_factor": round(sim_s / float(np.median(wall)), 1),
+                "controller_s": round(float(np.median([x["controller_s"] for x in runs])), 4),
                 "repeats": len(runs)})
+            if rec == "none":
+                rows[side][-1]["physics_s"] = round(
+                    float(np.median([x["physics_s"] for x in runs])), 4)
         base = next(r["wall_s"] for r in rows[side] if r["recorder"] == "none")
         for r in rows[side]:
             r["overhead_vs_none"] = round(r["wall_s"] / base - 1.0, 4)
@@ -361,8 +369,22 @@ try:
         summary = sweep.run_one(configs[cmd["recorder"]], run_dir)
         wall = time.perf_counter() - t0
         send({"wall_s": wall, "loop_s": loops[-1], "steps": summary["steps"],
-              "sim_s": summary["duration_s"]})
+              "sim_s": summary["duration_s"],
+              "controller_s": sum(summary.get("step_compute_ms") or [float("nan")]) / 1e3})
         shutil.rmtree(run_dir, ignore_errors=True)
+        if cmd.get("physics"):  # the simulator alone: as many steps, zero command, no reads
+            import numpy as np
+            from tamedpuma.worlds.bullet import Simulator
+
+            built = sweep.build(configs["none"])
+            with Simulator(built.spec, built.sim_config, built.disturbance) as sim:
+                sim.reset(built.scenario)
+                zero = np.zeros(built.spec.dof)
+                t0 = time.perf_counter()
+                for _ in range(summary["steps"]):
+                    sim.step(zero)
+                physics = time.perf_counter() - t0
+            send({"physics_s": physics})
 finally:
     shutil.rmtree(tmp, ignore_errors=True)
 """
@@ -445,6 +467,10 @@ class _Worker:
     def ask(self, cmd: dict) -> dict:
         self.proc.stdin.write(json.dumps(cmd) + "\n")
         self.proc.stdin.flush()
+        return self.read()
+
+    def read(self) -> dict:
+        """The worker's next answer."""
         line = self.proc.stdout.readline()
         if not line:
             self.proc.wait()
@@ -687,6 +713,18 @@ def markdown_section(report: dict) -> str:
                           f"{_ratio(r['speedup'])} |" if "speedup" in r
                           else " — | — | — | — | — |")
             lines.append(cells)
+        none = next((r for r in eps if r["recorder"] == "none" and "physics_s" in r), None)
+        if none:
+            rest = none["wall_s"] - none["physics_s"] - none["controller_s"]
+            lines += ["", "Where the episode's time goes (recorder=none, medians): the simulator "
+                      f"alone {none['physics_s']:.3f} s (the same {none['steps']} steps with a "
+                      "zero command and no state reads: "
+                      f"{none['sim_s'] / none['physics_s']:.0f}× real time at most, PyBullet's "
+                      "1 ms substeps), the controller "
+                      f"{none['controller_s']:.3f} s "
+                      f"({1e3 * none['controller_s'] / none['steps']:.3f} ms per step), the "
+                      f"rest {rest:.3f} s (the simulator's state reads, "
+                      "contacts, the step records, metrics)."]
     for key, item in report.get("commands", {}).items():
         lines += ["", f"{key}: `{item['command']}` took {item['wall_s']} s "
                   f"(exit {item['returncode']})."]
