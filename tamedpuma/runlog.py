@@ -138,17 +138,24 @@ def _parse_info(meta: dict) -> dict:
     return info
 
 
+def existing_log(path: str | os.PathLike, what: str) -> Path:
+    """``path`` as a Path if the file exists; else :class:`LogError` naming ``what`` (e.g. "run
+    log") and, if a killed run left ``<path>.active`` beside it, that file."""
+    path = Path(path)
+    if not path.is_file():
+        alt = Path(f"{path}{ACTIVE_SUFFIX}")
+        hint = f" (an interrupted run left {alt.name})" if alt.is_file() else ""
+        raise LogError(f"{what} {path} not found{hint}")
+    return path
+
+
 def read_mcap(path: str | os.PathLike) -> RunLog:
     """Read a run's MCAP file (finished or ``.active``) into DataFrames.
 
     Steps are kept only if all their per-step messages were read. Raises :class:`LogError` if the
     file is missing, is not MCAP, or holds no readable run data.
     """
-    path = Path(path)
-    if not path.is_file():
-        alt = Path(f"{path}{ACTIVE_SUFFIX}")
-        hint = f" (an interrupted run left {alt.name})" if alt.is_file() else ""
-        raise LogError(f"run log {path} not found{hint}")
+    path = existing_log(path, "run log")
     scan = _scan(path)
     if META_RUN_INFO not in scan.metadata and not scan.messages:
         why = f": {scan.error}" if scan.error else ""

@@ -235,6 +235,18 @@ def test_truncated_and_corrupt_files(mcap_run, tmp_path):
         read_mcap(tmp_path / "missing.mcap")
 
 
+def test_a_missing_log_names_the_active_file_a_killed_run_left(tmp_path):
+    """Both readers: a missing log is a LogError naming it, and the ``.active`` file beside it."""
+    for read, name, what in ((read_mcap, "episode.mcap", "run log"),
+                             (read_rrd_scalars, "episode.rrd", "rerun log")):
+        path = tmp_path / name
+        with pytest.raises(LogError, match=f"^{what} .*{name} not found$"):
+            read(path)
+        active_path(path).write_bytes(b"")
+        with pytest.raises(LogError, match=rf"not found \(an interrupted run left {name}.active\)"):
+            read(path)
+
+
 def test_rerun_round_trip(tmp_path):
     urdf = _urdf(tmp_path)
     path = tmp_path / "episode.rrd"

@@ -14,7 +14,7 @@ import sys
 
 import pandas as pd
 
-from tamedpuma.analysis.runs import runs_or_error, runs_parser
+from tamedpuma.analysis.runs import parse_and_load, runs_parser, write_table
 from tamedpuma.analysis.tables import _pm, failure_counts, ordered_labels
 
 
@@ -38,17 +38,13 @@ def disturbance_table(runs: pd.DataFrame) -> pd.DataFrame:
 
 def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
-    args = parser.parse_args(argv)
-    loaded = runs_or_error(args.runs, summaries=True)
-    if loaded is None:
+    got = parse_and_load(parser, argv, summaries=True)
+    if got is None:
         return 2
-    runs, _ = loaded
+    args, (runs, _) = got
     table = disturbance_table(runs)
     out = args.out or args.runs
-    out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out / "disturbance.csv", index=False)
-    text = table.to_markdown(index=False, disable_numparse=True) + "\n"
-    (out / "disturbance.md").write_text(text)
+    text = write_table(table, out, "disturbance")
     print(text)
     print(f"{len(runs)} runs read; disturbance.md, disturbance.csv in {out}")
     return 0

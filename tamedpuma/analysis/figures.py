@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from tamedpuma.analysis.runs import runs_or_error, runs_parser
+from tamedpuma.analysis.runs import parse_and_load, runs_parser
 from tamedpuma.analysis.stats import bootstrap_ci
 from tamedpuma.analysis.tables import _labels, ordered_labels
 from tamedpuma.errors import LogError
@@ -322,11 +322,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS/figures)")
     parser.add_argument("--formats", default="png,pdf",
                         help="comma-separated file formats (default: png,pdf)")
-    args = parser.parse_args(argv)
-    loaded = runs_or_error(args.runs)
-    if loaded is None:
+    got = parse_and_load(parser, argv)
+    if got is None:
         return 2
-    runs, paths, _ = loaded
+    args, (runs, paths, _) = got
     formats = tuple(f.strip() for f in args.formats.split(",") if f.strip())
     written = make_figures(runs, paths, args.out or args.runs / "figures", formats)
     for p in written:

@@ -16,7 +16,7 @@ import sys
 
 import pandas as pd
 
-from tamedpuma.analysis.runs import runs_or_error, runs_parser
+from tamedpuma.analysis.runs import parse_and_load, runs_parser, write_table
 from tamedpuma.analysis.summaries import bootstrap_ci
 from tamedpuma.analysis.tables import _pm, failure_counts, ordered_labels, path_differences
 
@@ -48,19 +48,15 @@ def random_table(runs: pd.DataFrame) -> pd.DataFrame:
 
 def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
-    args = parser.parse_args(argv)
-    loaded = runs_or_error(args.runs)
-    if loaded is None:
+    got = parse_and_load(parser, argv)
+    if got is None:
         return 2
-    runs, paths, _ = loaded
+    args, (runs, paths, _) = got
     runs["path_difference_m"] = path_differences(runs, paths)
     table = random_table(runs)
     out = args.out or args.runs
-    out.mkdir(parents=True, exist_ok=True)
+    text = write_table(table, out, "random_suite")
     runs.to_csv(out / "runs.csv", index=False)
-    table.to_csv(out / "random_suite.csv", index=False)
-    text = table.to_markdown(index=False, disable_numparse=True) + "\n"
-    (out / "random_suite.md").write_text(text)
     print(text)
     print(f"{len(runs)} runs read, {len(runs.attrs.get('skipped', []))} skipped; tables in {out}")
     return 0

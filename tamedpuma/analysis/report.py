@@ -18,7 +18,7 @@ import pandas as pd
 import yaml
 
 from tamedpuma.analysis.figures import make_figures, method_summary
-from tamedpuma.analysis.runs import runs_or_error, runs_parser
+from tamedpuma.analysis.runs import parse_and_load, runs_parser
 from tamedpuma.analysis.tables import _labels, path_differences, table1
 
 
@@ -184,11 +184,10 @@ def render(root: Path, runs: pd.DataFrame, paths: dict, times: dict, out: Path,
 def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
     parser.add_argument("--no-figures", action="store_true", help="tables only")
-    args = parser.parse_args(argv)
-    loaded = runs_or_error(args.runs, allow_empty=True)
-    if loaded is None:
+    got = parse_and_load(parser, argv, allow_empty=True)
+    if got is None:
         return 2
-    runs, paths, times = loaded
+    args, (runs, paths, times) = got
     out = args.out or args.runs
     out.mkdir(parents=True, exist_ok=True)
     text = render(args.runs, runs, paths, times, out, figures=not args.no_figures)

@@ -54,6 +54,25 @@ def runs_or_error(folder: Path, *, summaries: bool = False, allow_empty: bool = 
     return loaded
 
 
+def parse_and_load(parser: argparse.ArgumentParser, argv: list[str] | None, **load):
+    """An analysis command's input: ``(arguments, runs)`` with the runs from
+    :func:`runs_or_error` (``load``: its options), or None after its one-line error (the
+    command then exits with status 2)."""
+    args = parser.parse_args(argv)
+    loaded = runs_or_error(args.runs, **load)
+    return None if loaded is None else (args, loaded)
+
+
+def write_table(table: pd.DataFrame, out: Path, stem: str) -> str:
+    """Write ``out/<stem>.csv`` and ``out/<stem>.md`` (Markdown with the cells as formatted);
+    returns the Markdown."""
+    out.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out / f"{stem}.csv", index=False)
+    text = table.to_markdown(index=False, disable_numparse=True) + "\n"
+    (out / f"{stem}.md").write_text(text)
+    return text
+
+
 def find_logs(root: str | Path) -> list[Path]:
     """Every ``episode.mcap`` (finished) or ``episode.mcap.active`` (killed) below ``root``."""
     root = Path(root)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from tamedpuma.analysis.runs import runs_or_error, runs_parser
+from tamedpuma.analysis.runs import parse_and_load, runs_parser
 from tamedpuma.analysis.summaries import pooled_step_times
 from tamedpuma.analysis.tables import ordered_labels
 
@@ -83,11 +83,10 @@ def figure(table: pd.DataFrame, path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
-    args = parser.parse_args(argv)
-    loaded = runs_or_error(args.runs, summaries=True)
-    if loaded is None:
+    got = parse_and_load(parser, argv, summaries=True)
+    if got is None:
         return 2
-    runs, times = loaded
+    args, (runs, times) = got
     table = scaling_table(runs, times)
     out = args.out or args.runs
     out.mkdir(parents=True, exist_ok=True)

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from tamedpuma.analysis.path_difference import path_difference
-from tamedpuma.analysis.runs import runs_or_error, runs_parser
+from tamedpuma.analysis.runs import parse_and_load, runs_parser
 
 METHOD_ORDER = ["puma", "modulation_ik", "fabrics", "fpm", "cpm", "cpm_literal", "cpm_original"]
 
@@ -141,11 +141,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
     parser.add_argument("--include-incomplete", action="store_true",
                         help="score killed/truncated runs too (default: listed and excluded)")
-    args = parser.parse_args(argv)
-    loaded = runs_or_error(args.runs)
-    if loaded is None:
+    got = parse_and_load(parser, argv)
+    if got is None:
         return 2
-    runs, paths, times = loaded
+    args, (runs, paths, times) = got
     attrs = dict(runs.attrs)
     incomplete = runs[~runs["complete"].astype(bool)]
     if not args.include_incomplete:

@@ -15,7 +15,7 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from ..errors import LogError
-from ..runlog import ACTIVE_SUFFIX, RunLog, _scan, read_mcap
+from ..runlog import RunLog, _scan, existing_log, read_mcap
 
 __all__ = ["RunLog", "check_rrd", "read_mcap", "read_rrd_joints", "read_rrd_scalars",
            "read_rrd_series", "recover_mcap"]
@@ -100,11 +100,7 @@ def read_rrd_series(path: str | os.PathLike, root: str) -> pd.DataFrame:
     """
     from rerun.chunk import RrdReader
 
-    path = Path(path)
-    if not path.is_file():
-        alt = Path(f"{path}{ACTIVE_SUFFIX}")
-        hint = f" (an interrupted run left {alt.name})" if alt.is_file() else ""
-        raise LogError(f"rerun log {path} not found{hint}")
+    path = existing_log(path, "rerun log")
     root = "/" + root.strip("/")
     try:
         with warnings.catch_warnings():  # a killed run's file has no footer: whole-file scan
