@@ -182,7 +182,7 @@ def test_defaults_are_typed_objects_and_complete(hydra_conf):
 
 
 _DEFAULTED_GET = re.compile(
-    r"\b(cfg|task|puma|syn|ws|clutter|sc_cfg|robot)\.get\(\s*['\"]\w+['\"]\s*,")
+    r"\b(\w*cfg|\w*conf|task|puma|syn|ws|clutter|robot|opts|method)\.get\(\s*['\"]\w+['\"]\s*,")
 
 
 

@@ -133,7 +133,7 @@ class ScenarioSchema:
     q0: list[float] | None = None    # start [rad]; null: the robot's home (or generated)
     goal: GoalSchema = field(default_factory=GoalSchema)
     random_seed: int | None = None   # scenario=random: the generator's seed
-    start_kind: str | None = None    # scenario=random: near_table1 | anywhere
+    start_kind: str = "near_table1"  # random / from-demos starts: near_table1 | anywhere
     random: Any = None               # scenario=random: generator parameters (RandomParams)
     generator: Any = None            # scenario=from_demos: {kind: demos, ...}
     obstacles: list[ObstacleSchema] = field(default_factory=list)

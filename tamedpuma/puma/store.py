@@ -243,9 +243,8 @@ def resolve_for_method(method_cfg: dict) -> ModelChoice | None:
     """The model of a method config (None for methods without a ``checkpoint`` key)."""
     if "checkpoint" not in method_cfg:
         return None
-    task = method_cfg.get("task")
+    task = method_cfg["task"]
     if not task:
         raise ConfigError("method.task is not set (it names the task whose model to use)")
-    order = 1 if method_cfg.get("name") in POSITION_METHODS else 2
-    return resolve(str(task), order, method_cfg.get("checkpoint"),
-                   str(method_cfg.get("model", "auto")))
+    order = 1 if method_cfg["name"] in POSITION_METHODS else 2
+    return resolve(str(task), order, method_cfg["checkpoint"], str(method_cfg["model"]))

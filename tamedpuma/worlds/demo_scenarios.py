@@ -188,7 +188,7 @@ def apply(plain: dict, kinematics) -> dict:
     # scenario=random (worlds/random_scenarios.py) for a task without Table-1 starts: its
     # near_table1 starts are then the IK solutions of the demonstrations' start poses
     random_near = (sc.get("random_seed") is not None
-                   and (sc.get("start_kind") or "near_table1") == "near_table1"
+                   and sc["start_kind"] == "near_table1"
                    and (task.get("derive") or task.get("demos") not in (None, "lasa")))
     need_goal = bool(task.get("derive")) and (task.get("goal_position") is None
                                               or task.get("workspace") is None)

@@ -212,7 +212,7 @@ def random_scenario(cfg: Mapping, kinematics) -> Scenario:
     params = RandomParams.from_mapping(
         {**(sc_cfg["random"] or {}), "dt": sc_cfg["dt"], "max_steps": sc_cfg["max_steps"],
          "goal_tolerance": sc_cfg["goal_tolerance"]},
-        str(sc_cfg["start_kind"] or "near_table1"))
+        str(sc_cfg["start_kind"]))
     region = TaskRegion.from_task_config(task_cfg)
     region = replace(region, goal_position=np.asarray(sc_cfg["goal"]["position"], dtype=float),
                      goal_quaternion=np.asarray(sc_cfg["goal"]["quaternion"], dtype=float))
