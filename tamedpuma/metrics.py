@@ -104,27 +104,83 @@ def _judge(causes: dict[str, np.ndarray], names: tuple[str, ...], reach: int | N
     return cause is None and reach is not None, clean_settle, cause
 
 
-def run_metrics(
-    t: np.ndarray,
-    position_error: np.ndarray,
-    orientation_error: np.ndarray,
-    clearance: np.ndarray,
-    obstacle_contact: np.ndarray,
-    ground_contact: np.ndarray,
-    q: np.ndarray,
-    q_min: np.ndarray,
-    q_max: np.ndarray,
-    compute_ms: np.ndarray,
-    tolerance: float = 0.05,
-    orientation_tolerance: float = 0.2,
-    limit_tolerance: float = 1e-6,
-    time_limit: float = math.inf,
-    settle_time: float = 0.0,
-    ee_position: np.ndarray | None = None,
-    stall_window: float = 2.0,
-    stall_distance: float = 0.01,
-    disturbance_time: float | None = None,
-) -> RunMetrics:
+def _failure_causes(clearance, obstacle_contact, ground_contact, q, q_min, q_max,
+                    limit_tolerance: float) -> dict[str, np.ndarray]:
+    """Per-step flags (T,) of each failure cause: a body sphere inside an obstacle (clearance
+    < 0), a contact with an obstacle or the ground, a joint beyond its limit by more than
+    ``limit_tolerance`` [rad]."""
+    q = np.asarray(q, dtype=float)
+    return {
+        "sphere_penetration": clearance < 0,
+        "obstacle_contact": np.asarray(obstacle_contact, dtype=bool),
+        "ground_contact": np.asarray(ground_contact, dtype=bool),
+        "joint_limit": ((q < q_min - limit_tolerance) | (q > q_max + limit_tolerance)).any(axis=1),
+    }
+
+
+def _reach_and_settle(t: np.ndarray, inside: np.ndarray, settle_time: float,
+                      disturbance_time: float | None) -> tuple[int | None, int | None]:
+    """Step indices of the first step inside the goal tolerance (at or after the disturbance, if
+    any) and of the first step ``settle_time`` [s] later; None where there is none."""
+    n = len(t)
+    after = t >= disturbance_time - 1e-9 if disturbance_time is not None else np.ones(n, bool)
+    reach = _first(inside & after)
+    if reach >= n:
+        return None, None
+    k_s = _first(t >= t[reach] + settle_time - 1e-9)
+    return reach, (k_s if k_s < n else None)
+
+
+def _stall_or_time(t: np.ndarray, ee_position, stall_window: float,
+                   stall_distance: float) -> str:
+    """A run that never reached the goal and never failed: ``stall`` if the end effector moved
+    less than ``stall_distance`` [m] in the last ``stall_window`` [s] (known only with
+    ``ee_position``), else ``time``."""
+    if ee_position is not None:
+        ee = np.asarray(ee_position, dtype=float)
+        window = t >= t[-1] - stall_window
+        if t[-1] - t[0] >= stall_window:
+            moved = np.linalg.norm(ee[window] - ee[-1], axis=1).max()
+            if moved < stall_distance:
+                return "stall"
+    return "time"
+
+
+def _outcome(label: str, causes, names, reach, settle, in_time: bool, oriented: bool,
+             stalled) -> dict:
+    """``success_<label>``, ``orientation_success_<label>`` and ``failure_<label>`` judged on the
+    causes ``names``: the first cause before the reach, else ``late`` (reached after the time
+    limit), else ``stalled()`` (``stall`` or ``time``); empty on success."""
+    ok, clean_settle, cause = _judge(causes, names, reach, settle, len(causes[names[0]]))
+    success = ok and in_time
+    if success:
+        failure = ""
+    elif cause or reach is not None:
+        failure = cause or "late"
+    else:
+        failure = stalled()
+    return {f"success_{label}": bool(success),
+            f"orientation_success_{label}": bool(success and clean_settle and oriented),
+            f"failure_{label}": failure}
+
+
+def _compute_stats(compute_ms) -> dict[str, float]:
+    """Mean, std, median, p99, max and first of the controller's compute times [ms]."""
+    ms = np.asarray(compute_ms, dtype=float)
+    return {"compute_ms_mean": float(ms.mean()), "compute_ms_std": float(ms.std()),
+            "compute_ms_median": float(np.median(ms)),
+            "compute_ms_p99": float(np.percentile(ms, 99)), "compute_ms_max": float(ms.max()),
+            "compute_ms_first": float(ms[0])}
+
+
+def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np.ndarray,
+                clearance: np.ndarray, obstacle_contact: np.ndarray, ground_contact: np.ndarray,
+                q: np.ndarray, q_min: np.ndarray, q_max: np.ndarray, compute_ms: np.ndarray,
+                tolerance: float = 0.05, orientation_tolerance: float = 0.2,
+                limit_tolerance: float = 1e-6, time_limit: float = math.inf,
+                settle_time: float = 0.0, ee_position: np.ndarray | None = None,
+                stall_window: float = 2.0, stall_distance: float = 0.01,
+                disturbance_time: float | None = None) -> RunMetrics:
     """Metrics of one run from per-step arrays (T steps): t (T,) [s], end-effector position
     error to the goal (T,) [m], orientation error (T,) [rad], clearance (T,) [m], contact flags
     (T,), q (T, n) [rad], compute_ms (T,), optional ee_position (T, 3) [m] (for the stall class).
@@ -138,47 +194,19 @@ def run_metrics(
     pos_err = np.asarray(position_error, dtype=float)
     rot_err = np.asarray(orientation_error, dtype=float)
     clearance = np.asarray(clearance, dtype=float)
-    q = np.asarray(q, dtype=float)
-    violations = ((q < q_min - limit_tolerance) | (q > q_max + limit_tolerance)).any(axis=1)
-    causes = {
-        "sphere_penetration": clearance < 0,
-        "obstacle_contact": np.asarray(obstacle_contact, dtype=bool),
-        "ground_contact": np.asarray(ground_contact, dtype=bool),
-        "joint_limit": violations,
-    }
+    causes = _failure_causes(clearance, obstacle_contact, ground_contact, q, q_min, q_max,
+                             limit_tolerance)
     inside = pos_err <= tolerance
-    after = t >= disturbance_time - 1e-9 if disturbance_time is not None else np.ones(n, bool)
-    reach = _first(inside & after)
-    reach = reach if reach < n else None
-    settle = None
-    if reach is not None:
-        k_s = _first(t >= t[reach] + settle_time - 1e-9)
-        settle = k_s if k_s < n else None
+    reach, settle = _reach_and_settle(t, inside, settle_time, disturbance_time)
     in_time = reach is not None and t[reach] < time_limit - 1e-9
     oriented = (settle is not None and bool(inside[settle])
                 and rot_err[settle] <= orientation_tolerance)
 
-    def fallback() -> str:
-        if reach is not None:
-            return "late"  # reached, no collision, but after the time limit
-        if ee_position is not None:
-            ee = np.asarray(ee_position, dtype=float)
-            window = t >= t[-1] - stall_window
-            if t[-1] - t[0] >= stall_window:
-                moved = np.linalg.norm(ee[window] - ee[-1], axis=1).max()
-                if moved < stall_distance:
-                    return "stall"
-        return "time"
-
+    stalled = lambda: _stall_or_time(t, ee_position, stall_window, stall_distance)  # noqa: E731
     result = {}
     for label, names in (("paper", PAPER_CAUSES), ("whole_body", CAUSES)):
-        ok, clean_settle, cause = _judge(causes, names, reach, settle, n)
-        success = ok and in_time
-        result[f"success_{label}"] = bool(success)
-        result[f"orientation_success_{label}"] = bool(success and clean_settle and oriented)
-        result[f"failure_{label}"] = "" if success else (cause or fallback())
+        result.update(_outcome(label, causes, names, reach, settle, in_time, oriented, stalled))
 
-    ms = np.asarray(compute_ms, dtype=float)
     recovery = float("nan")
     if (disturbance_time is not None and reach is not None and result["success_whole_body"]
             and t[reach] >= disturbance_time):
@@ -200,11 +228,6 @@ def run_metrics(
         sphere_penetration=bool(causes["sphere_penetration"].any()),
         obstacle_contact=bool(causes["obstacle_contact"].any()),
         ground_contact=bool(causes["ground_contact"].any()),
-        joint_limit_violation_steps=int(violations.sum()),
-        compute_ms_mean=float(ms.mean()),
-        compute_ms_std=float(ms.std()),
-        compute_ms_median=float(np.median(ms)),
-        compute_ms_p99=float(np.percentile(ms, 99)),
-        compute_ms_max=float(ms.max()),
-        compute_ms_first=float(ms[0]),
+        joint_limit_violation_steps=int(causes["joint_limit"].sum()),
+        **_compute_stats(compute_ms),
     )
