@@ -16,6 +16,8 @@ from tamedpuma.app import schema
 from tamedpuma.app.config import CONF_DIR
 from tamedpuma.errors import ConfigError
 from tamedpuma.methods import cpm
+from tamedpuma.worlds.demo_scenarios import DemoScenarioConfig
+from tamedpuma.worlds.random_scenarios import RandomParams
 
 PKG = Path(__file__).resolve().parents[1] / "tamedpuma"
 
@@ -61,6 +63,14 @@ def test_run_yaml_loads_against_the_schema(hydra_conf, group, option):
     run = schema.run_config(compose("sweep", overrides=_run_overrides(group, option)))
     assert isinstance(run.method, schema.METHODS[run.method.name])
     assert run.scenario.dt > 0 and run.sim.substep > 0
+    # the scenario generators' blocks are untyped in the schema: their own dataclasses check them
+    sc = run.scenario
+    if sc.random is not None:
+        RandomParams.from_mapping(sc.random, sc.start_kind)  # ScenarioError on an unknown key
+    if sc.generator is not None:
+        gen = dict(sc.generator)
+        assert gen.pop("kind") == "demos"
+        DemoScenarioConfig(**gen)  # TypeError on an unknown key
 
 
 @pytest.mark.parametrize("group,option", TRAIN_CASES, ids=lambda v: str(v))
