@@ -131,7 +131,7 @@ def pull_to_joints(task: TaskAcceleration, damping: float | Damping,
 
 
 def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float, m_null: float,
-                        qdd_null: np.ndarray | None = None) -> np.ndarray:
+                        qdd_null: np.ndarray | None = None, extra=None) -> np.ndarray:
     """PUMA's task acceleration pulled to the joints through a metric (a weighted
     pseudo-inverse): the task spec ``(w I, −w ẍ_d)`` pulled back and summed with a joint-space
     spec ``(W, 0)`` and the secondary objective's ``(m_null I, −m_null q̈_null)``::
@@ -141,13 +141,20 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float, m_
     W (n, n) SPD [1]; w [1]; m_null [1]. Where W ≪ w JᵀJ q̈_C realises ẍ_d as the damped
     least-squares inverse with λ² = W/w does (W = m_b I: exactly that); along a direction in
     which W is large (an obstacle barrier's metric) q̈_C's component falls like 1/W. At ẍ_d = 0
-    and q̇ = 0 (PUMA's zero set) q̈_C = (…)⁻¹ m_null q̈_null, the damped elbow attractor."""
+    and q̇ = 0 (PUMA's zero set) q̈_C = (…)⁻¹ m_null q̈_null, the damped elbow attractor.
+    extra: more acceleration specs summed in, rows R (K, n) with targets a and weights w_k (a
+    :class:`~tamedpuma.methods._circulation.TangentSpecs`): ``+ Σ w_k R_kᵀR_k`` in the metric,
+    ``+ Σ w_k R_kᵀ a_k`` on the right."""
     J = task.J
     A = W + weight * (J.T @ J)
     rhs = weight * (J.T @ (task.xdd - task.jdqd))
     if qdd_null is not None and m_null > 0.0:
         A[np.diag_indices_from(A)] += m_null  # A is a fresh array
         rhs = rhs + m_null * qdd_null
+    if extra is not None:
+        wr = extra.weights[:, None] * extra.rows
+        A += extra.rows.T @ wr
+        rhs = rhs + wr.T @ extra.targets
     return np.linalg.solve(A, rhs)
 
 

@@ -15,6 +15,7 @@ from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.fabrics.discrete import barrier_step, limit_speed
 from tamedpuma.fabrics.energy import execution_alpha
+from tamedpuma.methods._circulation import Circulation
 from tamedpuma.methods._learned import load_task, null_objective
 from tamedpuma.methods._policy import (
     Damping,
@@ -53,14 +54,22 @@ class PumaController:
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
         return task, null
 
-    def with_avoidance(self, state, obs: Observation, av,
-                       forcing: Forcing) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def with_avoidance(self, state, obs: Observation, av, forcing: Forcing,
+                       circulation: Circulation | None = None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(h, q̈_C, ẍ_d): the avoidance geometry ``h = −M⁻¹f`` of ``av`` and PUMA's forcing,
         pulled by the damped pseudo-inverse (``additive``) or through the avoidance fabric's
-        metric M (``metric``; :class:`Forcing`)."""
+        metric M (``metric``; :class:`Forcing`), with the tangent specs of ``circulation``
+        (:mod:`tamedpuma.methods._circulation`) summed in when given."""
         if forcing.mode == "metric":
             task, null = self.task_and_null(state, obs)
-            qdd_c = pull_through_metric(task, av.M, forcing.weight, forcing.null_metric, null)
+            extra = None
+            if circulation is not None:
+                qdd_free = pull_to_joints(task, self.damping, null)
+                extra = circulation.specs(state, obs.qd, qdd_free, obs.obstacle_centers,
+                                          obs.obstacle_radii)
+            qdd_c = pull_through_metric(task, av.M, forcing.weight, forcing.null_metric, null,
+                                        extra)
             return av.acceleration(), qdd_c, task.xdd
         qdd_c, xdd = self.joint_acceleration(state, obs)
         return av.acceleration(), qdd_c, xdd
@@ -197,16 +206,29 @@ class Forcing:
     elbow objective), so FPM's and CPM's statements hold as with ``additive``. The price: a goal
     that needs a joint within a few centimetres of a barrier is approached more slowly or not
     at all (BENCHMARKS.md names the measured case).
-    weight: w [1]; null_metric: m_null [1], the metric of the secondary (elbow) objective."""
+    weight: w [1]; null_metric: m_null [1], the metric of the secondary (elbow) objective;
+    circulation: d_a [m], the clearance within which a body sphere's push into an obstacle is
+    turned around it (0: off; ``metric`` only; :mod:`tamedpuma.methods._circulation`);
+    circulation_gain: g [1], the fraction of that push given back along the tangent."""
 
     mode: str = "additive"
     weight: float = 100.0
     null_metric: float = 0.05
+    circulation: float = 0.0
+    circulation_gain: float = 1.0
+
+    def make_circulation(self) -> Circulation | None:
+        """The stateful :class:`~tamedpuma.methods._circulation.Circulation` of this forcing
+        (None when ``circulation`` is 0, or with ``additive``)."""
+        if self.mode != "metric" or self.circulation <= 0.0:
+            return None
+        return Circulation(self.circulation, self.circulation_gain, self.weight)
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
         cfg = dict(cfg or {})
-        unknown = sorted(set(cfg) - {"mode", "weight", "null_metric"})
+        unknown = sorted(set(cfg) - {"mode", "weight", "null_metric", "circulation",
+                                     "circulation_gain"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
@@ -214,6 +236,8 @@ class Forcing:
             raise ConfigError(f"method.forcing.mode must be 'additive' or 'metric', got {f.mode!r}")
         if not (f.weight > 0 and f.null_metric >= 0):
             raise ConfigError("method.forcing.weight must be > 0 and null_metric ≥ 0")
+        if not (f.circulation >= 0 and f.circulation_gain >= 0):
+            raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0")
         return f
 
 

@@ -125,16 +125,19 @@ class CpmController:
         self.energy, self.forcing = check_energy(energy), forcing or Forcing()
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
+        self.circulation = self.forcing.make_circulation()
         self.dt = 0.02
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
+        self.circulation = self.forcing.make_circulation()
         self.dt = float(scenario.dt)
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
-        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing)
+        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing,
+                                                    self.circulation)
         psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
         psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
         h_plus_f = h + qdd_c

@@ -68,16 +68,19 @@ class FpmController:
         self.kinematics = puma.kinematics
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
+        self.circulation = self.forcing.make_circulation()
         self.dt = 0.02
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
+        self.circulation = self.forcing.make_circulation()
         self.dt = float(scenario.dt)
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
-        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing)
+        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing,
+                                                    self.circulation)
         alpha_raw = energization_alpha(av, self.energy, qd, h,
                                        self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
