@@ -114,3 +114,35 @@ def test_point_robot_reaches_the_goal_around_the_obstacle_with_metric_forcing(na
     m = run.metrics
     assert m.success_paper and m.success_whole_body, (m.failure_paper, m.final_position_error_m)
     assert m.min_clearance_m > 0
+
+
+def test_directional_forcing_lets_a_joint_at_its_limit_leave_it_and_still_holds_a_push_in(
+        kinematics):
+    """Joint 2 resting at its lower limit barrier (sagging towards it: the limit's metric is on,
+    2k/x² ~ 10⁵): the full metric holds PUMA's pull away from the limit as firmly as a push into
+    it; the directional one leaves the receding row out, so the joint leaves, and still holds
+    the push into the limit. Without any receding row both metrics are M."""
+    from tamedpuma.methods._tamed import approached_metric
+
+    fab = Fabric(FabricGains(), kinematics.spec.q_min, kinematics.spec.q_max)
+    q, qd = Q0.copy(), np.zeros(7)
+    q[2] = kinematics.spec.q_min[2] + 1e-4
+    qd[2] = -1e-3
+    state = kinematics.evaluate(q, qd)
+    av = fab.avoidance(state, q, qd, *OBSTACLES)
+    J = state.ee_jacobian
+    for sign in (1.0, -1.0):
+        a = np.zeros(7)
+        a[2] = sign  # PUMA's free acceleration: joint 2 away from (+) or into (−) its limit
+        task = TaskAcceleration(J @ a + state.ee_jdqd, J, state.ee_jdqd)
+        free = pull_to_joints(task, 0.01)
+        assert np.sign(free[2]) == sign
+        full = pull_through_metric(task, av.M.copy(), 100.0, 0.0)
+        directional = pull_through_metric(task, approached_metric(av, free), 100.0, 0.0)
+        assert abs(full[2]) < 1e-3 * abs(free[2])
+        if sign > 0:
+            assert directional[2] > 0.3 * free[2]
+        else:
+            assert abs(directional[2]) < 1e-3 * abs(free[2])
+    away = np.zeros(7)
+    assert np.array_equal(approached_metric(av, away), av.M)

@@ -47,12 +47,15 @@ def limit_speed(qd_next: np.ndarray, qd_max: np.ndarray) -> tuple[np.ndarray, fl
 
 
 def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kappa: float,
-                 M: np.ndarray, jdqd: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+                 M: np.ndarray, jdqd: np.ndarray | None = None,
+                 drift: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Project the next velocity v (n,) [rad/s] onto ``{w : A w ≥ b}``,
     ``b = −κ x/Δt − ½ Δt min(J̇q̇, 0)``, in the metric M.
 
     rows A (R, n): barrier Jacobian rows ``∂x_p/∂q``; x (R,) barrier distances (in the rows'
-    units; ≤ 0 past a barrier: then the row may not approach further); dt [s]; kappa
+    units; ≤ 0 past a barrier: then the row may not approach further); drift (R,): the part
+    of ẋ the velocity does not set (a moving obstacle's ``−νᵀȯ/R``; the constraint is then
+    ``a·w + drift ≥ b``); dt [s]; kappa
     κ ∈ (0, 1); M (n, n) SPD; jdqd (R,): the rows' curvature J̇q̇ at the current velocity,
     the second-order term of ``x⁺ ≈ x + Δt a·w + ½Δt² J̇q̇`` (only its negative part is kept: a
     curved path that bends
@@ -62,15 +65,32 @@ def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kapp
     ``min ½‖w − v‖²_M`` as a least-distance problem (Lawson & Hanson, ch. 23): with M = LLᵀ and
     ``u = Lᵀ(w − v)``, ``min ‖u‖ s.t. G u ≥ h``, ``G = A L⁻ᵀ``, ``h = b − A v``, solved by one
     non-negative least squares ``min_{z ≥ 0} ‖[Gᵀ; hᵀ] z − e_{n+1}‖`` (``u = −r_{1..n}/r_{n+1}``
-    for the residual r). Feasible always: w = 0 is admissible since b ≤ 0.
+    for the residual r). Without drift feasible always: w = 0 is admissible since b ≤ 0. With
+    a drift that closes a row in, w must move that row away; if that cannot be met together with
+    every other row, the projection without the drift is returned.
     """
     b = -kappa * x / dt
     if jdqd is not None:
         b = b - 0.5 * dt * np.minimum(jdqd, 0.0)
+    if drift is not None:  # a moving obstacle closes in by itself: ẋ = a·w + drift
+        w, active = barrier_step(v, rows, x, dt, kappa, M, jdqd)  # feasible: w = 0 admissible
+        b = b - drift
+        if np.all(rows @ w >= b):
+            return w, active
+        # an approaching obstacle asks the arm to move away: keep that if it can be met with
+        # every other row, else the static constraints (w above)
+        moved = _project(v, rows, b, M)
+        return (w, active) if moved is None else moved
     # a row already past its barrier (x ≤ 0, e.g. a base sphere below the ground plane) must not
     # approach further but is not asked to jump out: w = 0 stays admissible (always feasible)
     past = x <= 0.0
     b[past] = np.minimum(b[past], 0.0)
+    return _project(v, rows, b, M) or (np.zeros_like(v), int(np.count_nonzero(b == 0.0)))
+
+
+def _project(v: np.ndarray, rows: np.ndarray, b: np.ndarray, M: np.ndarray):
+    """``argmin ½‖w − v‖²_M s.t. rows w ≥ b`` and its number of active rows (see
+    :func:`barrier_step`); None when no w meets every row."""
     Av = rows @ v
     if np.all(Av >= b):
         return v, 0
@@ -83,6 +103,8 @@ def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kapp
     f[n] = 1.0
     z = nnls(E, f)
     r = E @ z - f
+    if not r[n] < -1e-12:  # ‖r‖ = 0: the constraints have no common point
+        return None
     u = -r[:n] / r[n]
     w = v + np.linalg.solve(L.T, u)  # L⁻ᵀ u
     return w, int(np.count_nonzero(z > 0))

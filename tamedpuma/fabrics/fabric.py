@@ -58,7 +58,8 @@ class AvoidanceFabric:
     ground_clearance [m] (inf when the ground leaf is off); n_clamped: barrier distances clamped
     to the margin (obstacle/ground pairs); n_limit_clamped: joint-limit distances clamped;
     barrier_rows (R, n), barrier_x (R,): every barrier's Jacobian row ∂x/∂q and distance x, not
-    clamped (≤ 0 past a barrier), curvature J̇q̇ and metric m (``M = m_b I + Σ m_r a_r a_rᵀ``
+    clamped (≤ 0 past a barrier), rate ẋ (with a moving obstacle's own motion: ẋ − a·q̇ is
+    the row's drift), curvature J̇q̇ and metric m (``M = m_b I + Σ m_r a_r a_rᵀ``
     over these rows) (pairs, joint limits, ground; not the base rows), for the discrete-time
     barrier step and the directional forcing
     (:func:`tamedpuma.fabrics.discrete.barrier_step`).
@@ -75,6 +76,7 @@ class AvoidanceFabric:
     barrier_x: np.ndarray | None = None
     barrier_jdqd: np.ndarray | None = None
     barrier_metric: np.ndarray | None = None
+    barrier_xd: np.ndarray | None = None
 
     @property
     def f(self) -> np.ndarray:
@@ -206,19 +208,19 @@ class Fabric:
         clearance, ground = self._clearances(ws)
         x = ws.x if ws.x_raw is None else ws.x_raw
         head, tail = ws.barrier_blocks  # pairs and limits; ground rows (maybe none)
-        m = ws.W[0]
+        m, xd = ws.W[0], ws.xd
         if ws.ground:
             rows = np.concatenate((ws.Z[head], ws.Z[tail]))
             x, jd = np.concatenate((x[head], x[tail])), np.concatenate((ws.jd[head], ws.jd[tail]))
-            m = np.concatenate((m[head], m[tail]))
+            m, xd = np.concatenate((m[head], m[tail])), np.concatenate((xd[head], xd[tail]))
         else:  # contiguous copies (a fancy index over 5000 rows costs 70 µs)
             rows, x, jd = ws.Z[head].copy(), x[head].copy(), ws.jd[head].copy()
-            m = m[head].copy()
+            m, xd = m[head].copy(), xd[head].copy()
         return AvoidanceFabric(M=mf[:, :n].copy(), forces=mf[:, n:].T.copy(), energy=energy,
                                min_clearance=clearance, ground_clearance=ground,
                                n_clamped=n_clamped, n_limit_clamped=n_limit,
                                barrier_rows=rows[:, :n], barrier_x=x, barrier_jdqd=jd,
-                               barrier_metric=m)
+                               barrier_metric=m, barrier_xd=xd)
 
     def forcing(self, state, qd, goal_position, goal_rotation) -> Forcing:
         """The goal attractor pulled into joint space (see :class:`Forcing`).

@@ -195,20 +195,24 @@ class ControlRate:
             raise ConfigError(f"method.control_rate.kappa must be in (0, 1), got {rate.kappa}")
         return rate
 
-    def next_velocity(self, qd_next, av, dt: float, qd_max,
-                      state=None) -> tuple[np.ndarray, dict]:
-        """Filter the next velocity q̇⁺ [rad/s] (state: the KinematicState, for the ground rows);
+    def next_velocity(self, qd_next, av, dt: float, qd_max, state=None,
+                      qd=None) -> tuple[np.ndarray, dict]:
+        """Filter the next velocity q̇⁺ [rad/s] (state: the KinematicState, for the ground rows;
+        qd: the current velocity, whose rows' rates give the moving obstacles' drift);
         returns it and the log scalars ``n_barrier_active`` (rows projected) and ``speed_scale``
         (s ≤ 1)."""
         n_active, scale = 0, 1.0
         if self.barrier_step and av.barrier_rows is not None:
             rows, x, jd = av.barrier_rows, av.barrier_x, av.barrier_jdqd
+            drift = None if av.barrier_xd is None or qd is None else av.barrier_xd - rows @ qd
             if self.ground and state is not None:
                 rows = np.concatenate((rows, state.sphere_jacobians[:, 2, :]))
                 x = np.concatenate((x, state.sphere_centers[:, 2] - state.sphere_radii
                                     - self.ground_height))
                 jd = np.concatenate((jd, state.sphere_jdqd[:, 2]))
-            qd_next, n_active = barrier_step(qd_next, rows, x, dt, self.kappa, av.M, jd)
+                if drift is not None:
+                    drift = np.concatenate((drift, np.zeros(len(state.sphere_radii))))
+            qd_next, n_active = barrier_step(qd_next, rows, x, dt, self.kappa, av.M, jd, drift)
         if self.speed_limit:
             qd_next, scale = limit_speed(qd_next, qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}

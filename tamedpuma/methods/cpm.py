@@ -168,7 +168,7 @@ class CpmController:
             alpha = 0.0
             qdd = h_plus_f + r_coef * qd
         qd_next, extra = self.rate.next_velocity(qd + self.dt * qdd, av, self.dt,
-                                                 self.qd_max, state)
+                                                 self.qd_max, state, qd)
         qdd = (qd_next - qd) / self.dt
         return Command(qdd=qdd, scalars={
             **extra, **fabric_scalars(av), "psi": psi, "psi_rate": float(dpsi @ qd),

@@ -88,7 +88,8 @@ class FpmController:
             qd_next = implicit_velocity_step(qd, h + qdd_c, -alpha, self.dt)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
-        qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, state)
+        qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, state,
+                                                  qd)
         qdd = (qd_next - qd) / self.dt
         return Command(qdd=qdd, scalars={**fabric_scalars(av), "alpha": alpha,
                                          "alpha_raw": alpha_raw, **extra,
