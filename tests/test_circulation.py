@@ -87,13 +87,18 @@ def test_tangent_spec_gives_the_blocked_push_back_along_the_obstacle():
     qdd_free = np.array([0.3, 0.0, -1.05, 0.0])  # J q̈ + J̇q̇ = (0.3, 0, −1)
     specs = circ.specs(state, qd, qdd_free, below, np.array([0.1]))
     assert specs.rows == pytest.approx(np.array([[1.0, 0.0, 0.0, 0.0]]))
-    assert specs.targets == pytest.approx([0.3 + 0.8 * 1.0])
-    assert specs.weights == pytest.approx([80.0])
+    s = 0.8 * (1.0 / np.hypot(0.3, 1.0))  # (1 − d/d_a) × head-on factor (c₀ = 0: −p̂·n)
+    assert specs.targets == pytest.approx([0.3 + s * 1.0])
+    assert specs.weights == pytest.approx([100.0 * s])
     assert circ.axes["arm"] == pytest.approx([0.0, 1.0, 0.0])  # b = n × t̂₀ = z × x
     # PUMA now pulls towards −x: the kept axis still says +x (no turning back at the line)
     specs = circ.specs(state, qd, np.array([-0.2, 0.0, -1.05, 0.0]), below, np.array([0.1]))
     assert specs.rows == pytest.approx(np.array([[1.0, 0.0, 0.0, 0.0]]))
-    assert specs.targets == pytest.approx([-0.2 + 0.8 * 1.0])
+    assert specs.targets == pytest.approx([-0.2 + 0.8 / np.hypot(0.2, 1.0)])
+    # with an onset of 60° (c₀ = 0.5) a push 73° off head-on (p = (1, 0, −0.3)) does not count
+    grazing = Circulation(0.1, 1.0, 100.0, cos_onset=0.5)
+    assert grazing.specs(state, qd, np.array([1.0, 0.0, -0.35, 0.0]), below,
+                         np.array([0.1])) is None
 
 
 def test_free_space_and_pushes_away_leave_the_forcing_alone():

@@ -13,15 +13,20 @@ n from the obstacle to the sphere) whose acceleration under PUMA's obstacle-free
 ``p = J_i q̈_P + J̇_i q̇`` [m/s²], points into the obstacle (``p·n < 0``), an acceleration spec
 on the sphere's motion along a tangent t̂ of the obstacle::
 
-    t̂ᵀ(J_i q̈ + J̇_i q̇) = p·t̂ + g s(d) (−p·n),     weight  w s(d),  s(d) = 1 − d/d_a   [1]
+    t̂ᵀ(J_i q̈ + J̇_i q̇) = p·t̂ + g s (−p·n),     weight  w s,
+    s = (1 − d/d_a) · min(1, (−p̂·n − c₀)/(1 − c₀))                               [1]
 
-is summed with PUMA's task spec in the weighted pseudo-inverse of ``forcing.mode: metric``
+(the second factor: only a push within arccos c₀ of head-on counts as blocked; a pull that
+merely grazes the obstacle, PUMA's own way round it, is left alone) is summed with PUMA's task
+spec in the weighted pseudo-inverse of ``forcing.mode: metric``
 (:func:`tamedpuma.methods._policy.pull_through_metric`): the push the barrier takes away along n
 is given back along t̂ (gain g), as the modulation of a dynamical system around an obstacle keeps
 the speed of the modulated field (Huber, Billard & Slotine 2019: normal eigenvalue → 0,
 tangential eigenvalue 1 + g). The tangent is the obstacle's great circle through the sphere about
 a fixed axis b (a circular field, Singh et al. 2022): b = n × t̂₀ is chosen when the first pair
-becomes active, with t̂₀ the tangential part of p (else of the sphere's velocity, else of the
+becomes active, with t̂₀ the tangential part of PUMA's pull at rest ``J_i q̈_P(q, 0)`` (towards
+the goal, without PUMA's damping of the current velocity, which would point the axis backwards
+for an arm already sliding along the obstacle) (else of the sphere's velocity, else of the
 first joint's motion of the sphere that has one, else of the world's axes), and kept while any
 pair stays within d_a. So the arm keeps going round one way instead of turning back at the line
 behind the obstacle, where p's tangential part changes sign; and every sphere and obstacle (two
@@ -62,21 +67,26 @@ class Circulation:
     """The circulation of ``method.forcing`` with its memory of the arm's axis (``axes["arm"]``,
     kept while any pair is within d_a).
 
-    distance d_a [m] (> 0); gain g [1]; weight w [1] (PUMA's task metric)."""
+    distance d_a [m] (> 0); gain g [1]; weight w [1] (PUMA's task metric); cos_onset c₀ [1]:
+    a pair acts only where p points into the obstacle within arccos(c₀) of its normal, fully
+    when head on: s is multiplied by ``min(1, (−p̂·n − c₀)/(1 − c₀))`` (0: any inward push)."""
 
     distance: float
     gain: float
     weight: float
+    cos_onset: float = 0.0
     axes: dict = field(default_factory=dict)
 
     def reset(self) -> None:
         self.axes.clear()
 
     def specs(self, state, qd: np.ndarray, qdd_free: np.ndarray, centers: np.ndarray,
-              radii: np.ndarray) -> TangentSpecs | None:
+              radii: np.ndarray, pull_at_rest=None) -> TangentSpecs | None:
         """The tangent specs at a kinematic state (sphere centres, Jacobians, J̇q̇), joint
         velocity q̇, PUMA's obstacle-free joint acceleration q̈_P and the obstacles (centres
-        (m, 3) [m], radii (m,) [m]); None when no pair is active."""
+        (m, 3) [m], radii (m,) [m]); None when no pair is active. pull_at_rest: a callable
+        giving PUMA's obstacle-free joint acceleration at q̇ = 0 (its pull towards the goal
+        without its damping), called only when the axis is chosen (else q̈_P is used)."""
         if len(radii) == 0:
             self.axes.clear()
             return None
@@ -95,10 +105,16 @@ class Circulation:
             Ji, jd = state.sphere_jacobians[i], state.sphere_jdqd[i]
             p = Ji @ qdd_free + jd
             push = -float(p @ n)
-            if push <= 0.0:
+            head_on = (push / max(float(np.linalg.norm(p)), 1e-12) - self.cos_onset) / (
+                1.0 - self.cos_onset)  # 0 at the onset angle, 1 straight into the obstacle
+            if push <= 0.0 or head_on <= 0.0:
                 continue
-            t = self._tangent(n, p, Ji @ qd, Ji)
-            s = 1.0 - max(float(clear[i, j]), 0.0) / self.distance
+            if "arm" not in self.axes and pull_at_rest is not None:
+                rest = pull_at_rest()
+                t = self._tangent(n, Ji @ rest, Ji @ qd, Ji)
+            else:
+                t = self._tangent(n, p, Ji @ qd, Ji)
+            s = (1.0 - max(float(clear[i, j]), 0.0) / self.distance) * min(head_on, 1.0)
             rows.append(t @ Ji)
             targets.append(float(p @ t) + self.gain * s * push - float(t @ jd))
             weights.append(self.weight * s)

@@ -20,6 +20,7 @@ from tamedpuma.methods._learned import load_task, null_objective
 from tamedpuma.methods._policy import (
     Damping,
     NullSpaceObjective,
+    TaskAcceleration,
     pull_through_metric,
     pull_to_joints,
 )
@@ -54,6 +55,15 @@ class PumaController:
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
         return task, null
 
+    def pull_at_rest(self, state, obs: Observation) -> np.ndarray:
+        """PUMA's pulled acceleration as if the arm were at rest (q̇ = 0, J̇q̇ = 0, no secondary
+        objective): its pull towards the goal without its damping [rad/s²]."""
+        vg = obs.goal_velocity if self.feed_goal_velocity else None
+        rest = np.zeros_like(obs.qd)
+        task = self.task.acceleration(state, rest, obs.goal_position, obs.goal_quaternion, vg)
+        return pull_to_joints(TaskAcceleration(task.xdd, task.J, np.zeros_like(task.jdqd)),
+                              self.damping)
+
     def with_avoidance(self, state, obs: Observation, av, forcing: Forcing,
                        circulation: Circulation | None = None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -68,7 +78,8 @@ class PumaController:
                 qdd_free = pull_to_joints(task, self.damping, null)
             if circulation is not None:
                 extra = circulation.specs(state, obs.qd, qdd_free, obs.obstacle_centers,
-                                          obs.obstacle_radii)
+                                          obs.obstacle_radii,
+                                          lambda: self.pull_at_rest(state, obs))
             if forcing.directional:
                 W = approached_metric(av, qdd_free)
             qdd_c = pull_through_metric(task, W, forcing.weight, forcing.null_metric, null,
@@ -240,6 +251,7 @@ class Forcing:
     circulation: d_a [m], the clearance within which a body sphere's push into an obstacle is
     turned around it (0: off; ``metric`` only; :mod:`tamedpuma.methods._circulation`);
     circulation_gain: g [1], the fraction of that push given back along the tangent;
+    circulation_onset: c₀ [1], the cosine of the largest angle from head-on that counts;
     directional: leave out of the metric the barrier rows PUMA's push recedes from
     (:func:`approached_metric`; ``metric`` only)."""
 
@@ -248,6 +260,7 @@ class Forcing:
     null_metric: float = 0.05
     circulation: float = 0.0
     circulation_gain: float = 1.0
+    circulation_onset: float = 0.0
     directional: bool = False
 
     def make_circulation(self) -> Circulation | None:
@@ -255,13 +268,14 @@ class Forcing:
         (None when ``circulation`` is 0, or with ``additive``)."""
         if self.mode != "metric" or self.circulation <= 0.0:
             return None
-        return Circulation(self.circulation, self.circulation_gain, self.weight)
+        return Circulation(self.circulation, self.circulation_gain, self.weight,
+                           self.circulation_onset)
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
         cfg = dict(cfg or {})
         unknown = sorted(set(cfg) - {"mode", "weight", "null_metric", "circulation",
-                                     "circulation_gain", "directional"})
+                                     "circulation_gain", "circulation_onset", "directional"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
@@ -269,8 +283,10 @@ class Forcing:
             raise ConfigError(f"method.forcing.mode must be 'additive' or 'metric', got {f.mode!r}")
         if not (f.weight > 0 and f.null_metric >= 0):
             raise ConfigError("method.forcing.weight must be > 0 and null_metric ≥ 0")
-        if not (f.circulation >= 0 and f.circulation_gain >= 0):
-            raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0")
+        if not (f.circulation >= 0 and f.circulation_gain >= 0
+                and 0 <= f.circulation_onset < 1):
+            raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0, "
+                              "circulation_onset in [0, 1)")
         return f
 
 
