@@ -5,6 +5,7 @@ the speed limit keeps the direction and every joint under its limit."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.fabrics.discrete import barrier_step, implicit_velocity_step, limit_speed
@@ -103,3 +104,24 @@ def test_no_barrier_is_crossed_at_the_control_rate_on_the_arm(kinematics):
         assert crossed[False][0] < 0, f"trial {trial}: the test command never reached the obstacle"
         worst, worst_limit, worst_ground = crossed[True]
         assert worst > 0 and worst_limit > -1e-9 and worst_ground > 0, crossed[True]
+
+
+def test_the_barrier_step_moves_away_from_an_obstacle_that_closes_in():
+    """A row whose distance an obstacle closes by itself (drift −5 /s, x = 0.1, Δt = 0.02,
+    κ = 0.5): the arm at rest must move away, ``a·w ≥ −κx/Δt − drift = 2.5``; the projection is
+    the M-closest such w. When two rows ask for opposite motions (squeezed), no w meets both:
+    the static projection (w = 0 admissible) is returned."""
+    from tamedpuma.fabrics.discrete import barrier_step
+
+    M = np.diag([2.0, 1.0])
+    rows = np.array([[1.0, 0.0]])
+    w, active = barrier_step(np.zeros(2), rows, np.array([0.1]), 0.02, 0.5, M,
+                             drift=np.array([-5.0]))
+    assert active == 1 and w == pytest.approx([2.5, 0.0])
+    w, _ = barrier_step(np.array([0.0, 1.0]), rows, np.array([0.1]), 0.02, 0.5, M,
+                        drift=np.array([-1.0]))  # closing slowly: nothing to do
+    assert w == pytest.approx([0.0, 1.0])
+    squeezed = np.array([[1.0, 0.0], [-1.0, 0.0]])
+    w, _ = barrier_step(np.array([-1.0, 1.0]), squeezed, np.array([0.1, 0.1]), 0.02, 0.5, M,
+                        drift=np.array([-5.0, -5.0]))
+    assert np.all(np.isfinite(w)) and np.all(squeezed @ w >= -2.5 - 1e-9)

@@ -146,3 +146,26 @@ def test_directional_forcing_lets_a_joint_at_its_limit_leave_it_and_still_holds_
             assert abs(directional[2]) < 1e-3 * abs(free[2])
     away = np.zeros(7)
     assert np.array_equal(approached_metric(av, away), av.M)
+
+
+@pytest.mark.parametrize("ground", [False, True])
+def test_the_barrier_rows_metrics_and_rates_rebuild_the_fabric(kinematics, ground):
+    """``M = m_b I + Σ_r m_r a_r a_rᵀ`` over the barrier rows the fabric reports, and each row's
+    rate splits into ``a_r·q̇`` plus the drift of a moving obstacle (0 for static rows)."""
+    gains = FabricGains(ground_enabled=ground)
+    fab = Fabric(gains, kinematics.spec.q_min, kinematics.spec.q_max)
+    rng = np.random.default_rng(4)
+    centers, radii, _ = OBSTACLES
+    velocities = np.array([[0.0, 0.3, 0.0], [0.0, 0.0, 0.0]])
+    for _ in range(3):
+        q, qd = Q0 + rng.normal(scale=0.2, size=7), rng.normal(size=7)
+        av = fab.avoidance(kinematics.evaluate(q, qd), q, qd, centers, radii, velocities)
+        rows, m = av.barrier_rows, av.barrier_metric
+        M = gains.base_metric * np.eye(7) + (rows.T * m) @ rows
+        assert np.allclose(M, av.M, rtol=1e-12, atol=1e-12 * np.abs(av.M).max())
+        drift = av.barrier_xd - rows @ qd
+        k, n_obs = kinematics.spec.sphere_radii.shape[0], len(radii)
+        pairs = drift[:k * n_obs].reshape(k, n_obs)
+        assert np.allclose(drift[k * n_obs:], 0.0, atol=1e-12)  # joint limits (and ground)
+        assert np.allclose(pairs[:, 1], 0.0, atol=1e-12)  # the static obstacle
+        assert np.all(np.abs(pairs[:, 0]) > 0)  # the moving one
