@@ -95,6 +95,34 @@ class PumaController:
                                          "joint_acc_norm": float(np.linalg.norm(qdd))})
 
 
+class TamedController:
+    """What FPM and CPM share: PUMA pulled to the joints, the avoidance fabric, the energy
+    energized, the forcing (with its circulation), the α floor and the control-rate filters.
+    Subclasses implement ``step`` from :meth:`forced`."""
+
+    def __init__(self, puma: PumaController, fabric: Fabric, alpha_min: float | None = None,
+                 rate: ControlRate | None = None, energy: str = "fabric",
+                 forcing: Forcing | None = None):
+        self.puma, self.fabric = puma, fabric
+        self.kinematics = puma.kinematics
+        self.energy, self.forcing = check_energy(energy), forcing or Forcing()
+        self.alpha_min, self.rate = alpha_min, rate or ControlRate()
+        self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
+        self.circulation = self.forcing.make_circulation()
+        self.dt = float("nan")  # the scenario's, from reset
+
+    def reset(self, scenario: Scenario) -> None:
+        self.puma.reset(scenario)
+        self.circulation = self.forcing.make_circulation()
+        self.dt = float(scenario.dt)
+
+    def forced(self, obs: Observation):
+        """(kinematic state, avoidance fabric, h, q̈_C, ẍ_d) at the observation."""
+        state, av = avoidance_at(self.kinematics, self.fabric, obs)
+        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, self.circulation)
+        return state, av, h, qdd_c, xdd
+
+
 def approached_metric(av, qdd_free: np.ndarray) -> np.ndarray:
     """The avoidance metric without the barrier rows PUMA's free acceleration q̈_P recedes from
     (``forcing.directional``): ``M − Σ_{r: a_r·q̈_P > 0} m_r a_r a_rᵀ`` (n, n), a fresh array.

@@ -81,22 +81,21 @@ from tamedpuma.methods._tamed import (
     ControlRate,
     Forcing,
     PumaController,
+    TamedController,
     alpha_floor,
-    avoidance_at,
     bounded_alpha,
-    check_energy,
     energization_alpha,
     energy_times_velocity,
     fabric_scalars,
     puma_and_fabric,
 )
-from tamedpuma.types import Command, Observation, Scenario
+from tamedpuma.types import Command, Observation
 
 VARIANTS = ("paper", "original")
 DAMPINGS = ("constant", "matched", "matched_forcing")
 
 
-class CpmController:
+class CpmController(TamedController):
     """CPM on one robot. beta: damping β [1/s] (> 0 for the convergence guarantee);
     eps: ε [(rad/s)²] of the regulator's denominator; variant: 'paper' or 'original';
     regulator_scale: factor on the ψ term (1 in the paper, 0.05 in the original code)."""
@@ -110,8 +109,7 @@ class CpmController:
             raise ConfigError(f"cpm variant must be one of {VARIANTS}, got {variant!r}")
         if variant == "paper" and not beta > 0:
             raise ConfigError(f"cpm needs beta > 0 for convergence, got {beta}")
-        self.puma, self.fabric = puma, fabric
-        self.kinematics = puma.kinematics
+        super().__init__(puma, fabric, alpha_min, rate, energy, forcing)
         self.beta, self.eps, self.variant = beta, eps, variant
         self.regulator_scale = regulator_scale
         if not potential_scale > 0:
@@ -122,22 +120,10 @@ class CpmController:
         self.matched = damping == "matched"
         self.matched_forcing = damping == "matched_forcing"
         self.semi_implicit = semi_implicit
-        self.energy, self.forcing = check_energy(energy), forcing or Forcing()
-        self.alpha_min, self.rate = alpha_min, rate or ControlRate()
-        self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
-        self.circulation = self.forcing.make_circulation()
-        self.dt = 0.02
-
-    def reset(self, scenario: Scenario) -> None:
-        self.puma.reset(scenario)
-        self.circulation = self.forcing.make_circulation()
-        self.dt = float(scenario.dt)
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
-        state, av = avoidance_at(self.kinematics, self.fabric, obs)
-        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing,
-                                                    self.circulation)
+        state, av, h, qdd_c, xdd = self.forced(obs)
         psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
         psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
         h_plus_f = h + qdd_c

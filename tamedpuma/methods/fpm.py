@@ -40,47 +40,27 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from tamedpuma.fabrics import Fabric
 from tamedpuma.fabrics.discrete import implicit_velocity_step
 from tamedpuma.methods._tamed import (
     ControlRate,
     Forcing,
-    PumaController,
+    TamedController,
     alpha_floor,
-    avoidance_at,
     bounded_alpha,
-    check_energy,
     energization_alpha,
     fabric_scalars,
     puma_and_fabric,
 )
-from tamedpuma.types import Command, Observation, Scenario
+from tamedpuma.types import Command, Observation
 
 
-class FpmController:
-    """FPM on one robot: ``fabric`` (a :class:`Fabric`) for avoidance, ``puma`` for forcing."""
-
-    def __init__(self, puma: PumaController, fabric: Fabric, alpha_min: float | None = None,
-                 rate: ControlRate | None = None, energy: str = "fabric",
-                 forcing: Forcing | None = None):
-        self.puma, self.fabric = puma, fabric
-        self.energy, self.forcing = check_energy(energy), forcing or Forcing()
-        self.kinematics = puma.kinematics
-        self.alpha_min, self.rate = alpha_min, rate or ControlRate()
-        self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
-        self.circulation = self.forcing.make_circulation()
-        self.dt = 0.02
-
-    def reset(self, scenario: Scenario) -> None:
-        self.puma.reset(scenario)
-        self.circulation = self.forcing.make_circulation()
-        self.dt = float(scenario.dt)
+class FpmController(TamedController):
+    """FPM on one robot: ``fabric`` (a :class:`Fabric`) for avoidance, ``puma`` for forcing
+    (constructor: :class:`~tamedpuma.methods._tamed.TamedController`)."""
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
-        state, av = avoidance_at(self.kinematics, self.fabric, obs)
-        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing,
-                                                    self.circulation)
+        state, av, h, qdd_c, xdd = self.forced(obs)
         alpha_raw = energization_alpha(av, self.energy, qd, h,
                                        self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
