@@ -148,24 +148,10 @@ def _start_sweep(tmp_path, *extra):
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=ENV, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     active = tmp_path / "sweep/0/episode.mcap.active"
-    _wait_for(active, proc, 180)
+    _wait_for(active, proc, 60)
     assert active.exists(), proc.communicate()[1] if proc.poll() is not None else "timeout"
-    _wait_for_steps(active, proc, 180)  # some steps flushed (a loaded machine is slow)
+    time.sleep(0.5)  # some steps written
     return proc
-
-
-def _wait_for_steps(path: Path, proc, timeout: float) -> None:
-    """Wait until the partial log at ``path`` holds at least one readable step."""
-    from tamedpuma.recording import read_mcap
-
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and proc.poll() is None:
-        try:
-            if len(read_mcap(path).scalars) > 0:
-                return
-        except Exception:  # noqa: BLE001 - not readable yet: keep polling
-            pass
-        time.sleep(0.2)
 
 
 @pytest.mark.parametrize("sig,status", [(signal.SIGTERM, 143), (signal.SIGINT, 130),
@@ -174,7 +160,7 @@ def _wait_for_steps(path: Path, proc, timeout: float) -> None:
 def test_a_killed_worker_leaves_its_partial_log_and_the_sweep_resumes(tmp_path, sig, status):
     proc = _start_sweep(tmp_path)
     proc.send_signal(sig)
-    _, err = proc.communicate(timeout=180)
+    _, err = proc.communicate(timeout=60)
     assert proc.returncode == status
     lines = [x for x in err.splitlines() if x.strip() and not x.startswith("pybullet build")]
     if sig != signal.SIGKILL:
@@ -220,8 +206,8 @@ def test_a_sigkilled_parallel_sweep_leaves_no_worker_behind(tmp_path):
     proc = _start_sweep(tmp_path, "hydra/launcher=cores", "hydra.launcher.n_jobs=2")
     assert _workers_of(tmp_path / "sweep"), "the sweep runs in loky workers"
     proc.send_signal(signal.SIGKILL)
-    proc.communicate(timeout=180)
-    deadline = time.monotonic() + 120
+    proc.communicate(timeout=60)
+    deadline = time.monotonic() + 30
     while _workers_of(tmp_path / "sweep") and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not _workers_of(tmp_path / "sweep")
@@ -339,9 +325,9 @@ def test_an_interrupted_training_says_where_its_resumable_state_is(tmp_path, sig
     proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     state = tmp_path / "train_state.pt"
-    _wait_for(state, proc, 300)
+    _wait_for(state, proc, 120)
     proc.send_signal(sig)
-    _, err = proc.communicate(timeout=300)
+    _, err = proc.communicate(timeout=60)
     assert proc.returncode == status, err
     assert "Traceback" not in err
     assert err.strip().splitlines()[-1] == (
