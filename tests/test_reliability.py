@@ -25,6 +25,13 @@ ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 
 
+def _ctrl_c_deliverable() -> None:
+    """Popen preexec: SIGINT back to its default. A test run started in the background of a
+    non-interactive shell (``pytest &``, CI scripts) inherits SIGINT *ignored*; Python then
+    installs no KeyboardInterrupt handler in the child and a Ctrl-C test waits forever."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _strict_json(path: Path) -> dict:
     def refuse(name):
         raise ValueError(f"{path} holds {name}: not JSON")
@@ -145,7 +152,8 @@ def _start_sweep(tmp_path, *extra):
            "scenario.max_steps=100000", "stop_on_success=false", "recorder=mcap",
            f"output_root={tmp_path}", f"hydra.sweep.dir={tmp_path}/sweep",
            "hydra.sweep.subdir=${seed}", *extra]
-    proc = subprocess.Popen(cmd, cwd=tmp_path, env=ENV, stdout=subprocess.PIPE,
+    proc = subprocess.Popen(cmd, cwd=tmp_path, env=ENV, preexec_fn=_ctrl_c_deliverable,
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     active = tmp_path / "sweep/0/episode.mcap.active"
     _wait_for(active, proc, 60)
@@ -300,7 +308,8 @@ def test_a_killed_training_resumes_from_its_last_save(tmp_path):
     assert full.returncode == 0, full.stderr
     cmd = [sys.executable, "-m", "tamedpuma.train", "puma=tiny", f"out_dir={tmp_path / 'cut'}",
            "progress=false", "evaluate=false", *settings]
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, preexec_fn=_ctrl_c_deliverable,
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE)
     state = tmp_path / "cut/train_state.pt"
     _wait_for(state, proc, 120)
@@ -322,7 +331,8 @@ def test_a_killed_training_resumes_from_its_last_save(tmp_path):
 def test_an_interrupted_training_says_where_its_resumable_state_is(tmp_path, sig, status):
     cmd = [sys.executable, "-m", "tamedpuma.train", "puma=tiny", f"out_dir={tmp_path}",
            "progress=false", "evaluate=false", "puma.train.iterations=100000", "save_every=2"]
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, preexec_fn=_ctrl_c_deliverable,
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     state = tmp_path / "train_state.pt"
     _wait_for(state, proc, 120)
