@@ -323,22 +323,29 @@ def time_episodes(method: str = "fpm", repeats: int = 3, overrides=(),
     return out
 
 
-#: An episode worker (see :func:`time_episodes`), run by ``python -c`` inside a source tree. It
-#: reads JSON lines: {"method", "overrides", "recorders"} (set-up), then {"cmd": "run",
-#: "recorder"} (one episode through ``run_one``; answers its wall times [s], steps and simulated
-#: time) and {"cmd": "quit"}. It uses only APIs both trees have.
-_EPISODE_WORKER = r"""
-import json, os, shutil, sys, tempfile, time
-from pathlib import Path
+#: The start of every worker script: the reply channel is the original stdout, anything the
+#: project prints goes to stderr; ``send`` writes one JSON line.
+_WORKER_PROTOCOL = r"""
+import json, os, sys, time
 reply = os.fdopen(os.dup(1), "w")
 os.dup2(2, 1)  # anything the project prints goes to stderr, not into the protocol
-import tamedpuma.episode as episode
-from tamedpuma.app import sweep
-from tamedpuma.app.bench import compose
 
 def send(obj):
     reply.write(json.dumps(obj) + "\n")
     reply.flush()
+"""
+
+
+#: An episode worker (see :func:`time_episodes`), run by ``python -c`` inside a source tree. It
+#: reads JSON lines: {"method", "overrides", "recorders"} (set-up), then {"cmd": "run",
+#: "recorder"} (one episode through ``run_one``; answers its wall times [s], steps and simulated
+#: time) and {"cmd": "quit"}. It uses only APIs both trees have.
+_EPISODE_WORKER = _WORKER_PROTOCOL + r"""
+import shutil, tempfile
+from pathlib import Path
+import tamedpuma.episode as episode
+from tamedpuma.app import sweep
+from tamedpuma.app.bench import compose
 
 loops = []
 _run_episode = episode.run_episode
@@ -395,20 +402,14 @@ finally:
 #: JSON lines: {"method", "overrides", "counts", "seed"} (build), then {"cmd": "reset", "n"}
 #: (obstacles of that count; answers the first call's time), {"cmd": "time", "calls", "warm"}
 #: (answers the timed calls [s]) and {"cmd": "quit"}. It uses only APIs both trees have.
-_WORKER = r"""
-import dataclasses, json, os, sys, time
+_WORKER = _WORKER_PROTOCOL + r"""
+import dataclasses
 import numpy as np
-reply = os.fdopen(os.dup(1), "w")
-os.dup2(2, 1)  # anything the project prints goes to stderr, not into the protocol
 from tamedpuma.app.bench import _observation, compose
 from tamedpuma.app.bench_fabrics import random_obstacles
 from tamedpuma.app.sweep import build
 from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.types import Obstacles
-
-def send(obj):
-    reply.write(json.dumps(obj) + "\n")
-    reply.flush()
 
 setup = json.loads(sys.stdin.readline())
 built = build(compose([f"method={setup['method']}", "recorder=none", *setup["overrides"]]))
