@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from tamedpuma.app.config import load_group
+from tamedpuma.app.schema import ScenarioSchema
 from tamedpuma.errors import ScenarioError
 from tamedpuma.worlds.random_scenarios import (
     REJECT_REASONS,
@@ -23,6 +24,11 @@ def _region(task):
     return TaskRegion.from_task_config(load_group("task", task))
 
 
+#: the scenario's own settings, as the schema's defaults give them to a random scenario
+EPISODE = {"dt": ScenarioSchema.dt, "max_steps": ScenarioSchema.max_steps,
+           "goal_tolerance": ScenarioSchema.goal_tolerance}
+
+
 def _angle(a, b):
     return 2.0 * np.arccos(min(1.0, abs(float(a @ b))))
 
@@ -30,11 +36,13 @@ def _angle(a, b):
 @pytest.mark.parametrize("task", ["tomato", "pouring"])
 @pytest.mark.parametrize("kind", START_KINDS)
 def test_every_generated_scenario_is_valid(kinematics, task, kind):
-    region, params = _region(task), RandomParams(start_kind=kind)
-    spec, horizon = kinematics.spec, params.max_steps * params.dt
+    region, params = _region(task), RandomParams()
+    spec, horizon = kinematics.spec, EPISODE["max_steps"] * EPISODE["dt"]
     for seed in range(25):
-        g = generate(region, kinematics, seed, params, table1_starts(task))
+        g = generate(region, kinematics, seed, params, table1_starts(task), start_kind=kind,
+                     **EPISODE)
         sc = g.scenario
+        assert (sc.dt, sc.max_steps, sc.goal_tolerance) == tuple(EPISODE.values())
         assert set(g.rejected) <= set(REJECT_REASONS)
         assert sum(g.rejected.values()) == g.tries - 1
         assert np.all(sc.q0 >= spec.q_min + params.limit_margin)
@@ -62,12 +70,13 @@ def test_every_generated_scenario_is_valid(kinematics, task, kind):
 
 def test_same_seed_same_scenario_other_seed_other_scenario(kinematics):
     region, starts = _region("tomato"), table1_starts("tomato")
-    params = RandomParams(start_kind="near_table1")
-    a = scenario_config(generate(region, kinematics, 7, params, starts).scenario)
-    b = scenario_config(generate(region, kinematics, 7, params, starts).scenario)
-    c = scenario_config(generate(region, kinematics, 8, params, starts).scenario)
-    d = scenario_config(generate(region, kinematics, 7, RandomParams(start_kind="anywhere"),
-                                 starts).scenario)
+    params = RandomParams()
+
+    def draw(seed, kind="near_table1"):
+        return scenario_config(generate(region, kinematics, seed, params, starts,
+                                        start_kind=kind, **EPISODE).scenario)
+
+    a, b, c, d = draw(7), draw(7), draw(8), draw(7, "anywhere")
     assert a == b
     assert a["q0"] != c["q0"] and a["q0"] != d["q0"]
 
@@ -75,19 +84,22 @@ def test_same_seed_same_scenario_other_seed_other_scenario(kinematics):
 def test_near_table1_starts_lie_near_a_table1_start(kinematics):
     starts = np.array(table1_starts("pouring"))
     assert starts.shape == (15, 7)
-    params = RandomParams(start_kind="near_table1")
-    dist = [np.min(np.linalg.norm(starts - generate(_region("pouring"), kinematics, s, params,
-                                                       starts).scenario.q0, axis=1))
-            for s in range(20)]
+    params = RandomParams()
+    dist = [np.min(np.linalg.norm(starts - generate(
+        _region("pouring"), kinematics, s, params, starts, start_kind="near_table1",
+        **EPISODE).scenario.q0, axis=1)) for s in range(20)]
     assert np.median(dist) < 0.3 * np.sqrt(7) * 1.5  # σ = 0.3 per joint
 
 
 def test_impossible_parameters_raise_with_the_counted_reasons(kinematics):
-    params = RandomParams(start_kind="anywhere", goal_clearance=5.0, max_tries=50)
+    params = RandomParams(goal_clearance=5.0, max_tries=50)
     with pytest.raises(ScenarioError, match="goal_blocked|workspace"):
-        generate(_region("tomato"), kinematics, 0, params)
+        generate(_region("tomato"), kinematics, 0, params, start_kind="anywhere", **EPISODE)
     with pytest.raises(ScenarioError, match="start_kind"):
-        RandomParams(start_kind="somewhere")
+        generate(_region("tomato"), kinematics, 0, RandomParams(), start_kind="somewhere",
+                 **EPISODE)
+    with pytest.raises(ValueError, match="radius_range"):
+        RandomParams(radius_range=(0.07, 0.04))
 
 
 def test_scenario_random_config_builds_the_generated_scenario(kinematics):
@@ -100,6 +112,7 @@ def test_scenario_random_config_builds_the_generated_scenario(kinematics):
     plain = OmegaConf.to_container(OmegaConf.create(cfg), resolve=True)
     sc = build_scenario(plain, kinematics.spec, kinematics)
     assert sc.name == "random_pouring_anywhere_1003"
-    ref = generate(_region("pouring"), kinematics, 1003, RandomParams(start_kind="anywhere"))
+    ref = generate(_region("pouring"), kinematics, 1003, RandomParams(), start_kind="anywhere",
+                   **EPISODE)
     np.testing.assert_array_equal(sc.q0, ref.scenario.q0)
     np.testing.assert_array_equal(sc.obstacles.centers, ref.scenario.obstacles.centers)

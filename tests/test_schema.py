@@ -63,14 +63,15 @@ def test_run_yaml_loads_against_the_schema(hydra_conf, group, option):
     run = schema.run_config(compose("sweep", overrides=_run_overrides(group, option)))
     assert isinstance(run.method, schema.METHODS[run.method.name])
     assert run.scenario.dt > 0 and run.sim.substep > 0
-    # the scenario generators' blocks are untyped in the schema: their own dataclasses check them
     sc = run.scenario
-    if sc.random is not None:
-        RandomParams.from_mapping(sc.random, sc.start_kind)  # ScenarioError on an unknown key
+    if sc.random is not None:  # typed by the schema: the generator's own parameters
+        assert isinstance(sc.random, schema.RandomSchema)
+        RandomParams(**schema.as_dict(sc.random))
     if sc.generator is not None:
-        gen = dict(sc.generator)
+        assert isinstance(sc.generator, schema.DemoGeneratorSchema)
+        gen = schema.as_dict(sc.generator)
         assert gen.pop("kind") == "demos"
-        DemoScenarioConfig(**gen)  # TypeError on an unknown key
+        DemoScenarioConfig(**gen)
 
 
 @pytest.mark.parametrize("group,option", TRAIN_CASES, ids=lambda v: str(v))
@@ -111,6 +112,33 @@ def test_an_unknown_key_is_refused(hydra_conf, override, match):
         schema.run_config(cfg)
 
 
+@pytest.mark.parametrize("overrides,match", [
+    (["scenario=random", "+scenario.random.start_sigmaa=0.2"],
+     r"scenario\.random\.start_sigmaa: unknown key"),
+    (["scenario=random", "scenario.random.radius_range=[0.07,0.04]"],
+     r"scenario\.random\.radius_range must be \[low, high\]"),
+    (["scenario=random", "scenario.random.max_tries=1.5"], r"scenario\.random\.max_tries"),
+    (["scenario=random", "scenario.start_kind=somewhere"], r"scenario\.start_kind must be"),
+    (["task=tomato", "scenario=from_demos", "+scenario.generator.n_obstacle=2"],
+     r"scenario\.generator\.n_obstacle: unknown key"),
+    (["task=tomato", "scenario=from_demos", "scenario.generator.kind=grid"],
+     r"scenario\.generator\.kind must be demos"),
+    (["scenario=random", "scenario.random.start_sigma=0.2", "scenario.start_kind=anywhere"],
+     None),
+])
+def test_the_scenario_generators_blocks_are_checked(hydra_conf, overrides, match):
+    """scenario.random and scenario.generator are typed by the generators' own dataclasses."""
+    from hydra.errors import HydraException
+
+    if match is None:  # the control case loads, with the override and the other defaults
+        run = schema.run_config(compose("sweep", overrides=overrides))
+        assert run.scenario.random.start_sigma == 0.2
+        assert run.scenario.random.radius_range == list(RandomParams().radius_range)
+        return
+    with pytest.raises((ConfigError, HydraException), match=match):  # wrong types: at compose
+        schema.run_config(compose("sweep", overrides=overrides))
+
+
 @pytest.mark.parametrize("override,match", [
     ("scenario.dt=inf", r"scenario\.dt must be a finite number > 0"),
     ("scenario.dt=-0.02", r"scenario\.dt must be a finite number > 0"),
@@ -144,6 +172,12 @@ def test_a_value_out_of_range_is_refused(hydra_conf, override, match):
 def test_a_method_value_out_of_range_is_refused(hydra_conf, override, match):
     with pytest.raises(ConfigError, match=match):
         schema.run_config(compose("sweep", overrides=["method=cpm", override]))
+
+
+@pytest.mark.parametrize("method", ["puma", "fpm", "cpm", "modulation_ik"])
+def test_every_learned_method_checks_its_model_choice(hydra_conf, method):
+    with pytest.raises(ConfigError, match=r"method\.model must be auto \| real \| shipped"):
+        schema.run_config(compose("sweep", overrides=[f"method={method}", "method.model=best"]))
 
 
 @pytest.mark.parametrize("damping", cpm.DAMPINGS)

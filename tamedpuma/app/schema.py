@@ -4,7 +4,9 @@ This module is the only place config defaults live. Settings the library owns ar
 frozen dataclasses, used here as field types (their defaults are the defaults):
 :class:`~tamedpuma.worlds.settings.SimConfig`, :class:`~tamedpuma.worlds.settings.Disturbance`,
 :class:`~tamedpuma.fabrics.FabricGains`,
-:class:`~tamedpuma.methods.modulation_ik.ModulationIKParams`, and PUMA's
+:class:`~tamedpuma.methods.modulation_ik.ModulationIKParams`,
+:class:`~tamedpuma.worlds.random_scenarios.RandomParams`,
+:class:`~tamedpuma.worlds.demo_scenarios.DemoScenarioConfig`, and PUMA's
 :class:`~tamedpuma.puma.settings.TrainConfig`, :class:`~tamedpuma.puma.settings.NetConfig`,
 :class:`~tamedpuma.puma.settings.EvalConfig`. Everything else is a dataclass below. The YAML
 files under ``conf/`` override these values; a YAML key the schema does not know is an error
@@ -38,6 +40,8 @@ from tamedpuma.methods.cpm import DAMPINGS as CPM_DAMPINGS
 from tamedpuma.methods.cpm import VARIANTS as CPM_VARIANTS
 from tamedpuma.methods.modulation_ik import ModulationIKParams
 from tamedpuma.puma.settings import EvalConfig, NetConfig, TrainConfig
+from tamedpuma.worlds.demo_scenarios import DemoScenarioConfig
+from tamedpuma.worlds.random_scenarios import START_KINDS, RandomParams
 from tamedpuma.worlds.settings import Disturbance, SimConfig
 
 # Limits that keep one run within memory and time (a value beyond them is refused, named).
@@ -63,6 +67,26 @@ def _positive(key: str, value) -> None:
 
 def _nonneg(key: str, value) -> None:
     _check(_finite(value) and value >= 0, key, "a finite number >= 0", value)
+
+
+def _with_fields_of(name: str, library: type, base: type | None = None) -> type:
+    """A schema dataclass: ``base``'s fields (if any) plus every field of the frozen ``library``
+    dataclass (same types and defaults, so the defaults stay the library's); ``base``'s checks
+    and the library's constructor (its range checks) run on the result. Unlike the frozen
+    library class it is writable, so YAML values merge into a node that a YAML file creates
+    (``scenario.random: {}``)."""
+    hints = typing.get_type_hints(library)
+    extra = [(f.name, hints[f.name], field(default=f.default)) for f in dataclasses.fields(library)]
+
+    def post_init(self):
+        if hasattr(base, "__post_init__"):
+            base.__post_init__(self)
+        library(**{f.name: getattr(self, f.name) for f in dataclasses.fields(library)})
+
+    made = dataclasses.make_dataclass(name, extra, bases=(base,) if base else (),
+                                      namespace={"__post_init__": post_init})
+    made.__module__ = __name__
+    return made
 
 
 # ----------------------------------------------------------------------------- robot, world
@@ -126,6 +150,24 @@ class ObstacleSchema:
         _positive("scenario.obstacles.radius", self.radius)
 
 
+#: ``scenario.random`` (scenario=random): the generator's parameters, defaults and checks those of
+#: :class:`~tamedpuma.worlds.random_scenarios.RandomParams`
+RandomSchema = _with_fields_of("RandomSchema", RandomParams)
+
+
+@dataclass
+class _GeneratorKind:
+    kind: str = "demos"              # the only generator: starts and obstacles from demonstrations
+
+    def __post_init__(self):
+        _check(self.kind == "demos", "scenario.generator.kind", "demos", self.kind)
+
+
+#: ``scenario.generator`` (scenario=from_demos): ``kind`` and the fields, defaults and checks of
+#: :class:`~tamedpuma.worlds.demo_scenarios.DemoScenarioConfig`
+DemoGeneratorSchema = _with_fields_of("DemoGeneratorSchema", DemoScenarioConfig, _GeneratorKind)
+
+
 @dataclass
 class ScenarioSchema:
     name: str = MISSING
@@ -134,8 +176,8 @@ class ScenarioSchema:
     goal: GoalSchema = field(default_factory=GoalSchema)
     random_seed: int | None = None   # scenario=random: the generator's seed
     start_kind: str = "near_table1"  # random / from-demos starts: near_table1 | anywhere
-    random: Any = None               # scenario=random: generator parameters (RandomParams)
-    generator: Any = None            # scenario=from_demos: {kind: demos, ...}
+    random: RandomSchema | None = None  # scenario=random: generator parameters (RandomParams)
+    generator: DemoGeneratorSchema | None = None  # scenario=from_demos: {kind: demos, ...}
     obstacles: list[ObstacleSchema] = field(default_factory=list)
     dt: float = 0.02                 # control period [s]
     max_steps: int = 2000            # episode length limit (40 s)
@@ -148,6 +190,8 @@ class ScenarioSchema:
         _check(self.max_steps * self.dt <= MAX_EPISODE_SECONDS, "scenario.max_steps * dt",
                f"at most {MAX_EPISODE_SECONDS:g} s (time limit)", self.max_steps * self.dt)
         _positive("scenario.goal_tolerance", self.goal_tolerance)
+        _check(self.start_kind in START_KINDS, "scenario.start_kind", " or ".join(START_KINDS),
+               self.start_kind)
 
 
 @dataclass
@@ -356,27 +400,17 @@ class CpmMethod(FpmMethod):
         _nonneg("method.regulator_scale", self.regulator_scale)
 
 
-def _with_fields_of(name: str, base: type, library: type) -> type:
-    """A schema dataclass: ``base``'s fields plus every field of the frozen ``library`` dataclass
-    (same types and defaults), whose constructor (range checks) runs on the result."""
-    hints = typing.get_type_hints(library)
-    extra = [(f.name, hints[f.name], field(default=f.default)) for f in dataclasses.fields(library)]
-
-    def post_init(self):
-        library(**{f.name: getattr(self, f.name) for f in dataclasses.fields(library)})
-
-    return dataclasses.make_dataclass(name, extra, bases=(base,),
-                                      namespace={"__post_init__": post_init})
-
-
 @dataclass
 class _ModulationBase(MethodSchema):
     task: str | None = None        # the task whose position primitive drives it
     checkpoint: str | None = None  # a first-order position PUMA (puma=position); null: best at hand
     model: str = "auto"            # with checkpoint null: auto | real (error if none) | shipped
 
+    def __post_init__(self):
+        _check(self.model in MODEL_CHOICES, "method.model", " | ".join(MODEL_CHOICES), self.model)
 
-ModulationIkMethod = _with_fields_of("ModulationIkMethod", _ModulationBase, ModulationIKParams)
+
+ModulationIkMethod = _with_fields_of("ModulationIkMethod", ModulationIKParams, _ModulationBase)
 
 #: method name -> the dataclass of its options (a method without one cannot be configured)
 METHODS: dict[str, type] = {

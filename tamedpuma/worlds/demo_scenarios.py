@@ -19,17 +19,21 @@ numpy only (kinematics and IK from :mod:`tamedpuma.robot`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tamedpuma.errors import ScenarioError
-from tamedpuma.puma.data import RawDemo
 from tamedpuma.robot.ik import solve_pose_ik
+
+if TYPE_CHECKING:  # annotations only: the config schema imports this module without torch
+    from tamedpuma.puma.data import RawDemo
 
 
 @dataclass(frozen=True)
 class DemoScenarioConfig:
-    """See the module docstring; lengths [m]."""
+    """See the module docstring; lengths [m]. These defaults are the config defaults of
+    ``scenario.generator`` (the schema, ``tamedpuma/app/schema.py``, takes its fields from here)."""
 
     seed: int = 0
     start_noise: float = 0.03
@@ -162,7 +166,7 @@ def _generated(sc: dict, gen: dict, raws: list[RawDemo], kinematics, home) -> di
     """``sc`` with the start and obstacles of its ``generator: {kind: demos, ...}`` block (the
     obstacles added to any listed ones)."""
     gen = dict(gen)
-    if gen.pop("kind", "demos") != "demos":
+    if gen.pop("kind") != "demos":
         raise ScenarioError("scenario.generator.kind must be 'demos'")
     try:
         cfg = DemoScenarioConfig(**{k: tuple(v) if isinstance(v, list) else v

@@ -38,7 +38,7 @@ from __future__ import annotations
 import zlib
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -75,9 +75,13 @@ class TaskRegion:
 
 @dataclass(frozen=True)
 class RandomParams:
-    """Generator parameters (see the module docstring); lengths [m], angles [rad], speeds [m/s]."""
+    """Generator parameters (see the module docstring); lengths [m], angles [rad], speeds [m/s].
 
-    start_kind: str = "near_table1"
+    These defaults are the config defaults of ``scenario.random`` (the schema,
+    ``tamedpuma/app/schema.py``, takes its ``scenario.random`` fields from this class). The
+    scenario's own ``start_kind``, ``dt``, ``max_steps`` and ``goal_tolerance`` are arguments of
+    :func:`generate`."""
+
     start_sigma: float = 0.3
     limit_margin: float = 0.02
     ground_clearance: float = 0.02
@@ -93,39 +97,19 @@ class RandomParams:
     goal_clearance: float = 0.1
     base_clearance: float = 0.12
     base_height: float = 0.4
-    dt: float = 0.02
-    max_steps: int = 2000
-    goal_tolerance: float = 0.05
     max_tries: int = 20000
 
     def __post_init__(self):
-        if self.start_kind not in START_KINDS:
-            raise ScenarioError(f"scenario.start_kind must be one of {START_KINDS}, "
-                                f"got {self.start_kind!r}")
         for name in ("radius_range", "segment_range", "obstacle_speed_range"):
-            lo, hi = (float(v) for v in getattr(self, name))
+            value = getattr(self, name)
+            try:
+                lo, hi = (float(v) for v in value)
+            except (TypeError, ValueError):
+                lo = hi = float("nan")
             if not 0 <= lo <= hi:
-                raise ScenarioError(f"scenario.random.{name} must be [low, high] with "
-                                    f"0 <= low <= high, got {[lo, hi]}")
+                raise ValueError(f"scenario.random.{name} must be [low, high] with "
+                                 f"0 <= low <= high, got {list(value)}")
             object.__setattr__(self, name, (lo, hi))
-
-    @staticmethod
-    def from_mapping(cfg: Mapping | None, start_kind: str) -> RandomParams:
-        """From the ``scenario.random`` mapping (missing keys keep their defaults)."""
-        cfg = dict(cfg or {})
-        known = {f.name for f in fields(RandomParams)} - {"start_kind"}
-        unknown = sorted(set(cfg) - known)
-        if unknown:
-            raise ScenarioError(f"unknown scenario.random keys {unknown}; known: {sorted(known)}")
-        kwargs = {}
-        for key, value in cfg.items():
-            if key.endswith("_range"):
-                kwargs[key] = tuple(float(v) for v in value)
-            elif key in ("max_steps", "max_tries"):
-                kwargs[key] = int(value)
-            else:
-                kwargs[key] = float(value)
-        return RandomParams(start_kind=str(start_kind), **kwargs)
 
 
 @dataclass(frozen=True)
@@ -176,15 +160,16 @@ def _check_start(q0, kinematics, region: TaskRegion, goal_p, goal_quat, p: Rando
     return None, ee_p, centers
 
 
-def _check_obstacles(obstacles: Obstacles, goal: Goal, centers, radii, p: RandomParams):
-    """Reason or None for the obstacles, over the episode's horizon."""
+def _check_obstacles(obstacles: Obstacles, goal: Goal, centers, radii, p: RandomParams,
+                     horizon: float):
+    """Reason or None for the obstacles, over the episode's ``horizon`` [s]."""
     c0, r = obstacles.centers, obstacles.radii
     if np.min(c0[:, 2] - r) < 0.0:
         return "obstacle_ground"
     gaps = np.linalg.norm(centers[:, None] - c0[None], axis=-1) - radii[:, None] - r[None]
     if gaps.min() < p.start_clearance:
         return "start_collision"
-    t = np.linspace(0.0, p.max_steps * p.dt, 201)[:, None, None]
+    t = np.linspace(0.0, horizon, 201)[:, None, None]
     oc = c0[None] + t * obstacles.velocities[None]  # (T, m, 3)
     g = goal.position + t[:, :, 0] * goal.velocity  # (T, 3)
     if np.min(np.linalg.norm(oc - g[:, None], axis=-1) - r) < p.goal_clearance:
@@ -197,15 +182,20 @@ def _check_obstacles(obstacles: Obstacles, goal: Goal, centers, radii, p: Random
 
 
 def generate(region: TaskRegion, kinematics, seed: int, params: RandomParams,
-             table1_starts: Sequence[Sequence[float]] = ()) -> Generated:
+             table1_starts: Sequence[Sequence[float]] = (), *, start_kind: str, dt: float,
+             max_steps: int, goal_tolerance: float) -> Generated:
     """The scenario ``random_<task>_<start_kind>_<seed>`` (see the module docstring).
 
     region: the task's goal and workspace; kinematics: a
     :class:`~tamedpuma.robot.kinematics.Kinematics` (its spec gives the limits and body spheres);
-    table1_starts: the task's Table-1 starts (n, 7) [rad] (needed for ``near_table1``).
+    table1_starts: the task's Table-1 starts (n, 7) [rad] (needed for ``near_table1``);
+    start_kind: one of :data:`START_KINDS`; dt [s], max_steps and goal_tolerance [m]: the
+    scenario's (``scenario.*``; the obstacles are checked over the horizon max_steps·dt).
     Raises :class:`ScenarioError` if no valid draw is found in ``params.max_tries``.
     """
-    kind = params.start_kind
+    kind = start_kind
+    if kind not in START_KINDS:
+        raise ScenarioError(f"scenario.start_kind must be one of {START_KINDS}, got {kind!r}")
     starts = np.asarray(table1_starts, dtype=float).reshape(-1, kinematics.spec.dof)
     if kind == "near_table1" and not len(starts):
         raise ScenarioError("start_kind near_table1 needs the task's Table-1 starts")
@@ -231,12 +221,12 @@ def generate(region: TaskRegion, kinematics, seed: int, params: RandomParams,
                 v.append(_horizontal(rng, rng.uniform(*params.obstacle_speed_range))
                          if rng.uniform() < params.obstacle_moving_prob else np.zeros(3))
             obstacles = Obstacles(np.array(c), np.array(r), np.array(v))
-            reason = _check_obstacles(obstacles, goal, centers, radii, params)
+            reason = _check_obstacles(obstacles, goal, centers, radii, params,
+                                      max_steps * dt)
         if reason is None:
             scenario = Scenario(name=f"random_{region.name}_{kind}_{seed}", task=region.name,
-                                q0=q0, goal=goal, obstacles=obstacles, dt=params.dt,
-                                max_steps=params.max_steps, goal_tolerance=params.goal_tolerance,
-                                seed=int(seed))
+                                q0=q0, goal=goal, obstacles=obstacles, dt=dt, max_steps=max_steps,
+                                goal_tolerance=goal_tolerance, seed=int(seed))
             return Generated(scenario, tries, dict(rejected))
         rejected[reason] += 1
     raise ScenarioError(f"no valid random scenario for {region.name} seed {seed} "

@@ -209,16 +209,17 @@ def random_scenario(cfg: Mapping, kinematics) -> Scenario:
     if "workspace" not in task_cfg:
         raise ScenarioError(f"task {task_cfg['name']!r} has no workspace: "
                             "scenario=random needs one")
-    params = RandomParams.from_mapping(
-        {**(sc_cfg["random"] or {}), "dt": sc_cfg["dt"], "max_steps": sc_cfg["max_steps"],
-         "goal_tolerance": sc_cfg["goal_tolerance"]},
-        str(sc_cfg["start_kind"]))
+    # scenario.random: the schema's typed block (null when the YAML has none: RandomParams' own)
+    params = RandomParams(**(sc_cfg["random"] or {}))
+    kind = str(sc_cfg["start_kind"])
     region = TaskRegion.from_task_config(task_cfg)
     region = replace(region, goal_position=np.asarray(sc_cfg["goal"]["position"], dtype=float),
                      goal_quaternion=np.asarray(sc_cfg["goal"]["quaternion"], dtype=float))
     starts = ((table1_starts(region.name) or task_cfg.get("demo_starts") or [])
-              if params.start_kind == "near_table1" else [])  # demo_starts: worlds/demo_scenarios
-    generated = generate(region, kinematics, seed, params, starts)
+              if kind == "near_table1" else [])  # demo_starts: worlds/demo_scenarios
+    generated = generate(region, kinematics, seed, params, starts, start_kind=kind,
+                         dt=float(sc_cfg["dt"]), max_steps=int(sc_cfg["max_steps"]),
+                         goal_tolerance=float(sc_cfg["goal_tolerance"]))
     log.info("random scenario %s after %d draws (rejected: %s)", generated.scenario.name,
              generated.tries, generated.rejected)
     return generated.scenario
