@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from tamedpuma.app.config import load_group
+from tamedpuma.app.config import robot_config
 from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
@@ -14,7 +14,7 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
 @pytest.fixture(scope="session")
 def robot_spec():
-    return robot_spec_from_config(load_group("robot", "iiwa14"))
+    return robot_spec_from_config(robot_config("iiwa14"))
 
 
 @pytest.fixture(scope="session")

@@ -9,7 +9,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from tamedpuma.app.config import CONF_DIR, load_group
+from tamedpuma.app.config import CONF_DIR, robot_config
 from tamedpuma.robot import body_model as bm
 from tamedpuma.robot.ik import solve_pose_ik
 from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
@@ -17,10 +17,7 @@ from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 
 
 def _spec(name):
-    cfg = load_group("robot", name)
-    if "defaults" in cfg:  # a derived option (iiwa14_mesh): its base, then its own keys
-        base = load_group("robot", cfg["defaults"][0])
-        cfg = {**base, **{k: v for k, v in cfg.items() if k != "defaults"}}
+    cfg = robot_config(name)  # a derived option (iiwa14_mesh): its base, then its own keys
     return cfg, robot_spec_from_config(cfg)
 
 
@@ -115,8 +112,7 @@ def test_generated_body_model_holds_every_collision_vertex_within_its_tolerance(
     cfg, spec = _spec(robot)
     kin = Kinematics(spec)
     tol = float(cfg["body_model_tolerance"])
-    links = sorted({s.link for s in spec.spheres} | set((cfg.get("body_model") or {})
-                                                           .get("merge", {}) or {}))
+    links = sorted({s.link for s in spec.spheres} | set(cfg["body_model"]["merge"]))
     spheres = [(s.link, s.offset, s.radius) for s in spec.spheres]
     rng = np.random.default_rng(2)
     for q in rng.uniform(spec.q_min, spec.q_max, size=(5, spec.dof)):
@@ -132,9 +128,10 @@ def test_generated_body_model_holds_every_collision_vertex_within_its_tolerance(
     for link, (hull, union, excess) in stated.items():
         assert excess > 0
         mine = [s for s in spec.spheres if s.link == link]
-        vol = bm.volumes(geoms[link].vertices, [s.offset for s in mine], [s.radius for s in mine],
-                         samples=40_000) if link not in (cfg.get("body_model") or {}).get(
-                             "merge", {}).values() else None
+        merged_into = link in cfg["body_model"]["merge"].values()
+        vol = None if merged_into else bm.volumes(
+            geoms[link].vertices, [s.offset for s in mine], [s.radius for s in mine],
+            samples=40_000)
         if vol is not None:
             assert vol["hull"] * 1e3 == pytest.approx(hull, rel=0.08, abs=0.05)
             assert vol["union"] * 1e3 == pytest.approx(union, rel=0.08, abs=0.05)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tamedpuma.app.config import load_group
+from tamedpuma.app.config import load_group, robot_config
 from tamedpuma.app.schema import ScenarioSchema
 from tamedpuma.errors import ScenarioError
 from tamedpuma.worlds.random_scenarios import (
@@ -105,7 +105,7 @@ def test_impossible_parameters_raise_with_the_counted_reasons(kinematics):
 def test_scenario_random_config_builds_the_generated_scenario(kinematics):
     from omegaconf import OmegaConf
 
-    cfg = {"robot": load_group("robot", "iiwa14"), "task": load_group("task", "pouring"),
+    cfg = {"robot": robot_config("iiwa14"), "task": load_group("task", "pouring"),
            "scenario": load_group("scenario", "random"), "seed": 0,
            "without_obstacles": False, "clutter": {"count": 0, "total": None}}
     cfg["scenario"].update(random_seed=1003, start_kind="anywhere")

@@ -7,7 +7,7 @@ import logging
 import numpy as np
 import pytest
 
-from tamedpuma.app.config import load_group
+from tamedpuma.app.config import load_group, robot_config
 from tamedpuma.errors import ScenarioError
 from tamedpuma.worlds.scenarios import clamp_start, scenario_from_config
 
@@ -63,7 +63,7 @@ def test_invalid_scenarios_raise_scenario_error(robot_spec, bad):
 
 
 def _run_cfg(**top):
-    cfg = {"robot": load_group("robot", "iiwa14"), "task": load_group("task", "tomato"),
+    cfg = {"robot": robot_config("iiwa14"), "task": load_group("task", "tomato"),
            "scenario": _default_cfg(), "seed": 0, "without_obstacles": False,
            "clutter": {"count": 0, "total": None, "radius": 0.05, "low": [-1.2, -1.2, 0.05],
                        "high": [1.2, 1.2, 1.4], "min_distance": 0.1}}

@@ -80,6 +80,24 @@ def test_train_yaml_loads_against_the_schema(hydra_conf, group, option):
     assert cfg.puma.train.iterations > 0
 
 
+@pytest.mark.parametrize("robot", _options("robot"))
+def test_body_model_yaml_loads_against_the_schema(hydra_conf, robot):
+    cfg = schema.body_model_config(compose("body_model", overrides=[f"robot={robot}"]))
+    assert cfg.robot.name == robot and cfg.max_spheres >= 1
+    assert all(len(s.offset) == 3 for s in cfg.robot.spheres)  # BodySphere's default filled in
+
+
+@pytest.mark.parametrize("override,match", [
+    ("+max_sphere=2", r"max_sphere: unknown key"),
+    ("+robot.body_model.skipp=[x]", r"robot\.body_model\.skipp: unknown key"),
+    ("max_spheres=0", r"max_spheres must be in \[1, 100\]"),
+    ("tolerance=-1", r"tolerance must be a finite number >= 0"),
+])
+def test_a_body_model_mistake_is_refused(hydra_conf, override, match):
+    with pytest.raises(ConfigError, match=match):
+        schema.body_model_config(compose("body_model", overrides=[override]))
+
+
 def test_every_method_has_a_schema():
     assert set(methods.available()) == set(schema.METHODS)
 
@@ -100,6 +118,9 @@ def test_a_misspelt_method_option_is_refused(hydra_conf, method):
     ("+task.goal=1", r"task\.goal: unknown key"),
     ("+sedd=1", r"sedd: unknown key"),
     ("+disturbance.forse=1", r"disturbance\.forse: unknown key"),
+    ("+robot.spheres.0.offsett=[0,0,0]", r"offsett: unknown key.*SphereSchema"),
+    ("robot.spheres.0.radius=-0.1", r"robot\.spheres\.radius must be a finite number > 0"),
+    ("+robot.null_space.stiffness=2", r"robot\.null_space\.stiffness: unknown key"),
     ("sim.control=torque", r"sim\.control must be one of"),
     ("method=fpm", None),
 ])

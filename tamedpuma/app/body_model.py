@@ -96,12 +96,12 @@ def run(cfg: dict, argv: list[str], log=print) -> dict:
     spec = robot_spec_from_config(robot)
     kin = Kinematics(spec)
     frames = _link_frames(kin)
-    opts = robot.get("body_model") or {}
+    opts = robot["body_model"]  # complete: the schema's BodyModelOptions
     merge = {}
-    for link, target in (opts.get("merge") or {}).items():
+    for link, target in opts["merge"].items():
         (rl, pl), (rt, pt) = frames(link), frames(target)
         merge[link] = (target, rt.T @ rl, rt.T @ (pl - pt))
-    skip = tuple(opts.get("skip") or (spec.link_names[0],))
+    skip = tuple(opts["skip"]) if opts["skip"] is not None else (spec.link_names[0],)
     tol = float(cfg["tolerance"])
     fits = bm.fit_body(spec.urdf_path, tolerance=tol, max_spheres=int(cfg["max_spheres"]),
                        k_penalty=float(cfg["k_penalty"]), skip=skip, merge=merge,
@@ -128,7 +128,7 @@ def run(cfg: dict, argv: list[str], log=print) -> dict:
         f"(worst {generated['max_outside_m']:.4f} m outside)")
     command = " ".join(["python -m tamedpuma.body_model", *argv])
     text = block(robot["name"], fits, tol, command)
-    out = cfg.get("out")
+    out = cfg["out"]
     path = Path(out) if out else CONF_DIR / "robot" / f"{robot['name']}.yaml"
     name = path.stem
     what = write_block(path, text, robot["name"], name)

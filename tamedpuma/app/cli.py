@@ -157,7 +157,7 @@ def _schema_problem(config_name: str, cfg) -> str | None:
     from tamedpuma.app import schema
     from tamedpuma.errors import ConfigError
 
-    check = {"sweep": schema.run_config, "train": schema.train_config}.get(config_name)
+    check = schema.CONFIGS.get(config_name)
     if check is None:
         return None
     try:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from tamedpuma.app import schema as _schema  # noqa: F401 - registers the config schema with Hydra
+from tamedpuma.app import schema as _schema  # also registers the config schema with Hydra
 from tamedpuma.errors import ConfigError
 from tamedpuma.paths import CONF_DIR  # noqa: E402 - tamedpuma/conf (package data)
 
@@ -36,8 +36,21 @@ def load_group(group: str, name: str) -> dict:
     return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
 
 
+def robot_config(name: str) -> dict:
+    """The robot option ``conf/robot/<name>.yaml`` as the sweep sees it: its ``defaults`` (a
+    derived option's base robot) merged under its own keys, then typed by the schema
+    (:class:`~tamedpuma.app.schema.RobotSchema`: checked, every default filled in)."""
+    own = load_group("robot", name)
+    merged = OmegaConf.create({})
+    for base in own.pop("defaults", []):
+        if base != "_self_":
+            merged = OmegaConf.merge(merged, robot_config(str(base)))
+    merged = OmegaConf.merge(merged, own)
+    return _schema.as_dict(_schema.typed(_schema.RobotSchema, merged, "robot"))
+
+
 def default_kinematics():
     """A :class:`~tamedpuma.robot.kinematics.Kinematics` of the default robot (iiwa14)."""
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
 
-    return Kinematics(robot_spec_from_config(load_group("robot", "iiwa14")))
+    return Kinematics(robot_spec_from_config(robot_config("iiwa14")))

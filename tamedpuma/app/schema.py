@@ -6,7 +6,8 @@ frozen dataclasses, used here as field types (their defaults are the defaults):
 :class:`~tamedpuma.fabrics.FabricGains`,
 :class:`~tamedpuma.methods.modulation_ik.ModulationIKParams`,
 :class:`~tamedpuma.worlds.random_scenarios.RandomParams`,
-:class:`~tamedpuma.worlds.demo_scenarios.DemoScenarioConfig`, and PUMA's
+:class:`~tamedpuma.worlds.demo_scenarios.DemoScenarioConfig`,
+:class:`~tamedpuma.robot.kinematics.BodySphere`, and PUMA's
 :class:`~tamedpuma.puma.settings.TrainConfig`, :class:`~tamedpuma.puma.settings.NetConfig`,
 :class:`~tamedpuma.puma.settings.EvalConfig`. Everything else is a dataclass below. The YAML
 files under ``conf/`` override these values; a YAML key the schema does not know is an error
@@ -40,6 +41,7 @@ from tamedpuma.methods.cpm import DAMPINGS as CPM_DAMPINGS
 from tamedpuma.methods.cpm import VARIANTS as CPM_VARIANTS
 from tamedpuma.methods.modulation_ik import ModulationIKParams
 from tamedpuma.puma.settings import EvalConfig, NetConfig, TrainConfig
+from tamedpuma.robot.kinematics import BodySphere
 from tamedpuma.worlds.demo_scenarios import DemoScenarioConfig
 from tamedpuma.worlds.random_scenarios import START_KINDS, RandomParams
 from tamedpuma.worlds.settings import Disturbance, SimConfig
@@ -92,14 +94,28 @@ def _with_fields_of(name: str, library: type, base: type | None = None) -> type:
 # ----------------------------------------------------------------------------- robot, world
 
 
+#: one entry of ``robot.spheres``: the fields, defaults (offset [0, 0, 0] in the link frame [m])
+#: and checks of :class:`~tamedpuma.robot.kinematics.BodySphere`
+SphereSchema = _with_fields_of("SphereSchema", BodySphere)
+
+
 @dataclass
-class SphereSchema:
+class RobotNullSpaceSchema:
+    """The robot's "elbow up" point: replaces ``method.null_space``'s link and target."""
+
     link: str = MISSING
-    radius: float = MISSING          # [m]
-    offset: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # in the link frame [m]
+    target: list[float] = MISSING    # [m]
 
     def __post_init__(self):
-        _positive("robot.spheres.radius", self.radius)
+        _check(len(self.target) == 3, "robot.null_space.target", "3 numbers [m]", self.target)
+
+
+@dataclass
+class BodyModelOptions:
+    """How ``python -m tamedpuma.body_model`` fits this robot's spheres."""
+
+    skip: list[str] | None = None    # links given no sphere; null: the first link (the fixed base)
+    merge: dict[str, str] = field(default_factory=dict)  # link -> the link it is rigid with
 
 
 @dataclass
@@ -116,9 +132,9 @@ class RobotSchema:
     limit_margin: float = 1e-3       # ... to this far inside [rad]
     spheres: list[SphereSchema] = MISSING
     home: list[float] | None = None   # default start [rad] (a scenario with q0: null uses it)
-    null_space: Any = None            # {link, target}: replaces the method's "elbow up" objective
-    body_model: Any = None            # {skip, merge}: for python -m tamedpuma.body_model
-    body_model_tolerance: Any = None  # [m], written by python -m tamedpuma.body_model
+    null_space: RobotNullSpaceSchema | None = None  # replaces the method's "elbow up" objective
+    body_model: BodyModelOptions = field(default_factory=BodyModelOptions)
+    body_model_tolerance: float | None = None  # [m], written by python -m tamedpuma.body_model
 
     def __post_init__(self):
         n = len(self.joint_names)
@@ -499,12 +515,33 @@ class TrainRunConfig:
         _check(self.save_every >= 0, "save_every", "an integer >= 0", self.save_every)
 
 
+@dataclass
+class BodyModelRunConfig:
+    """Fitting a robot's collision spheres (``conf/body_model.yaml``):
+    ``python -m tamedpuma.body_model``."""
+
+    robot: RobotSchema = MISSING
+    tolerance: float = 0.0           # [m] a collision-mesh vertex may lie this far outside
+    max_spheres: int = 3             # per link
+    k_penalty: float = 0.15          # relative cost of one more sphere when choosing how many
+    samples: int = 100_000           # Monte-Carlo samples per link for the volumes
+    out: str | None = None           # null: into the robot's own config file, between markers
+
+    def __post_init__(self):
+        _nonneg("tolerance", self.tolerance)
+        _check(1 <= self.max_spheres <= 100, "max_spheres", "in [1, 100]", self.max_spheres)
+        _nonneg("k_penalty", self.k_penalty)
+        _check(1 <= self.samples <= 10_000_000, "samples", "in [1, 10000000]", self.samples)
+
+
 # ----------------------------------------------------------------------------- merging
 
 
 def _writable(node) -> None:
     """Structured nodes of frozen dataclasses are read-only: let YAML values merge into them."""
     OmegaConf.set_readonly(node, False)
+    if node._is_missing() or node._is_none():  # a required list or node: nothing inside yet
+        return
     if isinstance(node, DictConfig):
         for key in node.keys():
             child = node._get_node(key)
@@ -578,6 +615,17 @@ def train_config(cfg) -> TrainRunConfig:
     return typed(TrainRunConfig, plain)
 
 
+def body_model_config(cfg) -> BodyModelRunConfig:
+    """The ``python -m tamedpuma.body_model`` config (resolved), typed and range-checked."""
+    if not isinstance(cfg, DictConfig):
+        cfg = OmegaConf.create(cfg)
+    return typed(BodyModelRunConfig, OmegaConf.to_container(cfg, resolve=True))
+
+
+#: top-level config name -> its typing function (the entry points' ``compose``)
+CONFIGS = {"sweep": run_config, "train": train_config, "body_model": body_model_config}
+
+
 def as_dict(obj) -> dict:
     """A typed config object as a plain dict (tuples as lists), e.g. for a method's ``make``."""
     def plain(v):
@@ -602,15 +650,17 @@ def _node(schema: type):
 
 
 def register() -> None:
-    """Register the schemas in Hydra's ConfigStore: ``tamedpuma_sweep`` and ``tamedpuma_train``
-    head the defaults lists of ``conf/sweep.yaml`` and ``conf/train.yaml`` (so every schema key
-    exists in the composed config with its default, and the YAML overrides it),
-    ``tamedpuma_method/<name>`` are the method option groups."""
+    """Register the schemas in Hydra's ConfigStore: ``tamedpuma_sweep``, ``tamedpuma_train`` and
+    ``tamedpuma_body_model`` head the defaults lists of ``conf/sweep.yaml``, ``conf/train.yaml``
+    and ``conf/body_model.yaml`` (so every schema key exists in the composed config with its
+    default, and the YAML overrides it), ``tamedpuma_method/<name>`` are the method option
+    groups."""
     from hydra.core.config_store import ConfigStore
 
     store = ConfigStore.instance()
     store.store(name="tamedpuma_sweep", node=_node(RunConfig))
     store.store(name="tamedpuma_train", node=_node(TrainRunConfig))
+    store.store(name="tamedpuma_body_model", node=_node(BodyModelRunConfig))
     for name, schema in METHODS.items():
         store.store(group="tamedpuma_method", name=name, node=_node(schema))
 

@@ -75,7 +75,7 @@ def build(cfg: DictConfig) -> Built:
         spec = robot_spec_from_config(plain["robot"])
         kinematics = Kinematics(spec)
         plain = demo_scenarios.apply(plain, kinematics)  # derived goal, generated scenario
-        if plain["robot"].get("null_space") and isinstance(plain["method"].get("null_space"),
+        if plain["robot"]["null_space"] and isinstance(plain["method"].get("null_space"),
                                                            dict):
             # the robot config's "elbow up" link and target replace the method's (iiwa) ones
             plain["method"]["null_space"] = {**plain["method"]["null_space"],

@@ -23,8 +23,9 @@ from tamedpuma.errors import ConfigError
 
 def compose(config_name: str, overrides: list[str]) -> dict:
     """Hydra compose of ``conf/<config_name>.yaml`` → plain dict; Hydra errors → ConfigError.
-    A training config is checked against the schema (types, unknown keys, ranges) and comes
-    back complete (every key, schema defaults filled in)."""
+    A config with a schema (``train``, ``body_model``: :data:`tamedpuma.app.schema.CONFIGS`) is
+    checked against it (types, unknown keys, ranges) and comes back complete (every key, schema
+    defaults filled in)."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
@@ -32,16 +33,16 @@ def compose(config_name: str, overrides: list[str]) -> dict:
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
+    from tamedpuma.app import schema
+
     if not CONF_DIR.is_dir():
         raise ConfigError(f"config folder not found: {CONF_DIR}")
     GlobalHydra.instance().clear()
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             cfg = hydra_compose(config_name=config_name, overrides=overrides)
-            if config_name == "train":
-                from tamedpuma.app.schema import as_dict, train_config
-
-                return as_dict(train_config(cfg))
+            if config_name in schema.CONFIGS:  # typed: complete, checked
+                return schema.as_dict(schema.CONFIGS[config_name](cfg))
             return OmegaConf.to_container(cfg, resolve=True)
     except (HydraException, OmegaConfBaseException) as exc:
         from tamedpuma.app.cli import hydra_error_line

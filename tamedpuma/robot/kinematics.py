@@ -50,11 +50,24 @@ def resolve_urdf(path: str | None) -> str:
 
 @dataclass(frozen=True)
 class BodySphere:
-    """A collision sphere rigidly attached to a link: centre = link origin + R_link · offset [m]."""
+    """A collision sphere rigidly attached to a link: centre = link origin + R_link · offset [m].
+    One entry of ``robot.spheres`` (the schema, ``tamedpuma/app/schema.py``, takes its fields and
+    the offset's default from here)."""
 
     link: str
     radius: float
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        offset = tuple(float(v) for v in self.offset)
+        if not (np.isfinite(self.radius) and self.radius > 0):
+            raise ValueError(f"robot.spheres.radius must be a finite number > 0, "
+                             f"got {self.radius!r}")
+        if len(offset) != 3 or not all(np.isfinite(offset)):
+            raise ValueError(f"robot.spheres.offset must be 3 finite numbers [m], got {offset}")
+        object.__setattr__(self, "link", str(self.link))
+        object.__setattr__(self, "radius", float(self.radius))
+        object.__setattr__(self, "offset", offset)
 
 
 @dataclass(frozen=True)
@@ -101,15 +114,16 @@ class RobotSpec:
 
 
 def robot_spec_from_config(cfg) -> RobotSpec:
-    """Build a :class:`RobotSpec` from the ``robot`` config group (a mapping)."""
-    urdf = resolve_urdf(cfg.get("urdf"))
+    """Build a :class:`RobotSpec` from the ``robot`` config group: a complete mapping (every key
+    of the schema's ``RobotSchema``, e.g. :func:`tamedpuma.app.config.robot_config`); a sphere
+    without ``offset`` has :class:`BodySphere`'s."""
+    urdf = resolve_urdf(cfg["urdf"])
     if not os.path.isfile(urdf):
         raise ConfigError(f"robot.urdf: no such file: {urdf}")
-    spheres = tuple(
-        BodySphere(link=str(s["link"]), radius=float(s["radius"]),
-                   offset=tuple(float(v) for v in s.get("offset", (0.0, 0.0, 0.0))))
-        for s in cfg["spheres"]
-    )
+    try:
+        spheres = tuple(BodySphere(**s) for s in cfg["spheres"])
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"robot.spheres: {exc}") from None
     return RobotSpec(
         urdf_path=urdf,
         joint_names=tuple(cfg["joint_names"]),
@@ -119,7 +133,7 @@ def robot_spec_from_config(cfg) -> RobotSpec:
         q_max=np.array(cfg["q_max"], dtype=float),
         qd_max=np.array(cfg["qd_max"], dtype=float),
         spheres=spheres,
-        home=None if cfg.get("home") is None else tuple(float(v) for v in cfg["home"]),
+        home=None if cfg["home"] is None else tuple(float(v) for v in cfg["home"]),
     )
 
 
