@@ -28,7 +28,15 @@ import numpy as np
 from tamedpuma.errors import ConfigError
 
 from . import drake, slsqp
-from .problem import IKProblem, IKResult, distances, objective, reach_bounds, violation
+from .problem import (
+    IKProblem,
+    IKResult,
+    SolverOptions,
+    distances,
+    objective,
+    reach_bounds,
+    violation,
+)
 
 #: name -> solve(problem) -> IKResult
 BACKENDS: dict[str, Callable[[IKProblem], IKResult]] = {"drake": drake.solve, "slsqp": slsqp.solve}
@@ -39,8 +47,9 @@ DEFAULT_BACKEND = "drake"
 #: before a timed loop
 WARM_UP: dict[str, Callable] = {"drake": drake.warm_up, "slsqp": slsqp.warm_up}
 
-__all__ = ["BACKENDS", "DEFAULT_BACKEND", "IKProblem", "IKResult", "available_backends",
-           "distances", "objective", "reach_bounds", "solve_ik", "violation", "warm_up"]
+__all__ = ["BACKENDS", "DEFAULT_BACKEND", "IKProblem", "IKResult", "SolverOptions",
+           "available_backends", "distances", "objective", "reach_bounds", "solve_ik", "violation",
+           "warm_up"]
 
 
 def available_backends() -> list[str]:

@@ -9,9 +9,10 @@ filtered, so the minimum-distance constraint is exactly ``min_ij d_ij(q) ≥ d_m
 (body sphere, obstacle) pairs. One plant is built per (robot, obstacle radii) and cached.
 
 Drake's minimum-distance constraint is a smoothed penalty that is feasible iff every pair is beyond
-its bound; the bound passed to Drake is ``d_min + options['drake_margin']`` (default 1e-4 m) so that
-SNOPT's feasibility tolerance cannot leave a pair below d_min. SNOPT reports no iteration count
-through Drake: ``iterations`` is the number of objective evaluations.
+its bound; the bound passed to Drake is ``d_min + options.drake_margin`` (1e-4 m by default:
+:class:`~tamedpuma.ik_solvers.problem.SolverOptions`) so that SNOPT's feasibility tolerance cannot
+leave a pair below d_min. SNOPT reports no iteration count through Drake: ``iterations`` is the
+number of objective evaluations.
 """
 
 from __future__ import annotations
@@ -138,8 +139,8 @@ def solve(problem: IKProblem) -> IKResult:
     qv = ik.q()[idx]
     prog.AddBoundingBoxConstraint(problem.q_lower, problem.q_upper, qv)
     if problem.n_obstacles:
-        margin = float(problem.options.get("drake_margin", 1e-4))
-        influence = float(problem.options.get("drake_influence", 0.05))
+        margin = float(problem.options.drake_margin)
+        influence = float(problem.options.drake_influence)
         ik.AddMinimumDistanceLowerBoundConstraint(problem.d_min + margin, influence)
     ik.AddPositionCost(plant.world_frame(), problem.target_position, world.ee_frame, np.zeros(3),
                        problem.position_weight * np.eye(3))

@@ -30,6 +30,21 @@ def _frozen(value, shape, name) -> np.ndarray:
     return arr
 
 
+@dataclass(frozen=True)
+class SolverOptions:
+    """The backends' own settings (each read by one backend; see its module docstring).
+
+    scale: s [m], SLSQP's objective is scaled by 1/s²; ftol: SLSQP's absolute tolerance on the
+    scaled objective; drake_margin [m]: added to d_min in the bound passed to Drake (SNOPT's
+    feasibility tolerance cannot then leave a pair below d_min); drake_influence [m]: Drake's
+    influence distance beyond that bound (pairs further apart are not evaluated)."""
+
+    scale: float = 0.01
+    ftol: float = 1e-6
+    drake_margin: float = 1e-4
+    drake_influence: float = 0.05
+
+
 @dataclass(frozen=True, eq=False)
 class IKProblem:
     """One collision-aware IK solve (see the module docstring for the equations).
@@ -41,7 +56,7 @@ class IKProblem:
     q_lower, q_upper: (7,) bounds [rad] (default the robot's joint limits);
     position_weight w_p [1/m²], orientation_weight w_R [-], regularization_weight w_q [1/rad²];
     tolerance: allowed constraint violation of a successful result [m or rad];
-    max_iterations: solver iteration limit.
+    max_iterations: solver iteration limit; options: the backends' own settings.
     """
 
     kinematics: Kinematics
@@ -59,7 +74,7 @@ class IKProblem:
     regularization_weight: float = 1e-4
     tolerance: float = 1e-5
     max_iterations: int = 100
-    options: dict = field(default_factory=dict)
+    options: SolverOptions = field(default_factory=SolverOptions)
 
     def __post_init__(self):
         spec = self.kinematics.spec

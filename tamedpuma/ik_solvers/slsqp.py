@@ -6,9 +6,10 @@ solver: with ``Δ_k = max(q_start,k − q_lower,k, q_upper,k − q_start,k)`` an
 ``Σ_k L_ik Δ_k`` holds everywhere in the box, so dropping it changes nothing (exact pruning; with a
 small trust region most obstacles drop out).
 
-The objective is scaled by ``1/s²`` (s = ``options['scale']``, default 0.01 m) and SLSQP's absolute
-tolerance is ``ftol`` (default 1e-6) on the scaled value, i.e. ``ftol·s² = 1e-10 m²`` ≈ (10 µm)² on
-the objective. Tighter values end in SLSQP's "positive directional derivative in line search" at
+The objective is scaled by ``1/s²`` (s = ``options.scale``, 0.01 m by default:
+:class:`~tamedpuma.ik_solvers.problem.SolverOptions`) and SLSQP's absolute tolerance is
+``options.ftol`` (1e-6) on the scaled value, i.e. ``ftol·s² = 1e-10 m²`` ≈ (10 µm)² on the
+objective. Tighter values end in SLSQP's "positive directional derivative in line search" at
 optima with active distance bounds (measured), which would be reported as failures.
 """
 
@@ -50,7 +51,7 @@ def solve(problem: IKProblem) -> IKResult:
     """Solve ``problem`` with SLSQP (see the module docstring)."""
     kin = problem.kinematics
     zeros = np.zeros(kin.spec.dof)
-    scale = 1.0 / float(problem.options.get("scale", 0.01)) ** 2
+    scale = 1.0 / float(problem.options.scale) ** 2
     cache: dict = {}
 
     def state_at(q):
@@ -83,7 +84,7 @@ def solve(problem: IKProblem) -> IKResult:
                        bounds=list(zip(problem.q_lower, problem.q_upper)),
                        constraints=constraints,
                        options={"maxiter": problem.max_iterations,
-                                "ftol": float(problem.options.get("ftol", 1e-6))})
+                                "ftol": float(problem.options.ftol)})
     elapsed = (time.perf_counter() - start) * 1e3
     return IKResult(q=np.asarray(res.x, float), success=bool(res.success),
                     message=f"SLSQP: {res.message}", iterations=int(res.nit),
