@@ -176,7 +176,7 @@ def _compute_stats(compute_ms) -> dict[str, float]:
 def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np.ndarray,
                 clearance: np.ndarray, obstacle_contact: np.ndarray, ground_contact: np.ndarray,
                 q: np.ndarray, q_min: np.ndarray, q_max: np.ndarray, compute_ms: np.ndarray,
-                tolerance: float = 0.05, orientation_tolerance: float = 0.2,
+                tolerance: float, orientation_tolerance: float = 0.2,
                 limit_tolerance: float = 1e-6, time_limit: float = math.inf,
                 settle_time: float = 0.0, ee_position: np.ndarray | None = None,
                 stall_window: float = 2.0, stall_distance: float = 0.01,
@@ -184,6 +184,7 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
     """Metrics of one run from per-step arrays (T steps): t (T,) [s], end-effector position
     error to the goal (T,) [m], orientation error (T,) [rad], clearance (T,) [m], contact flags
     (T,), q (T, n) [rad], compute_ms (T,), optional ee_position (T, 3) [m] (for the stall class).
+    tolerance [m]: the scenario's goal tolerance (``scenario.goal_tolerance``);
     time_limit [s]: the goal must be reached strictly before it (the episode horizon);
     settle_time [s]: how long after the reach the orientation is judged.
     Works on live arrays and on arrays read from a log."""

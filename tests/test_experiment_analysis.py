@@ -27,7 +27,8 @@ def _summary(folder: Path, method: str, n_obstacles: int, step_ms: float, succes
     m = run_metrics(t=t, position_error=pos, orientation_error=np.zeros(n),
                     clearance=np.full(n, 0.1), obstacle_contact=np.zeros(n, bool),
                     ground_contact=np.zeros(n, bool), q=np.zeros((n, 7)), q_min=-np.ones(7),
-                    q_max=np.ones(7), compute_ms=np.full(n, step_ms), disturbance_time=onset,
+                    q_max=np.ones(7), compute_ms=np.full(n, step_ms), tolerance=0.05,
+                    disturbance_time=onset,
                     ee_position=np.zeros((n, 3)))
     folder.mkdir(parents=True)
     steps = [10 * step_ms] + [step_ms] * (n - 1)  # a slow first (warm-up) step

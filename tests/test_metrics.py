@@ -11,6 +11,7 @@ from tamedpuma.analysis.tables import step_time_stats, table1
 from tamedpuma.metrics import run_metrics
 
 DT = 0.02
+TOL = 0.05  # the goal tolerance [m] of the synthetic runs
 Q_MIN, Q_MAX = -np.ones(7), np.ones(7)
 
 
@@ -23,7 +24,7 @@ def _log(n=200, reach=100, **events):
     log = dict(t=t, position_error=pos, orientation_error=np.full(n, 0.1),
                clearance=np.full(n, 0.2), obstacle_contact=np.zeros(n, bool),
                ground_contact=np.zeros(n, bool), q=np.zeros((n, 7)), q_min=Q_MIN, q_max=Q_MAX,
-               compute_ms=np.full(n, 1.0))
+               compute_ms=np.full(n, 1.0), tolerance=TOL)
     log.update(events)
     return log
 
