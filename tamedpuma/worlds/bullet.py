@@ -85,14 +85,28 @@ class Simulator:
         """Build the world for ``scenario`` (robot at q0, at rest); return the first observation."""
         if len(scenario.q0) != self.spec.dof:
             raise ValueError(f"q0 has {len(scenario.q0)} joints, robot has {self.spec.dof}")
+        self._reset_physics(scenario.dt)
+        self._load_robot(scenario.q0)
+        self._hold_robot()
+        self._set_up_disturbance(scenario.seed)
+        self._obstacle_ids = self._add_obstacles(scenario)
+        self._obstacle_set = frozenset(self._obstacle_ids)
+        self._scenario = scenario
+        self._goal_marker = self._add_goal_marker(scenario)
+        self._step = 0
+        self._set_run_constants(scenario)
+        self._joint_cache = None  # (q, qd) read since the last physics step
+        return self.observe()
+
+    def _reset_physics(self, dt: float) -> None:
+        """An empty world: gravity, ``dt / substep`` physics substeps per step, the ground."""
         c = self._client
         pb.resetSimulation(physicsClientId=c)
         self._joint_cache = None
         pb.setGravity(0, 0, -self.config.gravity, physicsClientId=c)
-        n_sub = round(scenario.dt / self.config.substep)
-        if n_sub < 1 or not math.isclose(n_sub * self.config.substep, scenario.dt, rel_tol=1e-9):
-            raise ValueError(f"dt {scenario.dt} is not a multiple of the substep "
-                             f"{self.config.substep}")
+        n_sub = round(dt / self.config.substep)
+        if n_sub < 1 or not math.isclose(n_sub * self.config.substep, dt, rel_tol=1e-9):
+            raise ValueError(f"dt {dt} is not a multiple of the substep {self.config.substep}")
         self._n_sub = n_sub
         pb.setPhysicsEngineParameter(fixedTimeStep=self.config.substep, numSubSteps=0,
                                      deterministicOverlappingPairs=1, physicsClientId=c)
@@ -103,6 +117,11 @@ class Simulator:
             self._ground = pb.loadURDF("plane.urdf", physicsClientId=c)
         else:
             self._ground = -1
+
+    def _load_robot(self, q0: np.ndarray) -> None:
+        """The robot's URDF on a fixed base at q0, at rest; PyBullet's indices of its joints, logged
+        links and body-sphere links."""
+        c = self._client
         self._robot = pb.loadURDF(self.spec.urdf_path, basePosition=[0, 0, 0], useFixedBase=True,
                                   physicsClientId=c)
         names = [pb.getJointInfo(self._robot, i, physicsClientId=c)[1].decode()
@@ -115,10 +134,13 @@ class Simulator:
         self._sphere_link = [self.spec.link_names.index(s.link) for s in self.spec.spheres]
         self._sphere_offset = np.array([s.offset for s in self.spec.spheres]).reshape(-1, 3)
         self._sphere_radii = self.spec.sphere_radii
-        for j, q in zip(self._joint_idx, scenario.q0):
+        for j, q in zip(self._joint_idx, q0):
             pb.resetJointState(self._robot, j, float(q), 0.0, physicsClientId=c)
-        # velocity motors hold the arm (gravity is compensated by the motor force); in impedance
-        # mode they are switched off (force 0) and the torques below act alone
+
+    def _hold_robot(self) -> None:
+        """The joint motors: velocity motors hold the arm (gravity is compensated by the motor
+        force); in impedance mode they are switched off (force 0) and the torques act alone."""
+        c = self._client
         motor_force = self.config.max_joint_force if self.config.control == "velocity" else 0.0
         pb.setJointMotorControlArray(self._robot, self._joint_idx, pb.VELOCITY_CONTROL,
                                      targetVelocities=[0.0] * self.spec.dof,
@@ -130,6 +152,9 @@ class Simulator:
         if self.config.control == "impedance" and movable != list(self._joint_idx):
             raise ValueError("impedance control needs the actuated joints to be all the "
                              "robot's movable joints")
+
+    def _set_up_disturbance(self, seed: int) -> None:
+        """The pushed link (``push``) and the sensor-noise generator (``obstacle_noise``)."""
         dist = self.disturbance
         self._push_link = -1
         if dist.kind == "push":
@@ -137,15 +162,13 @@ class Simulator:
                 raise ValueError(f"disturbance.link {dist.link!r} is not one of "
                                  f"{list(self.spec.link_names)}")
             self._push_link = self._link_idx[self.spec.link_names.index(dist.link)]
-        self._noise_rng = np.random.default_rng([int(scenario.seed), 4243])
+        self._noise_rng = np.random.default_rng([int(seed), 4243])
         self._sensor_sample = -1
         self._sensed_centers = None
-        self._obstacle_ids = self._add_obstacles(scenario)
-        self._obstacle_set = frozenset(self._obstacle_ids)
-        self._scenario = scenario
-        self._goal_marker = self._add_goal_marker(scenario)
-        self._step = 0
-        # per-run constants of the hot path (``step``, ``link_poses``, ``body_sphere_centers``)
+
+    def _set_run_constants(self, scenario: Scenario) -> None:
+        """Per-run constants of the hot path (``step``, ``link_poses``, ``body_sphere_centers``)."""
+        dist = self.disturbance
         self._moving_obstacles = bool(np.any(scenario.obstacles.velocities != 0))
         self._moving_goal = (bool(np.any(scenario.goal.velocity != 0))
                              or dist.kind == "goal_change")
@@ -156,8 +179,6 @@ class Simulator:
                                       dtype=int)
         self._offset_spheres = np.flatnonzero(np.any(self._sphere_offset != 0, axis=1))
         self._offset_links = np.asarray(self._sphere_link, dtype=int)[self._offset_spheres]
-        self._joint_cache = None  # (q, qd) read since the last physics step
-        return self.observe()
 
     def _add_obstacles(self, scenario: Scenario) -> list[int]:
         c = self._client
