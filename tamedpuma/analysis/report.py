@@ -106,14 +106,9 @@ def failing_runs(runs: pd.DataFrame) -> pd.DataFrame:
     return bad.assign(method_label=_labels(runs)[bad.index])
 
 
-def render(root: Path, runs: pd.DataFrame, paths: dict, times: dict, out: Path,
-           figures: bool = True) -> str:
-    """The report's Markdown (figures written to ``out/figures``)."""
-    lines = [f"# Report: `{root}`", ""]
-    skipped = runs.attrs.get("skipped", [])
-    lines += [f"{len(runs)} runs read from their MCAP logs; {len(skipped)} logs unreadable.", ""]
-
-    lines += ["## Completeness", ""]
+def _completeness_lines(root: Path, runs: pd.DataFrame) -> list[str]:
+    """The "Completeness" section: every sweep's missing jobs and bad logs, unreadable logs."""
+    lines = ["## Completeness", ""]
     sweeps = completeness(root, runs)
     if not sweeps:
         lines += ["No Hydra sweep (`multirun.yaml`) below this folder: single runs only.", ""]
@@ -129,9 +124,56 @@ def render(root: Path, runs: pd.DataFrame, paths: dict, times: dict, out: Path,
                 lines.append(f"  - {what}: `{_rel(d, root)}`")
         if not (s["missing"] or s["no_log"] or s["truncated"] or s["interrupted"]):
             lines.append("  - complete")
-    for p in skipped:
+    for p in runs.attrs.get("skipped", []):
         lines.append(f"- unreadable log: `{_rel(p, root)}`")
     lines.append("")
+    return lines
+
+
+def _intervals_lines(runs: pd.DataFrame) -> list[str]:
+    """The success and timing table with 95% bootstrap intervals per method."""
+    summary = method_summary(runs)
+    lines = ["## Success and timing, 95% bootstrap intervals", "",
+             "Value [2.5%, 97.5%] over the runs with obstacles (percentile bootstrap, 4000 "
+             "resamples, seed 0).", ""]
+    table = pd.DataFrame({
+        "method": summary["method"], "runs": summary["runs"],
+        "success (paper)": summary["success_paper"].map(str),
+        "success (whole body)": summary["success_whole_body"].map(str),
+        "time to success [s]": summary["time_to_success_s"].map(str),
+        "controller time, median per run [ms]": summary["compute_ms_median"].map(str)})
+    return lines + [table.to_markdown(index=False, disable_numparse=True), ""]
+
+
+def _failing_lines(runs: pd.DataFrame) -> list[str]:
+    """The "Failing runs" section: each with its stop reason, failure class and replay command."""
+    lines = ["## Failing runs", ""]
+    bad = failing_runs(runs)
+    if bad.empty:
+        return lines + ["None.", ""]
+    rows = []
+    for r in bad.itertuples():
+        run_dir = Path(r.path).parent
+        tts = r.time_to_success_s
+        rows.append({
+            "method": r.method_label, "task": r.task, "scenario": r.scenario,
+            "seed": r.seed, "obstacles": r.n_obstacles,
+            "stop reason": r.stop_reason or "—",
+            "failure (paper / whole body)":
+                f"{r.failure_paper or '—'} / {r.failure_whole_body or '—'}",
+            "min clearance [m]": f"{r.min_clearance_m:.3f}",
+            "time to success [s]": "—" if not math.isfinite(tts) else f"{tts:.2f}",
+            "replay": f"`python -m tamedpuma.replay {run_dir}`"})
+    return lines + [pd.DataFrame(rows).to_markdown(index=False, disable_numparse=True), ""]
+
+
+def render(root: Path, runs: pd.DataFrame, paths: dict, times: dict, out: Path,
+           figures: bool = True) -> str:
+    """The report's Markdown (figures written to ``out/figures``)."""
+    lines = [f"# Report: `{root}`", ""]
+    skipped = runs.attrs.get("skipped", [])
+    lines += [f"{len(runs)} runs read from their MCAP logs; {len(skipped)} logs unreadable.", ""]
+    lines += _completeness_lines(root, runs)
     if runs.empty:
         lines += ["No readable run: nothing to tabulate.", ""]
         return "\n".join(lines)
@@ -140,44 +182,14 @@ def render(root: Path, runs: pd.DataFrame, paths: dict, times: dict, out: Path,
     runs["path_difference_m"] = path_differences(runs, paths)
     lines += ["## Table 1", "", table1(runs, times).to_markdown(index=False,
                                                                  disable_numparse=True), ""]
-    summary = method_summary(runs)
-    lines += ["## Success and timing, 95% bootstrap intervals", "",
-              "Value [2.5%, 97.5%] over the runs with obstacles (percentile bootstrap, 4000 "
-              "resamples, seed 0).", ""]
-    table = pd.DataFrame({
-        "method": summary["method"], "runs": summary["runs"],
-        "success (paper)": summary["success_paper"].map(str),
-        "success (whole body)": summary["success_whole_body"].map(str),
-        "time to success [s]": summary["time_to_success_s"].map(str),
-        "controller time, median per run [ms]": summary["compute_ms_median"].map(str)})
-    lines += [table.to_markdown(index=False, disable_numparse=True), ""]
-
+    lines += _intervals_lines(runs)
     if figures:
         written = make_figures(runs, paths, out / "figures")
         lines += ["## Figures", ""]
         for p in written:
             if p.suffix == ".png":
                 lines += [f"![{p.stem}]({_rel(p, out)})", ""]
-
-    lines += ["## Failing runs", ""]
-    bad = failing_runs(runs)
-    if bad.empty:
-        lines += ["None.", ""]
-    else:
-        rows = []
-        for r in bad.itertuples():
-            run_dir = Path(r.path).parent
-            tts = r.time_to_success_s
-            rows.append({
-                "method": r.method_label, "task": r.task, "scenario": r.scenario,
-                "seed": r.seed, "obstacles": r.n_obstacles,
-                "stop reason": r.stop_reason or "—",
-                "failure (paper / whole body)":
-                    f"{r.failure_paper or '—'} / {r.failure_whole_body or '—'}",
-                "min clearance [m]": f"{r.min_clearance_m:.3f}",
-                "time to success [s]": "—" if not math.isfinite(tts) else f"{tts:.2f}",
-                "replay": f"`python -m tamedpuma.replay {run_dir}`"})
-        lines += [pd.DataFrame(rows).to_markdown(index=False, disable_numparse=True), ""]
+    lines += _failing_lines(runs)
     return "\n".join(lines)
 
 

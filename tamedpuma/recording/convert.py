@@ -41,22 +41,11 @@ def run_info(log: RunLog, urdf_path: str | None = None) -> RunInfo:
         velocity_limits=limits)
 
 
-def mcap_records(path: str | os.PathLike) -> tuple[RunLog, list[StepRecord]]:
-    """A run's MCAP (finished or ``.active``) as its :class:`RunLog` and one
-    :class:`StepRecord` per fully read step. Raises :class:`LogError` for an unreadable file."""
-    log = read_mcap(path)
-    topics = _by_topic(_scan(Path(path)))
-    if "/tf" not in topics or "/scene" not in topics:
-        raise LogError(f"run log {path} has no /tf or /scene channel")
-    from mcap_protobuf.decoder import DecoderFactory
-
-    factory = DecoderFactory()
-    t_ns = np.round(log.scalars["t"].to_numpy() * 1e9).astype(np.int64)
-    step_of_ns = dict(zip(t_ns.tolist(), log.scalars.index.tolist()))
-    link_names = list(log.info.get("link_names") or [])
-
+def _tf_by_step(messages, step_of_ns: dict, link_names: list) -> dict:
+    """step -> (link positions (n, 3) [m], quaternions (n, 4) xyzw) from the ``/tf`` messages,
+    links in ``link_names`` order (or the message's when the log names none)."""
     tf: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for ns, msg in zip(*_decoded(topics["/tf"], factory)):
+    for ns, msg in zip(*messages):
         step = step_of_ns.get(int(ns))
         if step is None:
             continue
@@ -67,26 +56,29 @@ def mcap_records(path: str | os.PathLike) -> tuple[RunLog, list[StepRecord]]:
         quat = np.array([[by_name[n].rotation.x, by_name[n].rotation.y, by_name[n].rotation.z,
                           by_name[n].rotation.w] for n in names])
         tf[step] = (pos, quat)
+    return tf
 
-    scene: dict[int, dict] = {}
-    for ns, msg in zip(*_decoded(topics["/scene"], factory)):
-        step = step_of_ns.get(int(ns))
-        if step is None:
-            continue
-        ents = {e.id: e for e in msg.entities}
-        out = {}
-        for key in ("obstacles", "body_spheres"):
-            spheres = ents[key].spheres if key in ents else []
-            out[key] = (np.array([[s.pose.position.x, s.pose.position.y, s.pose.position.z]
-                                  for s in spheres]).reshape(-1, 3),
-                        np.array([0.5 * s.size.x for s in spheres]))
-        goal = ents["goal"].spheres[0].pose if "goal" in ents and ents["goal"].spheres else None
-        out["goal"] = (np.array([goal.position.x, goal.position.y, goal.position.z]),
-                       np.array([goal.orientation.x, goal.orientation.y, goal.orientation.z,
-                                 goal.orientation.w])) if goal is not None else (
-            np.full(3, np.nan), np.array([0.0, 0.0, 0.0, 1.0]))
-        scene[step] = out
 
+def _scene_of(msg) -> dict:
+    """One ``/scene`` message: obstacles and body spheres (centres (n, 3), radii (n,) [m]) and
+    the goal (position, quaternion; NaN position and identity when the scene has no goal)."""
+    ents = {e.id: e for e in msg.entities}
+    out = {}
+    for key in ("obstacles", "body_spheres"):
+        spheres = ents[key].spheres if key in ents else []
+        out[key] = (np.array([[s.pose.position.x, s.pose.position.y, s.pose.position.z]
+                              for s in spheres]).reshape(-1, 3),
+                    np.array([0.5 * s.size.x for s in spheres]))
+    goal = ents["goal"].spheres[0].pose if "goal" in ents and ents["goal"].spheres else None
+    out["goal"] = (np.array([goal.position.x, goal.position.y, goal.position.z]),
+                   np.array([goal.orientation.x, goal.orientation.y, goal.orientation.z,
+                             goal.orientation.w])) if goal is not None else (
+        np.full(3, np.nan), np.array([0.0, 0.0, 0.0, 1.0]))
+    return out
+
+
+def _step_records(log: RunLog, tf: dict, scene: dict) -> list[StepRecord]:
+    """One :class:`StepRecord` per step present in the joints, ``tf`` and ``scene``."""
     n = len([c for c in log.joints.columns if c.startswith("q_")])
     q = log.joints[[f"q_{i}" for i in range(n)]]
     qd = log.joints[[f"qd_{i}" for i in range(n)]]
@@ -110,7 +102,29 @@ def mcap_records(path: str | os.PathLike) -> tuple[RunLog, list[StepRecord]]:
             body_sphere_centers=body_c, obstacle_centers=obs_c, obstacle_radii=obs_r,
             goal_position=goal_p, goal_quaternion=goal_q,
             scalars={c: float(row[c]) for c in scalar_cols}))
-    return log, records
+    return records
+
+
+def mcap_records(path: str | os.PathLike) -> tuple[RunLog, list[StepRecord]]:
+    """A run's MCAP (finished or ``.active``) as its :class:`RunLog` and one
+    :class:`StepRecord` per fully read step. Raises :class:`LogError` for an unreadable file."""
+    log = read_mcap(path)
+    topics = _by_topic(_scan(Path(path)))
+    if "/tf" not in topics or "/scene" not in topics:
+        raise LogError(f"run log {path} has no /tf or /scene channel")
+    from mcap_protobuf.decoder import DecoderFactory
+
+    factory = DecoderFactory()
+    t_ns = np.round(log.scalars["t"].to_numpy() * 1e9).astype(np.int64)
+    step_of_ns = dict(zip(t_ns.tolist(), log.scalars.index.tolist()))
+    tf = _tf_by_step(_decoded(topics["/tf"], factory), step_of_ns,
+                     list(log.info.get("link_names") or []))
+    scene = {}
+    for ns, msg in zip(*_decoded(topics["/scene"], factory)):
+        step = step_of_ns.get(int(ns))
+        if step is not None:
+            scene[step] = _scene_of(msg)
+    return log, _step_records(log, tf, scene)
 
 
 def mcap_to_rrd(mcap: str | os.PathLike, rrd: str | os.PathLike, overwrite: bool = False) -> int:
