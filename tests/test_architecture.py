@@ -117,14 +117,23 @@ def test_the_import_scan_sees_every_form():
 
 
 #: the control loop (episode and its metrics, the methods' steps), the fabric assembly and the
-#: training loop: no function over 60 lines
-SHORT = sorted(p.relative_to(PKG).as_posix() for p in [
-    PKG / "episode.py", PKG / "metrics.py", PKG / "puma" / "training.py",
-    PKG / "puma" / "losses.py", *(PKG / "fabrics").glob("*.py"), *(PKG / "methods").glob("*.py")])
+#: training loop (the issue-10 rule), and every other module but the benchmark driver: no
+#: function over 60 lines
+LOOPS = ["episode.py", "metrics.py", "puma/training.py", "puma/losses.py",
+         *(p.relative_to(PKG).as_posix() for p in (PKG / "fabrics").glob("*.py")),
+         *(p.relative_to(PKG).as_posix() for p in (PKG / "methods").glob("*.py"))]
+#: app/bench.py: the benchmark's driver and report writer (issue 16), not yet split
+LONG_ALLOWED = {"app/bench.py"}
+SHORT = sorted(p.relative_to(PKG).as_posix() for p in _modules()
+               if p.relative_to(PKG).as_posix() not in LONG_ALLOWED)
+
+
+def test_the_loops_are_held_to_the_rule():
+    assert set(LOOPS) <= set(SHORT) and len(LOOPS) > 15
 
 
 @pytest.mark.parametrize("rel", SHORT)
-def test_no_long_function_in_the_loops(rel):
+def test_no_long_function(rel):
     tree = ast.parse((PKG / rel).read_text())
     long = [f"{n.name}: {n.end_lineno - n.lineno + 1} lines" for n in ast.walk(tree)
             if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)

@@ -218,6 +218,29 @@ def default_blueprint() -> rrb.Blueprint:
     return replay_blueprint()
 
 
+def _log_styles(rec, info: RunInfo) -> None:
+    """The static entities: every world entity lives in the named frame "world" (the view's
+    target frame); styles are static so the per-step columns carry only numbers."""
+    rec.log("/world", rr.CoordinateFrame(WORLD_FRAME), rr.ViewCoordinates.RIGHT_HAND_Z_UP,
+            static=True)
+    k = len(info.body_sphere_radii)
+    rec.log("/world/obstacles", rr.CoordinateFrame(WORLD_FRAME), rr.Ellipsoids3D.from_fields(
+        colors=_OBSTACLE_RGBA, fill_mode="solid"), static=True)
+    rec.log("/world/body_spheres", rr.CoordinateFrame(WORLD_FRAME),
+            rr.Ellipsoids3D.from_fields(
+                half_sizes=np.repeat(info.body_sphere_radii, 3).reshape(k, 3),
+                colors=_BODY_RGBA, fill_mode="majorwireframe"), static=True)
+    rec.log("/world/goal", rr.CoordinateFrame(WORLD_FRAME), rr.Ellipsoids3D.from_fields(
+        half_sizes=[[GOAL_MARKER_RADIUS] * 3], colors=_GOAL_RGBA,
+        fill_mode="majorwireframe"), static=True)
+    rec.log("/world/ee", rr.CoordinateFrame(WORLD_FRAME), rr.Points3D.from_fields(
+        radii=0.01, colors=_EE_RGBA), static=True)
+
+    if len(info.velocity_limits):
+        rec.log("/joint_speed/limit", rr.SeriesLines(colors=_LIMIT_RGBA, names="limit",
+                                                     widths=2.0), static=True)
+
+
 class RerunRecorder:
     """Write one episode to a Rerun ``.rrd`` file (layout in the module docstring).
 
@@ -264,26 +287,19 @@ class RerunRecorder:
         rec.log("/config", rr.TextDocument(info.config_yaml, media_type=rr.MediaType.TEXT),
                 static=True)
 
-        # Frames: every world entity lives in the named frame "world" (the view's target frame);
-        # styles are static so the per-step columns carry only numbers.
-        rec.log("/world", rr.CoordinateFrame(WORLD_FRAME), rr.ViewCoordinates.RIGHT_HAND_Z_UP,
-                static=True)
-        k = len(info.body_sphere_radii)
-        rec.log("/world/obstacles", rr.CoordinateFrame(WORLD_FRAME), rr.Ellipsoids3D.from_fields(
-            colors=_OBSTACLE_RGBA, fill_mode="solid"), static=True)
-        rec.log("/world/body_spheres", rr.CoordinateFrame(WORLD_FRAME),
-                rr.Ellipsoids3D.from_fields(
-                    half_sizes=np.repeat(info.body_sphere_radii, 3).reshape(k, 3),
-                    colors=_BODY_RGBA, fill_mode="majorwireframe"), static=True)
-        rec.log("/world/goal", rr.CoordinateFrame(WORLD_FRAME), rr.Ellipsoids3D.from_fields(
-            half_sizes=[[GOAL_MARKER_RADIUS] * 3], colors=_GOAL_RGBA,
-            fill_mode="majorwireframe"), static=True)
-        rec.log("/world/ee", rr.CoordinateFrame(WORLD_FRAME), rr.Points3D.from_fields(
-            radii=0.01, colors=_EE_RGBA), static=True)
+        _log_styles(rec, info)
+        self._log_robot(rec, info)
+        self._points: list[np.ndarray] = []  # what the camera must frame [m]
+        self._last: SimpleNamespace | None = None  # the last step's scene (camera framing)
+        self._scalar_names: list[str] = []
+        self._columns: _Columns | None = None  # the steps not sent yet, one row each
+        self._ee_path = _Columns()  # every end-effector point so far (the path strips' source)
+        self._count = 0  # steps sent
+        self._last_send = time.monotonic()
 
-        if len(info.velocity_limits):
-            rec.log("/joint_speed/limit", rr.SeriesLines(colors=_LIMIT_RGBA, names="limit",
-                                                         widths=2.0), static=True)
+    def _log_robot(self, rec, info: RunInfo) -> None:
+        """The robot model from the URDF (static) and the joints whose angles animate it; a
+        missing URDF gives a replay without the robot (with a warning)."""
         self._joints = []
         self._root = None
         self._root_index = None
@@ -302,14 +318,7 @@ class RerunRecorder:
                     parent_frame=WORLD_FRAME, child_frame=self._root), static=True)
         else:
             warnings.warn(f"URDF {info.urdf_path} not found: the replay has no robot model",
-                          stacklevel=2)
-        self._points: list[np.ndarray] = []  # what the camera must frame [m]
-        self._last: SimpleNamespace | None = None  # the last step's scene (camera framing)
-        self._scalar_names: list[str] = []
-        self._columns: _Columns | None = None  # the steps not sent yet, one row each
-        self._ee_path = _Columns()  # every end-effector point so far (the path strips' source)
-        self._count = 0  # steps sent
-        self._last_send = time.monotonic()
+                          stacklevel=3)
 
     def write(self, rec: StepRecord) -> None:
         """Buffer one step (its values copied into column buffers); send the buffer when it
