@@ -17,7 +17,7 @@ import numpy as np
 NO_OBSTACLE_CLEARANCE = 1.0e3
 
 
-def _frozen_array(value, shape: tuple[int | None, ...], name: str) -> np.ndarray:
+def frozen_array(value, shape: tuple[int | None, ...], name: str) -> np.ndarray:
     """Return ``value`` as a read-only float64 array of ``shape`` (None = any length)."""
     arr = np.array(value, dtype=float)
     if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
@@ -41,12 +41,12 @@ class Obstacles:
     velocities: np.ndarray
 
     def __post_init__(self):
-        object.__setattr__(self, "centers", _frozen_array(
+        object.__setattr__(self, "centers", frozen_array(
             np.reshape(self.centers, (-1, 3)), (None, 3), "obstacle centers"))
         n = len(self.centers)
-        object.__setattr__(self, "radii", _frozen_array(
+        object.__setattr__(self, "radii", frozen_array(
             np.reshape(self.radii, (-1,)), (n,), "obstacle radii"))
-        object.__setattr__(self, "velocities", _frozen_array(
+        object.__setattr__(self, "velocities", frozen_array(
             np.reshape(self.velocities, (-1, 3)), (n, 3), "obstacle velocities"))
         if np.any(self.radii <= 0):
             raise ValueError("obstacle radii must be positive")
@@ -75,13 +75,13 @@ class Goal:
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self):
-        object.__setattr__(self, "position", _frozen_array(self.position, (3,), "goal position"))
+        object.__setattr__(self, "position", frozen_array(self.position, (3,), "goal position"))
         quat = np.array(self.quaternion, dtype=float)
         norm = np.linalg.norm(quat) if quat.shape == (4,) else 0.0
         if not norm > 0:
             raise ValueError(f"goal quaternion must be a non-zero (x, y, z, w), got {quat}")
-        object.__setattr__(self, "quaternion", _frozen_array(quat / norm, (4,), "goal quaternion"))
-        object.__setattr__(self, "velocity", _frozen_array(self.velocity, (3,), "goal velocity"))
+        object.__setattr__(self, "quaternion", frozen_array(quat / norm, (4,), "goal quaternion"))
+        object.__setattr__(self, "velocity", frozen_array(self.velocity, (3,), "goal velocity"))
 
     def at(self, t: float) -> np.ndarray:
         """Goal position at time t [s]: (3,) [m]."""
@@ -107,7 +107,7 @@ class Scenario:
     seed: int = 0
 
     def __post_init__(self):
-        object.__setattr__(self, "q0", _frozen_array(np.ravel(self.q0), (None,), "q0"))
+        object.__setattr__(self, "q0", frozen_array(np.ravel(self.q0), (None,), "q0"))
         if not self.dt > 0:
             raise ValueError(f"dt must be positive, got {self.dt}")
         if self.max_steps < 1:

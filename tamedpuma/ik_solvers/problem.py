@@ -20,14 +20,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tamedpuma.robot.kinematics import Kinematics
+from tamedpuma.types import frozen_array
 
 
 def _frozen(value, shape, name) -> np.ndarray:
-    arr = np.array(value, dtype=float).reshape(shape)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"IKProblem.{name} must be finite")
-    arr.setflags(write=False)
-    return arr
+    """``value`` reshaped to ``shape`` (-1: any length) as a read-only finite float array."""
+    arr = np.reshape(np.asarray(value, dtype=float), shape)
+    return frozen_array(arr, tuple(None if n == -1 else n for n in shape), f"IKProblem.{name}")
 
 
 @dataclass(frozen=True)
