@@ -17,6 +17,9 @@ from tamedpuma.errors import ConfigError
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 CONF_DIR = PACKAGE_DIR / "conf"  # the config groups ship inside the package
+#: the folder above the package: a checkout's root in a checkout (its git revision, the benchmark
+#: files, ``../shared`` beside it); in an installed package site-packages, where nothing is needed
+CHECKOUT_ROOT = PACKAGE_DIR.parent
 
 
 def candidates(path: str | os.PathLike) -> list[Path]:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from tamedpuma import paths
 from tamedpuma.errors import CheckpointError, DataError
 from tamedpuma.puma import download, store
 
@@ -27,7 +28,7 @@ def isolated(tmp_path, monkeypatch):
     """An empty user cache and a working directory without runs/."""
     monkeypatch.setenv("TAMEDPUMA_CACHE", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(store, "REPO_ROOT", tmp_path)  # no runs/puma of the checkout either
+    monkeypatch.setattr(paths, "CHECKOUT_ROOT", tmp_path)  # no ../shared beside the checkout
     return tmp_path
 
 

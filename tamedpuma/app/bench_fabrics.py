@@ -30,8 +30,9 @@ import numpy as np
 from tamedpuma.app.config import default_kinematics, load_group
 from tamedpuma.fabrics import Fabric, quaternion_to_rotation
 from tamedpuma.methods.fabrics import gains_from_config
+from tamedpuma.paths import CHECKOUT_ROOT
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = CHECKOUT_ROOT  # the repository the benchmark files are written into
 COUNTS = (2, 10, 100, 1000)
 Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
 GOAL_POSITION = np.array([0.58, -0.214, 0.115])

@@ -32,6 +32,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tamedpuma import paths
 from tamedpuma.errors import TamedPumaError
 from tamedpuma.puma import download, store
 
@@ -82,7 +83,7 @@ def _data_of(cfg: dict) -> tuple[str, str]:
 def code_revision() -> str:
     """``git describe`` of the checkout (with ``-dirty``), else the package version."""
     try:
-        out = subprocess.run(["git", "-C", str(store.REPO_ROOT), "describe", "--always",
+        out = subprocess.run(["git", "-C", str(paths.CHECKOUT_ROOT), "describe", "--always",
                               "--dirty", "--abbrev=40"], capture_output=True, text=True,
                              timeout=10)
         if out.returncode == 0 and out.stdout.strip():
@@ -167,7 +168,7 @@ def run_jobs(jobs: list[Job], parallel: int, log=print, staged: bool = True) -> 
     each trains into ``<out_dir>.partial`` and is renamed when complete (a killed build leaves
     no half model in the cache). Returns the model folders; a failed training is an error."""
     env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(store.REPO_ROOT), env.get("PYTHONPATH", "")])
+    env["PYTHONPATH"] = os.pathsep.join([str(paths.CHECKOUT_ROOT), env.get("PYTHONPATH", "")])
     pending, running, done, failed = list(jobs), [], [], []
     t0 = time.perf_counter()
     while pending or running:

@@ -18,6 +18,7 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
+from .. import paths
 from ..errors import DataError
 from . import store
 
@@ -53,7 +54,7 @@ def candidate_roots() -> list[Path]:
     if os.environ.get("TAMEDPUMA_DEMOS"):
         roots.append(Path(os.environ["TAMEDPUMA_DEMOS"]).expanduser())
     rel = Path("..") / "shared" / "data" / "pumafabrics-demos"
-    roots += [(store.REPO_ROOT / rel).resolve(), (Path.cwd() / rel).resolve(), default_dest()]
+    roots += [(paths.CHECKOUT_ROOT / rel).resolve(), (Path.cwd() / rel).resolve(), default_dest()]
     return roots
 
 

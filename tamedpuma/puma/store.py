@@ -32,7 +32,6 @@ from pathlib import Path
 from ..errors import CheckpointError, ConfigError
 
 PACKAGE_DIR = Path(__file__).resolve().parent
-REPO_ROOT = PACKAGE_DIR.parents[1]  # a checkout's root: only for its git revision (models.py)
 SHIPPED_DIR = PACKAGE_DIR / "shipped"
 POSITION_METHODS = frozenset({"modulation_ik"})  # use the first-order position model
 ORIGINS = ("explicit", "cache", "user", "shipped")
