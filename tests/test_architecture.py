@@ -139,3 +139,20 @@ def test_no_long_function(rel):
             if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)
             and n.end_lineno - n.lineno + 1 > 60]
     assert not long, f"{rel}: {long}"
+
+
+#: where rotations are computed: numpy (robot/rotations.py) and PUMA's differentiable torch maps
+ROTATION_MODULES = {"robot/rotations.py", "puma/manifold.py"}
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PKG)))
+def test_rotation_helpers_live_in_the_rotation_modules(path):
+    """No module-level quaternion / rotation function outside robot/rotations.py (and PUMA's
+    torch manifold): a new one belongs there."""
+    if path.relative_to(PKG).as_posix() in ROTATION_MODULES:
+        return
+    tree = ast.parse(path.read_text())
+    helpers = [n.name for n in tree.body if isinstance(n, ast.FunctionDef)
+               and any(w in n.name for w in ("quat", "rotation", "rpy", "so3", "skew", "euler"))]
+    assert not helpers, f"{path.relative_to(PKG)} defines {helpers}: move to robot/rotations.py"
+

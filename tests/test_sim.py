@@ -128,7 +128,7 @@ def test_rotation_matrices_and_sphere_centres_are_bullets_to_the_last_bit(robot_
     import pybullet as pb
 
     from tamedpuma.robot.kinematics import BodySphere
-    from tamedpuma.worlds.bullet import bullet_rotation_matrices
+    from tamedpuma.robot.rotations import bullet_rotation_matrices
 
     rng = np.random.default_rng(3)
     robot_spec = replace(robot_spec, spheres=robot_spec.spheres + tuple(  # offset spheres

@@ -7,6 +7,8 @@ metrics, the body model, the scenario generators and PUMA's data preparation and
 PUMA's differentiable torch versions (and the numpy ``np_quat_exp``/``np_quat_log`` that run them)
 are in :mod:`tamedpuma.puma.manifold`. :func:`rotation_entries` and :func:`relative_rotation` work
 on Python floats (one state, no array overhead); every other function on arrays.
+:func:`bullet_rotation_matrices` repeats Bullet's own operation order (the simulator's sphere
+centres, to the last bit).
 """
 
 from __future__ import annotations
@@ -212,3 +214,20 @@ def continuous_quats(q: np.ndarray) -> np.ndarray:
         if np.dot(q[i], q[i - 1]) < 0:
             q[i] = -q[i]
     return q
+
+
+def bullet_rotation_matrices(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices (k, 3, 3) of quaternions (k, 4) (x, y, z, w), operation for operation
+    as Bullet's ``btMatrix3x3::setRotation`` (what ``pybullet.getMatrixFromQuaternion`` returns,
+    to the last bit): with ``s = 2/|q|²``,
+    ``R = [[1 − s(y² + z²), s(xy − wz), s(xz + wy)], [s(xy + wz), 1 − s(x² + z²), s(yz − wx)],
+    [s(xz − wy), s(yz + wx), 1 − s(x² + y²)]]``."""
+    x, y, z, w = (np.asarray(quat, dtype=float)[:, i] for i in range(4))
+    s = 2.0 / (x * x + y * y + z * z + w * w)
+    xs, ys, zs = x * s, y * s, z * s
+    wx, wy, wz = w * xs, w * ys, w * zs
+    xx, xy, xz = x * xs, x * ys, x * zs
+    yy, yz, zz = y * ys, y * zs, z * zs
+    return np.stack([1.0 - (yy + zz), xy - wz, xz + wy,
+                     xy + wz, 1.0 - (xx + zz), yz - wx,
+                     xz - wy, yz + wx, 1.0 - (xx + yy)], axis=-1).reshape(-1, 3, 3)

@@ -38,6 +38,7 @@ import numpy as np
 import pybullet as pb
 
 from tamedpuma.robot.kinematics import RobotSpec
+from tamedpuma.robot.rotations import bullet_rotation_matrices
 from tamedpuma.types import Contacts, Observation, Scenario
 from tamedpuma.worlds.settings import (  # noqa: F401 - re-exported: the simulator's settings
     CONTROL_MODES,
@@ -45,23 +46,6 @@ from tamedpuma.worlds.settings import (  # noqa: F401 - re-exported: the simulat
     Disturbance,
     SimConfig,
 )
-
-
-def bullet_rotation_matrices(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrices (k, 3, 3) of quaternions (k, 4) (x, y, z, w), operation for operation
-    as Bullet's ``btMatrix3x3::setRotation`` (what ``pybullet.getMatrixFromQuaternion`` returns,
-    to the last bit): with ``s = 2/|q|²``,
-    ``R = [[1 − s(y² + z²), s(xy − wz), s(xz + wy)], [s(xy + wz), 1 − s(x² + z²), s(yz − wx)],
-    [s(xz − wy), s(yz + wx), 1 − s(x² + y²)]]``."""
-    x, y, z, w = (np.asarray(quat, dtype=float)[:, i] for i in range(4))
-    s = 2.0 / (x * x + y * y + z * z + w * w)
-    xs, ys, zs = x * s, y * s, z * s
-    wx, wy, wz = w * xs, w * ys, w * zs
-    xx, xy, xz = x * xs, x * ys, x * zs
-    yy, yz, zz = y * ys, y * zs, z * zs
-    return np.stack([1.0 - (yy + zz), xy - wz, xz + wy,
-                     xy + wz, 1.0 - (xx + zz), yz - wx,
-                     xz - wy, yz + wx, 1.0 - (xx + yy)], axis=-1).reshape(-1, 3, 3)
 
 
 class Simulator:
