@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from tamedpuma.app.config import load_group
+from tamedpuma.app.config import load_group, start_options
 from tamedpuma.episode import run_episode
 from tamedpuma.methods import make
 from tamedpuma.recording import McapRecorder, RerunRecorder, RunInfo, read_mcap, read_rrd_joints
@@ -21,7 +21,7 @@ def _scenario(robot_spec, **changes):
     task = load_group("task", "tomato")
     cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
     cfg.update(changes)
-    return scenario_from_config(cfg, robot_spec, task="tomato")
+    return scenario_from_config(cfg, robot_spec, task="tomato", **start_options())
 
 
 def _run(robot_spec, kinematics, scenario, recorders=(), info=None):

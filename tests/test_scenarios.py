@@ -7,7 +7,7 @@ import logging
 import numpy as np
 import pytest
 
-from tamedpuma.app.config import load_group, robot_config
+from tamedpuma.app.config import load_group, robot_config, start_options
 from tamedpuma.errors import ScenarioError
 from tamedpuma.worlds.scenarios import clamp_start, scenario_from_config
 
@@ -26,7 +26,7 @@ def _default_cfg():
 
 
 def test_default_scenario_parses(robot_spec):
-    sc = scenario_from_config(_default_cfg(), robot_spec, task="tomato")
+    sc = scenario_from_config(_default_cfg(), robot_spec, task="tomato", **start_options())
     assert sc.q0.shape == (7,) and len(sc.obstacles) == 2
     np.testing.assert_allclose(sc.obstacles.at(1.0), sc.obstacles.centers)
     assert abs(np.linalg.norm(sc.goal.quaternion) - 1) < 1e-12
@@ -59,7 +59,7 @@ def test_start_far_outside_the_limits_is_an_error(robot_spec):
 def test_invalid_scenarios_raise_scenario_error(robot_spec, bad):
     cfg = {**_default_cfg(), **bad}
     with pytest.raises(ScenarioError):
-        scenario_from_config(cfg, robot_spec, task="tomato")
+        scenario_from_config(cfg, robot_spec, task="tomato", **start_options())
 
 
 def _run_cfg(**top):
@@ -107,7 +107,7 @@ def test_all_table1_scenarios_load(robot_spec, task):
     assert len(files) == 15
     for f in files:
         cfg = load_group("scenario", f"{task}/{f.stem}")
-        sc = scenario_from_config(cfg, robot_spec, task=task)
+        sc = scenario_from_config(cfg, robot_spec, task=task, **start_options())
         assert 1 <= len(sc.obstacles) <= 2 and sc.name == f"{task}_{f.stem}"
 
 
@@ -125,7 +125,7 @@ def test_task_workspace_covers_every_scenario_start(robot_spec, kinematics, task
         if name == "default":
             t = load_group("task", task)
             cfg["goal"].update(position=t["goal_position"], quaternion=t["goal_quaternion"])
-        sc = scenario_from_config(cfg, robot_spec, task=task)
+        sc = scenario_from_config(cfg, robot_spec, task=task, **start_options())
         state = kinematics.evaluate(sc.q0, np.zeros(robot_spec.dof))
         e = state.ee_position - sc.goal.position
         assert np.all(e > low) and np.all(e < high), (name, e)

@@ -49,6 +49,14 @@ def robot_config(name: str) -> dict:
     return _schema.as_dict(_schema.typed(_schema.RobotSchema, merged, "robot"))
 
 
+def start_options(robot: str = "iiwa14") -> dict:
+    """The keyword arguments of :func:`tamedpuma.worlds.scenarios.scenario_from_config` that a
+    run of the default config passes for ``robot``: seed 0 and the robot's start clamp."""
+    cfg = robot_config(robot)
+    return {"seed": _schema.RunConfig.seed, "limit_tolerance": cfg["limit_tolerance"],
+            "limit_margin": cfg["limit_margin"]}
+
+
 def default_kinematics():
     """A :class:`~tamedpuma.robot.kinematics.Kinematics` of the default robot (iiwa14)."""
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config

@@ -637,12 +637,6 @@ def as_dict(obj) -> dict:
     return plain(dataclasses.asdict(obj))
 
 
-def validate(cfg) -> None:
-    """Raise :class:`ConfigError` naming the key if any value has a wrong type, an unknown key or
-    is out of range (the run config)."""
-    run_config(cfg)
-
-
 def _node(schema: type):
     node = OmegaConf.structured(schema)
     _writable(node)

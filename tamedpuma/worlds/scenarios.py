@@ -85,9 +85,11 @@ def obstacles_from_config(items) -> Obstacles:
     return Obstacles(np.array(centers), np.array(radii), np.array(vels))
 
 
-def scenario_from_config(cfg: Mapping, spec: RobotSpec, *, task: str, seed: int = 0,
-                         limit_tolerance: float = 1e-4, limit_margin: float = 1e-3) -> Scenario:
-    """Build a validated :class:`Scenario` from a (resolved) scenario config mapping."""
+def scenario_from_config(cfg: Mapping, spec: RobotSpec, *, task: str, seed: int,
+                         limit_tolerance: float, limit_margin: float) -> Scenario:
+    """Build a validated :class:`Scenario` from a (resolved) scenario config mapping; seed: the
+    run's; limit_tolerance, limit_margin [rad]: the robot's start clamp (:func:`clamp_start`,
+    ``robot.limit_tolerance`` and ``robot.limit_margin``)."""
     try:
         goal_cfg = cfg["goal"]
         goal = Goal(
