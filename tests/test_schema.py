@@ -56,6 +56,8 @@ def test_every_yaml_is_covered():
     # conf/hydra/ holds launcher presets (Hydra's own schema validates them)
     assert groups == {*RUN_GROUPS, "puma", "hydra"}, "a new config group needs its case here"
     assert len(RUN_CASES) + len(TRAIN_CASES) > 40
+    # every top-level config (an entry point's) has its schema
+    assert {p.stem for p in CONF_DIR.glob("*.yaml")} == set(schema.CONFIGS)
 
 
 @pytest.mark.parametrize("group,option", RUN_CASES, ids=lambda v: str(v))
