@@ -84,16 +84,31 @@ def _package(path: Path) -> str:
     return rel.parts[0] if len(rel.parts) > 1 else rel.stem
 
 
-@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PKG)))
-def test_layers_import_only_downwards(path):
+def _upward(path: Path, names: set[str]) -> list[str]:
+    """The imports in ``names`` of the module at ``path`` that are not of a lower layer."""
     own = _package(path)
-    for name in _imports(path):
+    bad = []
+    for name in names:
         parts = name.split(".")
         if parts[0] != "tamedpuma" or len(parts) < 2 or parts[1] == own \
                 or any(own == o and (name + ".").startswith(m + ".") for o, m in _ALLOWED):
             continue
-        assert _layer(parts[1]) < _layer(own), \
-            f"{path.relative_to(PKG)} ({own}) imports {name}: not a lower layer"
+        if not _layer(parts[1]) < _layer(own):
+            bad.append(name)
+    return bad
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PKG)))
+def test_layers_import_only_downwards(path):
+    bad = _upward(path, _imports(path))
+    assert not bad, f"{path.relative_to(PKG)} ({_package(path)}) imports {bad}: not a lower layer"
+
+
+def test_the_layer_rule_flags_upward_and_sideways_imports():
+    kin, scen = PKG / "robot" / "kinematics.py", PKG / "worlds" / "scenarios.py"
+    assert _upward(kin, {"tamedpuma.methods.fpm"}) == ["tamedpuma.methods.fpm"]  # upward
+    assert _upward(scen, {"tamedpuma.methods"}) == ["tamedpuma.methods"]  # same layer, sideways
+    assert _upward(scen, {"tamedpuma.robot.kinematics", "tamedpuma.worlds.bullet", "numpy"}) == []
 
 
 @pytest.mark.parametrize("path", sorted((PKG / "methods").glob("*.py")), ids=lambda p: p.name)
