@@ -23,9 +23,9 @@ from tamedpuma.errors import ConfigError
 
 def compose(config_name: str, overrides: list[str]) -> dict:
     """Hydra compose of ``conf/<config_name>.yaml`` → plain dict; Hydra errors → ConfigError.
-    A config with a schema (``train``, ``body_model``: :data:`tamedpuma.app.schema.CONFIGS`) is
-    checked against it (types, unknown keys, ranges) and comes back complete (every key, schema
-    defaults filled in)."""
+    ``train`` and ``body_model`` are checked against their schema (types, unknown keys, ranges)
+    and come back complete (every key, schema defaults filled in); ``sweep`` comes back as
+    composed (:func:`tamedpuma.app.sweep.build` types it)."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
@@ -41,8 +41,8 @@ def compose(config_name: str, overrides: list[str]) -> dict:
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             cfg = hydra_compose(config_name=config_name, overrides=overrides)
-            if config_name in schema.CONFIGS:  # typed: complete, checked
-                return schema.as_dict(schema.CONFIGS[config_name](cfg))
+            if config_name in schema.CONFIGS and config_name != "sweep":  # typed: complete
+                return schema.as_dict(schema.CONFIGS[config_name](cfg))  # (build types a sweep's)
             return OmegaConf.to_container(cfg, resolve=True)
     except (HydraException, OmegaConfBaseException) as exc:
         from tamedpuma.app.cli import hydra_error_line
