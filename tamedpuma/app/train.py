@@ -72,9 +72,10 @@ def _summary(report: dict) -> str:
 
 def evaluate_checkpoint(path: str, overrides: list[str]) -> dict:
     """Re-evaluate a saved checkpoint with its own data config (``--evaluate PATH``)."""
+    from tamedpuma.paths import resolve
     from tamedpuma.puma import checkpoint, evaluation, pipeline
 
-    net, meta = checkpoint.load(pipeline.resolve_path(path))
+    net, meta = checkpoint.load(resolve(path))
     from tamedpuma.app.schema import as_dict, train_config
 
     cfg = as_dict(train_config({k: v for k, v in meta.config.items() if k != "command"}))

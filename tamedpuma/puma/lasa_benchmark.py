@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..paths import resolve
 from . import checkpoint, data, evaluation, pipeline
 
 
@@ -73,7 +74,7 @@ def run(cfg: dict, log=print) -> list[dict]:
     bad = [s for s in names if s not in known]
     if bad:
         raise data.DataError(f"unknown LASA shape(s) {', '.join(bad)}")
-    table = pipeline.resolve_path(str(task["table"]))
+    table = resolve(str(task["table"]))
     table.parent.mkdir(parents=True, exist_ok=True)
     rows, t0 = [], time.perf_counter()
     for name in names:

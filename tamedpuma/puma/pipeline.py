@@ -34,12 +34,6 @@ def _dataclass(cls, d: dict | None, where: str):
         raise ConfigError(f"invalid {where}: {exc}") from None
 
 
-def resolve_path(p: str) -> Path:
-    """A configured path (see :func:`tamedpuma.paths.resolve`: working directory, then the
-    package)."""
-    return resolve(p)
-
-
 def _require(cfg: dict, key: str, where: str):
     if key not in cfg or cfg[key] is None and key != "demos":
         raise ConfigError(f"missing config key {where}.{key}")
@@ -62,7 +56,7 @@ def load_raws(task: dict, puma: dict) -> tuple[list[data.RawDemo], str, str]:
     if src == "lasa":
         shape = str(_require(task, "shape", "task"))
         return data.load_lasa(shape, int(task["every"])), f"lasa:{shape}", task["unit"]
-    return demo_formats.load_any(resolve_path(str(src))), str(src), "m"
+    return demo_formats.load_any(resolve(str(src))), str(src), "m"
 
 
 def derived_task(task: dict, raws: list[data.RawDemo]) -> task_from_demos.DerivedTask:
@@ -339,7 +333,7 @@ def run(cfg: dict, log=print) -> dict:
     from it (the result is the same as uninterrupted)."""
     t_start, cpu_start = time.perf_counter(), time.process_time()
     seed = int(cfg["seed"])
-    out_dir = resolve_path(str(cfg["out_dir"]))
+    out_dir = resolve(str(cfg["out_dir"]))
     ckpt_path = prepare_out_dir(out_dir, bool(cfg["overwrite"]))
     p = prepare(cfg, log)
     cfg, task, demos = p.cfg, p.cfg["task"], p.demos
@@ -371,7 +365,7 @@ def run(cfg: dict, log=print) -> dict:
     report["pipeline_cpu_seconds"] = round(time.process_time() - cpu_start, 2)
     (out_dir / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     if cfg["bench_out"] and "evaluation" in report:
-        bench = resolve_path(str(cfg["bench_out"]))
+        bench = resolve(str(cfg["bench_out"]))
         bench.parent.mkdir(parents=True, exist_ok=True)
         bench.write_text(json.dumps(benchmark_summary(report, cfg), indent=2) + "\n")
     return report
