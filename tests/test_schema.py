@@ -118,6 +118,7 @@ def test_a_misspelt_method_option_is_refused(hydra_conf, method):
     ("+recorder.csv=true", r"recorder\.csv: unknown key"),
     ("+clutter.size=0.1", r"clutter\.size: unknown key"),
     ("+task.goal=1", r"task\.goal: unknown key"),
+    ("+task.workspace.max_angel=1", r"task\.workspace\.max_angel: unknown key"),
     ("+sedd=1", r"sedd: unknown key"),
     ("+disturbance.forse=1", r"disturbance\.forse: unknown key"),
     ("+robot.spheres.0.offsett=[0,0,0]", r"offsett: unknown key.*SphereSchema"),

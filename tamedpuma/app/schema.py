@@ -287,8 +287,8 @@ class TaskSchema:
     demos: str | None = None      # null: synthetic; 'lasa'; or a folder of ee_state_*.pk
     goal_convention: str = "final_pose"
     synthetic: SyntheticSchema = field(default_factory=SyntheticSchema)
-    workspace: Any = None            # {position_low, position_high, max_angle}; null: the demos'
-    #                                  box enlarged by margin (derived with derive: true)
+    workspace: WorkspaceSchema | None = None  # null: the demonstrations' box enlarged by
+    #                                  margin (derived with derive: true)
     derive: bool = False             # goal, workspace and Δt from the data (task_from_demos)
     angle_margin: float = 0.15       # derive: added to the largest angle to the goal [rad]
     spread_limit: float = 0.5236     # derive: final orientations spreading more: medoid goal
