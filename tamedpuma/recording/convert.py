@@ -25,6 +25,8 @@ def run_info(log: RunLog, urdf_path: str | None = None) -> RunInfo:
     """The :class:`RunInfo` stored in a run's MCAP metadata (``urdf_path`` overrides the one
     recorded). Velocity limits missing from older logs are taken from the config's robot."""
     info = log.info
+    if "dt" not in info:
+        raise LogError(f"run log {log.path} has no control period (dt) in its run info")
     limits = info.get("velocity_limits") or []
     if not limits and log.config_yaml:
         import yaml
@@ -37,7 +39,7 @@ def run_info(log: RunLog, urdf_path: str | None = None) -> RunInfo:
         seed=int(info.get("seed", 0)), config_yaml=log.config_yaml,
         urdf_path=urdf_path or info.get("urdf_path", ""),
         joint_names=info.get("joint_names") or (), link_names=info.get("link_names") or (),
-        body_sphere_radii=info.get("body_sphere_radii") or [], dt=float(info.get("dt", 0.02)),
+        body_sphere_radii=info.get("body_sphere_radii") or [], dt=float(info["dt"]),
         velocity_limits=limits)
 
 

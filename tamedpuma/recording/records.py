@@ -50,10 +50,10 @@ class RunInfo:
     seed: int
     config_yaml: str
     urdf_path: str
+    dt: float
     joint_names: tuple[str, ...] = IIWA_JOINT_NAMES
     link_names: tuple[str, ...] = IIWA_LINK_NAMES
     body_sphere_radii: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    dt: float = 0.02
     velocity_limits: np.ndarray = field(default_factory=lambda: np.zeros(0))
     model: Mapping[str, str] = field(default_factory=dict)
 
