@@ -163,3 +163,32 @@ def test_joint_state_read_once_per_physics_state_is_a_fresh_copy(robot_spec):
         assert np.array_equal(again.q, q0) and not np.any(again.qd == 9.0)
         nxt = sim.step(np.zeros(7))
         assert np.abs(nxt.q - q0).max() < 0.01  # integrated from the true state, not from 9
+
+
+def test_a_link_within_bullets_contact_margin_but_clear_is_not_a_contact(robot_spec, kinematics):
+    """Bullet reports contact points for pairs closer than its margin that do not touch
+    (``contactDistance`` > 0); only a signed distance ≤ 0 is a contact. An obstacle 1 mm from
+    link 7's mesh: Bullet lists the pair, ``contacts`` does not; 1 mm inside: a contact."""
+    import pybullet as pb
+
+    def closest(sim):
+        points = pb.getClosestPoints(sim._robot, sim._obstacle_ids[0], 0.5,
+                                     physicsClientId=sim._client)
+        return min(points, key=lambda p: p[8])
+
+    start = kinematics.sphere_centers(Q0)[4] + [0.0, 0.0, 0.2]  # above link 7
+    with Simulator(robot_spec) as sim:
+        sim.reset(_scenario(Obstacles([start], [0.05], [[0, 0, 0]])))
+        p = closest(sim)
+        normal = np.asarray(p[7])  # contactNormalOnB: from the obstacle towards the robot
+        for gap, expect in ((0.001, False), (-0.001, True)):
+            center = np.asarray(start) + normal * (p[8] - gap)
+            sim.reset(_scenario(Obstacles([center], [0.05], [[0, 0, 0]])))
+            assert closest(sim)[8] == pytest.approx(gap, abs=2e-4)
+            sim.step(np.zeros(7))
+            reported = [c for c in pb.getContactPoints(bodyA=sim._robot,
+                                                       physicsClientId=sim._client)
+                        if c[2] in sim._obstacle_set]
+            assert reported  # Bullet lists the pair either way
+            pos, quat = sim.link_poses()
+            assert sim.contacts(sim.body_sphere_centers(pos, quat)).obstacle_contact == expect

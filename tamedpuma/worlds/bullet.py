@@ -358,7 +358,12 @@ class Simulator:
         return centers
 
     def contacts(self, sphere_centers: np.ndarray) -> Contacts:
-        """Clearance of the body spheres and PyBullet contacts of the robot at this instant."""
+        """Clearance of the body spheres and PyBullet contacts of the robot at this instant.
+
+        A contact is a PyBullet contact point whose signed distance (``contactDistance``:
+        positive for separation, negative for penetration) is ≤ 0: Bullet also reports the
+        pairs closer than its contact margin that do not touch (a link 0.4 mm from an obstacle
+        all along its way round it), which are not contacts."""
         sc = self._scenario
         c = self._client
         if len(sc.obstacles):
@@ -372,7 +377,9 @@ class Simulator:
         obstacle_contact = False
         ground_contact = False
         for cp in pb.getContactPoints(bodyA=self._robot, physicsClientId=c):
-            other, link = cp[2], cp[3]
+            other, link, distance = cp[2], cp[3], cp[8]
+            if distance > 0.0:
+                continue
             if other in obstacle_set:
                 obstacle_contact = True
             elif other == self._ground and link >= 0:
