@@ -169,3 +169,35 @@ def test_the_barrier_rows_metrics_and_rates_rebuild_the_fabric(kinematics, groun
         assert np.allclose(drift[k * n_obs:], 0.0, atol=1e-12)  # joint limits (and ground)
         assert np.allclose(pairs[:, 1], 0.0, atol=1e-12)  # the static obstacle
         assert np.all(np.abs(pairs[:, 0]) > 0)  # the moving one
+
+
+def test_rotation_weight_gives_the_position_rows_priority_where_barriers_hold_joints(kinematics):
+    """``forcing.rotation_weight`` ρ: the task metric diag(w, w, w, ρw, ρw, ρw). In free space
+    (7 joints for 6 rows) q̈_C realises ẍ_d for any ρ; with two joints held by large barrier
+    metrics (5 joints left for 6 rows) the position residual shrinks as ρ falls, and it is the
+    weighted least-squares solution (the normal equations hold)."""
+    rng = np.random.default_rng(3)
+    assert np.array_equal(Forcing(weight=100.0).task_weights(6), np.full(6, 100.0))
+    assert np.array_equal(Forcing(weight=100.0, rotation_weight=0.1).task_weights(6),
+                          [100.0, 100.0, 100.0, 10.0, 10.0, 10.0])
+    assert np.array_equal(Forcing(weight=5.0, rotation_weight=0.1).task_weights(3), np.full(3, 5.0))
+    for _ in range(5):
+        q = Q0 + rng.normal(scale=0.3, size=7)
+        _, task = _task(kinematics, q, rng.normal(size=7), rng)
+        target = task.xdd - task.jdqd
+        free = [pull_through_metric(task, 1e-6 * np.eye(7), Forcing(rotation_weight=rho)
+                                    .task_weights(6), 0.0) for rho in (1.0, 0.01)]
+        for qdd in free:
+            assert np.linalg.norm(task.J @ qdd - target) < 1e-5 * np.linalg.norm(target)
+        held = 1e-6 * np.eye(7)
+        held[[1, 4], [1, 4]] = 1e8  # joints 2 and 5 at their limit barriers
+        residual = []
+        for rho in (1.0, 0.1, 0.01):
+            w = Forcing(rotation_weight=rho).task_weights(6)
+            qdd = pull_through_metric(task, held, w, 0.0)
+            gradient = held @ qdd - task.J.T @ (w * (target - task.J @ qdd))
+            assert np.linalg.norm(gradient) < 1e-6 * np.linalg.norm(task.J.T @ (w * target))
+            residual.append(np.linalg.norm((task.J @ qdd - target)[:3]))
+        assert residual[0] > residual[1] > residual[2]
+    with pytest.raises(ConfigError, match="rotation_weight"):
+        Forcing.from_mapping({"mode": "metric", "rotation_weight": 0.0})

@@ -130,15 +130,18 @@ def pull_to_joints(task: TaskAcceleration, damping: float | Damping,
     return qdd
 
 
-def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float, m_null: float,
-                        qdd_null: np.ndarray | None = None, extra=None) -> np.ndarray:
+def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | np.ndarray,
+                        m_null: float, qdd_null: np.ndarray | None = None,
+                        extra=None) -> np.ndarray:
     """PUMA's task acceleration pulled to the joints through a metric (a weighted
     pseudo-inverse): the task spec ``(w I, −w ẍ_d)`` pulled back and summed with a joint-space
     spec ``(W, 0)`` and the secondary objective's ``(m_null I, −m_null q̈_null)``::
 
         q̈_C = (W + w JᵀJ + m_null I)⁻¹ (w Jᵀ(ẍ_d − J̇q̇) + m_null q̈_null)        [rad/s²]
 
-    W (n, n) SPD [1]; w [1]; m_null [1]. Where W ≪ w JᵀJ q̈_C realises ẍ_d as the damped
+    W (n, n) SPD [1]; w [1], or one weight per task row (m,) (the task metric diag(w), e.g.
+    position rows before orientation rows: :meth:`~tamedpuma.methods._tamed.Forcing.task_weights`);
+    m_null [1]. Where W ≪ w JᵀJ q̈_C realises ẍ_d as the damped
     least-squares inverse with λ² = W/w does (W = m_b I: exactly that); along a direction in
     which W is large (an obstacle barrier's metric) q̈_C's component falls like 1/W. At ẍ_d = 0
     and q̇ = 0 (PUMA's zero set) q̈_C = (…)⁻¹ m_null q̈_null, the damped elbow attractor.
@@ -146,8 +149,9 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float, m_
     :class:`~tamedpuma.methods._circulation.TangentSpecs`): ``+ Σ w_k R_kᵀR_k`` in the metric,
     ``+ Σ w_k R_kᵀ a_k`` on the right."""
     J = task.J
-    A = W + weight * (J.T @ J)
-    rhs = weight * (J.T @ (task.xdd - task.jdqd))
+    wJ = np.multiply(np.reshape(weight, (-1, 1)), J)  # diag(w) J
+    A = W + J.T @ wJ
+    rhs = wJ.T @ (task.xdd - task.jdqd)
     if qdd_null is not None and m_null > 0.0:
         A[np.diag_indices_from(A)] += m_null  # A is a fresh array
         rhs = rhs + m_null * qdd_null

@@ -82,8 +82,8 @@ class PumaController:
                                           lambda: self.pull_at_rest(state, obs))
             if forcing.directional:
                 W = approached_metric(av, qdd_free)
-            qdd_c = pull_through_metric(task, W, forcing.weight, forcing.null_metric, null,
-                                        extra)
+            qdd_c = pull_through_metric(task, W, forcing.task_weights(len(task.xdd)),
+                                        forcing.null_metric, null, extra)
             return av.acceleration(), qdd_c, task.xdd
         qdd_c, xdd = self.joint_acceleration(state, obs)
         return av.acceleration(), qdd_c, xdd
@@ -281,7 +281,9 @@ class Forcing:
     circulation_gain: g [1], the fraction of that push given back along the tangent;
     circulation_onset: c₀ [1], the cosine of the largest angle from head-on that counts;
     directional: leave out of the metric the barrier rows PUMA's push recedes from
-    (:func:`approached_metric`; ``metric`` only)."""
+    (:func:`approached_metric`; ``metric`` only);
+    rotation_weight: ρ [1], the orientation rows' share of the task metric (:meth:`task_weights`;
+    ``metric`` only)."""
 
     mode: str = "additive"
     weight: float = 100.0
@@ -290,6 +292,24 @@ class Forcing:
     circulation_gain: float = 1.0
     circulation_onset: float = 0.0
     directional: bool = False
+    rotation_weight: float = 1.0
+
+    def task_weights(self, m: int) -> np.ndarray:
+        """The task metric's diagonal (m,) [1]: w on every row of a position task; for a pose
+        task (m = 6, rows [v; ω]) w on the position rows and ρw on the orientation rows.
+
+        Why. In free space the arm has joints to spare (7 for 6 rows) and q̈_C realises ẍ_d
+        whatever the weights. Where barriers hold joints (two joints at their limit barriers
+        leave 5 for 6 rows) the weighted pseudo-inverse gives the least-squares compromise
+        between PUMA's position and orientation pulls, and with equal weights that compromise
+        rests short of the goal (an online goal change: 7.6 cm, joints 2 and 5 at their
+        limits). ρ < 1 gives the position rows priority there, as the goal is judged on
+        position. ẍ_d = 0 still gives q̈_C = the damped elbow objective, so PUMA's zero set
+        (FPM) and CPM's energy statement are unchanged."""
+        w = np.full(m, self.weight)
+        if m == 6:
+            w[3:] *= self.rotation_weight
+        return w
 
     def make_circulation(self) -> Circulation | None:
         """The stateful :class:`~tamedpuma.methods._circulation.Circulation` of this forcing
@@ -303,14 +323,16 @@ class Forcing:
     def from_mapping(cfg: Mapping | None) -> Forcing:
         cfg = dict(cfg or {})
         unknown = sorted(set(cfg) - {"mode", "weight", "null_metric", "circulation",
-                                     "circulation_gain", "circulation_onset", "directional"})
+                                     "circulation_gain", "circulation_onset", "directional",
+                                     "rotation_weight"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
         if f.mode not in ("additive", "metric"):
             raise ConfigError(f"method.forcing.mode must be 'additive' or 'metric', got {f.mode!r}")
-        if not (f.weight > 0 and f.null_metric >= 0):
-            raise ConfigError("method.forcing.weight must be > 0 and null_metric ≥ 0")
+        if not (f.weight > 0 and f.null_metric >= 0 and 0 < f.rotation_weight <= 1):
+            raise ConfigError("method.forcing.weight must be > 0, null_metric ≥ 0 and "
+                              "rotation_weight in (0, 1]")
         if not (f.circulation >= 0 and f.circulation_gain >= 0
                 and 0 <= f.circulation_onset < 1):
             raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0, "
