@@ -191,6 +191,10 @@ def test_a_killed_worker_leaves_its_partial_log_and_the_sweep_resumes(tmp_path, 
     assert "sweep: 2 runs: 2 executed and complete" in again.stdout
     assert list((tmp_path / "sweep/0/previous_attempt").glob("episode.mcap*"))
     assert _strict_json(tmp_path / "sweep/0/summary.json")["steps"] == 5
+    from tamedpuma.analysis.runs import find_logs
+
+    runs = find_logs(tmp_path / "sweep")  # the set-aside attempt is kept, but is not a run
+    assert len(runs) == 2 and all(read_mcap(p).complete for p in runs), runs
 
 
 def _workers_of(sweep_dir: Path) -> list[int]:

@@ -73,10 +73,22 @@ def write_table(table: pd.DataFrame, out: Path, stem: str) -> str:
     return text
 
 
+#: the folder in which a resumed sweep keeps a run's interrupted earlier attempt
+#: (``tamedpuma.app.sweep``): kept for inspection, not a run of the sweep
+SET_ASIDE = "previous_attempt"
+
+
+def set_aside(path: Path) -> bool:
+    """True for a file inside a run's :data:`SET_ASIDE` folder."""
+    return SET_ASIDE in Path(path).parts
+
+
 def find_logs(root: str | Path) -> list[Path]:
-    """Every ``episode.mcap`` (finished) or ``episode.mcap.active`` (killed) below ``root``."""
+    """Every ``episode.mcap`` (finished) or ``episode.mcap.active`` (killed) below ``root``, but
+    not the earlier attempts a resumed sweep set aside (:data:`SET_ASIDE`)."""
     root = Path(root)
-    return sorted(root.rglob("episode.mcap")) + sorted(root.rglob("episode.mcap.active"))
+    logs = sorted(root.rglob("episode.mcap")) + sorted(root.rglob("episode.mcap.active"))
+    return [p for p in logs if not set_aside(p)]
 
 
 def method_label(cfg: dict, method: str | None) -> str | None:
@@ -158,6 +170,8 @@ def failed_runs(root: str | Path) -> list[tuple[str, str]]:
 
     out = []
     for path in sorted(Path(root).rglob("summary.json")):
+        if set_aside(path):
+            continue
         try:
             summary = json.loads(path.read_text())
         except (OSError, ValueError):

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from tamedpuma.analysis import stats
+from tamedpuma.analysis.runs import set_aside
 
 log = logging.getLogger(__name__)
 
@@ -26,6 +27,8 @@ def load_summaries(root: str | Path) -> tuple[pd.DataFrame, dict[str, np.ndarray
     warning (counted in the frame's ``attrs['skipped']``)."""
     rows, times, skipped = [], {}, []
     for path in sorted(Path(root).rglob("summary.json")):
+        if set_aside(path):  # a resumed sweep's earlier attempt, not a run
+            continue
         try:
             summary = json.loads(path.read_text())
             steps = np.asarray(summary.pop("step_compute_ms"), dtype=float)
