@@ -63,12 +63,7 @@ def _scenario(spec, task, obstacles):
     return scenario_from_config(cfg, spec, task=task, **start_options())
 
 
-CASES = [("tomato", "shipped"), ("tomato", "real"), ("pouring", "real"),
-         pytest.param("pouring", "shipped", marks=pytest.mark.xfail(
-             strict=False, reason="known gap (BENCHMARKS.md, issue 11): with the shipped "
-             "synthetic pouring model PUMA alone runs into a joint limit and FPM/CPM (session-4 "
-             "defaults, forcing w = 100) stall 0.13-0.18 m short beside the default scenario's "
-             "obstacle"))]
+CASES = [("tomato", "shipped"), ("tomato", "real"), ("pouring", "real"), ("pouring", "shipped")]
 
 
 @pytest.mark.parametrize("task,model", CASES)

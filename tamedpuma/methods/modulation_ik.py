@@ -212,10 +212,6 @@ def _clearance(problem: IKProblem, q: np.ndarray) -> float:
     return violation(problem, q)[1]
 
 
-def _resolve(path: str) -> Path:
-    return resolve(path)
-
-
 def _train_hint(cfg: Mapping, path: str) -> str:
     task = cfg.get("task") or "<task>"
     out = Path(path).parent if Path(path).name == "puma.pt" else Path(path)
@@ -231,7 +227,7 @@ def load_position_primitive(cfg: Mapping) -> VelocityField:
     from tamedpuma.puma.primitive import VectorPrimitive, load_primitive
 
     if path:
-        resolved = _resolve(str(path))
+        resolved = resolve(str(path))
     elif cfg.get("task"):
         from tamedpuma.puma import store
 
