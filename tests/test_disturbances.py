@@ -125,10 +125,10 @@ def test_a_push_moves_the_arm_10_cm_off_its_path_and_fpm_still_reaches_the_goal(
     assert m.recovery_time_s == pytest.approx(m.time_to_success_s - dist.onset)
 
 
-GOAL_CHANGE_SOURCES = _sources("the moved goal needs joint 4 within 0.1 rad of its limit; PUMA "
-                               "pulled through the fabric's metric (method.forcing.mode=metric) "
-                               "is held back there by the joint-limit metric; with "
-                               "forcing.mode=additive FPM reaches it")
+GOAL_CHANGE_SOURCES = _sources("FPM stops 7.6 cm from the moved goal with joints 2 and 5 at "
+                               "their limit barriers (5 joints left for PUMA's 6 task rows); "
+                               "it reaches it with method.forcing.rotation_weight=0.01 (position "
+                               "rows first), which is off by default (README, issue 12)")
 
 
 @pytest.mark.parametrize("source", GOAL_CHANGE_SOURCES)
