@@ -77,9 +77,6 @@ class Circulation:
     cos_onset: float = 0.0
     axes: dict = field(default_factory=dict)
 
-    def reset(self) -> None:
-        self.axes.clear()
-
     def specs(self, state, qd: np.ndarray, qdd_free: np.ndarray, centers: np.ndarray,
               radii: np.ndarray, pull_at_rest=None) -> TangentSpecs | None:
         """The tangent specs at a kinematic state (sphere centres, Jacobians, J̇q̇), joint

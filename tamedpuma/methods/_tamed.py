@@ -294,9 +294,10 @@ class Forcing:
     directional: bool = False
     rotation_weight: float = 1.0
 
-    def task_weights(self, m: int) -> np.ndarray:
-        """The task metric's diagonal (m,) [1]: w on every row of a position task; for a pose
-        task (m = 6, rows [v; ω]) w on the position rows and ρw on the orientation rows.
+    def task_weights(self, m: int) -> float | np.ndarray:
+        """The task metric's diagonal [1]: w on every row of a position task; for a pose task
+        (m = 6, rows [v; ω]) w on the position rows and ρw on the orientation rows, an (m,)
+        array (the scalar w when ρ = 1: no array per control step).
 
         Why. In free space the arm has joints to spare (7 for 6 rows) and q̈_C realises ẍ_d
         whatever the weights. Where barriers hold joints (two joints at their limit barriers
@@ -306,9 +307,10 @@ class Forcing:
         limits). ρ < 1 gives the position rows priority there, as the goal is judged on
         position. ẍ_d = 0 still gives q̈_C = the damped elbow objective, so PUMA's zero set
         (FPM) and CPM's energy statement are unchanged."""
+        if m != 6 or self.rotation_weight == 1.0:
+            return self.weight
         w = np.full(m, self.weight)
-        if m == 6:
-            w[3:] *= self.rotation_weight
+        w[3:] *= self.rotation_weight
         return w
 
     def make_circulation(self) -> Circulation | None:
