@@ -119,3 +119,37 @@ def test_free_space_and_pushes_away_leave_the_forcing_alone():
 def test_bad_circulation_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="circulation"):
         Forcing.from_mapping({"mode": "metric", **bad})
+
+
+def test_the_fabrics_clearance_shortcut_gives_the_full_computation(kinematics):
+    """``specs(..., min_clearance=av.min_clearance)`` (the avoidance fabric's clearance: the
+    pair distances are not recomputed when every pair is beyond d_a) returns what the full
+    computation returns, spec for spec and axis for axis, on the iiwa with obstacles from
+    touching to far."""
+    rng = np.random.default_rng(3)
+    spec = kinematics.spec
+    fabric = Fabric(FabricGains.from_mapping(None), spec.q_min, spec.q_max)
+    seen = set()
+    for _ in range(200):
+        q = rng.uniform(spec.q_min, spec.q_max)
+        qd, qdd = rng.normal(size=q.size), rng.normal(scale=3.0, size=q.size)
+        state = kinematics.evaluate(q, qd)
+        m = int(rng.integers(1, 4))
+        idx = rng.integers(0, len(state.sphere_radii), m)
+        radii = rng.uniform(0.03, 0.1, m)
+        u = rng.normal(size=(m, 3))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        gap = rng.uniform(-0.02, 0.3, m)
+        centers = state.sphere_centers[idx] + u * (state.sphere_radii[idx] + radii + gap)[:, None]
+        av = fabric.avoidance(state, q, qd, centers, radii, np.zeros((m, 3)))
+        full, short = Circulation(0.1, 1.0, 100.0), Circulation(0.1, 1.0, 100.0)
+        a = full.specs(state, qd, qdd, centers, radii, qdd.copy)
+        b = short.specs(state, qd, qdd, centers, radii, qdd.copy,
+                        av.min_clearance)
+        seen.add((a is None, av.min_clearance > 0.1))
+        assert (a is None) == (b is None)
+        if a is not None:
+            for x, y in ((a.rows, b.rows), (a.targets, b.targets), (a.weights, b.weights)):
+                np.testing.assert_array_equal(x, y)
+        assert full.axes.keys() == short.axes.keys()
+    assert {(True, True), (False, False)} <= seen  # both sides of the shortcut were taken

@@ -72,20 +72,32 @@ def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kapp
     b = -kappa * x / dt
     if jdqd is not None:
         b = b - 0.5 * dt * np.minimum(jdqd, 0.0)
-    if drift is not None:  # a moving obstacle closes in by itself: ẋ = a·w + drift
-        w, active = barrier_step(v, rows, x, dt, kappa, M, jdqd)  # feasible: w = 0 admissible
-        b = b - drift
-        if np.all(rows @ w >= b):
-            return w, active
-        # an approaching obstacle asks the arm to move away: keep that if it can be met with
-        # every other row, else the static constraints (w above)
-        moved = _project(v, rows, b, M)
-        return (w, active) if moved is None else moved
     # a row already past its barrier (x ≤ 0, e.g. a base sphere below the ground plane) must not
     # approach further but is not asked to jump out: w = 0 stays admissible (always feasible)
     past = x <= 0.0
-    b[past] = np.minimum(b[past], 0.0)
-    return _project(v, rows, b, M) or (np.zeros_like(v), int(np.count_nonzero(b == 0.0)))
+    b_static = np.where(past, np.minimum(b, 0.0), b) if past.any() else b
+    Av = rows @ v
+    free = bool((Av >= b_static).all())  # the common case: nothing to project (one product)
+    if drift is None:
+        if free:
+            return v, 0
+        return _project(v, rows, b_static, M) or (np.zeros_like(v),
+                                                   int(np.count_nonzero(b_static == 0.0)))
+    # a moving obstacle closes in by itself: ẋ = a·w + drift. First the static projection
+    # (feasible: w = 0 admissible), kept if it also meets the drifting rows
+    if free:
+        w, active = v, 0
+        closes = not bool((Av >= b - drift).all())
+    else:
+        w, active = _project(v, rows, b_static, M) or (
+            np.zeros_like(v), int(np.count_nonzero(b_static == 0.0)))
+        closes = not bool((rows @ w >= b - drift).all())
+    if not closes:
+        return w, active
+    # an approaching obstacle asks the arm to move away: keep that if it can be met with
+    # every other row, else the static constraints (w above)
+    moved = _project(v, rows, b - drift, M)
+    return (w, active) if moved is None else moved
 
 
 def _project(v: np.ndarray, rows: np.ndarray, b: np.ndarray, M: np.ndarray):

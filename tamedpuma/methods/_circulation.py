@@ -50,6 +50,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 _X, _Y, _UP = np.eye(3)
+#: [m] far above the rounding difference of two computations of one clearance (~1e-16 m), far
+#: below anything physical: a clearance known to exceed d_a by this is beyond d_a in either
+_ROUNDING_M = 1e-9
 
 
 @dataclass(frozen=True)
@@ -78,13 +81,19 @@ class Circulation:
     axes: dict = field(default_factory=dict)
 
     def specs(self, state, qd: np.ndarray, qdd_free: np.ndarray, centers: np.ndarray,
-              radii: np.ndarray, pull_at_rest=None) -> TangentSpecs | None:
+              radii: np.ndarray, pull_at_rest=None,
+              min_clearance: float | None = None) -> TangentSpecs | None:
         """The tangent specs at a kinematic state (sphere centres, Jacobians, J̇q̇), joint
         velocity q̇, PUMA's obstacle-free joint acceleration q̈_P and the obstacles (centres
         (m, 3) [m], radii (m,) [m]); None when no pair is active. pull_at_rest: a callable
         giving PUMA's obstacle-free joint acceleration at q̇ = 0 (its pull towards the goal
-        without its damping), called only when the axis is chosen (else q̈_P is used)."""
-        if len(radii) == 0:
+        without its damping), called only when the axis is chosen (else q̈_P is used).
+        min_clearance [m]: the smallest pair clearance when the caller knows it (the avoidance
+        fabric's, :attr:`~tamedpuma.fabrics.fabric.AvoidanceFabric.min_clearance`, the same
+        quantity up to rounding): beyond d_a + 1 nm no pair can be active, and the pair
+        distances are not computed again (the common case, far from every obstacle)."""
+        if len(radii) == 0 or (min_clearance is not None
+                               and min_clearance > self.distance + _ROUNDING_M):
             self.axes.clear()
             return None
         c, r = state.sphere_centers, state.sphere_radii

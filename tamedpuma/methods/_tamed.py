@@ -79,7 +79,8 @@ class PumaController:
             if circulation is not None:
                 extra = circulation.specs(state, obs.qd, qdd_free, obs.obstacle_centers,
                                           obs.obstacle_radii,
-                                          lambda: self.pull_at_rest(state, obs))
+                                          lambda: self.pull_at_rest(state, obs),
+                                          av.min_clearance)
             if forcing.directional:
                 W = approached_metric(av, qdd_free)
             qdd_c = pull_through_metric(task, W, forcing.task_weights(len(task.xdd)),
