@@ -136,3 +136,24 @@ def test_the_fabrics_package_imports_numpy_only():
                 if name.startswith("tamedpuma."):
                     allowed_own = ("tamedpuma.errors", "tamedpuma.robot.rotations")
                     assert name in allowed_own or name.startswith("tamedpuma.fabrics")
+
+
+def test_linear_solve_is_numpys_solve_bit_for_bit_and_refuses_a_singular_matrix():
+    """``linear_solve`` (the gesv gufunc without np.linalg.solve's wrapper) returns exactly
+    np.linalg.solve's numbers for vector and matrix right-hand sides, and a singular or
+    non-float system still goes to np.linalg.solve (LinAlgError)."""
+    import warnings
+
+    from tamedpuma.fabrics.spec import linear_solve
+
+    rng = np.random.default_rng(0)
+    for n in (2, 6, 7):
+        X = rng.normal(size=(n, n))
+        A = X @ X.T + 0.1 * np.eye(n)
+        for b in (rng.normal(size=n), rng.normal(size=(n, 3))):
+            np.testing.assert_array_equal(linear_solve(A, b), np.linalg.solve(A, b))
+    np.testing.assert_array_equal(linear_solve(np.eye(2, dtype=int), np.ones(2)), np.ones(2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        with pytest.raises(np.linalg.LinAlgError):
+            linear_solve(np.zeros((3, 3)), np.ones(3))

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tamedpuma.fabrics.spec import linear_solve
 from tamedpuma.robot.kinematics import KinematicState
 
 
@@ -88,8 +89,9 @@ class PlanarTask:
 
 def damped_pseudo_inverse(J: np.ndarray, damping: float) -> np.ndarray:
     """``J⁺ = Jᵀ (J Jᵀ + λ² I)⁻¹`` (n, m), by a linear solve; λ = damping."""
-    m = J.shape[0]
-    return np.linalg.solve(J @ J.T + damping**2 * np.eye(m), J).T
+    G = J @ J.T
+    G.flat[::J.shape[0] + 1] += damping**2  # + λ²I (the same numbers as adding λ² np.eye(m))
+    return linear_solve(G, J).T
 
 
 def manipulability(J: np.ndarray) -> float:
@@ -153,7 +155,7 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
     A = W + J.T @ wJ
     rhs = wJ.T @ (task.xdd - task.jdqd)
     if qdd_null is not None and m_null > 0.0:
-        A[np.diag_indices_from(A)] += m_null  # A is a fresh array
+        A.flat[::A.shape[0] + 1] += m_null  # A is a fresh array
         rhs = rhs + m_null * qdd_null
     if extra is not None:
         wr = extra.weights[:, None] * extra.rows
