@@ -66,7 +66,8 @@ def _run_cfg(**top):
     cfg = {"robot": robot_config("iiwa14"), "task": load_group("task", "tomato"),
            "scenario": _default_cfg(), "seed": 0, "without_obstacles": False,
            "clutter": {"count": 0, "total": None, "radius": 0.05, "low": [-1.2, -1.2, 0.05],
-                       "high": [1.2, 1.2, 1.4], "min_distance": 0.1}}
+                       "high": [1.2, 1.2, 1.4], "min_distance": 0.1,
+                       "keep_clear": "start_goal", "margin": 0.05, "region": "box", "shell": 0.3}}
     cfg.update(top)
     return cfg
 

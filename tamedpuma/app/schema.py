@@ -51,6 +51,8 @@ MAX_EPISODE_STEPS = 200_000      # per-step logs and metrics are held in memory
 MAX_EPISODE_SECONDS = 3600.0     # simulated time of one episode [s]
 MAX_SUBSTEPS_PER_STEP = 1000     # physics substeps per control period (Δt / substep)
 MAX_CLUTTER = 1000               # extra obstacles (the fabric is O(spheres × obstacles))
+KEEP_CLEAR = ("start_goal", "path")  # what clutter is kept clear of
+CLUTTER_REGIONS = ("box", "shell")  # where clutter.keep_clear=path draws its spheres
 MAX_TRAIN_ITERATIONS = 1_000_000
 
 
@@ -228,8 +230,28 @@ class ClutterSchema:
     low: list[float] = field(default_factory=lambda: [-1.2, -1.2, 0.05])  # box corner [m]
     high: list[float] = field(default_factory=lambda: [1.2, 1.2, 1.4])    # box corner [m]
     min_distance: float = 0.1        # [m] clear of the start's body spheres, the EE and the goal
+    keep_clear: str = "start_goal"   # start_goal | path: clear of a reference motion's swept
+                                     # volume (tamedpuma/worlds/clutter.py; feasible scene)
+    margin: float = 0.05             # [m] path: clearance of the reference's swept volume
+    arm_radius: float = 0.15         # [m] path: the arm's meshes lie within this of its skeleton
+                                     # (link axes, body-sphere centres; measured ≤ 0.133 m on the
+                                     # moving iiwa links, 0.15 m on the base)
+    region: str = "box"              # path: box (uniform) | shell (dense round the reference)
+    shell: float = 0.3               # [m] region=shell: thickness of the shell
+    reference: str = "fpm"           # path: the method whose run with the scenario's own
+                                     # obstacles is the reference (tamedpuma/app/reference.py)
+    reference_max_steps: int = 2000  # path: the reference run's step limit
 
     def __post_init__(self):
+        _check(self.keep_clear in KEEP_CLEAR, "clutter.keep_clear", " or ".join(KEEP_CLEAR),
+               self.keep_clear)
+        _check(self.region in CLUTTER_REGIONS, "clutter.region", " or ".join(CLUTTER_REGIONS),
+               self.region)
+        _nonneg("clutter.margin", self.margin)
+        _positive("clutter.arm_radius", self.arm_radius)
+        _positive("clutter.shell", self.shell)
+        _check(1 <= self.reference_max_steps <= MAX_EPISODE_STEPS, "clutter.reference_max_steps",
+               f"in [1, {MAX_EPISODE_STEPS}]", self.reference_max_steps)
         for key in ("count", "total"):
             value = getattr(self, key)
             _check(value is None or 0 <= value <= MAX_CLUTTER, f"clutter.{key}",

@@ -80,7 +80,12 @@ def build(cfg: DictConfig) -> Built:
             # the robot config's "elbow up" link and target replace the method's (iiwa) ones
             plain["method"]["null_space"] = {**plain["method"]["null_space"],
                                              **plain["robot"]["null_space"]}
-        scenario = build_scenario(plain, spec, kinematics)
+        def reference():  # clutter.keep_clear=path: the collision-free run to keep clear of
+            from tamedpuma.app.reference import reference_motion
+
+            return reference_motion(cfg, build)
+
+        scenario = build_scenario(plain, spec, kinematics, reference)
         model = store.resolve_for_method(plain["method"])
         if model is not None:  # the method loads exactly the file that is recorded
             plain["method"]["checkpoint"] = str(model.path)

@@ -17,7 +17,7 @@ receive complete configs.
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 
 import numpy as np
@@ -227,10 +227,15 @@ def random_scenario(cfg: Mapping, kinematics) -> Scenario:
     return generated.scenario
 
 
-def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
+def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics,
+                   reference: np.ndarray | Callable[[], np.ndarray] | None = None) -> Scenario:
     """The run's scenario from a whole resolved run config (plain mapping): the ``scenario``
-    group checked against the ``task`` group, then ``without_obstacles`` and ``clutter``
-    (seeded by ``seed``, kept clear of the arm at the start (:func:`arm_points`) and the goal)."""
+    group checked against the ``task`` group, then ``without_obstacles`` and ``clutter``, seeded
+    by ``seed`` and kept clear of (``clutter.keep_clear``) the arm at the start
+    (:func:`arm_points`) and the goal ('start_goal'), or of the swept volume of ``reference``, a
+    collision-free joint path (T, dof) [rad] to the goal in the scenario's own world (or a
+    function returning it, called only when clutter is added), by
+    ``clutter.margin`` [m] ('path': :mod:`tamedpuma.worlds.clutter`; the scene stays feasible)."""
     sc_cfg, task = cfg["scenario"], cfg["task"]["name"]
     if sc_cfg.get("task") not in (None, task):
         raise ScenarioError(f"scenario {sc_cfg['name']!r} belongs to task {sc_cfg['task']!r}, "
@@ -246,11 +251,40 @@ def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics) -> Scenario:
         scenario = without_obstacles(scenario)
     clutter = cfg["clutter"]
     count = clutter_count(clutter, len(scenario.obstacles))
-    if count > 0:
-        keep_out = np.concatenate([arm_points(kinematics, scenario.q0),
-                                   scenario.goal.position[None]])
-        scenario = with_clutter(scenario, count, float(clutter["radius"]),
-                                clutter["low"], clutter["high"], keep_out,
-                                float(clutter["min_distance"]),
-                                np.random.default_rng([int(cfg["seed"]), 7919]))
-    return scenario
+    if count <= 0:
+        return scenario
+    rng = np.random.default_rng([int(cfg["seed"]), 7919])
+    if clutter["keep_clear"] == "path":
+        path = reference() if callable(reference) else reference
+        return with_path_clutter(scenario, count, clutter, kinematics, path, rng)
+    keep_out = np.concatenate([arm_points(kinematics, scenario.q0),
+                               scenario.goal.position[None]])
+    return with_clutter(scenario, count, float(clutter["radius"]), clutter["low"],
+                        clutter["high"], keep_out, float(clutter["min_distance"]), rng)
+
+
+def with_path_clutter(scenario: Scenario, count: int, clutter: Mapping, kinematics,
+                      reference: np.ndarray | None, rng: np.random.Generator) -> Scenario:
+    """``scenario`` plus ``count`` static spheres (``clutter.radius``, in the box
+    ``clutter.low..high``, ``clutter.region``) kept ``clutter.margin`` [m] clear of the swept
+    volume of ``reference`` (T, dof) [rad] (:func:`tamedpuma.worlds.clutter.place_clutter`; the
+    arm: balls of ``clutter.arm_radius`` [m] round its skeleton)."""
+    from tamedpuma.worlds.clutter import place_clutter, swept_volume
+
+    if reference is None:
+        raise ScenarioError("clutter.keep_clear=path needs a reference motion "
+                            "(tamedpuma/app/reference.py)")
+    reference = np.asarray(reference, dtype=float)
+    if not np.allclose(reference[0], scenario.q0, atol=1e-6):
+        raise ScenarioError("clutter.keep_clear=path: the reference motion does not start at "
+                            "the scenario's q0")
+    radius = float(clutter["radius"])
+    volume = swept_volume(kinematics, reference, arm_radius=float(clutter["arm_radius"]))
+    own = scenario.obstacles
+    centers = place_clutter(count, radius, clutter["low"], clutter["high"], volume,
+                            float(clutter["margin"]), own.centers, own.radii, rng,
+                            region=str(clutter["region"]), shell=float(clutter["shell"]))
+    obstacles = Obstacles(np.concatenate([own.centers, centers]),
+                          np.concatenate([own.radii, np.full(count, radius)]),
+                          np.concatenate([own.velocities, np.zeros((count, 3))]))
+    return replace(scenario, obstacles=obstacles)
