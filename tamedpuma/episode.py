@@ -157,15 +157,17 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
         while k < limit:
             link_pos, link_quat, centers, contacts, pos_err, rot_err = _observe(sim, obs, ee_index)
             command, qdd, compute_ms = _timed_step(controller, obs, spec.dof)
-            record = _step_record(k, obs, truth(obs), command, qdd, link_pos, link_quat,
-                                  ee_index, centers, contacts, pos_err, rot_err, compute_ms)
-            for rec in recorders:
-                rec.write(record)
+            if recorders:  # (no record is built for none: recorder=none costs nothing)
+                record = _step_record(k, obs, truth(obs), command, qdd, link_pos, link_quat,
+                                      ee_index, centers, contacts, pos_err, rot_err,
+                                      compute_ms)
+                for rec in recorders:
+                    rec.write(record)
             trace.add(t=obs.t, q=obs.q, ee_position=link_pos[ee_index], position_error=pos_err,
                       orientation_error=rot_err, clearance=contacts.sphere_clearance,
                       obstacle_contact=contacts.obstacle_contact,
                       ground_contact=contacts.ground_contact, compute_ms=compute_ms)
-            if not np.all(np.isfinite(qdd)):
+            if not np.isfinite(qdd).all():
                 stop_reason = "nonfinite_command"
                 break
             if reach_step is None and pos_err <= scenario.goal_tolerance and obs.t >= after_onset:

@@ -367,7 +367,8 @@ class Simulator:
         sc = self._scenario
         c = self._client
         if len(sc.obstacles):
-            obst = sc.obstacles.at(self.t)
+            # static obstacles: o + t·0 = o, so their centres are used as they are
+            obst = sc.obstacles.at(self.t) if self._moving_obstacles else sc.obstacles.centers
             gaps = (np.linalg.norm(sphere_centers[:, None, :] - obst[None, :, :], axis=-1)
                     - self._sphere_radii[:, None] - sc.obstacles.radii[None, :])
             clearance = float(gaps.min())
