@@ -2,9 +2,12 @@
 ``python -m analysis.scaling RUNS_DIR [--out DIR]`` (after ``+experiment=scaling``).
 
 Per method label and obstacle count (the scenario's own plus clutter, as run): the runs, success
-under both criteria (``tamedpuma/metrics.py``) and the controller time over every step of those
-runs (median and p99 [ms]; the first step of each run is included). Writes ``scaling.md``,
-``scaling.csv`` and ``scaling.png`` (time and success against the count, one line per method).
+under both criteria (``tamedpuma/metrics.py``), the median time to success [s], the whole-body
+failure classes, and the controller time over every step of those runs (median and p99 [ms]; the
+first step of each run is included). Writes ``scaling.md`` (two tables: time and success; time
+to success and failures), ``scaling.csv`` and ``scaling.png`` (time and success against the
+count, one line per method). Runs that did not complete (e.g. ``clutter.keep_clear=path`` without
+a successful reference run) are listed by reason, not counted.
 """
 
 from __future__ import annotations
@@ -28,12 +31,46 @@ def scaling_table(runs: pd.DataFrame, times: dict) -> pd.DataFrame:
         for count in sorted(r["n_obstacles"].unique()):
             c = r[r["n_obstacles"] == count]
             st = pooled_step_times(c["path"], times)
+            ok = c[c["success_whole_body"].astype(bool)]
             rows.append({"method": label, "obstacles": int(count), "runs": len(c),
                          "success_paper": c["success_paper"].mean(),
                          "success_whole_body": c["success_whole_body"].mean(),
+                         "time_to_success_s": (float(ok["time_to_success_s"].median())
+                                               if len(ok) else float("nan")),
+                         "failures": failure_counts(c["failure_whole_body"]),
                          "median_ms": st["median"], "p99_ms": st["p99"],
                          "first_step_ms": st["first_mean"], "steps": st["steps"]})
     return pd.DataFrame(rows)
+
+
+def failure_counts(classes: pd.Series) -> str:
+    """'joint_limit 2, time 1' from the runs' whole-body failure classes ('' = success)."""
+    counts = classes[classes.fillna("") != ""].value_counts()
+    return ", ".join(f"{name} {n}" for name, n in sorted(counts.items()))
+
+
+def outcome_markdown(table: pd.DataFrame) -> str:
+    """Methods as rows, counts as columns: 'successes/runs, median time to success; failures'."""
+    counts = sorted(table["obstacles"].unique())
+    lines = ["| method | " + " | ".join(f"{c} obstacles" for c in counts) + " |",
+             "|---|" + "---|" * len(counts)]
+    for label in ordered_labels(table["method"]):
+        cells = []
+        for c in counts:
+            row = table[(table["method"] == label) & (table["obstacles"] == c)]
+            if row.empty:
+                cells.append("—")
+                continue
+            r = row.iloc[0]
+            wins = round(r.success_whole_body * r.runs)
+            cell = f"{wins}/{r.runs}"
+            if wins:
+                cell += f", {r.time_to_success_s:.1f} s"
+            if r.failures:
+                cell += f"; {r.failures}"
+            cells.append(cell)
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def markdown(table: pd.DataFrame) -> str:
@@ -81,6 +118,16 @@ def figure(table: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
+def _reason(summary_path: str) -> str:
+    """A failed run's recorded reason (its summary.json), or '?'."""
+    import json
+
+    try:
+        return str(json.loads(Path(summary_path).read_text()).get("reason", "?"))
+    except (OSError, ValueError):
+        return "?"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
     got = parse_and_load(parser, argv, summaries=True)
@@ -91,11 +138,16 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or args.runs
     out.mkdir(parents=True, exist_ok=True)
     table.to_csv(out / "scaling.csv", index=False)
-    text = markdown(table)
+    text = (markdown(table) + "\nWhole-body successes/runs, median time to success, failure "
+            "classes:\n\n" + outcome_markdown(table))
     (out / "scaling.md").write_text(text)
     figure(table, out / "scaling.png")
     print(text)
-    print(f"{len(runs)} runs read; scaling.md, scaling.csv, scaling.png in {out}")
+    skipped = runs.attrs.get("skipped", [])
+    for path in skipped:
+        print(f"not counted (no complete summary): {path}: {_reason(path)}")
+    print(f"{len(runs)} runs read ({len(skipped)} not counted); scaling.md, scaling.csv, "
+          f"scaling.png in {out}")
     return 0
 
 
