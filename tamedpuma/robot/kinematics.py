@@ -218,23 +218,27 @@ class Kinematics:
         qd = np.asarray(qd, dtype=float)
         model, data = self.model, self.data
         pin.forwardKinematics(model, data, q, qd, self._zeros)
-        pin.computeJointJacobians(model, data, q)
+        pin.computeJointJacobians(model, data)  # from the placements just computed
         pin.updateFramePlacements(model, data)
-        oMf, ids = data.oMf, self.sphere_ids
+        oMf, ids, nv = data.oMf, self.sphere_ids, model.nv
         jacobian, acceleration = pin.getFrameJacobian, pin.getFrameClassicalAcceleration
         ee = oMf[self.ee_id]
         pose = pin.SE3ToXYZQUAT(ee)  # fresh (7,): position, quaternion (x, y, z, w)
+        centers, jacobians = np.empty((len(ids), 3)), np.empty((len(ids), 3, nv))
+        jdqd = np.empty((len(ids), 3))
+        for s, i in enumerate(ids):  # filled in place: no lists of arrays to stack
+            centers[s] = oMf[i].translation
+            jacobians[s] = jacobian(model, data, i, _WORLD)[:3]
+            jdqd[s] = acceleration(model, data, i, _WORLD).linear
         return KinematicState(
             ee_position=pose[:3],
             ee_rotation=ee.rotation.copy(),
             ee_quaternion=pose[3:],
             ee_jacobian=jacobian(model, data, self.ee_id, _WORLD),
             ee_jdqd=acceleration(model, data, self.ee_id, _WORLD).vector,  # [linear; angular]
-            sphere_centers=np.array([oMf[i].translation for i in ids]).reshape(-1, 3),
-            sphere_jacobians=np.array([jacobian(model, data, i, _WORLD)[:3] for i in ids]
-                                      ).reshape(-1, 3, model.nv),
-            sphere_jdqd=np.array([acceleration(model, data, i, _WORLD).linear for i in ids]
-                                 ).reshape(-1, 3),
+            sphere_centers=centers,
+            sphere_jacobians=jacobians,
+            sphere_jdqd=jdqd,
             sphere_radii=self._radii,
         )
 
