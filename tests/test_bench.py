@@ -128,7 +128,29 @@ def test_parts_of_a_step_and_the_reference_network():
         "kinematics"]
     section = bench.markdown_section({"date": "d", "controller": [], "parts": rows, "machine": {
         "cpu_model": "c", "cores": 2, "python": "3", "numpy": "2"}})
-    assert "| fpm | network: acceleration |" in section
+    assert "| fpm | 2 | network: acceleration |" in section
+    assert {"directional metric", "pullback through the metric", "control-rate filters"} <= set(
+        by)  # FPM's forcing since session 5, part by part
+
+
+def test_targets_are_met_or_explained_by_the_profile():
+    """Each target of issue 16 in the report: "met", or its figure and the largest parts of
+    that step at that obstacle count; the episode's real-time target with its physics bound."""
+    controller = [
+        {"method": "fpm", "n_obstacles": 2, "median_ms": 0.19, "p10_ms": 0.18, "speedup": 1.3},
+        {"method": "fpm", "n_obstacles": 1000, "median_ms": 0.8, "p10_ms": 0.7}]
+    parts = [{"method": "fpm", "n_obstacles": 1000, "part": p, "us": us}
+             for p, us in (("step", 850.0), ("avoidance fabric", 340.0), ("kinematics", 18.0))]
+    episodes = [{"recorder": "none", "overhead_vs_none": 0.0, "realtime_factor": 25.0,
+                 "physics_s": 0.25, "controller_s": 0.2, "sim_s": 15.0, "steps": 750},
+                {"recorder": "mcap", "overhead_vs_none": 0.08}]
+    lines = "\n".join(bench.target_lines({"controller": controller, "parts": parts,
+                                          "episodes": episodes}))
+    assert "fpm, 2 obstacles, median ≤ 0.2 ms: **met** (0.190 ms, 1.3× faster" in lines
+    assert "fpm, 1000 obstacles, median ≤ 0.6 ms: **not met**: 0.800 ms" in lines
+    assert "avoidance fabric 340 µs, kinematics 18 µs" in lines
+    assert "recorder mcap adds ≤ 10% to the episode: **met** (+8.0%)" in lines
+    assert "**not met** (25.0× with recorder=none)" in lines and "60× real time at most" in lines
 
 
 def test_side_by_side_workers_time_blocks_and_report_failures():
