@@ -99,7 +99,8 @@ def _observe(sim, obs, ee_index: int):
     link_pos, link_quat = sim.link_poses()
     centers = sim.body_sphere_centers(link_pos, link_quat)
     contacts = sim.contacts(centers)
-    pos_err = float(np.linalg.norm(link_pos[ee_index] - obs.goal_position))
+    error = link_pos[ee_index] - obs.goal_position
+    pos_err = math.sqrt(float(error.dot(error)))  # = np.linalg.norm, without its wrapper
     rot_err = float(orientation_error(link_quat[ee_index], obs.goal_quaternion))
     return link_pos, link_quat, centers, contacts, pos_err, rot_err
 

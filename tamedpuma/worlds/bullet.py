@@ -159,6 +159,9 @@ class Simulator:
         self._plain_substeps = self.config.control == "velocity" and dist.kind != "push"
         self._motor_forces = [self.config.max_joint_force] * self.spec.dof
         self._movable_links = [i for i in self._link_idx if i >= 0]
+        quat = np.zeros((len(self._link_idx), 4))
+        quat[:, 3] = 1.0  # the base (index -1) at the world origin
+        self._base_pose = (np.zeros((len(self._link_idx), 3)), quat)
         self._movable_rows = np.array([k for k, i in enumerate(self._link_idx) if i >= 0],
                                       dtype=int)
         self._offset_spheres = np.flatnonzero(np.any(self._sphere_offset != 0, axis=1))
@@ -338,9 +341,7 @@ class Simulator:
         """World poses of ``spec.link_names``: positions (L, 3) [m], quaternions (L, 4) xyzw."""
         states = pb.getLinkStates(self._robot, self._movable_links,
                                   computeForwardKinematics=True, physicsClientId=self._client)
-        pos = np.zeros((len(self._link_idx), 3))
-        quat = np.zeros((len(self._link_idx), 4))
-        quat[:, 3] = 1.0  # the base (index -1) at the world origin
+        pos, quat = self._base_pose[0].copy(), self._base_pose[1].copy()  # base: the origin
         if len(self._movable_rows):
             pos[self._movable_rows] = [s[4] for s in states]
             quat[self._movable_rows] = [s[5] for s in states]
@@ -369,9 +370,11 @@ class Simulator:
         if len(sc.obstacles):
             # static obstacles: o + t·0 = o, so their centres are used as they are
             obst = sc.obstacles.at(self.t) if self._moving_obstacles else sc.obstacles.centers
-            gaps = (np.linalg.norm(sphere_centers[:, None, :] - obst[None, :, :], axis=-1)
+            diff = sphere_centers[:, None, :] - obst[None, :, :]
+            diff *= diff  # ‖·‖ as np.linalg.norm(axis=-1) computes it, without its wrapper
+            gaps = (np.sqrt(np.add.reduce(diff, axis=-1))
                     - self._sphere_radii[:, None] - sc.obstacles.radii[None, :])
-            clearance = float(gaps.min())
+            clearance = float(np.minimum.reduce(gaps, axis=None))
         else:
             clearance = math.inf
         obstacle_set = self._obstacle_set
