@@ -367,3 +367,22 @@ def test_rerun_sends_after_max_wait_and_keeps_every_row(tmp_path):
     strip = df["/world/ee_path/00001:LineStrips3D:strips"][129][0]
     np.testing.assert_allclose(np.stack(strip), [r.ee_position for r in recs[99:130]],
                                rtol=1e-6)
+
+
+def test_mcap_static_obstacles_are_logged_every_step_and_changes_seen(tmp_path):
+    """Obstacles that stay put for a few steps (their scene primitives reused by the writer)
+    and then move or change in number read back step by step as written."""
+    urdf = _urdf(tmp_path)
+    base = [_record(i) for i in range(6)]
+    same = {"obstacle_centers": base[0].obstacle_centers, "obstacle_radii": base[0].obstacle_radii}
+    recs = [base[0], *(StepRecord(**{**r.__dict__, **same}) for r in base[1:4]), *base[4:]]
+    path = tmp_path / "static.mcap"
+    rec = McapRecorder(path)
+    rec.open(_info(urdf))
+    for r in recs:
+        rec.write(r)
+    rec.close(complete=True, summary={})
+    obs = read_mcap(path).obstacles
+    assert list(obs["step"]) == [r.step for r in recs for _ in r.obstacle_radii]
+    np.testing.assert_array_equal(obs[["x", "y", "z"]].to_numpy(),
+                                  np.concatenate([r.obstacle_centers for r in recs]))
