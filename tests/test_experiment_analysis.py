@@ -76,6 +76,23 @@ def test_scaling_table_and_figure_from_summaries(tmp_path):
     assert table.loc[("puma", 2), "time_to_success_s"] == pytest.approx(4.0)
 
 
+def test_timing_only_runs_count_in_the_times_and_not_in_the_success(tmp_path):
+    """Runs cut short by scenario.max_steps (Modulation-IK at 1000 obstacles): --timing-only."""
+    runs, cut = tmp_path / "runs", tmp_path / "cut"
+    _summary(runs / "2" / "mik_0", "modulation_ik", 2, 1.0, True)
+    _summary(cut / "1000" / "mik_0", "modulation_ik", 1000, 300.0, False)
+    out = tmp_path / "out"
+    assert scaling.main([str(runs), "--timing-only", str(cut), "--out", str(out)]) == 0
+    table = pd.read_csv(out / "scaling.csv").set_index(["method", "obstacles"])
+    row = table.loc[("modulation_ik", 1000)]
+    assert row["runs"] == 0 and row["timed_runs"] == 1 and np.isnan(row["success_paper"])
+    assert row["median_ms"] == pytest.approx(300.0)
+    assert table.loc[("modulation_ik", 2), "success_whole_body"] == 1.0
+    text = (out / "scaling.md").read_text()
+    assert "300.00 / 300.00 ms (timing only: 1 × 300 steps)" in text
+    assert "not measured (timing only)" in text
+
+
 def test_disturbance_table_reports_recovery_from_the_onset(tmp_path):
     runs = tmp_path / "runs"
     _summary(runs / "push" / "fpm", "fpm", 2, 1.0, True, "push", onset=1.0)

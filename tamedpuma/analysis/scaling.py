@@ -1,5 +1,6 @@
 """Obstacle-count scaling from a sweep's summaries:
-``python -m analysis.scaling RUNS_DIR [--out DIR]`` (after ``+experiment=scaling``).
+``python -m analysis.scaling RUNS_DIR [--out DIR] [--timing-only DIR]`` (after
+``+experiment=scaling``).
 
 Per method label and obstacle count (the scenario's own plus clutter, as run): the runs, success
 under both criteria (``tamedpuma/metrics.py``), the median time to success [s], the whole-body
@@ -17,26 +18,35 @@ from pathlib import Path
 
 import pandas as pd
 
-from tamedpuma.analysis.runs import parse_and_load, runs_parser
+from tamedpuma.analysis.runs import parse_and_load, runs_or_error, runs_parser
 from tamedpuma.analysis.summaries import pooled_step_times
 from tamedpuma.analysis.tables import ordered_labels
 
 
 def scaling_table(runs: pd.DataFrame, times: dict) -> pd.DataFrame:
-    """One row per (method label, obstacle count): runs, success (paper / whole body), pooled
-    controller time median and p99 [ms], mean first step [ms], steps timed."""
+    """One row per (method label, obstacle count): runs, success (paper / whole body), median
+    time to success [s], failure classes, pooled controller time median and p99 [ms], mean first
+    step [ms], steps timed. Runs with a true ``timing_only`` column (episodes cut short by
+    ``scenario.max_steps``: Modulation-IK at 1000 obstacles) count in the times only: a cell of
+    them alone has no success (NaN) and ``runs`` = 0, ``timed_runs`` their number."""
+    timing_only = (runs["timing_only"].fillna(False).astype(bool) if "timing_only" in runs
+                   else pd.Series(False, index=runs.index))
     rows = []
     for label in ordered_labels(runs["method_label"]):
         r = runs[runs["method_label"] == label]
         for count in sorted(r["n_obstacles"].unique()):
-            c = r[r["n_obstacles"] == count]
-            st = pooled_step_times(c["path"], times)
+            timed = r[r["n_obstacles"] == count]
+            c = timed[~timing_only[timed.index]]
+            st = pooled_step_times(timed["path"], times)
             ok = c[c["success_whole_body"].astype(bool)]
+            nan = float("nan")
             rows.append({"method": label, "obstacles": int(count), "runs": len(c),
-                         "success_paper": c["success_paper"].mean(),
-                         "success_whole_body": c["success_whole_body"].mean(),
+                         "timed_runs": len(timed),
+                         "success_paper": c["success_paper"].mean() if len(c) else nan,
+                         "success_whole_body": (c["success_whole_body"].mean() if len(c)
+                                                else nan),
                          "time_to_success_s": (float(ok["time_to_success_s"].median())
-                                               if len(ok) else float("nan")),
+                                               if len(ok) else nan),
                          "failures": failure_counts(c["failure_whole_body"]),
                          "median_ms": st["median"], "p99_ms": st["p99"],
                          "first_step_ms": st["first_mean"], "steps": st["steps"]})
@@ -62,6 +72,9 @@ def outcome_markdown(table: pd.DataFrame) -> str:
                 cells.append("—")
                 continue
             r = row.iloc[0]
+            if r.runs == 0:
+                cells.append("not measured (timing only)")
+                continue
             wins = round(r.success_whole_body * r.runs)
             cell = f"{wins}/{r.runs}"
             if wins:
@@ -86,6 +99,10 @@ def markdown(table: pd.DataFrame) -> str:
                 cells.append("—")
                 continue
             r = row.iloc[0]
+            if r.runs == 0:
+                cells.append(f"{r.median_ms:.2f} / {r.p99_ms:.2f} ms (timing only: "
+                             f"{r.timed_runs} × {r.steps // max(r.timed_runs, 1)} steps)")
+                continue
             cells.append(f"{r.median_ms:.2f} / {r.p99_ms:.2f} ms "
                          f"({r.success_paper:.2f}, {r.success_whole_body:.2f}; n={r.runs})")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
@@ -130,10 +147,23 @@ def _reason(summary_path: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
+    parser.add_argument("--timing-only", type=Path, action="append", default=[],
+                        metavar="DIR", help="runs cut short by scenario.max_steps: their "
+                        "controller times count, their success does not (repeatable)")
     got = parse_and_load(parser, argv, summaries=True)
     if got is None:
         return 2
     args, (runs, times) = got
+    skipped = list(runs.attrs.get("skipped", []))
+    for folder in args.timing_only:
+        extra = runs_or_error(folder, summaries=True)
+        if extra is None:
+            return 2
+        frame, extra_times = extra
+        skipped += frame.attrs.get("skipped", [])
+        runs = pd.concat([runs.assign(timing_only=False), frame.assign(timing_only=True)],
+                         ignore_index=True)
+        times = {**times, **extra_times}
     table = scaling_table(runs, times)
     out = args.out or args.runs
     out.mkdir(parents=True, exist_ok=True)
@@ -143,7 +173,6 @@ def main(argv: list[str] | None = None) -> int:
     (out / "scaling.md").write_text(text)
     figure(table, out / "scaling.png")
     print(text)
-    skipped = runs.attrs.get("skipped", [])
     for path in skipped:
         print(f"not counted (no complete summary): {path}: {_reason(path)}")
     print(f"{len(runs)} runs read ({len(skipped)} not counted); scaling.md, scaling.csv, "
