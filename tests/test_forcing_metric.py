@@ -14,6 +14,7 @@ from tamedpuma.methods._policy import (
     LinearTaskPrimitive,
     PlanarTask,
     TaskAcceleration,
+    prioritized_solve,
     pull_through_metric,
     pull_to_joints,
 )
@@ -201,3 +202,61 @@ def test_rotation_weight_gives_the_position_rows_priority_where_barriers_hold_jo
         assert residual[0] > residual[1] > residual[2]
     with pytest.raises(ConfigError, match="rotation_weight"):
         Forcing.from_mapping({"mode": "metric", "rotation_weight": 0.0})
+
+
+
+def test_position_priority_solves_the_position_rows_first(kinematics, monkeypatch):
+    """``forcing.priority: position`` (:func:`prioritized_solve`): undamped (δ = 0), the hand's
+    acceleration is the one the position rows alone give (J₁q̈ = J₁A₁⁻¹f₁, whatever the
+    orientation spec), and q̈ minimises the summed cost under that constraint (the KKT
+    conditions hold). In free space it changes q̈_C by little (7 joints meet all 6 rows); with
+    two joints held by barrier metrics and an orientation pull that one weighted solve balances
+    against the position pull in the five free joints (the arm at rest short of the goal), the
+    hand accelerates along PUMA's position pull (with the committed damping δ, at 0.2-1 times
+    the rate of a position-only spec: the constraint yields where J₁A⁻¹J₁ᵀ is ill-conditioned)."""
+    import tamedpuma.methods._policy as policy
+
+    rng = np.random.default_rng(5)
+    monkeypatch.setattr(policy, "PRIORITY_DAMPING", 0.0)  # the exact lexicographic solve
+    for _ in range(5):
+        A1, A2 = rng.normal(size=(7, 7)), rng.normal(size=(3, 7))
+        A1, A2 = A1 @ A1.T + 0.1 * np.eye(7), A2.T @ A2
+        J1, f1, f2 = rng.normal(size=(3, 7)), rng.normal(size=7), rng.normal(size=7)
+        qdd = prioritized_solve(A1, f1, J1, A2, f2)
+        assert np.allclose(J1 @ qdd, J1 @ np.linalg.solve(A1, f1), atol=1e-9)
+        # stationarity: (A1 + A2) q̈ − (f1 + f2) lies in the row space of J1
+        g = (A1 + A2) @ qdd - (f1 + f2)
+        lam = np.linalg.lstsq(J1.T, g, rcond=None)[0]
+        assert np.allclose(J1.T @ lam, g, atol=1e-8)
+    monkeypatch.undo()  # the committed damping δ from here on
+    assert policy.PRIORITY_DAMPING == 1e-2
+    stalled = 0
+    for _ in range(20):
+        q = Q0 + rng.normal(scale=0.3, size=7)
+        _, task = _task(kinematics, q, np.zeros(7), rng)
+        small = 1e-6 * np.eye(7)
+        one = pull_through_metric(task, small, 100.0, 0.0)
+        two = pull_through_metric(task, small, 100.0, 0.0, priority=3)
+        assert np.linalg.norm(two - one) < 1e-3 * np.linalg.norm(one)
+        held = small.copy()
+        held[[1, 4], [1, 4]] = 1e8  # joints 2 and 5 at their limit barriers
+        free = [0, 2, 3, 5, 6]
+        pull = np.linalg.svd(task.J[:, free].T)[2][-1]  # J_freeᵀ pull = 0: pulls that cancel
+        if np.linalg.norm(pull[:3]) < 0.1:
+            continue
+        at_rest = TaskAcceleration(pull + task.jdqd, task.J, task.jdqd)
+        one = pull_through_metric(at_rest, held, 100.0, 0.0)
+        two = pull_through_metric(at_rest, held, 100.0, 0.0, priority=3)
+        position_only = pull_through_metric(
+            TaskAcceleration(pull[:3] + task.jdqd[:3], task.J[:3], task.jdqd[:3]), held,
+            100.0, 0.0)
+        stalled += np.linalg.norm(task.J[:3] @ one) < 1e-6 * np.linalg.norm(pull[:3])
+        # progress along the position pull (a position-only spec: ≈ 1; damped δ: 0.2-1 here)
+        assert pull[:3] @ (task.J[:3] @ position_only) > 0.9 * np.linalg.norm(pull[:3]) ** 2
+        assert pull[:3] @ (task.J[:3] @ two) > 0.1 * np.linalg.norm(pull[:3]) ** 2
+    assert stalled >= 10
+    assert Forcing(priority="position").priority_rows(6) == 3
+    assert Forcing(priority="position").priority_rows(3) == 0
+    assert Forcing().priority_rows(6) == 0
+    with pytest.raises(ConfigError, match="priority"):
+        Forcing.from_mapping({"mode": "metric", "priority": "orientation"})

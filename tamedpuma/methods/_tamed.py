@@ -84,7 +84,8 @@ class PumaController:
             if forcing.directional:
                 W = approached_metric(av, qdd_free)
             qdd_c = pull_through_metric(task, W, forcing.task_weights(len(task.xdd)),
-                                        forcing.null_metric, null, extra)
+                                        forcing.null_metric, null, extra,
+                                        forcing.priority_rows(len(task.xdd)))
             return av.acceleration(), qdd_c, task.xdd
         qdd_c, xdd = self.joint_acceleration(state, obs)
         return av.acceleration(), qdd_c, xdd
@@ -284,7 +285,9 @@ class Forcing:
     directional: leave out of the metric the barrier rows PUMA's push recedes from
     (:func:`approached_metric`; ``metric`` only);
     rotation_weight: ρ [1], the orientation rows' share of the task metric (:meth:`task_weights`;
-    ``metric`` only)."""
+    ``metric`` only); priority: ``position`` applies the orientation rows' force only in the
+    dynamically consistent null space of the position rows
+    (:func:`~tamedpuma.methods._policy.prioritized_solve`), ``none``: one weighted solve."""
 
     mode: str = "additive"
     weight: float = 100.0
@@ -294,6 +297,13 @@ class Forcing:
     circulation_onset: float = 0.0
     directional: bool = False
     rotation_weight: float = 1.0
+    priority: str = "none"
+
+    def priority_rows(self, m: int) -> int:
+        """How many leading task rows take precedence (``priority: position``: the 3 position
+        rows of a pose task, m = 6; :func:`~tamedpuma.methods._policy.prioritized_solve`),
+        else 0."""
+        return 3 if self.priority == "position" and m == 6 else 0
 
     def task_weights(self, m: int) -> float | np.ndarray:
         """The task metric's diagonal [1]: w on every row of a position task; for a pose task
@@ -327,12 +337,15 @@ class Forcing:
         cfg = dict(cfg or {})
         unknown = sorted(set(cfg) - {"mode", "weight", "null_metric", "circulation",
                                      "circulation_gain", "circulation_onset", "directional",
-                                     "rotation_weight"})
+                                     "rotation_weight", "priority"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
         if f.mode not in ("additive", "metric"):
             raise ConfigError(f"method.forcing.mode must be 'additive' or 'metric', got {f.mode!r}")
+        if f.priority not in ("none", "position"):
+            raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
+                              f"got {f.priority!r}")
         if not (f.weight > 0 and f.null_metric >= 0 and 0 < f.rotation_weight <= 1):
             raise ConfigError("method.forcing.weight must be > 0, null_metric ≥ 0 and "
                               "rotation_weight in (0, 1]")
