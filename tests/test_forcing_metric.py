@@ -260,3 +260,30 @@ def test_position_priority_solves_the_position_rows_first(kinematics, monkeypatc
     assert Forcing().priority_rows(6) == 0
     with pytest.raises(ConfigError, match="priority"):
         Forcing.from_mapping({"mode": "metric", "priority": "orientation"})
+
+
+def test_the_geometry_braking_past_the_alpha_bound_is_taken_implicitly():
+    """:func:`braking_split`: where the α bound acts (α_raw < α_min), the geometry's braking
+    along q̇ moves into the velocity-proportional part: the same continuous law
+    (a' + c' q̇ = a + c q̇), and the semi-implicit step brakes towards rest without reversing q̇,
+    where the explicit step reversed it with a gain of ~Δt|α_raw| (the CPM blow-up found at a
+    barrier: α_raw ≈ −10⁸ /s). Unbounded α: nothing changes."""
+    from tamedpuma.fabrics.discrete import implicit_velocity_step
+    from tamedpuma.methods._tamed import braking_split
+
+    rng = np.random.default_rng(2)
+    qd = rng.normal(size=7)
+    side = rng.normal(size=7)
+    side -= (side @ qd) / (qd @ qd) * qd
+    alpha_raw, alpha_min, dt = -1e8, -20.0, 0.02
+    h = side + alpha_raw * qd  # a barrier geometry braking hard along q̇
+    c = -alpha_min  # FPM: q̈ = h − α q̇ with α = α_min
+    a2, c2 = braking_split(h, c, qd, alpha_raw, alpha_min)
+    assert np.allclose(a2 + c2 * qd, h + c * qd, rtol=1e-12, atol=1e-3)
+    explicit = qd + dt * (h + c * qd)
+    implicit = implicit_velocity_step(qd, a2, c2, dt)
+    assert explicit @ qd < -1e5 * (qd @ qd)  # reversed and blown up
+    assert 0.0 <= implicit @ qd <= qd @ qd  # slowed along q̇, never reversed
+    assert np.linalg.norm(implicit) < np.linalg.norm(qd) + dt * np.linalg.norm(side)
+    a3, c3 = braking_split(h, c, qd, 5.0, 5.0)  # bound inactive: unchanged
+    assert a3 is h and c3 == c

@@ -399,6 +399,25 @@ def bounded_alpha(alpha: float, alpha_min: float | None) -> float:
     return alpha if alpha_min is None or alpha >= alpha_min else float(alpha_min)
 
 
+def braking_split(a: np.ndarray, c: float, qd: np.ndarray, alpha_raw: float, alpha: float
+                  ) -> tuple[np.ndarray, float]:
+    """``q̈ = a + c q̇`` rewritten as ``(a − κ q̇) + (c + κ) q̇`` with κ = α_raw − α [1/s] when
+    the α bound acts (α_raw < α = α_min: the geometry itself brakes along q̇ at the rate
+    −α_raw, more than energization gives back), else unchanged. The same law [rad/s²]; the
+    split only moves that braking into the velocity-proportional part, which the semi-implicit
+    step takes implicitly.
+
+    Why: at a barrier the geometry h grows like x⁻⁵ (x: the barrier distance), and its part
+    along q̇ reached α_raw ≈ −10⁸ /s. Taken explicitly, ``q̇ + Δt h`` reversed q̇ with a gain of
+    ~10⁶ (random pouring scenario 1021, CPM: q̇ 10⁵-10¹¹ rad/s, which the barrier step could only
+    zero; the arm stopped and a moving obstacle went 2.4 cm into it). Implicitly,
+    ``(q̇ + Δt(a − κq̇))/(1 − Δt(c + κ))`` brakes towards rest and never reverses q̇."""
+    if alpha_raw >= alpha:
+        return a, c
+    kappa = alpha_raw - alpha  # < 0
+    return a - kappa * qd, c + kappa
+
+
 def alpha_floor(cfg: Mapping) -> float | None:
     """α_min of a method config: ``energization: exact`` → None, ``bounded`` → −alpha_bound."""
     mode = str(cfg["energization"])

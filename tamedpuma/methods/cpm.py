@@ -84,6 +84,7 @@ from tamedpuma.methods._tamed import (
     TamedController,
     alpha_floor,
     bounded_alpha,
+    braking_split,
     energization_alpha,
     energy_times_velocity,
     fabric_scalars,
@@ -138,16 +139,19 @@ class CpmController(TamedController):
                 alpha_f = float(Mqd @ qdd_c) / denom
                 alpha = alpha_h + alpha_f
                 beta = max(self.beta, r_coef - alpha_f)
+                alpha_raw = alpha
             else:
-                alpha = bounded_alpha(energization_alpha(av, self.energy, qd, h_plus_f,
-                                                         self.eps), self.alpha_min)
+                alpha_raw = energization_alpha(av, self.energy, qd, h_plus_f, self.eps)
+                alpha = bounded_alpha(alpha_raw, self.alpha_min)
             if self.matched:  # β = max(β_min, r − α): exactly h + f_C whenever that dissipates
                 beta = max(self.beta, r_coef - alpha)
             c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇
-            if self.semi_implicit and c < 0.0:
-                # the velocity-proportional part taken implicitly over the control period:
-                # q̇⁺ = (q̇ + Δt (h + f)) / (1 − Δt c): it damps, never reverses q̇
-                qdd = ((qd + self.dt * h_plus_f) / (1.0 - self.dt * c) - qd) / self.dt
+            a, c_split = braking_split(h_plus_f, c, qd, alpha_raw, alpha)
+            if self.semi_implicit and c_split < 0.0:
+                # the velocity-proportional part (with the geometry's own braking along q̇
+                # where the α bound acts: braking_split) taken implicitly over the control
+                # period: q̇⁺ = (q̇ + Δt a) / (1 − Δt c): it damps, never reverses q̇
+                qdd = ((qd + self.dt * a) / (1.0 - self.dt * c_split) - qd) / self.dt
             else:
                 qdd = h_plus_f + c * qd
         else:  # the authors' code: no energization, no damping

@@ -26,6 +26,13 @@ Table 1"), and which of the paper's statements still holds with it:
   an obstacle PUMA's push along the barrier's normal is suppressed and the arm slides along it,
   as a forced fabric does. h is the paper's, and the zero set of f_θ^C is unchanged (q̇ = 0,
   ẍ_d = 0 gives q̈ = 0 up to the damped elbow objective), so the same statement holds.
+- ``forcing.priority: position`` solves PUMA's position rows first and adds the orientation
+  rows without changing the hand's acceleration (``prioritized_solve`` in
+  :mod:`tamedpuma.methods._policy`): where a goal orientation needs a joint past its limit from
+  the arm's configuration, one weighted solve trades position for orientation and rests short of the
+  goal; with the priority the hand goes on along PUMA's position pull. ẍ_d = 0 still gives
+  f_θ^C = the damped elbow term, so the statement above holds; the orientation is then left
+  where the joints cannot give it (``orientation_success_*`` in the summary reports it).
 - ``energization: bounded`` (α ≥ −alpha_bound) only adds damping; ``control_rate`` filters only
   remove energy (:mod:`tamedpuma.fabrics.discrete`); ``limit_margin`` moves the joint-limit
   barriers inside the real limits.
@@ -47,6 +54,7 @@ from tamedpuma.methods._tamed import (
     TamedController,
     alpha_floor,
     bounded_alpha,
+    braking_split,
     energization_alpha,
     fabric_scalars,
     puma_and_fabric,
@@ -65,7 +73,8 @@ class FpmController(TamedController):
                                        self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
         if self.rate.semi_implicit:
-            qd_next = implicit_velocity_step(qd, h + qdd_c, -alpha, self.dt)
+            a, c = braking_split(h + qdd_c, -alpha, qd, alpha_raw, alpha)
+            qd_next = implicit_velocity_step(qd, a, c, self.dt)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
         qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, state,
