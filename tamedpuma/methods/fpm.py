@@ -54,7 +54,6 @@ from tamedpuma.methods._tamed import (
     TamedController,
     alpha_floor,
     bounded_alpha,
-    braking_split,
     energization_alpha,
     fabric_scalars,
     puma_and_fabric,
@@ -73,8 +72,7 @@ class FpmController(TamedController):
                                        self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
         if self.rate.semi_implicit:
-            a, c = braking_split(h + qdd_c, -alpha, qd, alpha_raw, alpha)
-            qd_next = implicit_velocity_step(qd, a, c, self.dt)
+            qd_next = implicit_velocity_step(qd, h + qdd_c, -alpha, self.dt)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
         qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, state,
