@@ -105,9 +105,7 @@ def test_fpm_reaches_the_default_goal_under_joint_impedance_control(robot_spec, 
     assert m.min_clearance_m > 0
 
 
-PUSH_SOURCES = _sources("pushed 10 cm off its path, FPM with the issue-12 defaults ends "
-                        "hovering beside the obstacle (time/stall); it recovered only with every "
-                        "issue-12 option off")
+PUSH_SOURCES = _sources()  # the real model: recovered with the session-7 defaults
 
 
 @pytest.mark.parametrize("source", PUSH_SOURCES)
@@ -125,10 +123,9 @@ def test_a_push_moves_the_arm_10_cm_off_its_path_and_fpm_still_reaches_the_goal(
     assert m.recovery_time_s == pytest.approx(m.time_to_success_s - dist.onset)
 
 
-GOAL_CHANGE_SOURCES = _sources("FPM stops 7.6 cm from the moved goal with joints 2 and 5 at "
-                               "their limit barriers (5 joints left for PUMA's 6 task rows); "
-                               "it reaches it with method.forcing.rotation_weight=0.01 (position "
-                               "rows first), which is off by default (README, issue 12)")
+# the real model: reached since forcing.priority=position (before, FPM stopped 7.6 cm short with
+# joints 2 and 5 at their limit barriers: 5 joints for PUMA's 6 task rows; README, issue 12)
+GOAL_CHANGE_SOURCES = _sources()
 
 
 @pytest.mark.parametrize("source", GOAL_CHANGE_SOURCES)
