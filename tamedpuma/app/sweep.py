@@ -26,6 +26,7 @@ import json
 import logging
 import math
 import multiprocessing
+import os
 import shutil
 import signal
 import sys
@@ -299,11 +300,31 @@ def _die_with_launcher() -> None:
         return
     if multiprocessing.current_process().name == "MainProcess":
         return
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    signal.signal(signal.SIGTERM, _terminated)
     try:
         ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PDEATHSIG
     except (OSError, AttributeError):  # pragma: no cover - no prctl in this libc
         pass
+
+
+_TERMINATED = []  # set in a launcher worker by SIGTERM (its launcher died, or it was stopped)
+
+
+def _terminated(*_) -> None:
+    """SIGTERM in a launcher worker: unwind the run (its logs close as incomplete), then exit."""
+    _TERMINATED.append(True)
+    sys.exit(143)
+
+
+def _exit_if_terminated() -> None:
+    """After a SIGTERMed run has closed its logs, leave the worker process for good: raised
+    into the launcher's worker loop, the SystemExit was caught and sent back as a task result,
+    and the loky worker, its launcher gone, waited for more work for ever (seen in session 7:
+    workers of a SIGKILLed sweep left asleep, re-parented to init)."""
+    if _TERMINATED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(143)
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="sweep", version_base="1.3")
@@ -325,6 +346,8 @@ def _hydra_main(cfg: DictConfig) -> None:
         if isinstance(exc, SystemExit) and exc.code in (0, None):
             raise
         print(_partial_log_line(run_dir), file=sys.stderr)
+        if multirun:
+            _exit_if_terminated()
         raise
     except Exception as exc:  # noqa: BLE001 - a sweep survives its worst run
         if not multirun:
