@@ -59,8 +59,9 @@ def failure_counts(classes: pd.Series) -> str:
     return ", ".join(f"{name} {n}" for name, n in sorted(counts.items()))
 
 
-def outcome_markdown(table: pd.DataFrame) -> str:
-    """Methods as rows, counts as columns: 'successes/runs, median time to success; failures'."""
+def _grid(table: pd.DataFrame, cell) -> str:
+    """Methods as rows, obstacle counts as columns; ``cell(row)`` writes one cell ('—' where a
+    method has no row at that count)."""
     counts = sorted(table["obstacles"].unique())
     lines = ["| method | " + " | ".join(f"{c} obstacles" for c in counts) + " |",
              "|---|" + "---|" * len(counts)]
@@ -68,45 +69,39 @@ def outcome_markdown(table: pd.DataFrame) -> str:
         cells = []
         for c in counts:
             row = table[(table["method"] == label) & (table["obstacles"] == c)]
-            if row.empty:
-                cells.append("—")
-                continue
-            r = row.iloc[0]
-            if r.runs == 0:
-                cells.append("not measured (timing only)")
-                continue
-            wins = round(r.success_whole_body * r.runs)
-            cell = f"{wins}/{r.runs}"
-            if wins:
-                cell += f", {r.time_to_success_s:.1f} s"
-            if r.failures:
-                cell += f"; {r.failures}"
-            cells.append(cell)
+            cells.append("—" if row.empty else cell(row.iloc[0]))
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _outcome_cell(r) -> str:
+    if r.runs == 0:
+        return "not measured (timing only)"
+    wins = round(r.success_whole_body * r.runs)
+    cell = f"{wins}/{r.runs}"
+    if wins:
+        cell += f", {r.time_to_success_s:.1f} s"
+    if r.failures:
+        cell += f"; {r.failures}"
+    return cell
+
+
+def _timing_cell(r) -> str:
+    if r.runs == 0:
+        return (f"{r.median_ms:.2f} / {r.p99_ms:.2f} ms (timing only: "
+                f"{r.timed_runs} × {r.steps // max(r.timed_runs, 1)} steps)")
+    return (f"{r.median_ms:.2f} / {r.p99_ms:.2f} ms "
+            f"({r.success_paper:.2f}, {r.success_whole_body:.2f}; n={r.runs})")
+
+
+def outcome_markdown(table: pd.DataFrame) -> str:
+    """Methods as rows, counts as columns: 'successes/runs, median time to success; failures'."""
+    return _grid(table, _outcome_cell)
 
 
 def markdown(table: pd.DataFrame) -> str:
     """Methods as rows, counts as columns: 'median / p99 ms (paper, whole-body success)'."""
-    counts = sorted(table["obstacles"].unique())
-    lines = ["| method | " + " | ".join(f"{c} obstacles" for c in counts) + " |",
-             "|---|" + "---|" * len(counts)]
-    for label in ordered_labels(table["method"]):
-        cells = []
-        for c in counts:
-            row = table[(table["method"] == label) & (table["obstacles"] == c)]
-            if row.empty:
-                cells.append("—")
-                continue
-            r = row.iloc[0]
-            if r.runs == 0:
-                cells.append(f"{r.median_ms:.2f} / {r.p99_ms:.2f} ms (timing only: "
-                             f"{r.timed_runs} × {r.steps // max(r.timed_runs, 1)} steps)")
-                continue
-            cells.append(f"{r.median_ms:.2f} / {r.p99_ms:.2f} ms "
-                         f"({r.success_paper:.2f}, {r.success_whole_body:.2f}; n={r.runs})")
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+    return _grid(table, _timing_cell)
 
 
 def figure(table: pd.DataFrame, path: Path) -> None:
