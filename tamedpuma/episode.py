@@ -111,7 +111,7 @@ def _timed_step(controller: Controller, obs, dof: int):
     start = time.perf_counter()
     command = controller.step(obs)
     compute_ms = (time.perf_counter() - start) * 1e3
-    qdd = np.asarray(command.qdd, dtype=float)
+    qdd = np.array(command.qdd, dtype=float)  # a copy: recorders may hold it after the step
     if qdd.shape != (dof,):
         raise ValueError(f"controller returned q̈ of shape {qdd.shape}, not ({dof},)")
     return command, qdd, compute_ms

@@ -38,6 +38,8 @@ def test_episode_rows_and_overheads_are_relative_to_none():
                                                       abs=1e-3)
         assert r["speedup"] == pytest.approx(r["before_wall_s"] / r["wall_s"], rel=1e-2)
         assert 0 < r["controller_s"] < r["wall_s"]
+        if r["recorder"] != "none":  # the recorders' own time, measured inside the episode
+            assert 0 < r["recorder_own_share"] and r["recorder_own_s"]
     assert 0 < by["none"]["physics_s"] < by["none"]["wall_s"]
     section = bench.markdown_section({"date": "d", "controller": [], "episodes": rows,
                                       "episode_baseline": {"rev": "HEAD", "commit": "0" * 40},

@@ -185,6 +185,7 @@ class McapRecorder:
                     "properties": {"step": {"type": "integer"}, "t": {"type": "number"}},
                     "additionalProperties": {"type": ["number", "null"]}})
         self._count = 0
+        self._pending: list[StepRecord] = []  # steps taken since the last flush
         self._obstacle_spheres = _LastSpheres(_OBSTACLE_COLOR)
         self._body_spheres = _Spheres(_BODY_COLOR)
         self._goal_style = _Spheres(_GOAL_COLOR)
@@ -208,10 +209,29 @@ class McapRecorder:
         self._writer.flush()
 
     def write(self, rec: StepRecord) -> None:
-        """Log one step on every channel; flush every ``flush_every`` steps."""
-        info = self._info
-        if self._writer is None or info is None:
+        """Take one step; every ``flush_every`` steps log the steps taken since the last flush
+        on every channel, in order, and flush them (as one chunk) to disk.
+
+        Logging a batch back to back instead of one step between two control steps writes the
+        same messages (same log times, same order) at about half the cost (the writer's code
+        stays in the CPU's caches), and loses nothing more when the run is killed: steps after
+        the last flush were never on disk either way."""
+        if self._writer is None or self._info is None:
             raise RuntimeError("McapRecorder.write before open")
+        self._pending.append(rec)
+        self._count += 1
+        if self._count % self.flush_every == 0:
+            self._log_pending()
+            self._writer.flush()
+
+    def _log_pending(self) -> None:
+        for rec in self._pending:
+            self._log(rec)
+        self._pending.clear()
+
+    def _log(self, rec: StepRecord) -> None:
+        """Log one step on every channel."""
+        info = self._info
         ns, stamp = _stamp(rec.t)
 
         self._joints.log(JointStates(timestamp=stamp, joints=[
@@ -248,10 +268,6 @@ class McapRecorder:
 
         self._scalars.log(self._scalars_json(rec), log_time=ns)
 
-        self._count += 1
-        if self._count % self.flush_every == 0:
-            self._writer.flush()
-
     def _scalars_json(self, rec: StepRecord) -> bytes:
         """``{"step": .., "t": .., <name>: <value or null>, ...}`` as ``json.dumps`` writes it
         (keys JSON-encoded once per name, floats by ``repr``, non-finite values as null)."""
@@ -274,6 +290,7 @@ class McapRecorder:
         if self._writer is None:
             return
         try:
+            self._log_pending()
             self._writer.write_metadata(META_SUMMARY, {
                 "complete": "true" if complete else "false",
                 "steps": str(self._count),

@@ -18,9 +18,13 @@ IIWA_JOINT_NAMES: tuple[str, ...] = tuple(f"lbr_iiwa_joint_{i}" for i in range(1
 IIWA_LINK_NAMES: tuple[str, ...] = tuple(f"lbr_iiwa_link_{i}" for i in range(0, 8))
 
 
+_F8 = np.dtype(float)
+
+
 def _array(value, shape: tuple[int | None, ...], name: str) -> np.ndarray:
     """``value`` as a float64 array of ``shape`` (None = any length); ValueError otherwise."""
-    arr = np.asarray(value, dtype=float)
+    arr = value if type(value) is np.ndarray and value.dtype is _F8 else np.asarray(
+        value, dtype=float)  # (the control loop's arrays: no conversion call)
     if arr.ndim != len(shape):
         raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
     for s, n in zip(shape, arr.shape):
@@ -138,13 +142,20 @@ class StepRecord:
         s(self, "ee_position", _array(self.ee_position, (3,), "ee_position"))
         s(self, "ee_quaternion", _array(self.ee_quaternion, (4,), "ee_quaternion"))
         s(self, "body_sphere_centers",
-          _array(np.reshape(self.body_sphere_centers, (-1, 3)), (None, 3), "body_sphere_centers"))
+          _array(_reshaped(self.body_sphere_centers, (-1, 3)), (None, 3), "body_sphere_centers"))
         s(self, "obstacle_centers",
-          _array(np.reshape(self.obstacle_centers, (-1, 3)), (None, 3), "obstacle_centers"))
+          _array(_reshaped(self.obstacle_centers, (-1, 3)), (None, 3), "obstacle_centers"))
         n_obs = len(self.obstacle_centers)
-        s(self, "obstacle_radii", _array(np.ravel(self.obstacle_radii), (n_obs,), "obstacle_radii"))
+        s(self, "obstacle_radii", _array(_reshaped(self.obstacle_radii, (-1,)), (n_obs,),
+                                         "obstacle_radii"))
         s(self, "goal_position", _array(self.goal_position, (3,), "goal_position"))
         s(self, "goal_quaternion", _array(self.goal_quaternion, (4,), "goal_quaternion"))
+
+
+def _reshaped(value, shape: tuple[int, ...]):
+    """``np.reshape(value, shape)`` (``np.ravel`` for (-1,)), by the array's own method when
+    it is one."""
+    return value.reshape(shape) if type(value) is np.ndarray else np.reshape(value, shape)
 
 
 class Recorder(Protocol):
