@@ -153,11 +153,14 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
     priority: the first ``priority`` task rows (J₁, the position rows of a pose task) take
     precedence over the rest (J₂): see :func:`prioritized_solve`. 0: one weighted solve."""
     J = task.J
-    k = priority if priority > 0 else J.shape[0]
-    wJ = np.multiply(np.reshape(weight, (-1, 1)), J)  # diag(w) J
+    m = J.shape[0]
+    k = priority if priority > 0 else m
+    # diag(w) J: a scalar w multiplies as it is (the same numbers as broadcasting it as (1, 1))
+    wJ = weight * J if type(weight) is float else np.multiply(np.reshape(weight, (-1, 1)), J)
     target = task.xdd - task.jdqd
-    A = W + J[:k].T @ wJ[:k]
-    rhs = wJ[:k].T @ target[:k]
+    J1, wJ1 = (J, wJ) if k == m else (J[:k], wJ[:k])  # (views of all rows: the same numbers)
+    A = W + J1.T @ wJ1
+    rhs = wJ1.T @ (target if k == m else target[:k])
     if qdd_null is not None and m_null > 0.0:
         A.flat[::A.shape[0] + 1] += m_null  # A is a fresh array
         rhs = rhs + m_null * qdd_null
@@ -165,9 +168,9 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
         wr = extra.weights[:, None] * extra.rows
         A += extra.rows.T @ wr
         rhs = rhs + wr.T @ extra.targets
-    if k == J.shape[0]:
-        return np.linalg.solve(A, rhs)
-    return prioritized_solve(A, rhs, J[:k], J[k:].T @ wJ[k:], wJ[k:].T @ target[k:])
+    if k == m:
+        return linear_solve(A, rhs)
+    return prioritized_solve(A, rhs, J1, J[k:].T @ wJ[k:], wJ[k:].T @ target[k:])
 
 
 #: δ [1] of :func:`prioritized_solve`: the priority constraint's damping relative to tr(S)/k
@@ -202,13 +205,17 @@ def prioritized_solve(A1: np.ndarray, f1: np.ndarray, J1: np.ndarray, A2: np.nda
     is ill-conditioned the constraint yields instead of driving the joints (with δ = 10⁻⁹, near
     the shoulder singularity q₂ ≈ 0 the multiplier swung joints 1 and 3 through 2 rad in 2 s
     and the hand left the goal by 1.4 m; random tomato scenario 103)."""
-    k = J1.shape[0]
-    qdd1 = np.linalg.solve(A1, f1)
-    X = np.linalg.solve(A1 + A2, np.column_stack((J1.T, f1 + f2)))
+    n, k = J1.shape[1], J1.shape[0]
+    qdd1 = linear_solve(A1, f1)
+    B = np.empty((n, k + 1))  # [J₁ᵀ, f₁ + f₂]
+    B[:, :k] = J1.T
+    np.add(f1, f2, out=B[:, k])
+    X = linear_solve(A1 + A2, B)
     AJ = X[:, :k]  # A⁻¹J₁ᵀ
     S = J1 @ AJ
-    S[np.diag_indices(k)] += PRIORITY_DAMPING * max(float(np.trace(S)), 1e-300) / k
-    return X[:, k] - AJ @ np.linalg.solve(S, J1 @ (X[:, k] - qdd1))
+    S.flat[::k + 1] += PRIORITY_DAMPING * max(float(S.trace()), 1e-300) / k
+    x = X[:, k]
+    return x - AJ @ linear_solve(S, J1 @ (x - qdd1))
 
 
 @dataclass(frozen=True)
