@@ -106,3 +106,18 @@ def test_ik_reaches_reachable_poses(robot_spec, kinematics, seed):
     p2, quat2 = kinematics.ee_pose(result.q)
     np.testing.assert_allclose(p2, p, atol=1e-5)
     assert np.all(result.q >= robot_spec.q_min) and np.all(result.q <= robot_spec.q_max)
+
+
+def test_the_placement_only_calls_give_evaluates_numbers_bit_for_bit(robot_spec, kinematics):
+    """ee_frame and sphere_centers (one placement pass, for callers that need no Jacobian:
+    Modulation-IK's targets and its distance check) return exactly evaluate()'s pose and
+    centres, and sphere_radii its radii."""
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        q = rng.uniform(robot_spec.q_min, robot_spec.q_max)
+        state = kinematics.evaluate(q, rng.normal(size=q.size))
+        p, rot = kinematics.ee_frame(q)
+        np.testing.assert_array_equal(p, state.ee_position)
+        np.testing.assert_array_equal(rot, state.ee_rotation)
+        np.testing.assert_array_equal(kinematics.sphere_centers(q), state.sphere_centers)
+    np.testing.assert_array_equal(kinematics.sphere_radii, robot_spec.sphere_radii)

@@ -315,7 +315,7 @@ def test_the_end_effector_position_is_modulated_in_the_base_frame(kinematics):
     center = p - (0.05 + ctrl.params.safety_radius) * normal
     assert ctrl.params.safety_radius >= 0.07 + ctrl.params.d_min  # the IK allows this start
     obs = dataclasses.replace(_obs(Q0, [center]), goal_position=p + 0.2 * (tangent - normal))
-    p_target, _, v, v_mod, mod = ctrl._targets(obs, state)
+    p_target, _, v, v_mod, mod = ctrl._targets(obs, p, state.ee_rotation)
     assert mod.gamma_min == pytest.approx(1.0)
     assert v @ normal < 0 and v_mod @ normal == pytest.approx(0.0, abs=1e-12)
     np.testing.assert_allclose(v_mod, 2.0 * (v @ tangent) * tangent, atol=1e-12)

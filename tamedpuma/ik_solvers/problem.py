@@ -135,15 +135,22 @@ def distances(problem: IKProblem, q: np.ndarray, with_jacobian: bool = False):
     """``d_ij(q) − d_min`` for every (sphere i, obstacle j), flattened (k·n,) [m];
     with_jacobian: also the (k·n, 7) Jacobian ``n_ijᵀ J_i``."""
     kin = problem.kinematics
+    if not with_jacobian:  # the centres alone: the placement pass (the same numbers)
+        return _gaps(problem, kin.sphere_centers(q), kin.sphere_radii)[0].ravel()
     zeros = np.zeros(kin.spec.dof)
     state = kin.evaluate(q, zeros)
     return _pair_distances(problem, state, with_jacobian)
 
 
-def _pair_distances(problem: IKProblem, state, with_jacobian: bool):
-    diff = state.sphere_centers[:, None, :] - problem.obstacle_centers[None, :, :]  # (k, n, 3)
+def _gaps(problem: IKProblem, centers: np.ndarray, radii: np.ndarray):
+    """``‖c_i − o_j‖ − r_i − r_j − d_min`` (k, n) [m] of sphere centres c (k, 3), radii r (k,)."""
+    diff = centers[:, None, :] - problem.obstacle_centers[None, :, :]  # (k, n, 3)
     norm = np.linalg.norm(diff, axis=-1)
-    gap = norm - state.sphere_radii[:, None] - problem.obstacle_radii[None, :] - problem.d_min
+    return norm - radii[:, None] - problem.obstacle_radii[None, :] - problem.d_min, diff, norm
+
+
+def _pair_distances(problem: IKProblem, state, with_jacobian: bool):
+    gap, diff, norm = _gaps(problem, state.sphere_centers, state.sphere_radii)
     if not with_jacobian:
         return gap.ravel()
     unit = diff / np.maximum(norm, 1e-12)[..., None]

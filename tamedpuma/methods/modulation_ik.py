@@ -144,9 +144,10 @@ class ModulationIK:
         self.failures = 0
         warm_up(self.kinematics, scenario.obstacles.radii, self.params.ik_backend)
 
-    def _targets(self, obs: Observation, state):
+    def _targets(self, obs: Observation, p: np.ndarray, rot: np.ndarray):
+        """(p⁺ target, R⁺ target, v, modulated v, the Modulation) from the hand's position p
+        [m] and rotation R."""
         prm, dt = self.params, self.dt
-        p = state.ee_position
         v = np.asarray(self.primitive.velocity(p, obs.goal_position), float).reshape(3)
         v = v + obs.goal_velocity
         speed = float(np.linalg.norm(v))
@@ -156,15 +157,15 @@ class ModulationIK:
                               obs.obstacle_velocities, safety=prm.safety_radius,
                               power=prm.gamma_power)
         rot_goal = quat_to_matrix(obs.goal_quaternion)
-        omega = rotation_error(state.ee_rotation, rot_goal)
-        rot_target = exp_so3(min(prm.orientation_gain * dt, 1.0) * omega) @ state.ee_rotation
+        omega = rotation_error(rot, rot_goal)
+        rot_target = exp_so3(min(prm.orientation_gain * dt, 1.0) * omega) @ rot
         return p + v_mod * dt, rot_target, v, v_mod, mod
 
     def step(self, obs: Observation) -> Command:
         prm, dt = self.params, self.dt
         q, qd = np.asarray(obs.q, float), np.asarray(obs.qd, float)
-        state = self.kinematics.evaluate(q, np.zeros_like(q))
-        p_target, rot_target, v, v_mod, mod = self._targets(obs, state)
+        # the hand's pose only (the placement pass: the numbers evaluate() gives)
+        p_target, rot_target, v, v_mod, mod = self._targets(obs, *self.kinematics.ee_frame(q))
         spec = self.kinematics.spec
         box = prm.trust * spec.qd_max * dt
         upper = np.minimum(q + box, spec.q_max - prm.limit_margin)
@@ -188,7 +189,7 @@ class ModulationIK:
                 "step %d: IK failed (%s); %s", obs.step, result.message,
                 "holding the current configuration" if brake else "moving to its safe answer")
         qdd = (prm.tracking_gain * (q_ik - q) / dt - qd) / dt
-        p_ik = self.kinematics.ee_pose(q_ik)[0]
+        p_ik = self.kinematics.ee_frame(q_ik)[0]
         clearance = result.min_distance if safe else _clearance(problem, q)
         scalars = {
             "ik_success": float(result.success),

@@ -264,6 +264,19 @@ class Kinematics:
         pose = self.data.oMf[self.ee_id]
         return pose.translation.copy(), pin.Quaternion(pose.rotation).coeffs().copy()
 
+    @property
+    def sphere_radii(self) -> np.ndarray:
+        """Body-sphere radii (k,) [m], read-only (the spec's, built once)."""
+        return self._radii
+
+    def ee_frame(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """End-effector position (3,) [m] and rotation (3, 3) at q, fresh arrays: the
+        placement pass only (the same numbers as :meth:`evaluate`'s ``ee_position`` and
+        ``ee_rotation``, without its Jacobians and accelerations)."""
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        pose = self.data.oMf[self.ee_id]
+        return pose.translation.copy(), pose.rotation.copy()
+
     def sphere_centers(self, q: np.ndarray) -> np.ndarray:
         """Collision-sphere centres at q: (k, 3) [m]."""
         pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
