@@ -12,7 +12,7 @@ Drake's minimum-distance constraint is a smoothed penalty that is feasible iff e
 its bound; the bound passed to Drake is ``d_min + options.drake_margin`` (1e-4 m by default:
 :class:`~tamedpuma.ik_solvers.problem.SolverOptions`) so that SNOPT's feasibility tolerance cannot
 leave a pair below d_min. SNOPT reports no iteration count through Drake: ``iterations`` is the
-number of objective evaluations.
+number of objective evaluations (counted by a visualization callback).
 """
 
 from __future__ import annotations
@@ -151,11 +151,13 @@ def solve(problem: IKProblem) -> IKResult:
                                problem.q_ref, qv)
     counter = [0]
 
-    def _count(x):  # zero cost, counts evaluations (float or AutoDiff input)
+    def _count(_x):  # called with the iterate (floats) at every evaluation of the program
         counter[0] += 1
-        return 0.0 * x[0]
 
-    prog.AddCost(_count, vars=qv[:1])
+    # A visualization callback, not a zero cost: Drake calls it once per evaluation as it did
+    # the cost (the same count), but with floats, where a Python cost is called with AutoDiff
+    # arrays for its gradient (~10 µs per evaluation, ~0.2 ms of a 1.2 ms solve)
+    prog.AddVisualizationCallback(_count, qv[:1])
     options = pd.SolverOptions()
     solver = pd.SnoptSolver()
     options.SetOption(solver.id(), "Major iterations limit", int(problem.max_iterations))
