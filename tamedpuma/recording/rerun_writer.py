@@ -339,22 +339,30 @@ class RerunRecorder:
             self._send()
 
     def _take_pending(self) -> None:
-        """Copy the buffered steps into the column buffers, in order."""
-        cols, root = self._columns, self._root_index
-        for rec in self._pending:
-            i = cols.n
-            if (self._count + i) % FRAME_EVERY == 0:
-                self._points.append(scene_points(rec))
-            scalars = rec.scalars
-            cols.add(step=rec.step, t=rec.t, q=rec.q, qd=rec.qd, ee=rec.ee_position,
-                     goal_position=rec.goal_position, goal_quaternion=rec.goal_quaternion,
-                     body_spheres=rec.body_sphere_centers,
-                     scalars=[scalars.get(name, np.nan) for name in self._scalar_names],
-                     **({} if root is None else {"root_position": rec.link_positions[root],
-                                                 "root_quaternion": rec.link_quaternions[root]}))
-            cols.obstacles.append((rec.obstacle_centers.copy(), rec.obstacle_radii.copy()))
-            self._ee_path.add(ee=rec.ee_position)
-        self._pending.clear()
+        """Copy the buffered steps into the column buffers, in order: one stacked array per
+        column (the same rows, at a fraction of the cost of copying step by step)."""
+        pending, cols, root = self._pending, self._columns, self._root_index
+        if not pending:
+            return
+        first = self._count + cols.n  # the step index (in this recording) of pending[0]
+        for k in range(-first % FRAME_EVERY, len(pending), FRAME_EVERY):
+            self._points.append(scene_points(pending[k]))
+        names = self._scalar_names
+        ee = np.array([r.ee_position for r in pending])
+        rows = {"step": [r.step for r in pending], "t": [r.t for r in pending],
+                "q": [r.q for r in pending], "qd": [r.qd for r in pending], "ee": ee,
+                "goal_position": [r.goal_position for r in pending],
+                "goal_quaternion": [r.goal_quaternion for r in pending],
+                "body_spheres": [r.body_sphere_centers for r in pending],
+                "scalars": [[r.scalars.get(name, np.nan) for name in names] for r in pending]}
+        if root is not None:
+            rows["root_position"] = [r.link_positions[root] for r in pending]
+            rows["root_quaternion"] = [r.link_quaternions[root] for r in pending]
+        cols.extend(**{name: np.array(v, dtype=float) for name, v in rows.items()})
+        cols.obstacles.extend((r.obstacle_centers.copy(), r.obstacle_radii.copy())
+                              for r in pending)
+        self._ee_path.extend(ee=ee)
+        pending.clear()
 
     def close(self, complete: bool, summary: Mapping[str, object]) -> None:
         """Send buffered steps, log the outcome (static ``/summary``) and close the file."""
@@ -476,27 +484,31 @@ class RerunRecorder:
 
 
 class _Columns:
-    """Growable column buffers, one row per step: ``add(name=value, ...)`` copies each value
-    into row ``n`` of its column (allocated at the first row from the value's shape, doubled
-    when full); ``arrays()`` returns the filled rows. ``obstacles``: per-row (centres, radii)
-    (their count may change between steps)."""
+    """Growable column buffers, one row per step: ``extend(name=rows, ...)`` copies m rows into
+    rows ``n … n+m−1`` of each column (allocated at the first rows from their shape, grown to at
+    least twice its size when full); ``arrays()`` returns the filled rows. ``obstacles``: per-row
+    (centres, radii) (their count may change between steps)."""
 
     def __init__(self):
         self.n = 0
         self._cols: dict[str, np.ndarray] = {}
         self.obstacles: list[tuple[np.ndarray, np.ndarray]] = []
 
-    def add(self, **values) -> None:
+    def extend(self, **columns: np.ndarray) -> None:
+        """Append m rows at once: each value an (m, ...) float array, m the same for all."""
         cols, i = self._cols, self.n
-        for name, value in values.items():
+        m = 0
+        for name, value in columns.items():
+            m = len(value)
             col = cols.get(name)
             if col is None:
-                value = np.asarray(value, dtype=float)
-                col = cols[name] = np.empty((16, *value.shape))
-            elif i == len(col):
-                col = cols[name] = np.concatenate([col, np.empty_like(col)])
-            col[i] = value
-        self.n = i + 1
+                col = cols[name] = np.empty((max(16, m), *value.shape[1:]))
+            elif i + m > len(col):
+                grown = np.empty((max(2 * len(col), i + m), *col.shape[1:]))
+                grown[:i] = col[:i]
+                col = cols[name] = grown
+            col[i:i + m] = value
+        self.n = i + m
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {name: col[:self.n] for name, col in self._cols.items()}
