@@ -190,8 +190,9 @@ def _tamed_parts(ctrl, state, obs, av, accel, null) -> dict:
     if forcing.directional:
         parts["directional metric"] = lambda: approached_metric(av, free)
     weights = forcing.task_weights(len(accel.xdd))
+    priority = forcing.priority_rows(len(accel.xdd))  # as the step solves it
     parts["pullback through the metric"] = lambda: pull_through_metric(
-        accel, W, weights, forcing.null_metric, null)
+        accel, W, weights, forcing.null_metric, null, None, priority)
     qd_next = obs.qd + ctrl.dt * (av.acceleration() + free)
     parts["control-rate filters"] = lambda: ctrl.rate.next_velocity(
         qd_next, av, ctrl.dt, ctrl.qd_max, state, obs.qd)
