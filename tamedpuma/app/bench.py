@@ -712,12 +712,22 @@ _WHY = {
                "`fabrics+numba` compiles the pair rows and the kernel.",
     "fpm": "Kinematics, fabric and network are the vanilla costs above; the rest is FPM's "
            "forcing since session 5 (PUMA's obstacle-free pull, the directional metric, the "
-           "weighted pullback, the control-rate barrier step over every barrier row), each "
-           "a few small-array numpy calls, or at 1000 obstacles a pass over 5000 rows.",
+           "weighted pullback, since session 7 with the position priority: three LAPACK "
+           "solves instead of one, the control-rate barrier step over every barrier row), "
+           "each a few small-array numpy calls, or at 1000 obstacles a pass over 5000 rows. "
+           "What is left at 2 obstacles is per-call overhead spread over ~290 function calls "
+           "(cProfile; no part above the network's ~35 µs and the fabric's ~30 µs); the "
+           "`+numba` variant compiles the fabric; a compiled network is the next candidate "
+           "(not tried: its products would differ from BLAS's in the last bits).",
     "cpm": "As FPM, plus ψ and ∂ψ (the rest row of the network's pass and a hand-written "
            "backward pass) and the regulator.",
     "modulation_ik": "The IK solve (SNOPT through Drake, a fresh program each step) is the "
-                     "step; the modulation and the network are the rest.",
+                     "step: SNOPT's own ~20 evaluations of Drake's kinematics and "
+                     "signed-distance query are ~0.7-1 ms of it on this machine, which no "
+                     "change that keeps its answers can remove; building the program "
+                     "~0.15 ms (reusing one measured 0.03-0.04 ms less: RemoveCost is slow); "
+                     "the modulation, the network, the problem's validation and the "
+                     "distance check of the answer are the rest (~0.3 ms).",
 }
 
 
