@@ -38,10 +38,11 @@ def _close(a, b, what, rtol=1e-9):
     assert np.abs(np.nan_to_num(a) - np.nan_to_num(b)).max(initial=0.0) <= rtol * scale, what
 
 
-@pytest.mark.parametrize("ground", [False, True])
-def test_compiled_kernels_match_the_numpy_reference(kinematics, robot_spec, ground):
+@pytest.mark.parametrize("ground,activation", [(False, np.inf), (True, np.inf), (False, 3.0)])
+def test_compiled_kernels_match_the_numpy_reference(kinematics, robot_spec, ground, activation):
     pytest.importorskip("numba")
-    gains = FabricGains(ground_enabled=ground, ground_height=0.3 if ground else 0.0)
+    gains = FabricGains(ground_enabled=ground, ground_height=0.3 if ground else 0.0,
+                        obstacle_activation=activation)
     ref = Fabric(gains, robot_spec.q_min, robot_spec.q_max)
     fast = Fabric(dataclasses.replace(gains, kernel="numba"), robot_spec.q_min, robot_spec.q_max)
     rng = np.random.default_rng(11)

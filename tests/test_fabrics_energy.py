@@ -25,21 +25,26 @@ LEAVES = {"obstacle": OBSTACLE_DEFAULT, "joint_limit": LIMIT_DEFAULT, "ground": 
           "other": BarrierGains(0.3, 2.0, True, 0.7, 3.0, False)}
 
 
-def _lagrangian(gains):
-    return lambda x, xd: float(barrier_energy(x, xd, gains)[0])
+def _lagrangian(gains, activation=np.inf):
+    return lambda x, xd: float(barrier_energy(x, xd, gains, activation)[0])
 
 
+@pytest.mark.parametrize("activation", [np.inf, 2.5, 0.7])
 @pytest.mark.parametrize("name", sorted(LEAVES))
-def test_barrier_metric_force_and_energy_are_euler_lagrange_derivatives(name):
+def test_barrier_metric_force_and_energy_are_euler_lagrange_derivatives(name, activation):
+    """Also with the activation taper w(x) = (1 − (x/x_a)²)² (x_a = 0.7: some samples beyond it,
+    where the leaf vanishes)."""
     gains = LEAVES[name]
-    L = _lagrangian(gains)
+    L = _lagrangian(gains, activation)
     rng = np.random.default_rng(0)
     for _ in range(20):
         x = rng.uniform(0.05, 2.0)
+        if abs(x - activation) < 1e-3:
+            continue
         xd = rng.choice([-1, 1]) * rng.uniform(0.1, 2.0)  # away from the switch of s(ẋ)
         h = 1e-4 * x
         k = 1e-4
-        _, M, f, H = barrier_energy(x, xd, gains)
+        _, M, f, H = barrier_energy(x, xd, gains, activation)
         d2_dxd2 = (L(x, xd + k) - 2 * L(x, xd) + L(x, xd - k)) / k**2
         dL_dxd = (L(x, xd + k) - L(x, xd - k)) / (2 * k)
         dL_dx = (L(x + h, xd) - L(x - h, xd)) / (2 * h)
@@ -50,17 +55,35 @@ def test_barrier_metric_force_and_energy_are_euler_lagrange_derivatives(name):
         assert float(f) == pytest.approx(d2_dxd_dx * xd - dL_dx, rel=1e-5, abs=1e-6 * scale)
         assert float(H) == pytest.approx(xd * dL_dxd - L(x, xd), rel=1e-6, abs=1e-9)
         # the fused hot-path kernel gives the same numbers, and the leaf spec is (M, M h)
-        m2, f2, fl2, H2 = barrier_leaf(np.array([x]), np.array([xd]), gains)
+        m2, f2, fl2, H2 = barrier_leaf(np.array([x]), np.array([xd]), gains, activation)
         hx = barrier_geometry(x, xd, gains)
         np.testing.assert_allclose([m2[0], f2[0], fl2[0], H2[0]],
                                    [M, M * hx, f, H], rtol=1e-12, atol=1e-15)
 
 
+def test_activation_taper_is_c1_vanishes_beyond_x_a_and_is_the_reference_as_x_goes_to_0():
+    x_a = 1.5
+    x = np.array([x_a - 1e-7, x_a, x_a + 1e-7, 10.0])
+    m, f, fl, H = barrier_leaf(x, np.full(4, -0.8), OBSTACLE_DEFAULT, x_a)
+    np.testing.assert_array_equal([m[1:], f[1:], fl[1:], H[1:]], 0.0)
+    assert 0 < m[0] < 1e-13 and abs(fl[0]) < 1e-6  # w and w' → 0 continuously at x_a
+    small = np.array([1e-4])
+    ref = barrier_leaf(small, np.array([-0.8]), OBSTACLE_DEFAULT)
+    tapered = barrier_leaf(small, np.array([-0.8]), OBSTACLE_DEFAULT, x_a)
+    np.testing.assert_allclose(tapered, ref, rtol=1e-8)  # w(x) = 1 − 2(x/x_a)² + …
+    with pytest.raises(Exception, match="obstacle_activation must be positive"):
+        FabricGains(obstacle_activation=0.0)
+    g = FabricGains.from_mapping({"obstacle_activation": None})
+    assert g.obstacle_activation == np.inf and g.to_mapping()["obstacle_activation"] is None
+    assert FabricGains.from_mapping(FabricGains(obstacle_activation=2.0).to_mapping()) == \
+        FabricGains(obstacle_activation=2.0)
+
+
 def test_barriers_never_have_a_negative_metric_and_push_away_while_approaching():
     x = np.geomspace(1e-3, 1e2, 200)
-    for gains in LEAVES.values():
+    for gains, activation in [(g, a) for g in LEAVES.values() for a in (np.inf, 3.0)]:
         for xd in (-3.0, -1e-3, 0.0, 1e-3, 3.0):
-            m, f, _, H = barrier_leaf(x, np.full_like(x, xd), gains)
+            m, f, _, H = barrier_leaf(x, np.full_like(x, xd), gains, activation)
             assert np.all(m >= 0) and np.all(H >= 0) and np.all(np.isfinite(f))
             h = barrier_geometry(x, np.full_like(x, xd), gains)
             assert np.all(h <= 0)  # ẍ = −h ≥ 0: never pulls into the barrier
@@ -107,12 +130,14 @@ def _fabric(kinematics, **changes):
     return Fabric(FabricGains(**changes), kinematics.spec.q_min, kinematics.spec.q_max)
 
 
-def test_joint_space_metric_and_force_are_euler_lagrange_derivatives(kinematics):
+@pytest.mark.parametrize("activation", [np.inf, 1.0, 3.0])
+def test_joint_space_metric_and_force_are_euler_lagrange_derivatives(kinematics, activation):
     """The pulled fabric energy L(q, q̇) = Σ leaves + base: M = ∂²L/∂q̇², f_L = (∂²L/∂q̇∂q) q̇ − ∂L/∂q.
 
-    This checks the pullback, the pair Jacobians and the sign of J̇q̇ against the kinematics.
+    This checks the pullback, the pair Jacobians and the sign of J̇q̇ against the kinematics,
+    with and without the obstacle leaf's activation taper.
     """
-    fab = _fabric(kinematics)
+    fab = _fabric(kinematics, obstacle_activation=activation)
     spec = kinematics.spec
 
     def L(q, qd):  # every energy here is quadratic in ẋ, so L = H
@@ -185,9 +210,11 @@ def _drift(fab, kinematics, dt, T=0.8):
 
 
 def test_energized_fabric_conserves_energy_at_the_integrators_order(kinematics):
-    # Smooth variant (no s(ẋ) switches): RK4's 4th order must show as Δt halves.
+    # Smooth variant (no s(ẋ) switches, no activation taper: its (1 − (x/x_a)²)² is only C¹ at
+    # x_a, where RK4's order drops): RK4's 4th order must show as Δt halves.
     smooth = dataclasses.replace(
-        FabricGains(), obstacle=dataclasses.replace(OBSTACLE_DEFAULT, geometry_directional=False),
+        FabricGains(obstacle_activation=np.inf),
+        obstacle=dataclasses.replace(OBSTACLE_DEFAULT, geometry_directional=False),
         joint_limit=dataclasses.replace(LIMIT_DEFAULT, energy_directional=False))
     fab = Fabric(smooth, kinematics.spec.q_min, kinematics.spec.q_max)
     drifts = [_drift(fab, kinematics, dt) for dt in (0.04, 0.02, 0.01)]
@@ -204,10 +231,40 @@ def test_energized_fabric_conserves_energy_at_the_integrators_order(kinematics):
 
 
 def test_energized_default_fabric_conserves_energy(kinematics):
-    fab = _fabric(kinematics)
+    fab = _fabric(kinematics, obstacle_activation=np.inf)
     drifts = [_drift(fab, kinematics, dt) for dt in (0.04, 0.02, 0.01)]
     orders = np.log2(np.array(drifts[:-1]) / np.array(drifts[1:]))
     assert drifts[-1] < 1e-6 and np.all(orders > 3.0), (drifts, orders)
+
+
+def test_energized_fabric_with_the_activation_taper_conserves_energy_in_continuous_time(
+        kinematics):
+    """dH/dt = ∇H · (q̇, q̈) = 0 along the energized flow with the default taper (x_a = 1), at
+    states with obstacle pairs inside the taper's band 0 < x < x_a (finite differences of H
+    along the flow; the unenergized flow's dH/dt is not 0 there: the check is not vacuous)."""
+    fab = _fabric(kinematics)
+    assert fab.gains.obstacle_activation == 1.0
+    flow, free = _energized_flow(fab, kinematics), _energized_flow(fab, kinematics, False)
+    rng = np.random.default_rng(5)
+    tested = 0
+    for _ in range(200):
+        q = np.clip(Q0 + rng.normal(scale=0.3, size=7), kinematics.spec.q_min + 0.05,
+                    kinematics.spec.q_max - 0.05)
+        y = np.concatenate((q, rng.normal(scale=0.7, size=7)))
+        av = fab.avoidance(kinematics.evaluate(y[:7], y[7:]), y[:7], y[7:], *OBSTACLES)
+        band = av.barrier_x[:av.barrier_x.size - 14]  # the pair rows
+        if not np.any((band > 0.1) & (band < 0.9)) or av.n_clamped:
+            continue
+        h = 1e-6
+        rates = [(_energy(fab, kinematics, y + h * f(y)) - _energy(fab, kinematics, y - h * f(y)))
+                 / (2 * h) for f in (flow, free)]
+        H = _energy(fab, kinematics, y)
+        assert abs(rates[0]) < 1e-6 * H * np.abs(flow(y)).max()
+        assert abs(rates[1]) > 1e-3 * H
+        tested += 1
+        if tested == 5:
+            break
+    assert tested == 5
 
 
 def _arc_path(ys):
@@ -217,7 +274,7 @@ def _arc_path(ys):
 
 
 def test_energization_keeps_the_path_of_an_hd2_geometry(kinematics):
-    fab = _fabric(kinematics)
+    fab = _fabric(kinematics, obstacle_activation=np.inf)  # every obstacle bends this path
     paths = []
     for energized in (False, True):
         flow = _energized_flow(fab, kinematics, energized)

@@ -36,7 +36,7 @@ def _reference_avoidance(fab, st, q, qd, obs):
     n = q.shape[0]
     pairs = sphere_obstacle_pairs(st.sphere_centers, st.sphere_jacobians, st.sphere_jdqd,
                                   st.sphere_radii, qd, *obs, g.barrier_margin)
-    m, f, fl, H = barrier_leaf(pairs.x, pairs.xd, g.obstacle)
+    m, f, fl, H = barrier_leaf(pairs.x, pairs.xd, g.obstacle, g.obstacle_activation)
     M, F = pull_sphere_pairs(m, f + m * pairs.jdqd, fl + m * pairs.jdqd, pairs.u,
                              st.sphere_jacobians)
     energy = H.sum() + 0.5 * g.base_metric * qd @ qd
@@ -64,6 +64,7 @@ def _reference_avoidance(fab, st, q, qd, obs):
     {}, {"ground_enabled": True, "ground_height": 0.3},
     {"orientation_axes": (0, 2), "orientation_weight": 2.0, "goal_weight": 1.5},
     {"orientation_weight": 0.0},
+    {"obstacle_activation": 3.0},
 ])
 def test_fused_avoidance_and_evaluate_match_the_leaf_by_leaf_reference(kinematics, changes):
     gains = FabricGains(**changes)
@@ -136,7 +137,8 @@ def test_kinematic_states_own_their_arrays(kinematics):
 
 
 @pytest.mark.parametrize("changes", [{}, {"ground_enabled": True, "ground_height": 0.3},
-                                     {"obstacle": {"energy_exponent": 1.5}}])
+                                     {"obstacle": {"energy_exponent": 1.5}},
+                                     {"obstacle_activation": 3.0}])
 def test_many_pairs_path_matches_the_leaf_by_leaf_reference(kinematics, changes):
     """Above 256 rows the products are split by block and the pair powers x^{−p} are products
     of 1/x (integer exponents; np.power otherwise): the same metric, forces and energy."""

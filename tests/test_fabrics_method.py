@@ -46,10 +46,12 @@ def test_config_files_list_every_gain_at_its_default():
     assert FabricGains.from_mapping(cfg) == FabricGains()
     # numbers, not expression strings (the one option: which implementation computes them)
     assert not any(isinstance(v, str) for k, v in cfg.items() if k != "kernel")
-    # the reference planner's file differs only in its joint-limit leaf
+    # the reference planner's file differs only in its joint-limit leaf and the obstacle leaf's
+    # activation (none there)
     reference = FabricGains.from_mapping(load_group("fabric", "reference"))
-    assert dataclasses.replace(reference, joint_limit=FabricGains().joint_limit) == FabricGains()
-    assert reference.joint_limit == LIMIT_REFERENCE
+    assert dataclasses.replace(reference, joint_limit=FabricGains().joint_limit,
+                               obstacle_activation=1.0) == FabricGains()
+    assert reference.joint_limit == LIMIT_REFERENCE and reference.obstacle_activation == np.inf
 
 
 def test_method_config_composes_the_default_fabric(kinematics):

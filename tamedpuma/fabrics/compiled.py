@@ -84,16 +84,26 @@ def _power(x, e):
     return x ** e
 
 
-def _kernel(x, xd, negexp, gain, threshold, jd, W, T, Zb_hl):
-    """Fill W[:, :Rb], T and the design matrix's h and κ columns; return ½ Σ m ẋ²."""
+def _kernel(x, xd, negexp, gain, threshold, jd, W, T, Zb_hl, n_pairs, activation):
+    """Fill W[:, :Rb], T and the design matrix's h and κ columns; return ½ Σ m ẋ². The first
+    n_pairs rows (obstacle pairs) take the activation taper (fused.LayoutBuffers._taper_pairs;
+    activation = inf: untouched)."""
     energy = 0.0
     for r in range(x.shape[0]):
         xdr = xd[r]
         xd2 = xdr * xdr
         for c in range(3):
-            w = _power(x[r], negexp[c, r]) * gain[c, r] if xdr < threshold[c, r] else 0.0
-            W[c, r] = w
-            T[c, r] = w * xd2
+            W[c, r] = _power(x[r], negexp[c, r]) * gain[c, r] if xdr < threshold[c, r] else 0.0
+        if r < n_pairs and activation < np.inf:
+            t = 1.0 - (x[r] / activation) ** 2
+            if t > 0.0:
+                W[0, r] *= t * t
+                W[2, r] -= 2.0 * x[r] / (activation * activation * t)
+            else:
+                W[0, r] = 0.0
+                W[2, r] = 0.0
+        for c in range(3):
+            T[c, r] = W[c, r] * xd2
         energy += T[0, r]
         Zb_hl[0, r] = T[1, r] + jd[r]
         Zb_hl[1, r] = T[2, r] + jd[r]

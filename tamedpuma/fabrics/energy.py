@@ -25,22 +25,41 @@ import numpy as np
 from tamedpuma.fabrics.gains import BarrierGains, FabricGains
 
 
-def barrier_energy(x, xd, gains: BarrierGains):
-    """Energy ``L = k s(ẋ) ẋ²/x^p`` of a barrier leaf and its Euler-Lagrange terms, elementwise.
+def activation_taper(x, activation: float):
+    """Taper ``w(x) = (1 − (x/x_a)²)²`` for ``x < x_a``, 0 beyond, and ``w'(x)`` [1/task units].
+
+    x: (…) barrier distance [task units]; activation x_a > 0 (``inf``: ``w = 1``, ``w' = 0``
+    exactly). C¹ at x_a (w and w' both reach 0); flat at the barrier (``w = 1 − 2(x/x_a)² + …``,
+    ``w'(0) = 0``), so near an obstacle the leaf is the reference's. Returns ``(w, w')``.
+    """
+    x = np.asarray(x, dtype=float)
+    if not np.isfinite(activation):
+        return np.ones_like(x), np.zeros_like(x)
+    t = np.maximum(1.0 - (x / activation) ** 2, 0.0)
+    return t * t, (-4.0 / activation ** 2) * x * t
+
+
+def barrier_energy(x, xd, gains: BarrierGains, activation: float = np.inf):
+    """Energy ``L = k s(ẋ) w(x) ẋ²/x^p`` of a barrier leaf and its Euler-Lagrange terms.
 
     x: (…) distance to the barrier, > 0 [task units]; xd: (…) its rate ẋ [task units/s];
-    k = gains.energy_gain, p = gains.energy_exponent, s(ẋ) = [ẋ < 0] if gains.energy_directional.
-    Returns ``(L, M_L, f_L, H_L)`` with ``M_L = 2 k s / x^p``, ``f_L = −k p s ẋ²/x^{p+1}``,
-    ``H_L = k s ẋ²/x^p`` (s is piecewise constant, so it contributes no derivative).
+    k = gains.energy_gain, p = gains.energy_exponent, s(ẋ) = [ẋ < 0] if gains.energy_directional;
+    w: the activation taper of :func:`activation_taper` (``activation`` x_a; ``inf``: w = 1, the
+    reference's energy). Returns ``(L, M_L, f_L, H_L)`` with ``M_L = 2 k s w / x^p``,
+    ``f_L = ∂²L/∂ẋ∂x ẋ − ∂L/∂x = k s ẋ² (w' − p w/x)/x^p``, ``H_L = L`` (s is piecewise
+    constant, so it contributes no derivative). With x_a finite the leaf vanishes (metric, force
+    and energy) beyond x_a: far obstacles cost nothing, however many there are (issue 15).
     """
     x = np.asarray(x, dtype=float)
     xd = np.asarray(xd, dtype=float)
+    w, dw = activation_taper(x, activation)
     inv = gains.energy_gain * x ** (-gains.energy_exponent)
     if gains.energy_directional:
         inv = inv * (xd < 0)
     xd2 = xd * xd
-    lag = inv * xd2
-    return lag, 2.0 * inv, -gains.energy_exponent * lag / x, lag
+    lag = inv * w * xd2
+    force = inv * xd2 * (dw - gains.energy_exponent * w / x)
+    return lag, 2.0 * inv * w, force, lag
 
 
 def barrier_geometry(x, xd, gains: BarrierGains):
@@ -57,21 +76,27 @@ def barrier_geometry(x, xd, gains: BarrierGains):
     return h
 
 
-def barrier_leaf(x, xd, gains: BarrierGains):
+def barrier_leaf(x, xd, gains: BarrierGains, activation: float = np.inf):
     """Everything a barrier leaf contributes, in one pass, elementwise (scalar gains).
 
     Returns ``(m, f, f_L, H)``: leaf metric ``m = M_L`` (the energy's metric weighting the
-    geometry), geometry force ``f = M_L h`` (spec ``(M_L, M_L h)``), energy force f_L and energy H.
+    geometry), geometry force ``f = M_L h`` (spec ``(M_L, M_L h)``), energy force f_L and energy H
+    (energy with the activation taper of :func:`barrier_energy`).
     """
     xd2 = xd * xd
     inv = gains.energy_gain * x ** (-gains.energy_exponent)
     if gains.energy_directional:
         inv = inv * (xd < 0)
-    H = inv * xd2
-    m = 2.0 * inv
     hx = (-gains.geometry_gain) * xd2 * x ** (-gains.geometry_exponent)
     if gains.geometry_directional:
         hx = hx * (xd < 0)
+    if np.isfinite(activation):
+        w, dw = activation_taper(x, activation)
+        H = inv * w * xd2
+        m = 2.0 * inv * w
+        return m, m * hx, inv * xd2 * (dw - gains.energy_exponent * w / x), H
+    H = inv * xd2
+    m = 2.0 * inv
     return m, m * hx, (-gains.energy_exponent / x) * H, H
 
 

@@ -181,6 +181,10 @@ class LayoutBuffers:
         self.negexp, self.gain, self.threshold = kernel_constants(
             g, self.P, self.n, Rb - self.L)
         self.pair_powers = integer_powers(self.negexp, self.P) if self.split else None
+        xa = g.obstacle_activation
+        self.activation = float(xa) if np.isfinite(xa) and self.P else None
+        self.taper_t = np.empty(self.P)
+        self.taper_on = np.empty(self.P, dtype=bool)
         self.inv_x = np.empty(self.P)
         self.S = np.empty((3, Rb), dtype=bool)
         self.xd2 = np.empty(Rb)
@@ -336,7 +340,8 @@ class LayoutBuffers:
         Returns the energy ``Σ H = ½ Σ m ẋ²``."""
         if self.compiled:
             return self.compiled.kernel(self.x, self.xd, self.negexp, self.gain, self.threshold,
-                                   self.jd, self.Wb, self.T, self.Zb_hl)
+                                   self.jd, self.Wb, self.T, self.Zb_hl, self.P,
+                                   np.inf if self.activation is None else self.activation)
         x, xd = self.x, self.xd
         np.less(xd, self.threshold, out=self.S)  # s(ẋ)
         Wb = self.Wb
@@ -352,10 +357,30 @@ class LayoutBuffers:
                     row *= inv
         Wb *= self.gain
         Wb *= self.S  # Wb = [m, −k_h s_h x^{−p_h}, −p_L/(2x)]
+        if self.activation is not None:
+            self._taper_pairs()
         xd2 = np.multiply(xd, xd, out=self.xd2)
         np.multiply(Wb, xd2, out=self.T)  # [m ẋ² = 2H, h, κ]
         np.add(self.T12, self.jd, out=self.Zb_hl)
         return 0.5 * float(_sum(self.T0))
+
+    def _taper_pairs(self) -> None:
+        """The obstacle leaf's activation taper on the pair rows (energy.barrier_energy):
+        ``m ← w m`` and ``κ/ẋ² ← −p_L/(2x) + w'/(2w) = −p_L/(2x) − 2x/(x_a² t)`` with
+        ``w = t²``, ``t = 1 − (x/x_a)²`` below x_a; beyond it m = 0 and that column is 0."""
+        P, xa = self.P, self.activation
+        x = self.x[:P]
+        t = np.multiply(x, x, out=self.taper_t)
+        t *= -1.0 / (xa * xa)
+        t += 1.0
+        np.maximum(t, 0.0, out=t)
+        on = np.greater(t, 0.0, out=self.taper_on)
+        self.Wb[0, :P] *= t
+        self.Wb[0, :P] *= t
+        t *= -0.5 * xa * xa  # → −x_a² t / 2, so that x / that = −2x/(x_a² t)
+        np.divide(x, t, out=t, where=on)  # (0 where off: t was 0 there)
+        self.Wb[2, :P] += t
+        self.Wb[2, :P] *= on
 
     def goal_rows(self, state, qd, goal_position, goal_rotation, g: FabricGains, tx, tb,
                   weights):

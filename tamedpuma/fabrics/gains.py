@@ -68,6 +68,10 @@ class FabricGains:
 
     base_metric: m_b of the base energy ``L_b = ½ m_b ‖q̇‖²`` (metric m_b I) [1].
     obstacle, joint_limit, ground: barrier leaves (see :class:`BarrierGains`).
+    obstacle_activation: x_a of the obstacle leaf [1, in its x = ‖c_i − o_j‖/(r_i + r_j) − 1]:
+      the energy is ``L = k s w(x) ẋ²/x^p`` with the taper ``w = (1 − (x/x_a)²)²`` below x_a, 0
+      beyond (energy.activation_taper), so a pair's metric, forces and energy vanish beyond x_a
+      (C¹) and tend to the reference's as x → 0; ``inf``: no taper, the reference leaf.
     ground_enabled: add the ground-plane leaf ``x = c_{i,z} − r_i − ground_height`` [m] per
       body sphere.
     barrier_margin: a barrier distance below this is clamped up to it and counted [task units].
@@ -91,6 +95,7 @@ class FabricGains:
     obstacle: BarrierGains = OBSTACLE_DEFAULT
     joint_limit: BarrierGains = LIMIT_DEFAULT
     ground: BarrierGains = GROUND_DEFAULT
+    obstacle_activation: float = 1.0  # ours; the reference: inf (conf/fabric/default.yaml says why)
     ground_enabled: bool = False
     ground_height: float = 0.0
     barrier_margin: float = 1.0e-3
@@ -125,6 +130,9 @@ class FabricGains:
         for name in nonneg:
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"fabric.{name} must be >= 0, got {getattr(self, name)}")
+        if not self.obstacle_activation > 0:
+            raise ConfigError("fabric.obstacle_activation must be positive (inf: no taper), got "
+                              f"{self.obstacle_activation}")
         if self.goal_metric_max < self.goal_metric_min:
             raise ConfigError("fabric.goal_metric_max must be >= fabric.goal_metric_min")
         axes = tuple(int(a) for a in self.orientation_axes)
@@ -168,6 +176,8 @@ class FabricGains:
                 kwargs[key] = bool(value)
             elif key == "kernel":
                 kwargs[key] = str(value)
+            elif key == "obstacle_activation" and value is None:
+                kwargs[key] = float("inf")
             else:
                 try:
                     kwargs[key] = float(value)
@@ -179,4 +189,6 @@ class FabricGains:
         """Plain-dict form (the inverse of :meth:`from_mapping`)."""
         out = dataclasses.asdict(self)
         out["orientation_axes"] = list(self.orientation_axes)
+        if out["obstacle_activation"] == float("inf"):
+            out["obstacle_activation"] = None  # plain YAML/JSON; None reads back as inf
         return out
