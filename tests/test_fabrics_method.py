@@ -50,7 +50,7 @@ def test_config_files_list_every_gain_at_its_default():
     # activation (none there)
     reference = FabricGains.from_mapping(load_group("fabric", "reference"))
     assert dataclasses.replace(reference, joint_limit=FabricGains().joint_limit,
-                               obstacle_activation=1.0) == FabricGains()
+                               obstacle_activation=2.0) == FabricGains()
     assert reference.joint_limit == LIMIT_REFERENCE and reference.obstacle_activation == np.inf
 
 

@@ -95,7 +95,7 @@ class FabricGains:
     obstacle: BarrierGains = OBSTACLE_DEFAULT
     joint_limit: BarrierGains = LIMIT_DEFAULT
     ground: BarrierGains = GROUND_DEFAULT
-    obstacle_activation: float = 1.0  # ours; the reference: inf (conf/fabric/default.yaml says why)
+    obstacle_activation: float = 2.0  # ours; the reference: inf (conf/fabric/default.yaml says why)
     ground_enabled: bool = False
     ground_height: float = 0.0
     barrier_margin: float = 1.0e-3
