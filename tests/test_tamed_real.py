@@ -64,12 +64,8 @@ def _scenario(spec, task, obstacles):
 
 
 CASES = [("tomato", "shipped"),
-         pytest.param("tomato", "real", marks=pytest.mark.xfail(strict=False, reason=(
-             "known gap (README, issue 12): with the real-data tomato model built in session 7 "
-             "(sha256 2cb8ca976ad6) the default scenario's goal lies behind the obstacle as seen "
-             "from the arm: FPM rests 0.49 m short 1.7 cm from it (CPM arrives); with "
-             "forcing.priority=none FPM arrives and CPM rests 0.53 m short; with the session-6 "
-             "model both arrived"))),
+         ("tomato", "real"),  # with fabric.obstacle_activation (session 8); before: FPM rested
+                              # 0.49 m short behind the obstacle (model 2cb8ca976ad6)
          ("pouring", "real"),
          pytest.param("pouring", "shipped", marks=pytest.mark.xfail(strict=False, reason=(
              "known gap (README, issue 12): the shipped pouring model (synthetic data) starts "
