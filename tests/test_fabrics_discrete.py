@@ -125,3 +125,41 @@ def test_the_barrier_step_moves_away_from_an_obstacle_that_closes_in():
     w, _ = barrier_step(np.array([-1.0, 1.0]), squeezed, np.array([0.1, 0.1]), 0.02, 0.5, M,
                         drift=np.array([-5.0, -5.0]))
     assert np.all(np.isfinite(w)) and np.all(squeezed @ w >= -2.5 - 1e-9)
+
+
+@pytest.mark.parametrize("moving", [False, True])
+def test_far_pairs_left_out_of_the_barrier_step_give_the_same_step(kinematics, moving):
+    """Many obstacles: the pairs beyond the activation distance have no row (FarRows). The
+    step over the kept rows equals the step over every row, whether the far rows' bound holds
+    (the common case) or not (then the step is taken again over all rows); every far pair's
+    constraint holds at the answer."""
+    spec = kinematics.spec
+    fab = Fabric(FabricGains(), spec.q_min, spec.q_max)
+    rng = np.random.default_rng(21)
+    seen = {"bound": 0, "again": 0}
+    for trial in range(40):
+        q, qd = Q0 + rng.normal(scale=0.2, size=7), rng.normal(scale=0.5, size=7)
+        st = kinematics.evaluate(q, qd)
+        centers = rng.uniform([-0.9, -0.9, 0.0], [0.9, 0.9, 1.3], size=(300, 3))
+        centers[0] = st.sphere_centers[3] + [0.0, 0.0, 0.14]  # one pair close
+        vel = rng.normal(scale=0.3, size=(300, 3)) if moving else np.zeros((300, 3))
+        av = fab.avoidance(st, q, qd, centers, np.full(300, 0.05), vel)
+        assert av.far_rows is not None
+        f_rows, f_x, f_jd, f_drift = av.far_rows.rows()
+        rows = np.concatenate((av.barrier_rows, f_rows))
+        x, jd = np.concatenate((av.barrier_x, f_x)), np.concatenate((av.barrier_jdqd, f_jd))
+        drift = av.barrier_xd - av.barrier_rows @ qd
+        all_drift = np.concatenate((drift, f_drift)) if moving else None
+        dt = 0.02 if trial % 2 else 0.4  # 0.4 s: the far bound fails, the step is redone
+        v = rng.normal(scale=1.5, size=7)
+        full = barrier_step(v, rows, x, dt, 0.5, av.M, jd, all_drift)
+        w, active = barrier_step(v, av.barrier_rows, av.barrier_x, dt, 0.5, av.M,
+                                 av.barrier_jdqd, drift if moving else None, av.far_rows)
+        holds = av.far_rows.holds(v, dt, 0.5) and av.far_rows.holds(w, dt, 0.5)
+        seen["bound" if holds else "again"] += 1
+        np.testing.assert_allclose(w, full[0], rtol=1e-9, atol=1e-9)
+        assert active == full[1]
+        b = -0.5 * f_x / dt - 0.5 * dt * np.minimum(f_jd, 0.0)
+        if holds:  # the bound is sound: every far row holds at w, with and without drift
+            assert np.all(f_rows @ w >= b) and np.all(f_rows @ w + f_drift >= b)
+    assert seen["bound"] and seen["again"]

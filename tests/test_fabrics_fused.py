@@ -159,16 +159,35 @@ def test_many_pairs_path_matches_the_leaf_by_leaf_reference(kinematics, changes)
         np.testing.assert_allclose(av.f_energy, f_e, rtol=1e-11, atol=1e-11)
         assert av.energy == pytest.approx(energy, rel=1e-12)
         assert (av.n_clamped, av.n_limit_clamped) == (n_clamped, n_limit)
-        # barrier rows (pairs, then limits): Jacobian rows, so rows · q̇ = ẋ of each barrier
+        # barrier rows (the pairs below x_a, then limits): Jacobian rows, so rows · q̇ = ẋ of
+        # each barrier; the pairs at or beyond x_a (metric 0) are left out and built on demand
         k, P = st.sphere_centers.shape[0], st.sphere_centers.shape[0] * n_obs
-        assert av.barrier_rows.shape == (P + 14 + (k if gains.ground_enabled else 0), 7)
         pairs = sphere_obstacle_pairs(st.sphere_centers, st.sphere_jacobians, st.sphere_jdqd,
                                       st.sphere_radii, qd, *obs, gains.barrier_margin)
+        far = pairs.x.reshape(-1) >= gains.obstacle_activation
+        near = np.flatnonzero(~far)
+        Pa = near.size
+        assert (Pa < P) == bool(far.any()) == (av.far_rows is not None)
+        assert av.barrier_rows.shape == (Pa + 14 + (k if gains.ground_enabled else 0), 7)
         v_obs = np.tile(obs[2], (k, 1))  # pair (i, j) ↦ row i·m + j: obstacle j's velocity
         u = pairs.u.reshape(3, -1).T
-        np.testing.assert_allclose(av.barrier_rows[:P] @ qd - np.einsum("pd,pd->p", u, v_obs),
-                                   pairs.xd.reshape(-1), rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(av.barrier_rows[P:P + 14] @ qd, np.r_[qd, -qd], atol=1e-15)
+        drift = -np.einsum("pd,pd->p", u, v_obs)
+        np.testing.assert_allclose(av.barrier_rows[:Pa] @ qd + drift[near],
+                                   pairs.xd.reshape(-1)[near], rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(av.barrier_jdqd[:Pa], pairs.jdqd.reshape(-1)[near],
+                                   rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(av.barrier_rows[Pa:Pa + 14] @ qd, np.r_[qd, -qd], atol=1e-15)
+        if av.far_rows is not None:
+            rows, x, jd, f_drift = av.far_rows.rows()
+            np.testing.assert_allclose(x, pairs.x.reshape(-1)[far], rtol=1e-12)
+            np.testing.assert_allclose(rows @ qd + f_drift, pairs.xd.reshape(-1)[far],
+                                       rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(f_drift, drift[far], rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(jd, pairs.jdqd.reshape(-1)[far], rtol=1e-10, atol=1e-12)
+            # every left-out pair's clearance is at least the bound's
+            clear = pairs.clearance.reshape(k, -1)
+            floor = np.repeat(av.far_rows.clearance[:, None], n_obs, axis=1)
+            assert np.all(clear.reshape(-1)[far] >= floor.reshape(-1)[far] * (1 - 1e-12))
 
 
 def test_kernel_constants_give_the_barrier_leaf_and_integer_powers_only_for_integers():

@@ -34,7 +34,45 @@ numpy only.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
+
+
+@dataclass(frozen=True)
+class FarRows:
+    """Barrier rows left out of :func:`barrier_step` because they provably cannot be crossed
+    within one period: the sphere × obstacle pairs beyond the obstacle leaf's activation
+    distance, ``x = ‖d‖/R − 1 ≥ x_a`` (their metric is 0; the fabric builds no row for them).
+
+    Why a far pair is safe. Its row is ``a = νᵀJ_i/R`` (ν = d/‖d‖), its drift ``−νᵀȯ_j/R``
+    and its curvature ``J̇q̇ = (νᵀJ̇_iq̇ + (‖v‖² − (νᵀv)²)/‖d‖)/R ≥ −‖J̇_iq̇‖/R``
+    (Cauchy-Schwarz), so for a velocity w both of its constraints (with and without the drift)
+    ``a·w (+ drift) ≥ −κx/Δt − ½Δt min(J̇q̇, 0)`` hold when
+    ``Δt(‖J_i w‖ + ‖ȯ_j‖) + ½Δt²‖J̇_iq̇‖ ≤ κ x R = κ(‖d‖ − R)``, and ``x R ≥ x_a (r_i + r_min)``.
+    :meth:`holds` checks that per body sphere i with the largest obstacle speed.
+
+    clearance (k,) [m]: ``x_a (r_i + r_min)``, a lower bound of every left-out pair's clearance
+    ``‖d‖ − R`` of body sphere i; jacobians (k, 3, n): the spheres' linear Jacobians J_i;
+    jdqd_norm (k,) [m/s²]: ``‖J̇_i q̇‖``; obstacle_speed [m/s]: ``max_j ‖ȯ_j‖``; rows: returns
+    the left-out rows ``(rows (F, n), x (F,), J̇q̇ (F,), drift (F,))`` (drift: ``ẋ − a·q̇``)
+    when the bound does not hold.
+    """
+
+    clearance: np.ndarray
+    jacobians: np.ndarray
+    jdqd_norm: np.ndarray
+    obstacle_speed: float
+    rows: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+
+    def holds(self, w: np.ndarray, dt: float, kappa: float) -> bool:
+        """True when no left-out row can be violated at the velocity w (n,) [rad/s] (with or
+        without its drift; a relative slack of 1e-9 covers the rounding of the bound)."""
+        jw = self.jacobians @ w  # (k, 3): J_i w
+        speed = np.sqrt(np.einsum("kd,kd->k", jw, jw))
+        need = dt * (speed + self.obstacle_speed) + 0.5 * dt * dt * self.jdqd_norm
+        return bool(np.all(need * (1.0 + 1e-9) <= kappa * self.clearance))
 
 
 def limit_speed(qd_next: np.ndarray, qd_max: np.ndarray) -> tuple[np.ndarray, float]:
@@ -48,7 +86,8 @@ def limit_speed(qd_next: np.ndarray, qd_max: np.ndarray) -> tuple[np.ndarray, fl
 
 def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kappa: float,
                  M: np.ndarray, jdqd: np.ndarray | None = None,
-                 drift: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+                 drift: np.ndarray | None = None,
+                 far: FarRows | None = None) -> tuple[np.ndarray, int]:
     """Project the next velocity v (n,) [rad/s] onto ``{w : A w ≥ b}``,
     ``b = −κ x/Δt − ½ Δt min(J̇q̇, 0)``, in the metric M.
 
@@ -68,7 +107,27 @@ def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kapp
     for the residual r). Without drift feasible always: w = 0 is admissible since b ≤ 0. With
     a drift that closes a row in, w must move that row away; if that cannot be met together with
     every other row, the projection without the drift is returned.
+
+    far: rows left out of ``rows`` (:class:`FarRows`). The step is taken over ``rows``; if the
+    left-out rows provably hold at v and at the answer w (:meth:`FarRows.holds`), w is the
+    answer over all rows (each decision of the step and each projection is then the same:
+    a projection onto fewer half-spaces that meets the others is the projection onto all, and
+    the rows it leaves inactive do not count); otherwise the step is taken again over all rows.
     """
+    w, active = _step(v, rows, x, dt, kappa, M, jdqd, drift)
+    if far is None or (far.holds(v, dt, kappa) and (w is v or far.holds(w, dt, kappa))):
+        return w, active
+    f_rows, f_x, f_jd, f_drift = far.rows()  # the bound fails (rare): over every row
+    rows, x = np.concatenate((rows, f_rows)), np.concatenate((x, f_x))
+    if jdqd is not None:
+        jdqd = np.concatenate((jdqd, f_jd))
+    if drift is not None:
+        drift = np.concatenate((drift, f_drift))
+    return _step(v, rows, x, dt, kappa, M, jdqd, drift)
+
+
+def _step(v, rows, x, dt, kappa, M, jdqd, drift):
+    """:func:`barrier_step` over the given rows."""
     b = -kappa * x / dt
     if jdqd is not None:
         b = b - 0.5 * dt * np.minimum(jdqd, 0.0)

@@ -33,6 +33,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from tamedpuma.fabrics.discrete import FarRows
 from tamedpuma.fabrics.energy import attractor_blocks
 from tamedpuma.fabrics.fused import LayoutBuffers, orientation_maps
 from tamedpuma.fabrics.gains import FabricGains
@@ -62,7 +63,10 @@ class AvoidanceFabric:
     the row's drift), curvature J̇q̇ and metric m (``M = m_b I + Σ m_r a_r a_rᵀ``
     over these rows) (pairs, joint limits, ground; not the base rows), for the discrete-time
     barrier step and the directional forcing
-    (:func:`tamedpuma.fabrics.discrete.barrier_step`).
+    (:func:`tamedpuma.fabrics.discrete.barrier_step`). With many pairs, the pairs at or
+    beyond the obstacle leaf's activation distance (metric 0) have no row here: far_rows
+    (:class:`~tamedpuma.fabrics.discrete.FarRows`, else None) bounds them for the barrier step
+    and builds their rows on demand.
     """
 
     M: np.ndarray
@@ -77,6 +81,7 @@ class AvoidanceFabric:
     barrier_jdqd: np.ndarray | None = None
     barrier_metric: np.ndarray | None = None
     barrier_xd: np.ndarray | None = None
+    far_rows: FarRows | None = None
 
     @property
     def f(self) -> np.ndarray:
@@ -202,21 +207,23 @@ class Fabric:
         n = self._n
         clearance = float(_min(ws.clear_flat)) if ws.P else np.inf
         ground = ws.ground_clearance if ws.ground else np.inf
-        x = ws.x if ws.x_raw is None else ws.x_raw
-        head, tail = ws.barrier_blocks  # pairs and limits; ground rows (maybe none)
-        m, xd = ws.W[0], ws.xd
+        v = ws.views  # the rows in use (with many pairs: the pairs within x_a, then the rest)
+        x = v.x if ws.x_raw is None else ws.x_raw
+        head, tail = v.head, v.tail  # pairs and limits; ground rows (maybe none)
+        m, xd, jd = v.W0, v.xd, v.jd
         if ws.ground:
-            rows = np.concatenate((ws.Z[head, :n], ws.Z[tail, :n]))
-            x, jd = np.concatenate((x[head], x[tail])), np.concatenate((ws.jd[head], ws.jd[tail]))
+            rows = np.concatenate((v.Z[head, :n], v.Z[tail, :n]))
+            x, jd = np.concatenate((x[head], x[tail])), np.concatenate((jd[head], jd[tail]))
             m, xd = np.concatenate((m[head], m[tail])), np.concatenate((xd[head], xd[tail]))
         else:  # contiguous copies (a fancy index over 5000 rows costs 70 µs)
-            rows, x, jd = ws.Z[head, :n].copy(), x[head].copy(), ws.jd[head].copy()
+            rows, x, jd = v.Z[head, :n].copy(), x[head].copy(), jd[head].copy()
             m, xd = m[head].copy(), xd[head].copy()
         return AvoidanceFabric(M=mf[:, :n].copy(), forces=mf[:, n:].T.copy(), energy=energy,
                                min_clearance=clearance, ground_clearance=ground,
                                n_clamped=n_clamped, n_limit_clamped=n_limit,
                                barrier_rows=rows, barrier_x=x, barrier_jdqd=jd,
-                               barrier_metric=m, barrier_xd=xd)
+                               barrier_metric=m, barrier_xd=xd,
+                               far_rows=ws.far if v.lo else None)
 
     def forcing(self, state, qd, goal_position, goal_rotation) -> Forcing:
         """The goal attractor pulled into joint space (see :class:`Forcing`).
@@ -251,7 +258,8 @@ class Fabric:
                               self._weight_list)
         n = self._n
         if ws.compiled:  # the same three steps as below, compiled (fabrics.compiled)
-            ws.compiled.systems_solve(ws.Z, ws.W[0], ws.Rb, qd, ws.Ms, ws.dot_values)
+            v = ws.views
+            ws.compiled.systems_solve(v.Z, v.W0, ws.Rb - v.lo, qd, ws.Ms, ws.dot_values)
             dots = ws.dot_values
         else:
             ws.systems()  # Ms[0] = [M | f | f_L | …], Ms[1] = [M + M_ψ | f + f_ψ | …]

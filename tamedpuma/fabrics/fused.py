@@ -28,6 +28,13 @@ One matrix product therefore gives the metric and both pulled forces. Row blocks
   rows gives the unforced ``[M | f | f_L]``, the product over all rows the forced
   ``[M + M_ψ | f + f_ψ]`` (or, with many pairs, the goal rows' product added to the former).
 
+With many pairs and a finite activation distance x_a (``fabric.obstacle_activation``), only the
+pairs with ``x < x_a`` get rows (:func:`pair_rows_at`): a pair at ``x ≥ x_a`` has metric 0 and adds
+exactly 0 to M, f and f_L, so its Jacobian row, rate and curvature are never built. The active
+pairs are written to the *end* of the pair block, rows ``[lo, P)``, so that the rows in use,
+``[lo, R)``, stay one contiguous block of every buffer (:class:`RowViews`). Sums over fewer rows
+change the products' summation order only (rounding, ~1e-16 relative).
+
 A :class:`LayoutBuffers` holds the buffers and their views for one layout (k spheres, m obstacles);
 :class:`~tamedpuma.fabrics.fabric.Fabric` caches one per layout. Not thread-safe (one per Fabric).
 numpy only.
@@ -38,11 +45,13 @@ from __future__ import annotations
 import numpy as np
 
 from tamedpuma.fabrics import compiled
+from tamedpuma.fabrics.discrete import FarRows
 from tamedpuma.fabrics.energy import attractor_blocks
 from tamedpuma.fabrics.gains import FabricGains
 from tamedpuma.robot.rotations import SKEW_GENERATORS as _SKEW  # skew(v).ravel() = v @ _SKEW
 
-_min, _sum = np.minimum.reduce, np.add.reduce  # without the ndarray-method wrappers
+# without the ndarray-method wrappers
+_min, _max, _sum = np.minimum.reduce, np.maximum.reduce, np.add.reduce
 
 
 def orientation_maps(axes, offset: float) -> tuple[np.ndarray, np.ndarray]:
@@ -99,6 +108,56 @@ def integer_powers(negexp: np.ndarray, n_pairs: int) -> tuple[int, ...] | None:
     return None
 
 
+def pair_rows_at(d, inv_d, inv_r, si, oj, J, jdqd, Jq, ov):
+    """Rate, curvature and Jacobian row of the sphere × obstacle pairs ``(si[p], oj[p])`` from
+    their ``d = c_i − o_j`` (3, P'), ``1/‖d‖`` and ``1/R`` (P',) (as
+    :meth:`LayoutBuffers._pair_rows` for every pair): ``ẋ = dᵀv/(‖d‖R)``,
+    ``J̇q̇ = (dᵀa + ‖v‖² − (dᵀv/‖d‖)²)/(‖d‖R)``, rows ``(d/(‖d‖R))ᵀ J_i``, with
+    ``v = J_i q̇ − ȯ_j`` (Jq: the spheres' ``J_i q̇`` (k, 3)), ``a = J̇_i q̇``.
+    Returns fresh (ẋ (P',), J̇q̇ (P',), rows (P', n))."""
+    Y = np.empty((3,) + d.shape)
+    Y[0] = d
+    np.subtract(Jq.T[:, si], ov.T[:, oj], out=Y[1])
+    Y[2] = jdqd.T[:, si]
+    G = np.einsum("adp,bdp->abp", Y[:2], Y)  # d·d, d·v, d·a; v·d, v·v, v·a
+    w = inv_d * inv_r  # 1/(‖d‖R)
+    xd = G[0, 1] * w
+    s = G[0, 2] + G[1, 1]
+    t = G[0, 1] * inv_d
+    t *= t
+    s -= t
+    U = d * w  # u = ν/R
+    rows = np.einsum("cp,pcn->pn", U, J[si])
+    return xd, s * w, rows
+
+
+class RowViews:
+    """Views of the rows in use, ``[lo, R)`` (``lo = 0`` unless inactive pairs were left out,
+    see the module docstring), of every buffer the kernel and the products read and write:
+    ``x``, ``xd``, ``jd`` and the kernel arrays over ``[lo, Rb)``; ``Z``, ``C``, ``m_col`` over
+    ``[lo, R)``; ``n_pairs = P − lo``; ``head``, ``tail``: the pair-and-limit rows and the
+    ground rows, relative to lo."""
+
+    __slots__ = ("lo", "n_pairs", "x", "xd", "jd", "negexp", "gain", "threshold", "S", "Wb",
+                 "xd2", "T", "T0", "T12", "Zb_hl", "Z", "C", "m_col", "ZbT", "Cb", "W0",
+                 "head", "tail", "ZT", "C_sys")
+
+    def __init__(self, ws, lo: int):
+        P, L, Rb, n = ws.P, ws.L, ws.Rb, ws.n
+        self.lo, self.n_pairs = lo, P - lo
+        self.x, self.xd, self.jd = ws.x[lo:], ws.xd[lo:], ws.jd[lo:]
+        self.negexp, self.gain = ws.negexp[:, lo:], ws.gain[:, lo:]
+        self.threshold, self.S = ws.threshold[:, lo:], ws.S[:, lo:]
+        self.Wb, self.xd2, self.T = ws.Wb[:, lo:], ws.xd2[lo:], ws.T[:, lo:]
+        self.T0, self.T12 = self.T[0], self.T[1:]
+        self.Zb_hl = ws.Zb_hl[:, lo:]
+        self.Z, self.C, self.m_col = ws.Z[lo:], ws.C[lo:], ws.m_col[lo:]
+        self.ZbT, self.Cb = ws.ZbT[:, lo:], ws.Cb[lo:]
+        self.ZT, self.C_sys = ws.ZT[:, lo:], ws.C_sys[lo:]
+        self.W0 = ws.W[0][lo:]
+        self.head, self.tail = slice(0, P + 2 * n - lo), slice(L - lo, Rb - lo)
+
+
 class LayoutBuffers:
     """Buffers and views of one layout: k body spheres, m obstacles, n joints, K goal blocks,
     optional ground rows (see the module docstring for the row layout).
@@ -130,6 +189,18 @@ class LayoutBuffers:
         self._build_pair_scratch()
         self._build_goal_scratch()
         self._build_outputs()
+        self.views = self._views0 = RowViews(self, 0)
+        self._view_cache: dict[int, RowViews] = {0: self._views0}
+        self.far = None  # the left-out pairs of the last call (gathered layouts)
+
+    def _views_at(self, lo: int) -> RowViews:
+        """The :class:`RowViews` from row lo (cached; the active count changes slowly)."""
+        v = self._view_cache.get(lo)
+        if v is None:
+            if len(self._view_cache) > 64:
+                self._view_cache = {0: self._views0}
+            v = self._view_cache[lo] = RowViews(self, lo)
+        return v
 
     def _build_design_matrix(self) -> None:
         """``Z = [a | h + J̇q̇ | κ + J̇q̇]`` (R, n + 2) with its constant rows (limits ``±e_j``,
@@ -183,9 +254,12 @@ class LayoutBuffers:
         self.pair_powers = integer_powers(self.negexp, self.P) if self.split else None
         xa = g.obstacle_activation
         self.activation = float(xa) if np.isfinite(xa) and self.P else None
+        # many pairs and a finite x_a: rows only for the pairs with x < x_a (pair_rows_at)
+        self.gather = self.activation is not None and self.split
         self.taper_t = np.empty(self.P)
         self.taper_on = np.empty(self.P, dtype=bool)
         self.inv_x = np.empty(self.P)
+        self.far_mask = np.empty((self.k, self.m), dtype=bool)
         self.S = np.empty((3, Rb), dtype=bool)
         self.xd2 = np.empty(Rb)
         W = self.W = np.empty((3, self.R))
@@ -264,28 +338,78 @@ class LayoutBuffers:
 
     def barrier_rows(self, state, q, qd, obs_centers, obs_radii, obs_velocities,
                      g: FabricGains) -> tuple[int, int]:
-        """Fill x, ẋ, J̇q̇ and the Jacobian rows of the pairs, limits, base and ground rows.
+        """Fill x, ẋ, J̇q̇ and the Jacobian rows of the pairs, limits, base and ground rows
+        (gathered layouts: only the pairs with x < x_a, see :meth:`_gathered_pair_rows`) and
+        select their :class:`RowViews`.
 
         Returns ``(n_clamped, n_limit_clamped)`` (distances below the margin, clamped up to it).
         """
-        J = state.sphere_jacobians
-        if self.compiled:
-            self.compiled.pair_rows(state.sphere_centers, J, state.sphere_jdqd, state.sphere_radii,
-                               qd, obs_centers, obs_radii, obs_velocities, self.xp, self.xdp,
-                               self.jdp, self.Zp, self.clear)
+        lo = 0
+        if self.gather:
+            lo = self._gathered_pair_rows(state, qd, obs_centers, obs_radii, obs_velocities)
+        elif self.compiled:
+            self.compiled.pair_rows(state.sphere_centers, state.sphere_jacobians,
+                                    state.sphere_jdqd, state.sphere_radii, qd, obs_centers,
+                                    obs_radii, obs_velocities, self.xp, self.xdp, self.jdp,
+                                    self.Zp, self.clear)
         else:
             self._pair_rows(state, qd, obs_centers, obs_radii, obs_velocities)
+        v = self.views = self._views0 if lo == 0 else self._views_at(lo)
         self._other_rows(state, q, qd, g)
-        x, margin = self.x, g.barrier_margin
+        x, margin = v.x, g.barrier_margin
         n_limit = n_clamped = 0
         self.x_raw = None  # the distances before clamping (only kept when some are clamped)
         if _min(x) < margin:  # rare: penetration or a start on/past a limit
             self.x_raw = x.copy()
-            P, L, n = self.P, self.L, self.n
+            P, L, n = v.n_pairs, self.L - lo, self.n
             n_clamped = int(np.count_nonzero(x[:P] < margin) + np.count_nonzero(x[L:] < margin))
             n_limit = int(np.count_nonzero(x[P:L - n] < margin))  # not the base rows
             np.maximum(x, margin, out=x)
         return n_clamped, n_limit
+
+    def _gathered_pair_rows(self, state, qd, obs_centers, obs_radii, obs_velocities) -> int:
+        """Many pairs: every pair's distance x and clearance (one pass of a few calls), then
+        rate, curvature and Jacobian row of the active pairs only (``x < x_a``, or not finite:
+        NaN must reach the result) by :func:`pair_rows_at`, written to rows ``[lo, P)``.
+        Returns lo. The left-out pairs (``x ≥ x_a``: metric 0, no contribution to M, f, f_L)
+        are described by :attr:`far` (a :class:`~tamedpuma.fabrics.discrete.FarRows`) for the
+        control-rate barrier step. A non-finite obstacle velocity keeps every pair."""
+        P, m = self.P, self.m
+        d = self.d
+        np.subtract(state.sphere_centers.T[:, :, None], obs_centers.T[:, None, :], out=d)
+        dd = self.dd
+        np.einsum("dkm,dkm->km", d, d, out=dd)
+        np.maximum(dd, 1e-24, out=dd)
+        np.power(dd, -0.5, out=self.inv_d)  # 1/‖d‖ (as the full path: the same x, bit for bit)
+        np.multiply(dd, self.inv_d, out=self.dist)  # ‖d‖
+        np.add(state.sphere_radii[:, None], obs_radii, out=self.big_r)  # R = r_i + r_j
+        np.subtract(self.dist, self.big_r, out=self.clear)  # ‖d‖ − R (over d·d)
+        np.multiply(self.big_r, self.activation, out=self.s)  # x_a R
+        far = np.greater_equal(self.clear, self.s, out=self.far_mask)  # x ≥ x_a (NaN: kept)
+        speed2 = float(_max(np.einsum("jd,jd->j", obs_velocities, obs_velocities)))
+        if not np.isfinite(speed2):
+            far[...] = False
+        idx = np.flatnonzero(~far)
+        lo = P - idx.size
+        if idx.size:
+            si, oj = np.divmod(idx, m)
+            inv_d = self.inv_d.reshape(P)[idx]
+            big_r = self.big_r.reshape(P)[idx]
+            inv_r = np.divide(1.0, big_r)
+            np.multiply(self.clear.reshape(P)[idx], inv_r, out=self.x[lo:P])  # x = ‖d‖/R − 1
+            xd, jd, rows = pair_rows_at(self.d.reshape(3, P)[:, idx], inv_d, inv_r, si, oj,
+                                        state.sphere_jacobians, state.sphere_jdqd,
+                                        state.sphere_jacobians @ qd, obs_velocities)
+            self.xd[lo:P] = xd
+            self.jd[lo:P] = jd
+            self.Z[lo:P, :self.n] = rows
+        self.far = None if lo == 0 else FarRows(
+            clearance=self.activation * (state.sphere_radii + float(_min(obs_radii))),
+            jacobians=state.sphere_jacobians, jdqd_norm=np.sqrt(np.einsum(
+                "kd,kd->k", state.sphere_jdqd, state.sphere_jdqd)),
+            obstacle_speed=speed2 ** 0.5,
+            rows=_FarPairRows(state, qd, obs_centers, obs_radii, obs_velocities, far.copy()))
+        return lo
 
     def _pair_rows(self, state, qd, obs_centers, obs_radii, obs_velocities) -> None:
         """The sphere × obstacle pair rows: x, ẋ, J̇q̇, the clearances and the Jacobian rows
@@ -334,53 +458,62 @@ class LayoutBuffers:
             self.ground_clearance = float(self.x_gr.min())
 
     def barrier_kernel(self) -> float:
-        """Metric, geometry and energy columns of every barrier-like row (energy.barrier_leaf):
-        ``m = 2 k_L s_L x^{−p_L}``, ``h = −k_h s_h ẋ² x^{−p_h}``, ``κ = −p_L ẋ²/(2x)``, as
-        one power, two products with per-row constants and one product with ẋ² for all three.
-        Returns the energy ``Σ H = ½ Σ m ẋ²``."""
+        """Metric, geometry and energy columns of every barrier-like row in use
+        (energy.barrier_leaf): ``m = 2 k_L s_L x^{−p_L}``, ``h = −k_h s_h ẋ² x^{−p_h}``,
+        ``κ = −p_L ẋ²/(2x)``, as one power, two products with per-row constants and one
+        product with ẋ² for all three. Returns the energy ``Σ H = ½ Σ m ẋ²``."""
+        v = self.views
         if self.compiled:
-            return self.compiled.kernel(self.x, self.xd, self.negexp, self.gain, self.threshold,
-                                   self.jd, self.Wb, self.T, self.Zb_hl, self.P,
-                                   np.inf if self.activation is None else self.activation)
-        x, xd = self.x, self.xd
-        np.less(xd, self.threshold, out=self.S)  # s(ẋ)
-        Wb = self.Wb
-        if self.pair_powers is None:
-            np.power(x, self.negexp, out=Wb)
+            return self.compiled.kernel(v.x, v.xd, v.negexp, v.gain, v.threshold, v.jd, v.Wb,
+                                        v.T, v.Zb_hl, v.n_pairs,
+                                        np.inf if self.activation is None else self.activation)
+        x, xd, Wb = v.x, v.xd, v.Wb
+        np.less(xd, v.threshold, out=v.S)  # s(ẋ)
+        if self.pair_powers is None or v.n_pairs < 256:
+            np.power(x, v.negexp, out=Wb)
         else:  # many pairs: x^{−p} of the pair rows by products of 1/x (p small integers)
-            P = self.P
-            np.power(x[P:], self.negexp[:, P:], out=Wb[:, P:])
-            inv = np.divide(1.0, x[:P], out=self.inv_x)
+            P = v.n_pairs
+            np.power(x[P:], v.negexp[:, P:], out=Wb[:, P:])
+            inv = np.divide(1.0, x[:P], out=self.inv_x[:P])
             for row, p in zip(Wb[:, :P], self.pair_powers):
                 row[...] = inv if p else 1.0
                 for _ in range(p - 1):
                     row *= inv
-        Wb *= self.gain
-        Wb *= self.S  # Wb = [m, −k_h s_h x^{−p_h}, −p_L/(2x)]
-        if self.activation is not None:
-            self._taper_pairs()
-        xd2 = np.multiply(xd, xd, out=self.xd2)
-        np.multiply(Wb, xd2, out=self.T)  # [m ẋ² = 2H, h, κ]
-        np.add(self.T12, self.jd, out=self.Zb_hl)
-        return 0.5 * float(_sum(self.T0))
+        Wb *= v.gain
+        Wb *= v.S  # Wb = [m, −k_h s_h x^{−p_h}, −p_L/(2x)]
+        if self.activation is not None and v.n_pairs:
+            self._taper_pairs(x[:v.n_pairs], Wb[0, :v.n_pairs], Wb[2, :v.n_pairs])
+        xd2 = np.multiply(xd, xd, out=v.xd2)
+        np.multiply(Wb, xd2, out=v.T)  # [m ẋ² = 2H, h, κ]
+        np.add(v.T12, v.jd, out=v.Zb_hl)
+        return 0.5 * float(_sum(v.T0))
 
-    def _taper_pairs(self) -> None:
+    def _taper_pairs(self, x, m, kappa) -> None:
         """The obstacle leaf's activation taper on the pair rows (energy.barrier_energy):
         ``m ← w m`` and ``κ/ẋ² ← −p_L/(2x) + w'/(2w) = −p_L/(2x) − 2x/(x_a² t)`` with
-        ``w = t²``, ``t = 1 − (x/x_a)²`` below x_a; beyond it m = 0 and that column is 0."""
-        P, xa = self.P, self.activation
-        x = self.x[:P]
-        t = np.multiply(x, x, out=self.taper_t)
+        ``w = t²``, ``t = 1 − (x/x_a)²`` below x_a; beyond it m = 0 and that column is 0.
+        x, m, kappa: the pair rows' x and the kernel's m and κ/ẋ² rows (views). When every
+        pair is below x_a (always after the gathering of many pairs) the clamp and the mask are
+        skipped: the same values, three calls fewer."""
+        xa = self.activation
+        t = np.multiply(x, x, out=self.taper_t[:x.shape[0]])
         t *= -1.0 / (xa * xa)
         t += 1.0
+        if _min(t) > 0.0:  # every pair active
+            m *= t
+            m *= t
+            t *= -0.5 * xa * xa  # → −x_a² t / 2, so that x / that = −2x/(x_a² t)
+            np.divide(x, t, out=t)
+            kappa += t
+            return
         np.maximum(t, 0.0, out=t)
-        on = np.greater(t, 0.0, out=self.taper_on)
-        self.Wb[0, :P] *= t
-        self.Wb[0, :P] *= t
-        t *= -0.5 * xa * xa  # → −x_a² t / 2, so that x / that = −2x/(x_a² t)
+        on = np.greater(t, 0.0, out=self.taper_on[:x.shape[0]])
+        m *= t
+        m *= t
+        t *= -0.5 * xa * xa
         np.divide(x, t, out=t, where=on)  # (0 where off: t was 0 there)
-        self.Wb[2, :P] += t
-        self.Wb[2, :P] *= on
+        kappa += t
+        kappa *= on
 
     def goal_rows(self, state, qd, goal_position, goal_rotation, g: FabricGains, tx, tb,
                   weights):
@@ -423,16 +556,45 @@ class LayoutBuffers:
         return psi, r
 
     def systems(self) -> None:
-        """``Ms[0] = [M | f | f_L]`` (the fabric) and ``Ms[1, :, :n+1] = [M + M_ψ | f + f_ψ]``."""
-        np.multiply(self.m_col, self.Z, out=self.C)
-        np.matmul(self.ZbT, self.Cb, out=self.Mf0)
+        """``Ms[0] = [M | f | f_L]`` (the fabric) and ``Ms[1, :, :n+1] = [M + M_ψ | f + f_ψ]``
+        over the rows in use."""
+        v = self.views
+        np.multiply(v.m_col, v.Z, out=v.C)
+        np.matmul(v.ZbT, v.Cb, out=self.Mf0)
         if self.split:  # many pairs: add the goal product rather than redo the barrier one
             np.matmul(self.ZgT, self.Cg, out=self.Mf1)
             self.Mf1 += self.Mf0_sys
         else:  # few rows: one product over all rows (barrier, base and goal) is one call less
-            np.matmul(self.ZT, self.C_sys, out=self.Mf1)
+            np.matmul(v.ZT, v.C_sys, out=self.Mf1)
 
     def avoidance_system(self) -> np.ndarray:
-        """Fresh ``[M | f | f_L]`` (n, n + 2) of the fabric alone (barrier and base rows)."""
-        np.multiply(self.m_col[:self.Rb], self.Z[:self.Rb], out=self.Cb)
-        return self.ZbT @ self.Cb
+        """Fresh ``[M | f | f_L]`` (n, n + 2) of the fabric alone (barrier and base rows in
+        use)."""
+        v = self.views
+        np.multiply(v.m_col[:v.Cb.shape[0]], v.Z[:v.Cb.shape[0]], out=v.Cb)
+        return v.ZbT @ v.Cb
+
+
+class _FarPairRows:
+    """The left-out pairs' ``(rows, x, J̇q̇, drift = ẋ − a·q̇)``
+    (:class:`~tamedpuma.fabrics.discrete.FarRows`
+    ``.rows``), computed from the call's inputs only when asked (the barrier step's bound
+    failed), with :func:`pair_rows_at`; far: the (k, m) mask of the left-out pairs."""
+
+    __slots__ = ("state", "qd", "oc", "orad", "ov", "far")
+
+    def __init__(self, state, qd, oc, orad, ov, far):
+        self.state, self.qd, self.oc, self.orad, self.ov, self.far = state, qd, oc, orad, ov, far
+
+    def __call__(self):
+        st, m = self.state, self.oc.shape[0]
+        si, oj = np.divmod(np.flatnonzero(self.far), m)
+        d = st.sphere_centers.T[:, si] - self.oc.T[:, oj]
+        dist = np.sqrt(np.maximum(np.einsum("dp,dp->p", d, d), 1e-24))
+        inv_d = 1.0 / dist
+        big_r = st.sphere_radii[si] + self.orad[oj]
+        inv_r = 1.0 / big_r
+        x = (dist - big_r) * inv_r
+        xd, jd, rows = pair_rows_at(d, inv_d, inv_r, si, oj, st.sphere_jacobians,
+                                    st.sphere_jdqd, st.sphere_jacobians @ self.qd, self.ov)
+        return rows, x, jd, xd - rows @ self.qd
