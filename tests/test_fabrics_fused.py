@@ -216,3 +216,35 @@ def test_kernel_constants_give_the_barrier_leaf_and_integer_powers_only_for_inte
     assert integer_powers(negexp, 0) is None
     odd = FabricGains.from_mapping({"obstacle": {"energy_exponent": 1.5}})
     assert integer_powers(kernel_constants(odd, n_pairs, n, 0)[0], n_pairs) is None
+
+
+@pytest.mark.parametrize("where", ["all inside", "all beyond", "mixed"])
+def test_taper_branches_match_the_leaf_by_leaf_reference(kinematics, where):
+    """The taper's three cases (every pair below x_a, every pair at or beyond it, some of each)
+    give the reference's metric, forces and energy, at a few pairs and (gathered) at many."""
+    gains = FabricGains(obstacle_activation=50.0 if where == "all inside" else 2.0)
+    spec = kinematics.spec
+    fab = Fabric(gains, spec.q_min, spec.q_max)
+    rng = np.random.default_rng(17)
+    q, qd = Q0 + rng.normal(scale=0.1, size=7), rng.normal(size=7)
+    st = kinematics.evaluate(q, qd)
+    for n_obs in (2, 80):
+        radii = np.full(n_obs, 0.05)
+        dirs = rng.normal(size=(n_obs, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        dist = {"all inside": rng.uniform(0.2, 1.0, n_obs), "all beyond": rng.uniform(4, 6, n_obs),
+                "mixed": rng.uniform(0.12, 0.8, n_obs)}[where]
+        centers = st.sphere_centers[0] + dirs * dist[:, None]
+        obs = (centers, radii, rng.normal(scale=0.3, size=(n_obs, 3)))
+        x = (np.linalg.norm(st.sphere_centers[:, None] - centers[None], axis=-1)
+             / (spec.sphere_radii[:, None] + radii) - 1)
+        inside = x < gains.obstacle_activation
+        assert {"all inside": inside.all(), "all beyond": not inside.any(),
+                "mixed": inside.any() and not inside.all()}[where]
+        M, f, f_e, energy, _, n_clamped, n_limit = _reference_avoidance(fab, st, q, qd, obs)
+        av = fab.avoidance(st, q, qd, *obs)
+        np.testing.assert_allclose(av.M, M, rtol=1e-11, atol=1e-11)
+        np.testing.assert_allclose(av.f, f, rtol=1e-11, atol=1e-11)
+        np.testing.assert_allclose(av.f_energy, f_e, rtol=1e-11, atol=1e-11)
+        assert av.energy == pytest.approx(energy, rel=1e-12)
+        assert (av.n_clamped, av.n_limit_clamped) == (n_clamped, n_limit)

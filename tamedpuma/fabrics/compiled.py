@@ -70,6 +70,63 @@ def _pair_rows(centers, J, jdqd, radii, qd, oc, orad, ov, xp, xdp, jdp, Zp, clea
                 Zp[i, j, q] = u0 * J[i, 0, q] + u1 * J[i, 1, q] + u2 * J[i, 2, q]
 
 
+def _near_pair_rows(centers, J, jdqd, radii, qd, oc, orad, ov, activation, keep_all, x, xd,
+                    jd, Z, clear, far):
+    """The pair rows of the pairs within the activation distance only (fused.LayoutBuffers.
+    _gathered_pair_rows): every pair's clearance (k, m) and far mask ``‖d‖ − R ≥ x_a R``
+    (all False when keep_all), then x, ẋ, J̇q̇ and the Jacobian rows of the other pairs, in
+    pair order, written to rows ``[lo, P)`` of x, xd, jd and Z (R, n + 2). Returns lo."""
+    k, m, n = centers.shape[0], oc.shape[0], qd.shape[0]
+    count = 0
+    for i in range(k):
+        for j in range(m):
+            d0 = centers[i, 0] - oc[j, 0]
+            d1 = centers[i, 1] - oc[j, 1]
+            d2 = centers[i, 2] - oc[j, 2]
+            dd = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-24)
+            big_r = radii[i] + orad[j]
+            clr = dd * (1.0 / np.sqrt(dd)) - big_r
+            clear[i, j] = clr
+            f = clr >= activation * big_r and not keep_all
+            far[i, j] = f
+            if not f:
+                count += 1
+    lo = k * m - count
+    r = lo
+    v_s = np.empty(3)
+    for i in range(k):
+        for c in range(3):
+            acc = 0.0
+            for q in range(n):
+                acc += J[i, c, q] * qd[q]
+            v_s[c] = acc
+        for j in range(m):
+            if far[i, j]:
+                continue
+            d0 = centers[i, 0] - oc[j, 0]
+            d1 = centers[i, 1] - oc[j, 1]
+            d2 = centers[i, 2] - oc[j, 2]
+            v0 = v_s[0] - ov[j, 0]
+            v1 = v_s[1] - ov[j, 1]
+            v2 = v_s[2] - ov[j, 2]
+            dd = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-24)
+            dv = d0 * v0 + d1 * v1 + d2 * v2
+            da = d0 * jdqd[i, 0] + d1 * jdqd[i, 1] + d2 * jdqd[i, 2]
+            vv = v0 * v0 + v1 * v1 + v2 * v2
+            inv_d = 1.0 / np.sqrt(dd)
+            inv_r = 1.0 / (radii[i] + orad[j])
+            w = inv_d * inv_r
+            x[r] = clear[i, j] * inv_r
+            xd[r] = dv * w
+            t = dv * inv_d
+            jd[r] = (da + vv - t * t) * w
+            u0, u1, u2 = d0 * w, d1 * w, d2 * w
+            for q in range(n):
+                Z[r, q] = u0 * J[i, 0, q] + u1 * J[i, 1, q] + u2 * J[i, 2, q]
+            r += 1
+    return lo
+
+
 def _power(x, e):
     """``x**e``; for a small negative integer e (the usual barrier exponents) as products of
     ``1/x`` (``pow`` costs more than the rest of a kernel row)."""
@@ -217,7 +274,8 @@ def _systems_solve(Z, m, Rb, qd, Ms, dots):
 
 
 def kernels() -> SimpleNamespace:
-    """The compiled kernels ``pair_rows``, ``kernel``, ``goal_rows``, ``systems_solve`` (numba
+    """The compiled kernels ``pair_rows``, ``near_pair_rows``, ``kernel``, ``goal_rows``,
+    ``systems_solve`` (numba
     imported and the functions wrapped on the first call; each compiles on its first use, a few
     seconds, then is cached on disk next to this file)."""
     global _COMPILED
@@ -231,6 +289,7 @@ def kernels() -> SimpleNamespace:
         # _kernel calls _power: compiled, it must find the compiled one under that name
         globals()["_power"] = numba.njit(cache=True, inline="always")(_power)
         _COMPILED = SimpleNamespace(pair_rows=jit(_pair_rows), kernel=jit(_kernel),
+                                    near_pair_rows=jit(_near_pair_rows),
                                     goal_rows=jit(_goal_rows),
                                     systems_solve=jit(_systems_solve))
     return _COMPILED

@@ -374,6 +374,27 @@ class LayoutBuffers:
         Returns lo. The left-out pairs (``x ≥ x_a``: metric 0, no contribution to M, f, f_L)
         are described by :attr:`far` (a :class:`~tamedpuma.fabrics.discrete.FarRows`) for the
         control-rate barrier step. A non-finite obstacle velocity keeps every pair."""
+        speed2 = float(_max(np.einsum("jd,jd->j", obs_velocities, obs_velocities)))
+        if self.compiled:
+            lo = self.compiled.near_pair_rows(
+                state.sphere_centers, state.sphere_jacobians, state.sphere_jdqd,
+                state.sphere_radii, qd, obs_centers, obs_radii, obs_velocities, self.activation,
+                not np.isfinite(speed2), self.x, self.xd, self.jd, self.Z, self.clear,
+                self.far_mask)
+            far = self.far_mask
+        else:
+            lo, far = self._near_pair_rows(state, qd, obs_centers, obs_radii, obs_velocities,
+                                           speed2)
+        self.far = None if lo == 0 else FarRows(
+            clearance=self.activation * (state.sphere_radii + float(_min(obs_radii))),
+            jacobians=state.sphere_jacobians, jdqd_norm=np.sqrt(np.einsum(
+                "kd,kd->k", state.sphere_jdqd, state.sphere_jdqd)),
+            obstacle_speed=speed2 ** 0.5,
+            rows=_FarPairRows(state, qd, obs_centers, obs_radii, obs_velocities, far.copy()))
+        return lo
+
+    def _near_pair_rows(self, state, qd, obs_centers, obs_radii, obs_velocities, speed2):
+        """The numpy part of :meth:`_gathered_pair_rows`: returns (lo, the far mask)."""
         P, m = self.P, self.m
         d = self.d
         np.subtract(state.sphere_centers.T[:, :, None], obs_centers.T[:, None, :], out=d)
@@ -386,7 +407,6 @@ class LayoutBuffers:
         np.subtract(self.dist, self.big_r, out=self.clear)  # ‖d‖ − R (over d·d)
         np.multiply(self.big_r, self.activation, out=self.s)  # x_a R
         far = np.greater_equal(self.clear, self.s, out=self.far_mask)  # x ≥ x_a (NaN: kept)
-        speed2 = float(_max(np.einsum("jd,jd->j", obs_velocities, obs_velocities)))
         if not np.isfinite(speed2):
             far[...] = False
         idx = np.flatnonzero(~far)
@@ -403,13 +423,7 @@ class LayoutBuffers:
             self.xd[lo:P] = xd
             self.jd[lo:P] = jd
             self.Z[lo:P, :self.n] = rows
-        self.far = None if lo == 0 else FarRows(
-            clearance=self.activation * (state.sphere_radii + float(_min(obs_radii))),
-            jacobians=state.sphere_jacobians, jdqd_norm=np.sqrt(np.einsum(
-                "kd,kd->k", state.sphere_jdqd, state.sphere_jdqd)),
-            obstacle_speed=speed2 ** 0.5,
-            rows=_FarPairRows(state, qd, obs_centers, obs_radii, obs_velocities, far.copy()))
-        return lo
+        return lo, far
 
     def _pair_rows(self, state, qd, obs_centers, obs_radii, obs_velocities) -> None:
         """The sphere × obstacle pair rows: x, ẋ, J̇q̇, the clearances and the Jacobian rows
@@ -494,8 +508,13 @@ class LayoutBuffers:
         ``w = t²``, ``t = 1 − (x/x_a)²`` below x_a; beyond it m = 0 and that column is 0.
         x, m, kappa: the pair rows' x and the kernel's m and κ/ẋ² rows (views). When every
         pair is below x_a (always after the gathering of many pairs) the clamp and the mask are
-        skipped: the same values, three calls fewer."""
+        skipped: the same values, three calls fewer; when every pair is at or beyond x_a
+        (common with a few obstacles) m and κ are set to 0 in two calls."""
         xa = self.activation
+        if _min(x) >= xa:  # every pair inactive
+            m[...] = 0.0
+            kappa[...] = 0.0
+            return
         t = np.multiply(x, x, out=self.taper_t[:x.shape[0]])
         t *= -1.0 / (xa * xa)
         t += 1.0
