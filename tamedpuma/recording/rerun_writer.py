@@ -147,10 +147,14 @@ def frame_camera(points: np.ndarray, direction=EYE_DIRECTION, fov_y: float = RER
     pr, pu, pb = p @ r, p @ u, p @ b
     t_u = np.tan(fov_y / 2) / margin
     t_r = aspect * t_u
+    # x ± pad ∓ t δ = (x ± t p·b) ± pad ∓ t (d − pad): the extremes over the points do not
+    # depend on d, so each bisection step below is scalar arithmetic
+    ext = {id(x): (float(np.max(x + t * pb)), float(np.min(x - t * pb)))
+           for x, t in ((pr, t_r), (pu, t_u))}
 
     def interval(d: float, x: np.ndarray, t: float) -> tuple[float, float]:
-        delta = d - pb - pad
-        return float(np.max(x + pad - t * delta)), float(np.min(x - pad + t * delta))
+        hi, lo = ext[id(x)]
+        return hi + pad - t * (d - pad), lo - pad + t * (d - pad)
 
     def feasible(d: float) -> bool:
         lo_r, hi_r = interval(d, pr, t_r)
@@ -170,9 +174,12 @@ def frame_camera(points: np.ndarray, direction=EYE_DIRECTION, fov_y: float = RER
     return Camera(position=target + d * b, look_target=target)
 
 
+_AXES6 = np.vstack([np.eye(3), -np.eye(3)])  # ±x, ±y, ±z
+
+
 def scene_points(rec: StepRecord) -> np.ndarray:
     """Points a camera must see at one step: links, end effector, goal, obstacle extremes."""
-    r = rec.obstacle_radii[:, None, None] * np.vstack([np.eye(3), -np.eye(3)])[None]
+    r = rec.obstacle_radii[:, None, None] * _AXES6[None]
     obstacles = (rec.obstacle_centers[:, None, :] + r).reshape(-1, 3)
     return np.vstack([rec.link_positions, rec.ee_position, rec.goal_position, obstacles])
 
@@ -305,7 +312,7 @@ class RerunRecorder:
         self._root_index = None
         if Path(info.urdf_path).is_file():
             rec.log_file_from_path(info.urdf_path, entity_path_prefix="/world", static=True)
-            tree = UrdfTree.from_file_path(info.urdf_path)
+            tree = _urdf_tree(info.urdf_path)
             self._joints = [tree.get_joint_by_name(n) for n in info.joint_names]
             if any(j is None for j in self._joints):
                 missing = [n for n, j in zip(info.joint_names, self._joints) if j is None]
@@ -370,7 +377,7 @@ class RerunRecorder:
         if stream is None:
             return
         try:
-            self._send()
+            self._send(flush=False)  # flushed below, with the layout and the summary
             if self._last is not None:
                 self._points.append(scene_points(self._last))
             self._send_blueprint()
@@ -396,7 +403,7 @@ class RerunRecorder:
 
     # -- column-wise sending -----------------------------------------------------------------
 
-    def _send(self) -> None:
+    def _send(self, flush: bool = True) -> None:
         cols = self._columns
         if cols is None:
             return
@@ -447,7 +454,8 @@ class RerunRecorder:
         values = c["scalars"].astype(float)
         for j, name in enumerate(self._scalar_names):
             send(f"/metrics/{name}", rr.Scalars.columns(scalars=values[:, j]))
-        stream.flush()  # on disk before the next batch: a killed run loses only the buffer
+        if flush:  # on disk before the next batch: a killed run loses only the buffer
+            stream.flush()
 
     def _send_path(self, stream, steps, times) -> None:
         """EE path: strip b covers steps [b·B, (b+1)·B] (B = PATH_BLOCK), so strips join up and
@@ -481,6 +489,22 @@ class RerunRecorder:
                          rr.TimeColumn("time", duration=times[rows].tolist())],
                 columns=rr.LineStrips3D.columns(strips=strips))
         self._count += len(steps)
+
+
+_TREES: dict[tuple[str, int, int], UrdfTree] = {}
+
+
+def _urdf_tree(path: str) -> UrdfTree:
+    """The parsed URDF at ``path``, parsed once per file version (path, mtime, size): the tree
+    is only read (joints, root link, transforms), and parsing costs a few ms per episode."""
+    st = os.stat(path)
+    key = (os.fspath(path), st.st_mtime_ns, st.st_size)
+    tree = _TREES.get(key)
+    if tree is None:
+        if len(_TREES) > 8:
+            _TREES.clear()
+        tree = _TREES[key] = UrdfTree.from_file_path(path)
+    return tree
 
 
 class _Columns:
