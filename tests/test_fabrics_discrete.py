@@ -127,8 +127,9 @@ def test_the_barrier_step_moves_away_from_an_obstacle_that_closes_in():
     assert np.all(np.isfinite(w)) and np.all(squeezed @ w >= -2.5 - 1e-9)
 
 
-@pytest.mark.parametrize("moving", [False, True])
-def test_far_pairs_left_out_of_the_barrier_step_give_the_same_step(kinematics, moving):
+@pytest.mark.parametrize("moving,standoff", [(False, 0.0), (True, 0.0), (True, 1e-3)])
+def test_far_pairs_left_out_of_the_barrier_step_give_the_same_step(kinematics, moving,
+                                                                    standoff):
     """Many obstacles: the pairs beyond the activation distance have no row (FarRows). The
     step over the kept rows equals the step over every row, whether the far rows' bound holds
     (the common case) or not (then the step is taken again over all rows); every far pair's
@@ -152,14 +153,50 @@ def test_far_pairs_left_out_of_the_barrier_step_give_the_same_step(kinematics, m
         all_drift = np.concatenate((drift, f_drift)) if moving else None
         dt = 0.02 if trial % 2 else 0.4  # 0.4 s: the far bound fails, the step is redone
         v = rng.normal(scale=1.5, size=7)
-        full = barrier_step(v, rows, x, dt, 0.5, av.M, jd, all_drift)
+        full = barrier_step(v, rows, x, dt, 0.5, av.M, jd, all_drift, standoff=standoff)
         w, active = barrier_step(v, av.barrier_rows, av.barrier_x, dt, 0.5, av.M,
-                                 av.barrier_jdqd, drift if moving else None, av.far_rows)
-        holds = av.far_rows.holds(v, dt, 0.5) and av.far_rows.holds(w, dt, 0.5)
+                                 av.barrier_jdqd, drift if moving else None, av.far_rows,
+                                 standoff)
+        holds = (av.far_rows.holds(v, dt, 0.5, standoff)
+                 and av.far_rows.holds(w, dt, 0.5, standoff))
         seen["bound" if holds else "again"] += 1
         np.testing.assert_allclose(w, full[0], rtol=1e-9, atol=1e-9)
         assert active == full[1]
-        b = -0.5 * f_x / dt - 0.5 * dt * np.minimum(f_jd, 0.0)
+        b = -0.5 * (f_x - standoff) / dt - 0.5 * dt * np.minimum(f_jd, 0.0)
         if holds:  # the bound is sound: every far row holds at w, with and without drift
             assert np.all(f_rows @ w >= b) and np.all(f_rows @ w + f_drift >= b)
     assert seen["bound"] and seen["again"]
+
+
+def test_with_a_standoff_an_obstacle_that_keeps_closing_in_never_gets_the_distance_to_zero():
+    """A 1-d barrier x whose obstacle closes in at a constant rate (drift −0.2 /s), the arm's
+    own rate the projected w, x⁺ = x + Δt (w + drift) + a small second-order error that the
+    linearised constraint does not see (−1e-7 per step, the curvature of a real arm's rows):
+    with x_s = 0 the distance halves towards 0 every period and the error takes it past 0;
+    with a standoff x_s = 1e-3 it settles at ~x_s and never crosses."""
+    M, rows = np.eye(1), np.ones((1, 1))
+    lowest = {}
+    for standoff in (0.0, 1e-3):
+        x, w = 0.05, np.zeros(1)
+        low = x
+        for _ in range(400):
+            w, _ = barrier_step(w, rows, np.array([x]), 0.02, 0.5, M, drift=np.array([-0.2]),
+                                standoff=standoff)
+            x = x + 0.02 * (float(w[0]) - 0.2) - 1e-7
+            low = min(low, x)
+        lowest[standoff] = low
+    assert lowest[0.0] < 0.0
+    assert 0.5e-3 < lowest[1e-3] < 1.5e-3
+
+
+def test_control_rate_options_parse_and_bad_values_are_one_line_errors():
+    from tamedpuma.errors import ConfigError
+    from tamedpuma.methods._tamed import ControlRate
+
+    rate = ControlRate.from_mapping({"barrier_step": True, "braking_split": True,
+                                     "standoff": 1e-3})
+    assert rate.braking_split and rate.standoff == 1e-3 and rate.kappa == 0.5
+    for bad, match in (({"standoff": -1e-3}, "standoff"), ({"standoff": 0.5}, "standoff"),
+                       ({"kappa": 1.0}, "kappa"), ({"brake": True}, "unknown")):
+        with pytest.raises(ConfigError, match=match):
+            ControlRate.from_mapping(bad)

@@ -65,14 +65,18 @@ class FarRows:
     jdqd_norm: np.ndarray
     obstacle_speed: float
     rows: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+    activation: float = np.inf  # x_a: every left-out pair has x ≥ x_a
 
-    def holds(self, w: np.ndarray, dt: float, kappa: float) -> bool:
+    def holds(self, w: np.ndarray, dt: float, kappa: float, standoff: float = 0.0) -> bool:
         """True when no left-out row can be violated at the velocity w (n,) [rad/s] (with or
-        without its drift; a relative slack of 1e-9 covers the rounding of the bound)."""
+        without its drift; a relative slack of 1e-9 covers the rounding of the bound). With a
+        standoff x_s (:func:`barrier_step`) the bound uses ``(x − x_s) R ≥ x R (1 − x_s/x_a)``
+        for x ≥ x_a."""
         jw = self.jacobians @ w  # (k, 3): J_i w
         speed = np.sqrt(np.einsum("kd,kd->k", jw, jw))
         need = dt * (speed + self.obstacle_speed) + 0.5 * dt * dt * self.jdqd_norm
-        return bool(np.all(need * (1.0 + 1e-9) <= kappa * self.clearance))
+        room = 1.0 - standoff / self.activation if standoff else 1.0
+        return bool(np.all(need * (1.0 + 1e-9) <= kappa * room * self.clearance))
 
 
 def limit_speed(qd_next: np.ndarray, qd_max: np.ndarray) -> tuple[np.ndarray, float]:
@@ -87,9 +91,14 @@ def limit_speed(qd_next: np.ndarray, qd_max: np.ndarray) -> tuple[np.ndarray, fl
 def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kappa: float,
                  M: np.ndarray, jdqd: np.ndarray | None = None,
                  drift: np.ndarray | None = None,
-                 far: FarRows | None = None) -> tuple[np.ndarray, int]:
+                 far: FarRows | None = None, standoff: float = 0.0) -> tuple[np.ndarray, int]:
     """Project the next velocity v (n,) [rad/s] onto ``{w : A w ≥ b}``,
-    ``b = −κ x/Δt − ½ Δt min(J̇q̇, 0)``, in the metric M.
+    ``b = −κ (x − x_s)/Δt − ½ Δt min(J̇q̇, 0)``, in the metric M.
+
+    standoff x_s ≥ 0 (in the rows' units): the distance shrinks at most geometrically towards
+    x_s instead of towards 0, so that the linearisation's error (second order in Δt) cannot
+    take a barrier past 0 when a moving obstacle keeps closing in (random pouring 1021, FPM:
+    with x_s = 0 the arm rode the obstacle at x → 0 and crossed by 0.7 µm).
 
     rows A (R, n): barrier Jacobian rows ``∂x_p/∂q``; x (R,) barrier distances (in the rows'
     units; ≤ 0 past a barrier: then the row may not approach further); drift (R,): the part
@@ -114,8 +123,9 @@ def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kapp
     a projection onto fewer half-spaces that meets the others is the projection onto all, and
     the rows it leaves inactive do not count); otherwise the step is taken again over all rows.
     """
-    w, active = _step(v, rows, x, dt, kappa, M, jdqd, drift)
-    if far is None or (far.holds(v, dt, kappa) and (w is v or far.holds(w, dt, kappa))):
+    w, active = _step(v, rows, x, dt, kappa, M, jdqd, drift, standoff)
+    if far is None or (far.holds(v, dt, kappa, standoff)
+                       and (w is v or far.holds(w, dt, kappa, standoff))):
         return w, active
     f_rows, f_x, f_jd, f_drift = far.rows()  # the bound fails (rare): over every row
     rows, x = np.concatenate((rows, f_rows)), np.concatenate((x, f_x))
@@ -123,17 +133,18 @@ def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kapp
         jdqd = np.concatenate((jdqd, f_jd))
     if drift is not None:
         drift = np.concatenate((drift, f_drift))
-    return _step(v, rows, x, dt, kappa, M, jdqd, drift)
+    return _step(v, rows, x, dt, kappa, M, jdqd, drift, standoff)
 
 
-def _step(v, rows, x, dt, kappa, M, jdqd, drift):
+def _step(v, rows, x, dt, kappa, M, jdqd, drift, standoff=0.0):
     """:func:`barrier_step` over the given rows."""
-    b = -kappa * x / dt
+    b = -kappa * (x - standoff) / dt
     if jdqd is not None:
         b = b - 0.5 * dt * np.minimum(jdqd, 0.0)
-    # a row already past its barrier (x ≤ 0, e.g. a base sphere below the ground plane) must not
-    # approach further but is not asked to jump out: w = 0 stays admissible (always feasible)
-    past = x <= 0.0
+    # a row already at or past its standoff (x ≤ x_s, e.g. a base sphere below the ground plane)
+    # must not approach further but is not asked to jump out: w = 0 stays admissible (always
+    # feasible)
+    past = x <= standoff
     b_static = np.where(past, np.minimum(b, 0.0), b) if past.any() else b
     Av = rows @ v
     free = bool((Av >= b_static).all())  # the common case: nothing to project (one product)

@@ -390,7 +390,8 @@ class LayoutBuffers:
             jacobians=state.sphere_jacobians, jdqd_norm=np.sqrt(np.einsum(
                 "kd,kd->k", state.sphere_jdqd, state.sphere_jdqd)),
             obstacle_speed=speed2 ** 0.5,
-            rows=_FarPairRows(state, qd, obs_centers, obs_radii, obs_velocities, far.copy()))
+            rows=_FarPairRows(state, qd, obs_centers, obs_radii, obs_velocities, far.copy()),
+            activation=self.activation)
         return lo
 
     def _near_pair_rows(self, state, qd, obs_centers, obs_radii, obs_velocities, speed2):

@@ -210,6 +210,10 @@ class ControlRate:
     fraction of a barrier distance one period may use); speed_limit: scale the next velocity
     uniformly onto the joint velocity limits (direction kept) instead of leaving the per-joint
     clamp to the simulator; semi_implicit (FPM): take −α q̇ implicitly when it brakes;
+    braking_split (FPM, with semi_implicit): also take the geometry's own braking along q̇
+    beyond the α bound implicitly (:func:`braking_split`; CPM always does); standoff: the
+    barrier step lets a barrier distance shrink towards this value instead of 0 (in each row's
+    units: obstacle pairs in radius sums, joint limits in rad, ground in m);
     ground: add the body spheres' ground distances ``c_z − r − ground_height`` [m] (rows
     ``(J_i)_z``) to the barrier step only (no continuous ground leaf, whose metres-scaled barrier
     also blocked the tomato goal 4.5 cm above the table).
@@ -220,20 +224,25 @@ class ControlRate:
     kappa: float = 0.5
     speed_limit: bool = False
     semi_implicit: bool = False
+    braking_split: bool = False
+    standoff: float = 0.0
     ground: bool = False
     ground_height: float = 0.0
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> ControlRate:
         cfg = dict(cfg or {})
-        keys = {"barrier_step", "kappa", "speed_limit", "semi_implicit", "ground",
-                "ground_height"}
+        keys = {"barrier_step", "kappa", "speed_limit", "semi_implicit", "braking_split",
+                "standoff", "ground", "ground_height"}
         unknown = sorted(set(cfg) - keys)
         if unknown:
             raise ConfigError(f"unknown method.control_rate keys {unknown}")
         rate = ControlRate(**cfg)  # missing keys: the dataclass defaults
         if not 0.0 < rate.kappa < 1.0:
             raise ConfigError(f"method.control_rate.kappa must be in (0, 1), got {rate.kappa}")
+        if not 0.0 <= rate.standoff < 0.1:
+            raise ConfigError(f"method.control_rate.standoff must be in [0, 0.1), got "
+                              f"{rate.standoff}")
         return rate
 
     def next_velocity(self, qd_next, av, dt: float, qd_max, state=None,
@@ -254,7 +263,7 @@ class ControlRate:
                 if drift is not None:
                     drift = np.concatenate((drift, np.zeros(len(state.sphere_radii))))
             qd_next, n_active = barrier_step(qd_next, rows, x, dt, self.kappa, av.M, jd, drift,
-                                             getattr(av, "far_rows", None))
+                                             getattr(av, "far_rows", None), self.standoff)
         if self.speed_limit:
             qd_next, scale = limit_speed(qd_next, qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}

@@ -54,6 +54,7 @@ from tamedpuma.methods._tamed import (
     TamedController,
     alpha_floor,
     bounded_alpha,
+    braking_split,
     energization_alpha,
     fabric_scalars,
     puma_and_fabric,
@@ -71,7 +72,10 @@ class FpmController(TamedController):
         alpha_raw = energization_alpha(av, self.energy, qd, h,
                                        self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
-        if self.rate.semi_implicit:
+        if self.rate.semi_implicit and self.rate.braking_split:
+            a, c = braking_split(h + qdd_c, -alpha, qd, alpha_raw, alpha)
+            qd_next = implicit_velocity_step(qd, a, c, self.dt)
+        elif self.rate.semi_implicit:
             qd_next = implicit_velocity_step(qd, h + qdd_c, -alpha, self.dt)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
