@@ -67,11 +67,9 @@ CASES = [("tomato", "shipped"),
          ("tomato", "real"),  # with fabric.obstacle_activation (session 8); before: FPM rested
                               # 0.49 m short behind the obstacle (model 2cb8ca976ad6)
          ("pouring", "real"),
-         pytest.param("pouring", "shipped", marks=pytest.mark.xfail(strict=False, reason=(
-             "known gap (README, issue 12): the shipped pouring model (synthetic data) starts "
-             "2.3 rad off the goal orientation and PUMA alone runs into a joint limit; with "
-             "forcing.priority=position FPM then sweeps its joints through their range and "
-             "ends 0.9 m short (with priority=none it reaches the goal after 26 s)")))]
+         ("pouring", "shipped")]  # with FPM's braking_split (session 8); before: FPM swept
+                                  # its joints through their range and ended 0.9 m short
+
 
 
 @pytest.mark.parametrize("task,model", CASES)
