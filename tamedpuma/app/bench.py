@@ -707,14 +707,18 @@ def _profile(report: dict, method: str, n: int, top: int = 4) -> str:
 #: Why a target is out of reach where the profile alone does not say it.
 _WHY = {
     "fabrics": "All of it is kinematics plus the fused fabric: about 20 pinocchio and 60 numpy "
-               "calls of ~0.5 µs each at 2 obstacles; at 1000 obstacles ~40 passes over the "
-               "5000 pair rows (pair rows, barrier kernel, one product over all rows). "
-               "`fabrics+numba` compiles the pair rows and the kernel.",
+               "calls of ~0.5 µs each at 2 obstacles; at 1000 obstacles one pass of ~10 calls "
+               "over the 5000 pairs' distances, then rows, kernel and products of the pairs "
+               "within the activation distance x_a only (~2% of them on the bench's states: "
+               "`fused.LayoutBuffers._gathered_pair_rows`; the others have metric 0). "
+               "`fabrics+numba` compiles that pass, the kernel and the products.",
     "fpm": "Kinematics, fabric and network are the vanilla costs above; the rest is FPM's "
            "forcing since session 5 (PUMA's obstacle-free pull, the directional metric, the "
            "weighted pullback, since session 7 with the position priority: three LAPACK "
-           "solves instead of one, the control-rate barrier step over every barrier row), "
-           "each a few small-array numpy calls, or at 1000 obstacles a pass over 5000 rows. "
+           "solves instead of one, the control-rate barrier step over the barrier rows "
+           "within the activation distance, the far pairs bounded by `discrete.FarRows`), "
+           "each a few small-array numpy calls; at 1000 obstacles the fabric's pass over the "
+           "5000 pairs' distances. "
            "What is left at 2 obstacles is per-call overhead spread over ~290 function calls "
            "(cProfile; no part above the network's ~35 µs and the fabric's ~30 µs); the "
            "`+numba` variant compiles the fabric; a compiled network is the next candidate "
