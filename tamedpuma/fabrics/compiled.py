@@ -33,41 +33,56 @@ KERNELS = ("numpy", "numba")
 _COMPILED: SimpleNamespace | None = None
 
 
+def _sphere_velocity(J, qd, i, out):
+    """``out = J_i q̇`` (3,) [m/s] of body sphere i."""
+    for c in range(3):
+        acc = 0.0
+        for q in range(qd.shape[0]):
+            acc += J[i, c, q] * qd[q]
+        out[c] = acc
+
+
+def _clearance(centers, radii, oc, orad, i, j):
+    """``(‖d‖ − R, ‖d‖², R)`` of pair (i, j), ``d = c_i − o_j``, ``R = r_i + r_j`` [m]."""
+    d0 = centers[i, 0] - oc[j, 0]
+    d1 = centers[i, 1] - oc[j, 1]
+    d2 = centers[i, 2] - oc[j, 2]
+    dd = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-24)
+    big_r = radii[i] + orad[j]
+    return dd * (1.0 / np.sqrt(dd)) - big_r, dd, big_r
+
+
+def _pair_row(centers, J, jdqd, radii, oc, orad, ov, v_s, i, j, z):
+    """Pair (i, j) given the sphere's velocity v_s = J_i q̇: writes its Jacobian row
+    ``(d/(‖d‖R))ᵀ J_i`` into z (n,) and returns ``(clearance, x, ẋ, J̇q̇)``."""
+    clr, dd, big_r = _clearance(centers, radii, oc, orad, i, j)
+    d0 = centers[i, 0] - oc[j, 0]
+    d1 = centers[i, 1] - oc[j, 1]
+    d2 = centers[i, 2] - oc[j, 2]
+    v0 = v_s[0] - ov[j, 0]
+    v1 = v_s[1] - ov[j, 1]
+    v2 = v_s[2] - ov[j, 2]
+    dv = d0 * v0 + d1 * v1 + d2 * v2
+    da = d0 * jdqd[i, 0] + d1 * jdqd[i, 1] + d2 * jdqd[i, 2]
+    vv = v0 * v0 + v1 * v1 + v2 * v2
+    inv_d = 1.0 / np.sqrt(dd)
+    inv_r = 1.0 / big_r
+    w = inv_d * inv_r
+    t = dv * inv_d
+    u0, u1, u2 = d0 * w, d1 * w, d2 * w
+    for q in range(z.shape[0]):
+        z[q] = u0 * J[i, 0, q] + u1 * J[i, 1, q] + u2 * J[i, 2, q]
+    return clr, clr * inv_r, dv * w, (da + vv - t * t) * w
+
+
 def _pair_rows(centers, J, jdqd, radii, qd, oc, orad, ov, xp, xdp, jdp, Zp, clear):
     """Fill the pair rows in place: xp, xdp, jdp, clear (k, m) and Zp (k, m, n)."""
-    k, m, n = centers.shape[0], oc.shape[0], qd.shape[0]
     v_s = np.empty(3)
-    for i in range(k):
-        for c in range(3):
-            acc = 0.0
-            for q in range(n):
-                acc += J[i, c, q] * qd[q]
-            v_s[c] = acc
-        for j in range(m):
-            d0 = centers[i, 0] - oc[j, 0]
-            d1 = centers[i, 1] - oc[j, 1]
-            d2 = centers[i, 2] - oc[j, 2]
-            v0 = v_s[0] - ov[j, 0]
-            v1 = v_s[1] - ov[j, 1]
-            v2 = v_s[2] - ov[j, 2]
-            dd = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-24)
-            dv = d0 * v0 + d1 * v1 + d2 * v2
-            da = d0 * jdqd[i, 0] + d1 * jdqd[i, 1] + d2 * jdqd[i, 2]
-            vv = v0 * v0 + v1 * v1 + v2 * v2
-            inv_d = 1.0 / np.sqrt(dd)
-            dist = dd * inv_d
-            big_r = radii[i] + orad[j]
-            inv_r = 1.0 / big_r
-            w = inv_d * inv_r
-            clr = dist - big_r
-            clear[i, j] = clr
-            xp[i, j] = clr * inv_r
-            xdp[i, j] = dv * w
-            t = dv * inv_d
-            jdp[i, j] = (da + vv - t * t) * w
-            u0, u1, u2 = d0 * w, d1 * w, d2 * w
-            for q in range(n):
-                Zp[i, j, q] = u0 * J[i, 0, q] + u1 * J[i, 1, q] + u2 * J[i, 2, q]
+    for i in range(centers.shape[0]):
+        _sphere_velocity(J, qd, i, v_s)
+        for j in range(oc.shape[0]):
+            clear[i, j], xp[i, j], xdp[i, j], jdp[i, j] = _pair_row(
+                centers, J, jdqd, radii, oc, orad, ov, v_s, i, j, Zp[i, j])
 
 
 def _near_pair_rows(centers, J, jdqd, radii, qd, oc, orad, ov, activation, keep_all, x, xd,
@@ -80,12 +95,7 @@ def _near_pair_rows(centers, J, jdqd, radii, qd, oc, orad, ov, activation, keep_
     count = 0
     for i in range(k):
         for j in range(m):
-            d0 = centers[i, 0] - oc[j, 0]
-            d1 = centers[i, 1] - oc[j, 1]
-            d2 = centers[i, 2] - oc[j, 2]
-            dd = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-24)
-            big_r = radii[i] + orad[j]
-            clr = dd * (1.0 / np.sqrt(dd)) - big_r
+            clr, _, big_r = _clearance(centers, radii, oc, orad, i, j)
             clear[i, j] = clr
             f = clr >= activation * big_r and not keep_all
             far[i, j] = f
@@ -95,34 +105,12 @@ def _near_pair_rows(centers, J, jdqd, radii, qd, oc, orad, ov, activation, keep_
     r = lo
     v_s = np.empty(3)
     for i in range(k):
-        for c in range(3):
-            acc = 0.0
-            for q in range(n):
-                acc += J[i, c, q] * qd[q]
-            v_s[c] = acc
+        _sphere_velocity(J, qd, i, v_s)
         for j in range(m):
             if far[i, j]:
                 continue
-            d0 = centers[i, 0] - oc[j, 0]
-            d1 = centers[i, 1] - oc[j, 1]
-            d2 = centers[i, 2] - oc[j, 2]
-            v0 = v_s[0] - ov[j, 0]
-            v1 = v_s[1] - ov[j, 1]
-            v2 = v_s[2] - ov[j, 2]
-            dd = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-24)
-            dv = d0 * v0 + d1 * v1 + d2 * v2
-            da = d0 * jdqd[i, 0] + d1 * jdqd[i, 1] + d2 * jdqd[i, 2]
-            vv = v0 * v0 + v1 * v1 + v2 * v2
-            inv_d = 1.0 / np.sqrt(dd)
-            inv_r = 1.0 / (radii[i] + orad[j])
-            w = inv_d * inv_r
-            x[r] = clear[i, j] * inv_r
-            xd[r] = dv * w
-            t = dv * inv_d
-            jd[r] = (da + vv - t * t) * w
-            u0, u1, u2 = d0 * w, d1 * w, d2 * w
-            for q in range(n):
-                Z[r, q] = u0 * J[i, 0, q] + u1 * J[i, 1, q] + u2 * J[i, 2, q]
+            _, x[r], xd[r], jd[r] = _pair_row(centers, J, jdqd, radii, oc, orad, ov, v_s, i, j,
+                                              Z[r, :n])
             r += 1
     return lo
 
@@ -286,8 +274,11 @@ def kernels() -> SimpleNamespace:
         # input must reach the caller's check); results move by rounding only
         fast = {"reassoc", "contract"}
         jit = numba.njit(cache=True, nogil=True, fastmath=fast)
-        # _kernel calls _power: compiled, it must find the compiled one under that name
-        globals()["_power"] = numba.njit(cache=True, inline="always")(_power)
+        # the kernels call these helpers: compiled, they must find the compiled ones under
+        # those names
+        for helper in (_power, _sphere_velocity, _clearance, _pair_row):
+            globals()[helper.__name__] = numba.njit(cache=True, inline="always",
+                                                    fastmath=fast)(helper)
         _COMPILED = SimpleNamespace(pair_rows=jit(_pair_rows), kernel=jit(_kernel),
                                     near_pair_rows=jit(_near_pair_rows),
                                     goal_rows=jit(_goal_rows),

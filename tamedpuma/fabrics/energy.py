@@ -77,27 +77,14 @@ def barrier_geometry(x, xd, gains: BarrierGains):
 
 
 def barrier_leaf(x, xd, gains: BarrierGains, activation: float = np.inf):
-    """Everything a barrier leaf contributes, in one pass, elementwise (scalar gains).
-
-    Returns ``(m, f, f_L, H)``: leaf metric ``m = M_L`` (the energy's metric weighting the
-    geometry), geometry force ``f = M_L h`` (spec ``(M_L, M_L h)``), energy force f_L and energy H
-    (energy with the activation taper of :func:`barrier_energy`).
+    """Everything a barrier leaf contributes, elementwise (the readable reference of the fused
+    kernel): ``(m, f, f_L, H)`` with the leaf metric ``m = M_L`` (the energy's metric weighting
+    the geometry), geometry force ``f = M_L h`` (spec ``(M_L, M_L h)``), energy force f_L and
+    energy H, from :func:`barrier_energy` (with its activation taper) and
+    :func:`barrier_geometry`.
     """
-    xd2 = xd * xd
-    inv = gains.energy_gain * x ** (-gains.energy_exponent)
-    if gains.energy_directional:
-        inv = inv * (xd < 0)
-    hx = (-gains.geometry_gain) * xd2 * x ** (-gains.geometry_exponent)
-    if gains.geometry_directional:
-        hx = hx * (xd < 0)
-    if np.isfinite(activation):
-        w, dw = activation_taper(x, activation)
-        H = inv * w * xd2
-        m = 2.0 * inv * w
-        return m, m * hx, inv * xd2 * (dw - gains.energy_exponent * w / x), H
-    H = inv * xd2
-    m = 2.0 * inv
-    return m, m * hx, (-gains.energy_exponent / x) * H, H
+    _, m, f_energy, H = barrier_energy(x, xd, gains, activation)
+    return m, m * barrier_geometry(x, xd, gains), f_energy, H
 
 
 def base_energy(qd, gains: FabricGains):

@@ -519,21 +519,20 @@ class LayoutBuffers:
         t = np.multiply(x, x, out=self.taper_t[:x.shape[0]])
         t *= -1.0 / (xa * xa)
         t += 1.0
-        if _min(t) > 0.0:  # every pair active
-            m *= t
-            m *= t
-            t *= -0.5 * xa * xa  # → −x_a² t / 2, so that x / that = −2x/(x_a² t)
+        some_off = _min(t) <= 0.0  # else every pair active: no clamp, no mask
+        if some_off:
+            np.maximum(t, 0.0, out=t)
+            on = np.greater(t, 0.0, out=self.taper_on[:x.shape[0]])
+        m *= t
+        m *= t
+        t *= -0.5 * xa * xa  # → −x_a² t / 2, so that x / that = −2x/(x_a² t)
+        if some_off:
+            np.divide(x, t, out=t, where=on)  # (0 where off: t was 0 there)
+            kappa += t
+            kappa *= on
+        else:
             np.divide(x, t, out=t)
             kappa += t
-            return
-        np.maximum(t, 0.0, out=t)
-        on = np.greater(t, 0.0, out=self.taper_on[:x.shape[0]])
-        m *= t
-        m *= t
-        t *= -0.5 * xa * xa
-        np.divide(x, t, out=t, where=on)  # (0 where off: t was 0 there)
-        kappa += t
-        kappa *= on
 
     def goal_rows(self, state, qd, goal_position, goal_rotation, g: FabricGains, tx, tb,
                   weights):
