@@ -263,7 +263,7 @@ class ControlRate:
                 if drift is not None:
                     drift = np.concatenate((drift, np.zeros(len(state.sphere_radii))))
             qd_next, n_active = barrier_step(qd_next, rows, x, dt, self.kappa, av.M, jd, drift,
-                                             getattr(av, "far_rows", None), self.standoff)
+                                             av.far_rows, self.standoff)
         if self.speed_limit:
             qd_next, scale = limit_speed(qd_next, qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}

@@ -72,11 +72,11 @@ class FpmController(TamedController):
         alpha_raw = energization_alpha(av, self.energy, qd, h,
                                        self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
-        if self.rate.semi_implicit and self.rate.braking_split:
-            a, c = braking_split(h + qdd_c, -alpha, qd, alpha_raw, alpha)
+        if self.rate.semi_implicit:
+            a, c = h + qdd_c, -alpha
+            if self.rate.braking_split:
+                a, c = braking_split(a, c, qd, alpha_raw, alpha)
             qd_next = implicit_velocity_step(qd, a, c, self.dt)
-        elif self.rate.semi_implicit:
-            qd_next = implicit_velocity_step(qd, h + qdd_c, -alpha, self.dt)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
         qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, state,
