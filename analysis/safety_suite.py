@@ -69,12 +69,12 @@ def run_one(spec: dict) -> dict:
     task, kind, seed, method = spec["task"], spec["kind"], spec["seed"], spec["method"]
     if kind == "table1":  # seed = the Table-1 scenario number
         overrides = [f"task={task}", f"scenario={task}/{seed:02d}", f"method={method}",
-                     "recorder=none", f"without_obstacles={spec.get('free', False)}",
-                     *spec["set"]]
+                     "recorder=none", *spec["set"]]
     else:
         overrides = [f"task={task}", "scenario=random", f"scenario.random_seed={seed}",
                      f"scenario.start_kind={kind}", f"method={method}", "recorder=none",
                      *spec["set"]]
+    overrides.append(f"without_obstacles={spec.get('free', False)}")
     if spec["models"]:
         overrides.append(f"method.checkpoint={spec['models']}/{task}/puma.pt")
     cfg = OmegaConf.create(compose("sweep", overrides))
