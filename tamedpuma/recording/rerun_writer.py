@@ -149,16 +149,16 @@ def frame_camera(points: np.ndarray, direction=EYE_DIRECTION, fov_y: float = RER
     t_r = aspect * t_u
     # x ± pad ∓ t δ = (x ± t p·b) ± pad ∓ t (d − pad): the extremes over the points do not
     # depend on d, so each bisection step below is scalar arithmetic
-    ext = {id(x): (float(np.max(x + t * pb)), float(np.min(x - t * pb)))
-           for x, t in ((pr, t_r), (pu, t_u))}
+    right = (float(np.max(pr + t_r * pb)), float(np.min(pr - t_r * pb)), t_r)
+    up = (float(np.max(pu + t_u * pb)), float(np.min(pu - t_u * pb)), t_u)
 
-    def interval(d: float, x: np.ndarray, t: float) -> tuple[float, float]:
-        hi, lo = ext[id(x)]
+    def interval(d: float, axis: tuple[float, float, float]) -> tuple[float, float]:
+        hi, lo, t = axis
         return hi + pad - t * (d - pad), lo - pad + t * (d - pad)
 
     def feasible(d: float) -> bool:
-        lo_r, hi_r = interval(d, pr, t_r)
-        lo_u, hi_u = interval(d, pu, t_u)
+        lo_r, hi_r = interval(d, right)
+        lo_u, hi_u = interval(d, up)
         return lo_r <= hi_r and lo_u <= hi_u
 
     near, far = 0.0, 1.0
@@ -168,8 +168,8 @@ def frame_camera(points: np.ndarray, direction=EYE_DIRECTION, fov_y: float = RER
         mid = 0.5 * (near + far)
         near, far = (near, mid) if feasible(mid) else (mid, far)
     d = max(far, 0.5)
-    a = 0.5 * sum(interval(d, pr, t_r))
-    e = 0.5 * sum(interval(d, pu, t_u))
+    a = 0.5 * sum(interval(d, right))
+    e = 0.5 * sum(interval(d, up))
     target = centre + a * r + e * u
     return Camera(position=target + d * b, look_target=target)
 
