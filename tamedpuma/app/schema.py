@@ -376,6 +376,14 @@ class PumaMethod(MethodSchema):
     pinv_damping_max: float = 0.0     # λ_max of the singularity-robust inverse (0: constant λ₀)
     manipulability_threshold: float = 0.02  # w₀: λ grows below this manipulability
     goal_velocity: str = "ignore"     # feedforward: the primitive sees ṗ − v_g | ignore
+    orientation: str = "feedback"     # feedback: the primitive sees the hand's orientation |
+    #                                   reference: a reference it moves itself, which the hand
+    #                                   tracks (methods/_policy.py OrientationReference)
+    orientation_stiffness: float = 16.0  # k_p [1/s²] of the tracking (reference only)
+    orientation_damping: float = 8.0     # k_d [1/s]
+    orientation_max_acc: float = 3.0     # [rad/s²] the tracking term's largest norm
+    orientation_radius: float = 0.2      # [m] the reference runs on its own within this
+    #                                      distance of the goal (the hand's beyond)
     null_space: NullSpaceSchema | None = field(default_factory=NullSpaceSchema)
 
     def __post_init__(self):
@@ -385,6 +393,10 @@ class PumaMethod(MethodSchema):
         _positive("method.manipulability_threshold", self.manipulability_threshold)
         _check(self.goal_velocity in ("feedforward", "ignore"), "method.goal_velocity",
                "feedforward or ignore", self.goal_velocity)
+        _check(self.orientation in ("feedback", "reference"), "method.orientation",
+               "feedback or reference", self.orientation)
+        _nonneg("method.orientation_stiffness", self.orientation_stiffness)
+        _nonneg("method.orientation_damping", self.orientation_damping)
 
 
 @dataclass

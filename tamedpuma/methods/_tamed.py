@@ -20,6 +20,8 @@ from tamedpuma.methods._learned import load_task, null_objective
 from tamedpuma.methods._policy import (
     Damping,
     NullSpaceObjective,
+    OrientationReference,
+    PoseTask,
     TaskAcceleration,
     pull_through_metric,
     pull_to_joints,
@@ -41,7 +43,8 @@ class PumaController:
         self.feed_goal_velocity = feed_goal_velocity
 
     def reset(self, scenario: Scenario) -> None:
-        pass
+        if self.task.reference is not None:
+            self.task.reference.reset()
 
     def joint_acceleration(self, state, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         """(q̈_C, ẍ_d): the pulled PUMA acceleration at the observation (state = kinematics)."""
@@ -51,6 +54,10 @@ class PumaController:
     def task_and_null(self, state, obs: Observation):
         """(PUMA's TaskAcceleration, the secondary objective's q̈_null or None)."""
         vg = obs.goal_velocity if self.feed_goal_velocity else None
+        reference = self.task.reference
+        if reference is not None:
+            reference.sync(obs.t, state.ee_quaternion, state.ee_jacobian[3:] @ obs.qd,
+                           float(np.linalg.norm(state.ee_position - obs.goal_position)))
         task = self.task.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
         return task, null
@@ -60,7 +67,8 @@ class PumaController:
         objective): its pull towards the goal without its damping [rad/s²]."""
         vg = obs.goal_velocity if self.feed_goal_velocity else None
         rest = np.zeros_like(obs.qd)
-        task = self.task.acceleration(state, rest, obs.goal_position, obs.goal_quaternion, vg)
+        task = self.task.acceleration(state, rest, obs.goal_position, obs.goal_quaternion, vg,
+                                      at_rest=True)
         return pull_to_joints(TaskAcceleration(task.xdd, task.J, np.zeros_like(task.jdqd)),
                               self.damping)
 
@@ -166,7 +174,16 @@ def feed_goal_velocity(cfg: Mapping) -> bool:
 def pulled_puma(cfg: Mapping, kinematics) -> PumaController:
     """The pulled PUMA policy of a puma/fpm/cpm method config (checkpoint, pinv_damping and the
     singularity-robust rule, null_space, goal_velocity)."""
-    return PumaController(load_task(cfg), kinematics, damping_rule(cfg),
+    task = load_task(cfg)
+    mode = str(cfg["orientation"])
+    if mode not in ("feedback", "reference"):
+        raise ConfigError(f"method.orientation must be 'feedback' or 'reference', got {mode!r}")
+    if mode == "reference" and isinstance(task, PoseTask):
+        task.reference = OrientationReference(float(cfg["orientation_stiffness"]),
+                                              float(cfg["orientation_damping"]),
+                                              float(cfg["orientation_max_acc"]),
+                                              float(cfg["orientation_radius"]))
+    return PumaController(task, kinematics, damping_rule(cfg),
                           null_objective(cfg.get("null_space")), feed_goal_velocity(cfg))
 
 

@@ -1,6 +1,6 @@
 """Rotations, numpy only: quaternions (x, y, z, w) to and from matrices, their product,
-conjugate and relative rotation, the SO(3) log and exp maps, cross-product matrices, the angle
-between orientations, URDF roll-pitch-yaw.
+conjugate, one-quaternion exp and log, and relative rotation, the SO(3) log and exp maps,
+cross-product matrices, the angle between orientations, URDF roll-pitch-yaw.
 
 The only rotation module: shared by the IK, the fabrics' orientation attractor, the methods, the
 metrics, the body model, the scenario generators and PUMA's data preparation and numpy networks.
@@ -63,6 +63,26 @@ def relative_quat(quat, goal_quat) -> np.ndarray:
     g = g / np.linalg.norm(g, axis=-1, keepdims=True)
     g = g * np.array([-1.0, -1.0, -1.0, 1.0])
     return quat_mul(q, g)
+
+
+def quat_exp(theta: np.ndarray) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) of one rotation vector θ [rad] (3,) (numpy, one state: the
+    batched torch version is :func:`tamedpuma.puma.manifold.quat_exp`)."""
+    angle = float(np.linalg.norm(theta))
+    if angle < 1e-12:
+        return np.array([0.5 * theta[0], 0.5 * theta[1], 0.5 * theta[2], 1.0])
+    s = np.sin(0.5 * angle) / angle
+    return np.array([s * theta[0], s * theta[1], s * theta[2], np.cos(0.5 * angle)])
+
+
+def quat_log(q: np.ndarray) -> np.ndarray:
+    """Rotation vector θ [rad] (3,) of a unit quaternion (x, y, z, w), the shorter way
+    (|θ| ≤ π: q and −q give the same θ)."""
+    v, w = (q[:3], q[3]) if q[3] >= 0.0 else (-q[:3], -q[3])
+    n = float(np.linalg.norm(v))
+    if n < 1e-12:
+        return 2.0 * v
+    return (2.0 * np.arctan2(n, w) / n) * v
 
 
 def quat_angle(q: np.ndarray) -> np.ndarray:

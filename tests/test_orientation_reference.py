@@ -1,0 +1,122 @@
+"""PUMA's orientation as a reference state (``method.orientation: reference``,
+:class:`tamedpuma.methods._policy.OrientationReference`).
+
+A learned pose field's position part depends on the orientation it is evaluated at; with the
+hand's orientation held (joints on their limits) its equilibrium moves off the goal. The stand-in
+here has that coupling in closed form: ``a = k_p (p_g + C e − p) − k_d v``, ``α = k_r e − k_w ω``
+with ``e = log(R_g Rᵀ)``, so with e held the position rests at ``p_g + C e``.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tamedpuma.methods._policy import OrientationReference, PoseTask
+from tamedpuma.robot.rotations import quat_conj, quat_exp, quat_log, quat_mul
+
+GOAL_P = np.array([0.5, -0.2, 0.3])
+GOAL_Q = np.array([0.0, 0.0, 0.0, 1.0])
+COUPLING = np.array([[0.2, 0.0, 0.0], [0.0, -0.15, 0.05], [0.0, 0.0, 0.1]])  # C [m/rad]
+DT = 0.02
+
+
+class CoupledPose:
+    """A stable pose system whose position equilibrium depends on the orientation (see module)."""
+
+    kp, kd, kr, kw = 2.0, 3.0, 2.0, 3.0
+
+    def acceleration(self, p, quat, v, omega, goal_p, goal_quat):
+        e = quat_log(quat_mul(goal_quat, quat_conj(quat)))
+        a = self.kp * (np.asarray(goal_p) + COUPLING @ e - p) - self.kd * np.asarray(v)
+        return a, self.kr * e - self.kw * np.asarray(omega)
+
+
+def _state(p, quat):
+    """The hand as its own 6-joint task space: J = I (rows [v; ω]), J̇q̇ = 0."""
+    return SimpleNamespace(ee_position=np.asarray(p, float), ee_quaternion=np.asarray(quat, float),
+                           ee_jacobian=np.eye(6), ee_jdqd=np.zeros(6))
+
+
+def _roll(task, p, quat, steps, orientation_free=True):
+    """Integrate the hand under the task's acceleration (semi-implicit Euler, the exp map for
+    the orientation, as the reference itself); orientation_free False holds it where it is."""
+    v, w = np.zeros(3), np.zeros(3)
+    p, quat = np.array(p, float), np.array(quat, float)
+    for k in range(steps):
+        if task.reference is not None:
+            task.reference.sync(k * DT, quat, w, float(np.linalg.norm(p - GOAL_P)))
+        xdd = task.acceleration(_state(p, quat), np.concatenate([v, w]), GOAL_P, GOAL_Q).xdd
+        v = v + DT * xdd[:3]
+        p = p + DT * v
+        if orientation_free:
+            w = w + DT * xdd[3:]
+            quat = quat_mul(quat_exp(w * DT), quat)
+            quat = quat / np.linalg.norm(quat)
+    return p, quat
+
+
+START_Q = quat_exp(np.array([0.3, -0.4, 0.2]))  # 0.54 rad from the goal's orientation
+START_P = GOAL_P + np.array([0.3, 0.2, -0.1])
+
+
+def test_with_the_orientation_held_the_feedback_field_rests_off_the_goal_the_reference_reaches_it():
+    held_feedback, _ = _roll(PoseTask(CoupledPose()), START_P, START_Q, 2000,
+                             orientation_free=False)
+    e = quat_log(quat_mul(GOAL_Q, quat_conj(START_Q)))
+    np.testing.assert_allclose(held_feedback, GOAL_P + COUPLING @ e, atol=1e-4)
+    assert np.linalg.norm(held_feedback - GOAL_P) > 0.05
+    task = PoseTask(CoupledPose(), OrientationReference(16.0, 8.0, 3.0))
+    held_reference, _ = _roll(task, START_P, START_Q, 2000, orientation_free=False)
+    assert np.linalg.norm(held_reference - GOAL_P) < 1e-3
+    assert np.linalg.norm(quat_log(quat_mul(task.reference.quat, quat_conj(GOAL_Q)))) < 1e-3
+
+
+def test_where_the_hand_follows_the_reference_it_is_the_feedback_law():
+    p_fb, q_fb = _roll(PoseTask(CoupledPose()), START_P, START_Q, 300)
+    task = PoseTask(CoupledPose(), OrientationReference(16.0, 8.0, 3.0))
+    p_ref, q_ref = _roll(task, START_P, START_Q, 300)
+    np.testing.assert_allclose(p_ref, p_fb, atol=1e-9)
+    np.testing.assert_allclose(q_ref * np.sign(q_ref[3]), q_fb * np.sign(q_fb[3]), atol=1e-9)
+
+
+def test_beyond_its_radius_the_reference_is_the_hand():
+    ref = OrientationReference(16.0, 8.0, 3.0, radius=0.2)
+    quat, w = START_Q, np.array([0.1, 0.0, -0.2])
+    ref.sync(0.0, quat, w, distance=0.5)
+    ref.alpha = np.array([5.0, 5.0, 5.0])
+    ref.sync(0.02, quat, w, distance=0.5)  # far: reset to the hand, α not integrated
+    np.testing.assert_array_equal(ref.quat, quat)
+    np.testing.assert_array_equal(ref.omega, w)
+    np.testing.assert_array_equal(ref.tracking(quat, w), np.zeros(3))
+    ref.alpha = np.array([5.0, 5.0, 5.0])
+    ref.sync(0.04, quat, w, distance=0.1)  # near: integrated
+    np.testing.assert_allclose(ref.omega, w + 0.02 * 5.0)
+
+
+def test_the_tracking_acceleration_is_bounded_and_points_to_the_reference():
+    ref = OrientationReference(16.0, 8.0, max_acceleration=3.0)
+    ref.sync(0.0, GOAL_Q, np.zeros(3))
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        theta = rng.normal(size=3)
+        quat = quat_exp(theta)
+        acc = ref.tracking(quat, np.zeros(3))
+        assert np.linalg.norm(acc) <= 3.0 + 1e-12
+        err = quat_log(quat_mul(GOAL_Q, quat_conj(quat)))
+        assert acc @ err > 0
+
+
+@pytest.mark.parametrize("theta", [np.zeros(3), np.array([1e-13, 0, 0]),
+                                   np.array([0.3, -1.2, 0.5]), np.array([0.0, 0.0, 3.1])])
+def test_quaternion_exp_and_log_are_inverse(theta):
+    np.testing.assert_allclose(quat_log(quat_exp(theta)), theta, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(quat_exp(theta)), 1.0, atol=1e-15)
+    np.testing.assert_allclose(quat_log(-quat_exp(theta)), theta, atol=1e-12)
+    from tamedpuma.puma.manifold import np_quat_exp, np_quat_log  # the torch reference
+
+    np.testing.assert_allclose(quat_exp(theta), np_quat_exp(theta), atol=1e-15)
+    np.testing.assert_allclose(quat_log(quat_exp(theta)), np_quat_log(np_quat_exp(theta)),
+                               atol=1e-12)
