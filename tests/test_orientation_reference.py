@@ -46,9 +46,10 @@ def _roll(task, p, quat, steps, orientation_free=True):
     v, w = np.zeros(3), np.zeros(3)
     p, quat = np.array(p, float), np.array(quat, float)
     for k in range(steps):
+        state, qd = _state(p, quat), np.concatenate([v, w])
         if task.reference is not None:
-            task.reference.sync(k * DT, quat, w, float(np.linalg.norm(p - GOAL_P)))
-        xdd = task.acceleration(_state(p, quat), np.concatenate([v, w]), GOAL_P, GOAL_Q).xdd
+            task.reference.sync(k * DT, state, qd, GOAL_P)
+        xdd = task.acceleration(state, qd, GOAL_P, GOAL_Q).xdd
         v = v + DT * xdd[:3]
         p = p + DT * v
         if orientation_free:
@@ -82,23 +83,30 @@ def test_where_the_hand_follows_the_reference_it_is_the_feedback_law():
     np.testing.assert_allclose(q_ref * np.sign(q_ref[3]), q_fb * np.sign(q_fb[3]), atol=1e-9)
 
 
-def test_beyond_its_radius_the_reference_is_the_hand():
+def test_beyond_its_radius_the_reference_is_off_and_starts_from_the_hand_within_it():
     ref = OrientationReference(16.0, 8.0, 3.0, radius=0.2)
-    quat, w = START_Q, np.array([0.1, 0.0, -0.2])
-    ref.sync(0.0, quat, w, distance=0.5)
-    ref.alpha = np.array([5.0, 5.0, 5.0])
-    ref.sync(0.02, quat, w, distance=0.5)  # far: reset to the hand, α not integrated
-    np.testing.assert_array_equal(ref.quat, quat)
-    np.testing.assert_array_equal(ref.omega, w)
-    np.testing.assert_array_equal(ref.tracking(quat, w), np.zeros(3))
-    ref.alpha = np.array([5.0, 5.0, 5.0])
-    ref.sync(0.04, quat, w, distance=0.1)  # near: integrated
-    np.testing.assert_allclose(ref.omega, w + 0.02 * 5.0)
+    task, feedback = PoseTask(CoupledPose(), ref), PoseTask(CoupledPose())
+    qd = np.array([0.1, -0.2, 0.05, 0.1, 0.0, -0.2])
+    far = _state(GOAL_P + np.array([0.3, 0.0, 0.0]), START_Q)
+    ref.sync(0.0, far, qd, GOAL_P)
+    assert not ref.active  # the same computation as the feedback law, to the bit
+    np.testing.assert_array_equal(task.acceleration(far, qd, GOAL_P, GOAL_Q).xdd,
+                                  feedback.acceleration(far, qd, GOAL_P, GOAL_Q).xdd)
+    near = _state(GOAL_P + np.array([0.1, 0.0, 0.0]), START_Q)
+    ref.sync(0.02, near, qd, GOAL_P)  # comes on: the hand's orientation and angular velocity
+    assert ref.active
+    np.testing.assert_array_equal(ref.quat, START_Q)
+    np.testing.assert_array_equal(ref.omega, qd[3:])
+    alpha = task.acceleration(near, qd, GOAL_P, GOAL_Q).xdd[3:]
+    np.testing.assert_allclose(alpha, feedback.acceleration(near, qd, GOAL_P, GOAL_Q).xdd[3:],
+                               atol=1e-12)  # no tracking error yet
+    ref.sync(0.04, near, qd, GOAL_P)  # integrated with the kept α
+    np.testing.assert_allclose(ref.omega, qd[3:] + 0.02 * alpha)
 
 
 def test_the_tracking_acceleration_is_bounded_and_points_to_the_reference():
     ref = OrientationReference(16.0, 8.0, max_acceleration=3.0)
-    ref.sync(0.0, GOAL_Q, np.zeros(3))
+    ref.sync(0.0, _state(GOAL_P, GOAL_Q), np.zeros(6), GOAL_P)
     rng = np.random.default_rng(0)
     for _ in range(50):
         theta = rng.normal(size=3)

@@ -20,6 +20,7 @@ numpy only (the primitive may use torch inside).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,7 +48,8 @@ class OrientationReference:
         ω̇_d = α + sat_{a_max}(k_p log(ζ_r ζ⁻¹) + k_d (ω_r − ω))                  [rad/s²]
 
     (sat: the vector scaled down to the norm a_max where it is longer). Farther than ``radius``
-    from the goal the reference is the hand, ``(ζ_r, ω_r) = (ζ, ω)``: PUMA's feedback law.
+    from the goal it is off (PUMA's feedback law, the same computation); coming within the
+    radius it starts from the hand's ``(ζ, ω)``.
 
     Why. PUMA's position field depends on the orientation it is evaluated at, and its
     equilibrium is the goal *pose*: with the orientation held 0.47 rad from the goal's (joints 5
@@ -74,15 +76,20 @@ class OrientationReference:
     def reset(self) -> None:
         self.quat = self.omega = self.alpha = None
         self.t = None
+        self.active = False  # within the radius: the primitive sees the reference
 
-    def sync(self, t: float, quat: np.ndarray, omega: np.ndarray, distance: float = 0.0
-             ) -> None:
-        """At an observation at time t [s]: start from the hand's (ζ, ω) at the first one, and
-        whenever the hand is farther than ``radius`` [m] from the goal (distance); at a
-        later time integrate the reference over the elapsed time with the last α."""
-        if self.t is None or distance > self.radius:
-            self.quat, self.omega = np.array(quat, dtype=float), np.array(omega, dtype=float)
+    def sync(self, t: float, state: KinematicState, qd: np.ndarray,
+             goal_position: np.ndarray) -> None:
+        """At an observation at time t [s]: off farther than ``radius`` [m] from the goal; on
+        within it, starting from the hand's (ζ, ω) when it comes on, else integrated over the
+        elapsed time with the last α."""
+        if math.dist(state.ee_position, goal_position) > self.radius:
+            self.active = False
+        elif not self.active:
+            self.quat = np.array(state.ee_quaternion, dtype=float)
+            self.omega = state.ee_jacobian[3:] @ qd
             self.alpha = np.zeros(3)
+            self.active = True
         elif t > self.t:
             dt = t - self.t
             self.omega = self.omega + dt * self.alpha
@@ -104,7 +111,8 @@ class OrientationReference:
 class PoseTask:
     """End-effector pose (position and orientation) task for a pose primitive; m = 6 rows
     [v; ω] of the world-aligned frame Jacobian. reference: an :class:`OrientationReference`
-    the primitive sees instead of the hand's orientation (None: the hand's, PUMA's own law)."""
+    the primitive sees instead of the hand's orientation where it is on (None: the hand's,
+    PUMA's own law)."""
 
     def __init__(self, primitive, reference: OrientationReference | None = None):
         self.primitive = primitive
@@ -121,7 +129,7 @@ class PoseTask:
         twist = state.ee_jacobian @ qd
         v = twist[:3] if goal_velocity is None else twist[:3] - goal_velocity
         ref = self.reference
-        if ref is None:
+        if ref is None or not ref.active:
             a, alpha = self.primitive.acceleration(state.ee_position, state.ee_quaternion, v,
                                                    twist[3:], goal_position, goal_quaternion)
             return TaskAcceleration(np.concatenate([a, alpha]), state.ee_jacobian,

@@ -54,10 +54,8 @@ class PumaController:
     def task_and_null(self, state, obs: Observation):
         """(PUMA's TaskAcceleration, the secondary objective's q̈_null or None)."""
         vg = obs.goal_velocity if self.feed_goal_velocity else None
-        reference = self.task.reference
-        if reference is not None:
-            reference.sync(obs.t, state.ee_quaternion, state.ee_jacobian[3:] @ obs.qd,
-                           float(np.linalg.norm(state.ee_position - obs.goal_position)))
+        if self.task.reference is not None:
+            self.task.reference.sync(obs.t, state, obs.qd, obs.goal_position)
         task = self.task.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
         return task, null
