@@ -104,6 +104,19 @@ def test_beyond_its_radius_the_reference_is_off_and_starts_from_the_hand_within_
     np.testing.assert_allclose(ref.omega, qd[3:] + 0.02 * alpha)
 
 
+def test_near_an_obstacle_the_reference_is_off():
+    ref = OrientationReference(16.0, 8.0, 3.0, radius=0.2, clearance=0.1)
+    near_goal = _state(GOAL_P + np.array([0.1, 0.0, 0.0]), START_Q)
+    ref.sync(0.0, near_goal, np.zeros(6), GOAL_P, clearance=0.05)
+    assert not ref.active
+    ref.sync(0.02, near_goal, np.zeros(6), GOAL_P, clearance=0.15)
+    assert ref.active
+    ref.sync(0.04, near_goal, np.zeros(6), GOAL_P, clearance=0.09)
+    assert not ref.active
+    ref.sync(0.06, near_goal, np.zeros(6), GOAL_P)  # no obstacles: clearance inf
+    assert ref.active
+
+
 def test_the_tracking_acceleration_is_bounded_and_points_to_the_reference():
     ref = OrientationReference(16.0, 8.0, max_acceleration=3.0)
     ref.sync(0.0, _state(GOAL_P, GOAL_Q), np.zeros(6), GOAL_P)

@@ -382,6 +382,7 @@ class PumaMethod(MethodSchema):
     orientation_stiffness: float = 16.0  # k_p [1/s²] of the tracking (reference only)
     orientation_damping: float = 8.0     # k_d [1/s]
     orientation_max_acc: float = 3.0     # [rad/s²] the tracking term's largest norm
+    orientation_clearance: float = 0.0   # [m] and while every body sphere is this clear
     orientation_radius: float = 0.2      # [m] the reference runs on its own within this
     #                                      distance of the goal (the hand's beyond)
     null_space: NullSpaceSchema | None = field(default_factory=NullSpaceSchema)

@@ -48,8 +48,8 @@ class OrientationReference:
         ω̇_d = α + sat_{a_max}(k_p log(ζ_r ζ⁻¹) + k_d (ω_r − ω))                  [rad/s²]
 
     (sat: the vector scaled down to the norm a_max where it is longer). Farther than ``radius``
-    from the goal it is off (PUMA's feedback law, the same computation); coming within the
-    radius it starts from the hand's ``(ζ, ω)``.
+    from the goal, or with a body sphere within ``clearance`` of an obstacle, it is off (PUMA's
+    feedback law, the same computation); coming on it starts from the hand's ``(ζ, ω)``.
 
     Why. PUMA's position field depends on the orientation it is evaluated at, and its
     equilibrium is the goal *pose*: with the orientation held 0.47 rad from the goal's (joints 5
@@ -59,17 +59,21 @@ class OrientationReference:
     hand's position, so the position goes on to the goal where the joints cannot give the
     orientation (8 of the 10 such evaluation runs reached it). Where the hand follows the
     reference, ζ = ζ_r at every step and this is PUMA's feedback law unchanged
-    (tests/test_orientation_reference.py). Far from the goal the reference is off: behind an
-    obstacle a reference running on PUMA's field while the hand is held turned the hand up to
-    3 rad away (random pouring scenarios), and the saturation keeps an unreachable reference from
-    driving the joints at k_p times a large error.
-    k_p [1/s²], k_d [1/s]: tracking gains; max_acceleration a_max [rad/s²]; radius [m].
+    (tests/test_orientation_reference.py). Where obstacles hold the hand it is off: a
+    reference running on PUMA's field while the barriers hold the hand's position took it off
+    PUMA's own path (behind an obstacle far from the goal it turned the hand up to 3 rad away;
+    beside one near the goal, Table-1 pouring 8 and 12, the hand went out and back, 13 s longer
+    than with the feedback law). The saturation keeps an unreachable reference from driving the
+    joints at k_p times a large error.
+    k_p [1/s²], k_d [1/s]: tracking gains; max_acceleration a_max [rad/s²]; radius [m];
+    clearance [m].
     """
 
     def __init__(self, stiffness: float = 16.0, damping: float = 8.0,
-                 max_acceleration: float = np.inf, radius: float = np.inf):
+                 max_acceleration: float = np.inf, radius: float = np.inf,
+                 clearance: float = 0.0):
         self.stiffness, self.damping = float(stiffness), float(damping)
-        self.radius = float(radius)
+        self.radius, self.clearance = float(radius), float(clearance)
         self.max_acceleration = float(max_acceleration)
         self.reset()
 
@@ -79,11 +83,13 @@ class OrientationReference:
         self.active = False  # within the radius: the primitive sees the reference
 
     def sync(self, t: float, state: KinematicState, qd: np.ndarray,
-             goal_position: np.ndarray) -> None:
-        """At an observation at time t [s]: off farther than ``radius`` [m] from the goal; on
-        within it, starting from the hand's (ζ, ω) when it comes on, else integrated over the
-        elapsed time with the last α."""
-        if math.dist(state.ee_position, goal_position) > self.radius:
+             goal_position: np.ndarray, clearance: float = np.inf) -> None:
+        """At an observation at time t [s]: off farther than ``radius`` [m] from the goal or
+        with a body sphere closer than ``clearance`` [m] to an obstacle (clearance: the least
+        one now, inf without obstacles); on otherwise, starting from the hand's (ζ, ω) when it
+        comes on, else integrated over the elapsed time with the last α."""
+        if (math.dist(state.ee_position, goal_position) > self.radius
+                or clearance < self.clearance):
             self.active = False
         elif not self.active:
             self.quat = np.array(state.ee_quaternion, dtype=float)

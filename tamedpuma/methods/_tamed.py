@@ -51,11 +51,12 @@ class PumaController:
         task, null = self.task_and_null(state, obs)
         return pull_to_joints(task, self.damping, null), task.xdd
 
-    def task_and_null(self, state, obs: Observation):
-        """(PUMA's TaskAcceleration, the secondary objective's q̈_null or None)."""
+    def task_and_null(self, state, obs: Observation, clearance: float = np.inf):
+        """(PUMA's TaskAcceleration, the secondary objective's q̈_null or None); clearance [m]:
+        the body spheres' least clearance from the obstacles (the orientation reference's)."""
         vg = obs.goal_velocity if self.feed_goal_velocity else None
         if self.task.reference is not None:
-            self.task.reference.sync(obs.t, state, obs.qd, obs.goal_position)
+            self.task.reference.sync(obs.t, state, obs.qd, obs.goal_position, clearance)
         task = self.task.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
         return task, null
@@ -78,7 +79,7 @@ class PumaController:
         metric M (``metric``; :class:`Forcing`), with the tangent specs of ``circulation``
         (:mod:`tamedpuma.methods._circulation`) summed in when given."""
         if forcing.mode == "metric":
-            task, null = self.task_and_null(state, obs)
+            task, null = self.task_and_null(state, obs, av.min_clearance)
             extra, W = None, av.M
             if circulation is not None or forcing.directional:
                 qdd_free = pull_to_joints(task, self.damping, null)
@@ -180,7 +181,8 @@ def pulled_puma(cfg: Mapping, kinematics) -> PumaController:
         task.reference = OrientationReference(float(cfg["orientation_stiffness"]),
                                               float(cfg["orientation_damping"]),
                                               float(cfg["orientation_max_acc"]),
-                                              float(cfg["orientation_radius"]))
+                                              float(cfg["orientation_radius"]),
+                                              float(cfg["orientation_clearance"]))
     return PumaController(task, kinematics, damping_rule(cfg),
                           null_objective(cfg.get("null_space")), feed_goal_velocity(cfg))
 

@@ -33,6 +33,15 @@ Table 1"), and which of the paper's statements still holds with it:
   goal; with the priority the hand goes on along PUMA's position pull. ẍ_d = 0 still gives
   f_θ^C = the damped elbow term, so the statement above holds; the orientation is then left
   where the joints cannot give it (``orientation_success_*`` in the summary reports it).
+- ``orientation: reference`` (FPM's default; puma and cpm keep ``feedback``): within
+  ``orientation_radius`` of the goal the primitive sees a reference orientation it moves itself
+  and the hand tracks (:class:`~tamedpuma.methods._policy.OrientationReference`). PUMA's
+  position field rests only at the goal *pose*, so where joint limits hold the hand's
+  orientation off the goal's, the feedback field's position part rests short of the goal (16.7
+  cm in the measured case); at the reference, (p, ζ_r) is PUMA's own system and the position
+  goes on. Where the hand follows the reference this is the feedback law, so the statement
+  above holds; the closed loop gains the reference's state (ζ_r, ω_r), which PUMA itself
+  drives to the goal's.
 - ``energization: bounded`` (α ≥ −alpha_bound) only adds damping; ``control_rate`` filters only
   remove energy (:mod:`tamedpuma.fabrics.discrete`); ``limit_margin`` moves the joint-limit
   barriers inside the real limits.
