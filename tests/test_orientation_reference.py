@@ -124,7 +124,7 @@ def test_the_tracking_acceleration_is_bounded_and_points_to_the_reference():
     for _ in range(50):
         theta = rng.normal(size=3)
         quat = quat_exp(theta)
-        acc = ref.tracking(quat, np.zeros(3))
+        acc = ref.tracking(quat, np.zeros(3), ref.omega)
         assert np.linalg.norm(acc) <= 3.0 + 1e-12
         err = quat_log(quat_mul(GOAL_Q, quat_conj(quat)))
         assert acc @ err > 0

@@ -398,6 +398,9 @@ class PumaMethod(MethodSchema):
                "feedback or reference", self.orientation)
         _nonneg("method.orientation_stiffness", self.orientation_stiffness)
         _nonneg("method.orientation_damping", self.orientation_damping)
+        _positive("method.orientation_max_acc", self.orientation_max_acc)
+        _nonneg("method.orientation_clearance", self.orientation_clearance)
+        _positive("method.orientation_radius", self.orientation_radius)
 
 
 @dataclass

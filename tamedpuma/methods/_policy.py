@@ -57,7 +57,7 @@ class OrientationReference:
     the learned field alone comes to rest 16.7 cm from the goal, and the arm circled 7-19 cm from
     it for 40 s. Evaluated at the reference, (p, ζ_r) is PUMA's own system driven through the
     hand's position, so the position goes on to the goal where the joints cannot give the
-    orientation (8 of the 10 such evaluation runs reached it). Where the hand follows the
+    orientation (7 of the 10 such evaluation runs reached it). Where the hand follows the
     reference, ζ = ζ_r at every step and this is PUMA's feedback law unchanged
     (tests/test_orientation_reference.py). Where obstacles hold the hand it is off: a
     reference running on PUMA's field while the barriers hold the hand's position took it off
@@ -80,7 +80,7 @@ class OrientationReference:
     def reset(self) -> None:
         self.quat = self.omega = self.alpha = None
         self.t = None
-        self.active = False  # within the radius: the primitive sees the reference
+        self.active = False  # on: the primitive sees the reference (see sync)
 
     def sync(self, t: float, state: KinematicState, qd: np.ndarray,
              goal_position: np.ndarray, clearance: float = np.inf) -> None:
@@ -103,12 +103,11 @@ class OrientationReference:
             self.quat = q / np.linalg.norm(q)
         self.t = t
 
-    def tracking(self, quat: np.ndarray, omega: np.ndarray,
-                 omega_r: np.ndarray | None = None) -> np.ndarray:
-        """``sat(k_p log(ζ_r ζ⁻¹) + k_d (ω_r − ω))`` [rad/s²] (world frame); omega_r: the
-        reference's angular velocity (None: its own)."""
+    def tracking(self, quat: np.ndarray, omega: np.ndarray, omega_r: np.ndarray
+                 ) -> np.ndarray:
+        """``sat(k_p log(ζ_r ζ⁻¹) + k_d (ω_r − ω))`` [rad/s²] (world frame) for the hand's
+        (ζ, ω) and the reference's angular velocity ω_r (its own, or 0 for a what-if at rest)."""
         err = quat_log(quat_mul(self.quat, quat_conj(quat)))
-        omega_r = self.omega if omega_r is None else omega_r
         acc = self.stiffness * err + self.damping * (omega_r - omega)
         n = float(np.linalg.norm(acc))
         return acc if n <= self.max_acceleration else acc * (self.max_acceleration / n)

@@ -34,8 +34,9 @@ Table 1"), and which of the paper's statements still holds with it:
   f_θ^C = the damped elbow term, so the statement above holds; the orientation is then left
   where the joints cannot give it (``orientation_success_*`` in the summary reports it).
 - ``orientation: reference`` (FPM's default; puma and cpm keep ``feedback``): within
-  ``orientation_radius`` of the goal the primitive sees a reference orientation it moves itself
-  and the hand tracks (:class:`~tamedpuma.methods._policy.OrientationReference`). PUMA's
+  ``orientation_radius`` of the goal, while every body sphere is ``orientation_clearance`` clear
+  of the obstacles, the primitive sees a reference orientation it moves itself and the hand
+  tracks (:class:`~tamedpuma.methods._policy.OrientationReference`). PUMA's
   position field rests only at the goal *pose*, so where joint limits hold the hand's
   orientation off the goal's, the feedback field's position part rests short of the goal (16.7
   cm in the measured case); at the reference, (p, ζ_r) is PUMA's own system and the position
