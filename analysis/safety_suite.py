@@ -52,7 +52,8 @@ class _Tracker:
                           s["ground_contact"], abs(s.get("alpha", 0.0)),
                           float(np.max(np.abs(rec.qd) / self.qd_max)), float(cmd.max()),
                           float(np.linalg.norm(rec.qd)),
-                          float(np.min(rec.body_sphere_centers[:, 2] - self.radii))))
+                          float(np.min(rec.body_sphere_centers[:, 2] - self.radii)),
+                          s["orientation_error_rad"]))
 
     def close(self, complete, summary):
         pass
@@ -126,6 +127,9 @@ def run_one(spec: dict) -> dict:
             "limit_steps": int(limit.sum()), "alpha_max": float(a[:, 5].max()),
             "speed_ratio_max": float(a[:, 6].max()), "clamp_frac": float(np.mean(a[:, 7] > 1.0)),
             "steps": len(t), "wall_s": wall,
+            "end_at_limit": int(np.sum(np.minimum(q[-1] - robot.q_min, robot.q_max - q[-1])
+                                       < 0.05)),
+            "end_orientation_error": float(a[-1, 10]),
             "ms_mean": float(result.metrics.compute_ms_mean)}
 
 

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from tamedpuma.fabrics import Fabric, FabricGains
-from tamedpuma.fabrics.discrete import barrier_step, implicit_velocity_step, limit_speed
+from tamedpuma.fabrics.discrete import (
+    barrier_step,
+    geometry_damping,
+    implicit_velocity_step,
+    limit_speed,
+    linearly_implicit_step,
+)
 
 Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
 
@@ -200,3 +206,61 @@ def test_control_rate_options_parse_and_bad_values_are_one_line_errors():
                        ({"kappa": 1.0}, "kappa"), ({"brake": True}, "unknown")):
         with pytest.raises(ConfigError, match=match):
             ControlRate.from_mapping(bad)
+
+
+def test_the_linearly_implicit_step_is_the_implicit_step_without_geometry():
+    rng = np.random.default_rng(3)
+    M = _spd(rng, 7)
+    for c in (-30.0, -0.5, 0.0, 2.0):
+        qd, a = rng.normal(size=7), rng.normal(size=7)
+        np.testing.assert_allclose(linearly_implicit_step(qd, a, c, 0.02, M, None),
+                                   implicit_velocity_step(qd, a, c, 0.02), atol=1e-12)
+        np.testing.assert_allclose(linearly_implicit_step(qd, a, c, 0.02, M, np.zeros((7, 7))),
+                                   implicit_velocity_step(qd, a, c, 0.02), atol=1e-12)
+
+
+def _limit_fabric_at(q, qd):
+    """The joint-limit part of the default fabric (no obstacle) at (q, q̇) of a 7-joint arm."""
+    from types import SimpleNamespace
+
+    gains = FabricGains.from_mapping(None)
+    lim = np.full(7, 1.0)
+    state = SimpleNamespace(sphere_centers=np.zeros((0, 3)), sphere_radii=np.zeros(0),
+                            sphere_jacobians=np.zeros((0, 3, 7)), sphere_jdqd=np.zeros((0, 3)))
+    fabric = Fabric(gains, -lim, lim)
+    av = fabric.avoidance(state, q, qd, np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
+    return gains, av
+
+
+def test_geometry_damping_is_the_velocity_jacobian_of_the_limit_geometry():
+    """Every joint approaching its upper limit (1 rad): the geometry q̈ = −M⁻¹f changes with q̇
+    as −M⁻¹D_M (central differences), the joint-limit rows having no curvature term."""
+    q = np.array([0.9, 0.95, 0.8, 0.97, 0.85, 0.92, 0.99])
+    qd = np.array([0.3, 0.1, 0.5, 0.2, 0.4, 0.15, 0.05])
+    gains, av = _limit_fabric_at(q, qd)
+    D_M = geometry_damping(av.barrier_rows, av.barrier_x, av.barrier_xd, av.barrier_metric, 7,
+                           gains.obstacle, gains.joint_limit, gains.barrier_margin)
+    jac = np.empty((7, 7))
+    for i in range(7):
+        e = np.zeros(7)
+        e[i] = 1e-6
+        jac[:, i] = (_limit_fabric_at(q, qd + e)[1].acceleration()
+                     - _limit_fabric_at(q, qd - e)[1].acceleration()) / 2e-6
+    np.testing.assert_allclose(jac, -np.linalg.solve(av.M, D_M), rtol=1e-5, atol=1e-6)
+
+
+def test_a_stiff_barrier_geometry_is_braked_implicitly_never_reversed():
+    """A joint 0.01 rad from its limit at 0.5 rad/s: the explicit step of its geometry throws it
+    back at several times its speed; the linearly implicit step brakes it, never reverses it."""
+    q = np.array([0.99, 0, 0, 0, 0, 0, 0])
+    for speed in (0.05, 0.5, 2.0):
+        qd = np.array([speed, 0, 0, 0, 0, 0, 0])
+        gains, av = _limit_fabric_at(q, qd)
+        h = av.acceleration()
+        D_M = geometry_damping(av.barrier_rows, av.barrier_x, av.barrier_xd, av.barrier_metric,
+                               7, gains.obstacle, gains.joint_limit, gains.barrier_margin)
+        explicit = qd + 0.02 * h
+        implicit = linearly_implicit_step(qd, h, 0.0, 0.02, av.M, D_M)
+        if speed >= 0.5:
+            assert explicit[0] < -speed  # reversed and faster
+        assert 0.0 <= implicit[0] < speed

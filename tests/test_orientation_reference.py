@@ -141,3 +141,33 @@ def test_quaternion_exp_and_log_are_inverse(theta):
     np.testing.assert_allclose(quat_exp(theta), np_quat_exp(theta), atol=1e-15)
     np.testing.assert_allclose(quat_log(quat_exp(theta)), np_quat_log(np_quat_exp(theta)),
                                atol=1e-12)
+
+
+def test_on_a_leash_the_reference_stays_near_the_hand_and_still_frees_the_position():
+    """With the hand's orientation held 0.54 rad off, the free reference runs to the goal's
+    orientation; on a 0.3 rad leash it stays within 0.3 rad of the hand at every step, and the
+    position (which the coupled field would hold 0.08 m off) still comes closer to the goal than
+    with the feedback law, as the reference leans towards the goal's orientation."""
+    ref = OrientationReference(16.0, 8.0, 3.0, leash=0.3)
+    task = PoseTask(CoupledPose(), ref)
+    v, p = np.zeros(3), START_P.copy()
+    for k in range(2000):
+        state = _state(p, START_Q)
+        ref.sync(k * DT, state, np.zeros(6), GOAL_P)
+        angle = np.linalg.norm(quat_log(quat_mul(ref.quat, quat_conj(START_Q))))
+        assert angle <= 0.3 + 1e-9
+        v = v + DT * task.acceleration(state, np.concatenate([v, np.zeros(3)]), GOAL_P,
+                                       GOAL_Q).xdd[:3]
+        p = p + DT * v
+    held_feedback, _ = _roll(PoseTask(CoupledPose()), START_P, START_Q, 2000,
+                             orientation_free=False)
+    assert np.linalg.norm(p - GOAL_P) < 0.7 * np.linalg.norm(held_feedback - GOAL_P)
+    # the leash is reached and held: the reference is 0.3 rad from the hand, towards the goal
+    assert angle == pytest.approx(0.3, abs=1e-6)
+
+
+def test_a_leash_wider_than_the_error_changes_nothing():
+    free = PoseTask(CoupledPose(), OrientationReference(16.0, 8.0, 3.0))
+    leashed = PoseTask(CoupledPose(), OrientationReference(16.0, 8.0, 3.0, leash=3.0))
+    np.testing.assert_allclose(_roll(leashed, START_P, START_Q, 300)[0],
+                               _roll(free, START_P, START_Q, 300)[0], atol=1e-12)

@@ -383,6 +383,8 @@ class PumaMethod(MethodSchema):
     orientation_damping: float = 8.0     # k_d [1/s]
     orientation_max_acc: float = 3.0     # [rad/s²] the tracking term's largest norm
     orientation_clearance: float = 0.0   # [m] and while every body sphere is this clear
+    orientation_leash: float = math.inf  # [rad] the reference stays this close to the hand's
+    #                                      orientation (inf: free)
     orientation_radius: float = 0.2      # [m] the reference runs on its own within this
     #                                      distance of the goal (the hand's beyond)
     null_space: NullSpaceSchema | None = field(default_factory=NullSpaceSchema)
@@ -401,6 +403,8 @@ class PumaMethod(MethodSchema):
         _positive("method.orientation_max_acc", self.orientation_max_acc)
         _nonneg("method.orientation_clearance", self.orientation_clearance)
         _positive("method.orientation_radius", self.orientation_radius)
+        _check(isinstance(self.orientation_leash, (int, float)) and self.orientation_leash > 0,
+               "method.orientation_leash", "> 0 [rad] (.inf: no leash)", self.orientation_leash)
 
 
 @dataclass
@@ -441,6 +445,9 @@ class CpmMethod(FpmMethod):
     semi_implicit: bool = True       # take the q̇-proportional terms implicitly over Δt
     eps: float = 1.0e-6              # ε [(rad/s)²] of the regulator's denominator
     regulator_scale: float = 1.0     # factor on the ψ term (the paper: 1)
+    tank: float = 0.0                # energy tank capacity [rad²/s²] (0: off; methods/cpm.py
+    #                                  EnergyTank): FPM's law where the tank pays for it
+    tank_refill: float = 0.0         # σ ∈ [0, 1]: the share of surplus dissipation refilling it
 
     def __post_init__(self):
         super().__post_init__()
@@ -452,6 +459,9 @@ class CpmMethod(FpmMethod):
         _positive("method.potential_scale", self.potential_scale)
         _positive("method.eps", self.eps)
         _nonneg("method.regulator_scale", self.regulator_scale)
+        _nonneg("method.tank", self.tank)
+        _check(0.0 <= self.tank_refill <= 1.0, "method.tank_refill", "in [0, 1]",
+               self.tank_refill)
 
 
 @dataclass

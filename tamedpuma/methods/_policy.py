@@ -71,9 +71,10 @@ class OrientationReference:
 
     def __init__(self, stiffness: float = 16.0, damping: float = 8.0,
                  max_acceleration: float = np.inf, radius: float = np.inf,
-                 clearance: float = 0.0):
+                 clearance: float = 0.0, leash: float = np.inf):
         self.stiffness, self.damping = float(stiffness), float(damping)
         self.radius, self.clearance = float(radius), float(clearance)
+        self.leash = float(leash)
         self.max_acceleration = float(max_acceleration)
         self.reset()
 
@@ -101,7 +102,22 @@ class OrientationReference:
             self.omega = self.omega + dt * self.alpha
             q = quat_mul(quat_exp(self.omega * dt), self.quat)
             self.quat = q / np.linalg.norm(q)
+            if np.isfinite(self.leash):
+                self._hold_on_leash(np.asarray(state.ee_quaternion, dtype=float))
         self.t = t
+
+    def _hold_on_leash(self, hand: np.ndarray) -> None:
+        """Keep ζ_r within ``leash`` [rad] of the hand's ζ: beyond it ζ_r is moved back along
+        the geodesic to the leash, and ω_r loses its component away from the hand."""
+        err = quat_log(quat_mul(self.quat, quat_conj(hand)))  # ζ_r relative to ζ, rotation vector
+        angle = float(np.linalg.norm(err))
+        if angle <= self.leash:
+            return
+        u = err / angle
+        self.quat = quat_mul(quat_exp(self.leash * u), hand)
+        away = float(self.omega @ u)
+        if away > 0.0:
+            self.omega = self.omega - away * u
 
     def tracking(self, quat: np.ndarray, omega: np.ndarray, omega_r: np.ndarray
                  ) -> np.ndarray:

@@ -13,7 +13,12 @@ import numpy as np
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
-from tamedpuma.fabrics.discrete import barrier_step, limit_speed
+from tamedpuma.fabrics.discrete import (
+    barrier_step,
+    geometry_damping,
+    limit_speed,
+    linearly_implicit_step,
+)
 from tamedpuma.fabrics.energy import execution_alpha
 from tamedpuma.methods._circulation import Circulation
 from tamedpuma.methods._learned import load_task, null_objective
@@ -182,7 +187,8 @@ def pulled_puma(cfg: Mapping, kinematics) -> PumaController:
                                               float(cfg["orientation_damping"]),
                                               float(cfg["orientation_max_acc"]),
                                               float(cfg["orientation_radius"]),
-                                              float(cfg["orientation_clearance"]))
+                                              float(cfg["orientation_clearance"]),
+                                              float(cfg["orientation_leash"]))
     return PumaController(task, kinematics, damping_rule(cfg),
                           null_objective(cfg.get("null_space")), feed_goal_velocity(cfg))
 
@@ -245,12 +251,13 @@ class ControlRate:
     standoff: float = 0.0
     ground: bool = False
     ground_height: float = 0.0
+    implicit_geometry: bool = False
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> ControlRate:
         cfg = dict(cfg or {})
         keys = {"barrier_step", "kappa", "speed_limit", "semi_implicit", "braking_split",
-                "standoff", "ground", "ground_height"}
+                "standoff", "ground", "ground_height", "implicit_geometry"}
         unknown = sorted(set(cfg) - keys)
         if unknown:
             raise ConfigError(f"unknown method.control_rate keys {unknown}")
@@ -261,6 +268,18 @@ class ControlRate:
             raise ConfigError(f"method.control_rate.standoff must be in [0, 0.1), got "
                               f"{rate.standoff}")
         return rate
+
+    def velocity_step(self, qd: np.ndarray, a: np.ndarray, c: float, dt: float, av,
+                      gains) -> np.ndarray:
+        """q̇⁺ of ``q̈ = a + c q̇`` with ``c q̇`` implicit when c < 0 and, with
+        ``implicit_geometry``, the barrier geometries' braking too
+        (:func:`~tamedpuma.fabrics.discrete.linearly_implicit_step`)."""
+        D_M = None
+        if self.implicit_geometry:
+            D_M = geometry_damping(av.barrier_rows, av.barrier_x, av.barrier_xd,
+                                   av.barrier_metric, len(qd), gains.obstacle,
+                                   gains.joint_limit, gains.barrier_margin)
+        return linearly_implicit_step(qd, a, c, dt, av.M, D_M)
 
     def next_velocity(self, qd_next, av, dt: float, qd_max, state=None,
                       qd=None) -> tuple[np.ndarray, dict]:

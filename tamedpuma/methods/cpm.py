@@ -60,6 +60,16 @@ q̇⁺ = (q̇ + Δt a)/(1 − Δt c), a first-order step like the explicit one, 
 whenever |c| Δt > 1 and amplifies it beyond 2 (α ~ ‖a‖/‖q̇‖ is large at low speed; matched β
 reaches 100 /s): the arm chattered and moved by numerical noise rather than by the law.
 
+``tank`` κ (energy tank, :class:`EnergyTank`; 0: off): a passive system may only go where its
+energy lets it, so CPM stops at every local minimum of ψ on the free space, e.g. in front of an
+obstacle that is only passed by first moving away from the goal (random scenarios: most CPM
+stalls happened where FPM, from the same state, went round). The tank holds κ k_ψ ψ(q₀) at the
+start; wherever CPM's regulator would brake FPM's law ``energize[h] + f_θ^C`` the tank pays the
+energy that law needs, and CPM's law takes over where the tank is empty; a share σ
+(``tank_refill``) of the energy CPM dissipates beyond β q̇ᵀq̇ refills it. W = H + T still falls
+at least at β q̇ᵀq̇ and T is bounded, so the convergence argument above is unchanged; only the
+basin CPM ends in changes.
+
 ``variant: original`` reproduces the authors' public code instead, for comparison: no
 energization, β = 0, and the regulator scaled by 0.05: ``q̈ = h + f_θ^C − 0.05 (q̇q̇ᵀ/(q̇ᵀMq̇)) ∂ψ``
 (we keep ψ squared, at the current state, with the correct quaternion Jacobian: those were bugs).
@@ -72,6 +82,7 @@ H_{L_e}, or ½‖q̇‖² with ``energy: execution``), ``alpha``, ``beta``, ``mi
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -90,9 +101,60 @@ from tamedpuma.methods._tamed import (
     fabric_scalars,
     puma_and_fabric,
 )
-from tamedpuma.types import Command, Observation
+from tamedpuma.types import Command, Observation, Scenario
 
 VARIANTS = ("paper", "original")
+
+
+@dataclass(frozen=True)
+class EnergyTank:
+    """An energy tank for CPM (``method.tank``, ``method.tank_refill``): where CPM's regulator
+    would brake FPM's law ``q̈ = energize[h] + f_θ^C``, the tank pays the energy that law
+    injects, as long as it holds any (passivity with an energy tank: Ferraguti, Secchi &
+    Fantuzzi 2013; Kronander & Billard 2016, for dynamical systems that are not conservative).
+
+    The law is ``q̈ = a + c q̇`` with a = h + f_θ^C [rad/s²]; its total energy
+    H = ½‖q̇‖² + k_ψ ψ changes at ``P(c) = q̇ᵀa + c‖q̇‖² + k_ψ ∂ψ·q̇`` (static obstacles).
+    CPM's coefficient c_cpm (matched damping) is the largest c ≤ 0 with P(c) ≤ −β‖q̇‖²; FPM's
+    law is c_fpm = −α_h (the geometry's energization). Where c_fpm > c_cpm (CPM would brake FPM's
+    motion: going round an obstacle that climbs ψ), the deficit ``D = P(c_fpm) + β‖q̇‖² > 0`` is
+    drawn from the tank level T ≥ 0 (``Ṫ = −D``), and c moves towards c_cpm only as far as T
+    cannot pay. Where CPM's own law dissipates more than β‖q̇‖² a fraction σ (``refill``) of
+    the surplus refills T, up to ``capacity``.
+
+    What holds. W = H + T obeys ``Ẇ ≤ −β‖q̇‖²`` in every case (the tank only moves energy
+    the law has or had), and T is bounded by its capacity, so ``∫β‖q̇‖²dt ≤ H(0) + T(0)``: the
+    convergence argument of CPM (Theorem III.5 of Ratliff et al. 2023: q̇ → 0, the limit set in
+    the zero set of f_θ^C) is unchanged; what changes is which basin CPM ends in: the arm may
+    climb ψ by at most T (to go round an obstacle), where plain CPM stalls at a local minimum of
+    ψ on the free space. capacity [rad²/s², H's units] (0: off); refill σ ∈ [0, 1]."""
+
+    capacity: float = 0.0
+    refill: float = 0.0
+
+    def __post_init__(self):
+        if not (self.capacity >= 0.0 and 0.0 <= self.refill <= 1.0):
+            raise ConfigError(f"method.tank must be ≥ 0 and method.tank_refill in [0, 1], got "
+                              f"{self.capacity}, {self.refill}")
+
+    def coefficient(self, c_cpm: float, c_fpm: float, power_zero: float, qn: float,
+                    beta: float, level: float, size: float, dt: float) -> tuple[float, float]:
+        """(c, next tank level): c_cpm, c_fpm [1/s]; power_zero P(0) = q̇ᵀa + k_ψ∂ψ·q̇
+        [rad²/s³]; qn ‖q̇‖² [rad²/s²]; beta β [1/s]; level T and size (the most it holds)
+        [rad²/s²]; dt Δt [s]."""
+        if qn <= 0.0:
+            return c_cpm, level
+        if c_fpm <= c_cpm:  # CPM's own law: refill with a share of its surplus dissipation
+            surplus = -(power_zero + c_cpm * qn) - beta * qn
+            if surplus > 0.0 and self.refill > 0.0:
+                level = min(size, level + self.refill * surplus * dt)
+            return c_cpm, level
+        deficit = power_zero + c_fpm * qn + beta * qn  # [rad²/s³]
+        if deficit <= 0.0:
+            return c_fpm, level
+        if level >= deficit * dt:
+            return c_fpm, level - deficit * dt
+        return max(c_cpm, c_fpm - (deficit - level / dt) / qn), 0.0
 DAMPINGS = ("constant", "matched", "matched_forcing")
 
 
@@ -105,7 +167,7 @@ class CpmController(TamedController):
                  variant: str, regulator_scale: float, potential_scale: float, damping: str,
                  semi_implicit: bool, alpha_min: float | None = None,
                  rate: ControlRate | None = None, energy: str = "fabric",
-                 forcing: Forcing | None = None):
+                 forcing: Forcing | None = None, tank: EnergyTank | None = None):
         if variant not in VARIANTS:
             raise ConfigError(f"cpm variant must be one of {VARIANTS}, got {variant!r}")
         if variant == "paper" and not beta > 0:
@@ -121,6 +183,14 @@ class CpmController(TamedController):
         self.matched = damping == "matched"
         self.matched_forcing = damping == "matched_forcing"
         self.semi_implicit = semi_implicit
+        self.tank = tank or EnergyTank()
+        if self.tank.capacity > 0.0 and energy != "execution":
+            raise ConfigError("cpm's energy tank needs method.energy: execution")
+        self.tank_level = self.tank_size = float("nan")  # set at the first step of an episode
+
+    def reset(self, scenario: Scenario) -> None:
+        super().reset(scenario)
+        self.tank_level = self.tank_size = float("nan")
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
@@ -146,12 +216,25 @@ class CpmController(TamedController):
             if self.matched:  # β = max(β_min, r − α): exactly h + f_C whenever that dissipates
                 beta = max(self.beta, r_coef - alpha)
             c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇
+            if self.tank.capacity > 0.0:  # FPM's law where the tank pays for it
+                if not self.tank_level >= 0.0:  # first step: κ times the potential energy
+                    self.tank_level = self.tank_size = self.tank.capacity * psi
+                alpha_raw_h = energization_alpha(av, self.energy, qd, h, self.eps)
+                alpha_h = bounded_alpha(alpha_raw_h, self.alpha_min)
+                qn = float(qd @ Mqd)
+                c_tank, self.tank_level = self.tank.coefficient(
+                    c, -alpha_h, float(qd @ h_plus_f + dpsi @ qd), qn, self.beta,
+                    self.tank_level, self.tank_size, self.dt)
+                if c_tank != c:
+                    c, alpha_raw, alpha = c_tank, alpha_raw_h, alpha_h
             a, c_split = braking_split(h_plus_f, c, qd, alpha_raw, alpha)
-            if self.semi_implicit and c_split < 0.0:
+            if self.semi_implicit and (c_split < 0.0 or self.rate.implicit_geometry):
                 # the velocity-proportional part (with the geometry's own braking along q̇
                 # where the α bound acts: braking_split) taken implicitly over the control
                 # period: q̇⁺ = (q̇ + Δt a) / (1 − Δt c): it damps, never reverses q̇
-                qdd = ((qd + self.dt * a) / (1.0 - self.dt * c_split) - qd) / self.dt
+                qd_next = self.rate.velocity_step(qd, a, c_split, self.dt, av,
+                                                  self.fabric.gains)
+                qdd = (qd_next - qd) / self.dt
             else:
                 qdd = h_plus_f + c * qd
         else:  # the authors' code: no energization, no damping
@@ -164,7 +247,8 @@ class CpmController(TamedController):
             **extra, **fabric_scalars(av), "psi": psi, "psi_rate": float(dpsi @ qd),
             "dissipation": float(beta * (qd @ Mqd)),
             "energy_total": float(self._kinetic(av, qd, Mqd) + psi), "alpha": float(alpha),
-            "beta": float(beta), "task_acc_norm": float(np.linalg.norm(xdd))})
+            "beta": float(beta), "tank": float(self.tank_level),
+            "task_acc_norm": float(np.linalg.norm(xdd))})
 
 
     def _kinetic(self, av, qd: np.ndarray, Mqd: np.ndarray) -> float:
@@ -186,4 +270,5 @@ def make(cfg: Mapping, kinematics) -> CpmController:
                          potential_scale=float(cfg["potential_scale"]),
                          damping=str(cfg["damping"]), semi_implicit=bool(cfg["semi_implicit"]),
                          alpha_min=alpha_floor(cfg), rate=rate, energy=str(cfg["energy"]),
-                         forcing=Forcing.from_mapping(cfg["forcing"]))
+                         forcing=Forcing.from_mapping(cfg["forcing"]),
+                         tank=EnergyTank(float(cfg["tank"]), float(cfg["tank_refill"])))

@@ -57,7 +57,6 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from tamedpuma.fabrics.discrete import implicit_velocity_step
 from tamedpuma.methods._tamed import (
     ControlRate,
     Forcing,
@@ -86,7 +85,7 @@ class FpmController(TamedController):
             a, c = h + qdd_c, -alpha
             if self.rate.braking_split:
                 a, c = braking_split(a, c, qd, alpha_raw, alpha)
-            qd_next = implicit_velocity_step(qd, a, c, self.dt)
+            qd_next = self.rate.velocity_step(qd, a, c, self.dt, av, self.fabric.gains)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
         qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, state,
