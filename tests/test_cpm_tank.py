@@ -119,3 +119,21 @@ def test_with_a_tank_cpm_goes_round_a_wall_where_plain_cpm_stalls():
     assert tank[0] == pytest.approx(9.0)  # κ k_ψ ψ(q₀) = 1 · ‖(3, 0)‖²
     assert tank.min() < 0.5 * tank[0]  # it paid for the detour
     assert np.all(np.diff(w) <= 1e-3 * w[0])
+
+
+def test_the_tank_pays_only_near_an_obstacle_when_it_has_a_clearance():
+    """With ``tank_clearance`` the tank is engaged only within that clearance of an obstacle (or
+    ``tank_limit_clearance`` of a joint limit): far from obstacles CPM is CPM, to the bit (ψ
+    never rises there)."""
+    tank = EnergyTank(1.0, 0.5, clearance=0.03, limit_clearance=0.01)
+    assert tank.engaged(0.02, 1.0) and tank.engaged(1.0, 0.005)
+    assert not tank.engaged(0.05, 0.5)
+    sc = _wall()
+    free = Scenario(name="free", task="point", q0=sc.q0, goal=sc.goal,
+                    obstacles=Obstacles.empty(), dt=sc.dt, max_steps=sc.max_steps,
+                    goal_tolerance=sc.goal_tolerance)
+    plain = run_episode(free, _controller("cpm"), PointMassWorld(SPEC))
+    gated = _controller("cpm", 1.0)
+    gated.tank = EnergyTank(1.0, 0.5, clearance=0.3)
+    tanked = run_episode(free, gated, PointMassWorld(SPEC))
+    np.testing.assert_array_equal(tanked.q, plain.q)

@@ -448,6 +448,9 @@ class CpmMethod(FpmMethod):
     tank: float = 0.0                # energy tank capacity [rad²/s²] (0: off; methods/cpm.py
     #                                  EnergyTank): FPM's law where the tank pays for it
     tank_refill: float = 0.0         # σ ∈ [0, 1]: the share of surplus dissipation refilling it
+    tank_clearance: float = math.inf  # [m] the tank pays only while a body sphere is this close
+    #                                   to an obstacle (inf: anywhere)
+    tank_limit_clearance: float = 0.0  # [rad] ... or a joint this close to its limit
 
     def __post_init__(self):
         super().__post_init__()

@@ -131,6 +131,13 @@ class EnergyTank:
 
     capacity: float = 0.0
     refill: float = 0.0
+    clearance: float = np.inf
+    limit_clearance: float = 0.0
+
+    def engaged(self, obstacle_clearance: float, limit_distance: float) -> bool:
+        """Whether the tank may pay: a body sphere within ``clearance`` [m] of an obstacle, or a
+        joint within ``limit_clearance`` [rad] of its (fabric) limit."""
+        return obstacle_clearance < self.clearance or limit_distance < self.limit_clearance
 
     def __post_init__(self):
         if not (self.capacity >= 0.0 and 0.0 <= self.refill <= 1.0):
@@ -222,8 +229,12 @@ class CpmController(TamedController):
                 alpha_raw_h = energization_alpha(av, self.energy, qd, h, self.eps)
                 alpha_h = bounded_alpha(alpha_raw_h, self.alpha_min)
                 qn = float(qd @ Mqd)
+                limit_distance = float(np.min(np.minimum(obs.q - self.fabric.q_min,
+                                                         self.fabric.q_max - obs.q)))
+                engaged = self.tank.engaged(av.min_clearance, limit_distance)
+                c_fpm = -alpha_h if engaged else -np.inf
                 c_tank, self.tank_level = self.tank.coefficient(
-                    c, -alpha_h, float(qd @ h_plus_f + dpsi @ qd), qn, self.beta,
+                    c, c_fpm, float(qd @ h_plus_f + dpsi @ qd), qn, self.beta,
                     self.tank_level, self.tank_size, self.dt)
                 if c_tank != c:
                     c, alpha_raw, alpha = c_tank, alpha_raw_h, alpha_h
@@ -271,4 +282,6 @@ def make(cfg: Mapping, kinematics) -> CpmController:
                          damping=str(cfg["damping"]), semi_implicit=bool(cfg["semi_implicit"]),
                          alpha_min=alpha_floor(cfg), rate=rate, energy=str(cfg["energy"]),
                          forcing=Forcing.from_mapping(cfg["forcing"]),
-                         tank=EnergyTank(float(cfg["tank"]), float(cfg["tank_refill"])))
+                         tank=EnergyTank(float(cfg["tank"]), float(cfg["tank_refill"]),
+                                         float(cfg["tank_clearance"]),
+                                         float(cfg["tank_limit_clearance"])))
