@@ -40,6 +40,29 @@ def dtw_per_point(a: np.ndarray, b: np.ndarray) -> float:
     return _dp(np.linalg.norm(a[:, None] - b[None], axis=-1), False) / len(b)
 
 
+def dtw_per_point_batch(paths: list[np.ndarray], refs: list[np.ndarray]) -> np.ndarray:
+    """``dtw_per_point(paths[i], refs[i])`` for every i in one anti-diagonal sweep (the pairs
+    padded with infinite cost; a coupling ending at (N_i, M_i) never reaches the padding)."""
+    d = len(paths)
+    n = np.array([len(a) for a in paths])
+    m = np.array([len(b) for b in refs])
+    big_n, big_m = int(n.max()), int(m.max())
+    a = np.full((d, big_n, paths[0].shape[1]), np.nan)
+    b = np.full((d, big_m, refs[0].shape[1]), np.nan)
+    for i in range(d):
+        a[i, : n[i]], b[i, : m[i]] = paths[i], refs[i]
+    cost = np.linalg.norm(a[:, :, None] - b[:, None], axis=-1)
+    cost[np.isnan(cost)] = np.inf
+    acc = np.full((d, big_n + 1, big_m + 1), np.inf)
+    acc[:, 0, 0] = 0.0
+    for k in range(big_n + big_m - 1):
+        i = np.arange(max(0, k - big_m + 1), min(k, big_n - 1) + 1)
+        j = k - i
+        best = np.minimum(np.minimum(acc[:, i, j + 1], acc[:, i + 1, j]), acc[:, i, j])
+        acc[:, i + 1, j + 1] = cost[:, i, j] + best
+    return acc[np.arange(d), n, m] / m
+
+
 def frechet(a: np.ndarray, b: np.ndarray) -> float:
     """Discrete Fréchet distance between paths a (N, d) and b (M, d)."""
     return _dp(np.linalg.norm(a[:, None] - b[None], axis=-1), True)
@@ -132,16 +155,63 @@ def compatibility(net: PumaNet, ws: Workspace, cfg: EvalConfig) -> dict:
             "samples": int(far.sum()), "min_dist": cfg.compat_min_dist}
 
 
-def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int = 300):
-    """Validation for checkpoint selection: ``score = (converged fraction, −DTW)`` on its own
-    random starts (seed ``cfg.seed + 1000``, not the evaluation's), horizon ``cfg.horizon``."""
-    vcfg = EvalConfig(**{**cfg.__dict__, "random_starts": starts, "seed": cfg.seed + 1000})
+def imitation_dtw(net: PumaNet, demos: Demonstrations) -> float:
+    """Mean position DTW per point over the demonstrations (``imitation_metrics(...)["dtw"]``,
+    batched: the validation's quick check)."""
+    trimmed = [demos.trimmed(i) for i in range(len(demos))]
+    steps = max(len(p) for p, _ in trimmed) - 1
+    pos0 = np.stack([p[0] for p, _ in trimmed])
+    quat0 = np.stack([q[0] for _, q in trimmed]) if demos.orientation else None
+    pos, _ = rollout_paths(net, pos0, quat0, steps, demos.dt)
+    paths = [pos[i, : len(p)].astype(float) for i, (p, _) in enumerate(trimmed)]
+    return float(np.mean(dtw_per_point_batch(paths, [p for p, _ in trimmed])))
 
-    def run(net: PumaNet):
-        conv = convergence(net, ws, demos.dt, vcfg)
-        dtw = imitation_metrics(net, demos)["dtw"]
-        frac = conv["converged_fraction"]
-        return (frac, -dtw), {"converged_fraction": frac, "dtw": dtw}
+
+def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int = 300,
+              confirm: int = 0, horizon: float | None = None, stop_dtw: float = 0.0,
+              stop_compat: float = 0.0, keep_dtw: float = 0.0):
+    """Validation for checkpoint selection and early stopping, on its own random starts (seed
+    ``cfg.seed + 1000``, not the evaluation's) and ψ samples (``cfg.seed + 1001``).
+
+    Without ``stop_dtw``: ``score = (converged fraction of ``starts``, −DTW)`` (horizon
+    ``horizon`` or ``cfg.horizon``). With ``stop_dtw`` > 0 (early stopping), in stages: the DTW
+    (quick); only where it is ≤ ``keep_dtw`` (default ``stop_dtw``), or at the ``final``
+    validation, the ψ-compatible fraction (≥ ``stop_compat``) and ``starts`` random starts, and
+    where all of those pass, ``confirm`` more. ``info["stop"]`` when the DTW is ≤ ``stop_dtw``,
+    ψ passes and every start converges. ``score = (DTW ≤ keep_dtw, ψ passes, converged fraction
+    (of all starts run), −DTW)`` (the fraction 0 where not measured)."""
+    keep = max(keep_dtw, stop_dtw)
+    vcfg = EvalConfig(**{**cfg.__dict__, "random_starts": starts + confirm,
+                         "seed": cfg.seed + 1000,
+                         "horizon": float(horizon) if horizon else cfg.horizon})
+    rng = np.random.default_rng(vcfg.seed)
+    pos0, quat0 = ws.sample(rng, starts + confirm, demos.orientation)
+    ccfg = EvalConfig(**{**cfg.__dict__, "seed": cfg.seed + 1001})
+
+    def conv(net, lo, hi):
+        return convergence_from(net, pos0[lo:hi], None if quat0 is None else quat0[lo:hi],
+                                demos.dt, vcfg)["converged_fraction"]
+
+    def run(net: PumaNet, final: bool = False):
+        if stop_dtw <= 0:
+            dtw = imitation_metrics(net, demos)["dtw"]
+            frac = conv(net, 0, starts)
+            return (frac, -dtw), {"converged_fraction": frac, "dtw": dtw}
+        dtw = imitation_dtw(net, demos)
+        info = {"dtw": dtw, "stop": False}
+        dtw_ok = dtw <= keep
+        if not dtw_ok and not final:
+            return (False, False, 0.0, -dtw), info
+        psi_ok = True
+        if stop_compat > 0:
+            info["compatible_fraction"] = compatibility(net, ws, ccfg)["compatible_fraction"]
+            psi_ok = info["compatible_fraction"] >= stop_compat
+        frac = info["converged_fraction"] = conv(net, 0, starts)
+        if frac == 1.0 and confirm > 0 and dtw_ok and psi_ok:
+            info["confirmed_fraction"] = conv(net, starts, starts + confirm)
+            frac = (starts + confirm * info["confirmed_fraction"]) / (starts + confirm)
+        info["stop"] = dtw <= stop_dtw and psi_ok and frac == 1.0
+        return (dtw_ok, psi_ok, frac, -dtw), info
 
     return run
 
