@@ -43,12 +43,25 @@ def test_fused_rotation_matrix_and_product():
     assert torch.allclose(m.quat_to_matrix_flat(q3), m.quat_to_matrix(q3).flatten(-2), atol=1e-6)
 
 
-def test_batched_dtw_equals_one_pair_at_a_time():
+def test_batched_dtw_and_frechet_equal_one_pair_at_a_time():
     paths = [RNG.normal(size=(n, 3)) for n in (5, 17, 9, 30)]
     refs = [RNG.normal(size=(n, 3)) for n in (5, 12, 20, 30)]
     got = evaluation.dtw_per_point_batch(paths, refs)
     want = [evaluation.dtw_per_point(a, b) for a, b in zip(paths, refs)]
-    assert np.allclose(got, want, rtol=1e-12, atol=0)
+    assert np.array_equal(got, want)
+    costs = [np.linalg.norm(a[:, None] - b[None], axis=-1) for a, b in zip(paths, refs)]
+    assert np.array_equal(evaluation._dp_batch(costs, True),
+                          [evaluation.frechet(a, b) for a, b in zip(paths, refs)])
+
+
+def test_stability_weight_ramp():
+    from tamedpuma.puma.settings import TrainConfig
+
+    flat = TrainConfig(iterations=100, stability_weight=2.0)
+    assert {training.stability_weight(flat, i) for i in (0, 50, 99)} == {2.0}
+    ramp = TrainConfig(iterations=100, stability_weight=1.0, stability_weight_end=3.0,
+                       stability_ramp_from=0.5)
+    assert [training.stability_weight(ramp, i) for i in (0, 50, 75, 100)] == [1.0, 1.0, 2.0, 3.0]
 
 
 def _net(seed=0):
@@ -151,5 +164,5 @@ def test_without_validation_the_average_is_returned():
 
 def test_the_default_config_trains_fast_and_stops_early():
     t = compose("train", ["task=tomato"])["puma"]["train"]
-    assert t["iterations"] <= 2000 and t["stop_dtw"] <= t["keep_dtw"] <= 0.02
+    assert t["iterations"] <= 2400 and t["stop_dtw"] <= t["keep_dtw"] <= 0.02
     assert t["path_weight"] > 0 and t["ema"] > 0 and t["val_confirm"] + t["val_starts"] >= 1000

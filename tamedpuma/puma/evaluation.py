@@ -40,27 +40,30 @@ def dtw_per_point(a: np.ndarray, b: np.ndarray) -> float:
     return _dp(np.linalg.norm(a[:, None] - b[None], axis=-1), False) / len(b)
 
 
-def dtw_per_point_batch(paths: list[np.ndarray], refs: list[np.ndarray]) -> np.ndarray:
-    """``dtw_per_point(paths[i], refs[i])`` for every i in one anti-diagonal sweep (the pairs
-    padded with infinite cost; a coupling ending at (N_i, M_i) never reaches the padding)."""
-    d = len(paths)
-    n = np.array([len(a) for a in paths])
-    m = np.array([len(b) for b in refs])
+def _dp_batch(costs: list[np.ndarray], frechet: bool) -> np.ndarray:
+    """:func:`_dp` of every cost matrix (N_i, M_i) in one anti-diagonal sweep: the matrices are
+    padded with infinite cost, which a coupling ending at (N_i, M_i) never reaches."""
+    d = len(costs)
+    n = np.array([c.shape[0] for c in costs])
+    m = np.array([c.shape[1] for c in costs])
     big_n, big_m = int(n.max()), int(m.max())
-    a = np.full((d, big_n, paths[0].shape[1]), np.nan)
-    b = np.full((d, big_m, refs[0].shape[1]), np.nan)
-    for i in range(d):
-        a[i, : n[i]], b[i, : m[i]] = paths[i], refs[i]
-    cost = np.linalg.norm(a[:, :, None] - b[:, None], axis=-1)
-    cost[np.isnan(cost)] = np.inf
+    cost = np.full((d, big_n, big_m), np.inf)
+    for i, c in enumerate(costs):
+        cost[i, : n[i], : m[i]] = c
     acc = np.full((d, big_n + 1, big_m + 1), np.inf)
-    acc[:, 0, 0] = 0.0
+    acc[:, 0, 0] = -np.inf if frechet else 0.0
     for k in range(big_n + big_m - 1):
         i = np.arange(max(0, k - big_m + 1), min(k, big_n - 1) + 1)
         j = k - i
         best = np.minimum(np.minimum(acc[:, i, j + 1], acc[:, i + 1, j]), acc[:, i, j])
-        acc[:, i + 1, j + 1] = cost[:, i, j] + best
-    return acc[np.arange(d), n, m] / m
+        acc[:, i + 1, j + 1] = np.maximum(cost[:, i, j], best) if frechet else cost[:, i, j] + best
+    return acc[np.arange(d), n, m]
+
+
+def dtw_per_point_batch(paths: list[np.ndarray], refs: list[np.ndarray]) -> np.ndarray:
+    """``dtw_per_point(paths[i], refs[i])`` for every i in one sweep (:func:`_dp_batch`)."""
+    costs = [np.linalg.norm(a[:, None] - b[None], axis=-1) for a, b in zip(paths, refs)]
+    return _dp_batch(costs, False) / np.array([len(b) for b in refs])
 
 
 def frechet(a: np.ndarray, b: np.ndarray) -> float:
@@ -88,19 +91,21 @@ def imitation_metrics(net: PumaNet, demos: Demonstrations) -> dict:
     pos0 = np.stack([p[0] for p, _ in trimmed])
     quat0 = np.stack([q[0] for _, q in trimmed]) if demos.orientation else None
     pos, quat = rollout_paths(net, pos0, quat0, steps, demos.dt)
-    rows = []
-    for i, (p_ref, q_ref) in enumerate(trimmed):
-        p = pos[i, : len(p_ref)].astype(float)
-        r = {"rmse": float(np.sqrt(((p - p_ref) ** 2).sum(-1).mean())),
-             "dtw": dtw_per_point(p, p_ref), "frechet": frechet(p, p_ref)}
-        if q_ref is not None:
-            q = quat[i, : len(q_ref)].astype(float)
-            cost = orientation_errors_between(q, q_ref)
-            r["rmse_angle"] = float(np.sqrt((np.diag(cost) ** 2).mean()))
-            r["dtw_angle"] = _dp(cost, False) / len(q_ref)
-            r["frechet_angle"] = _dp(cost, True)
-        rows.append(r)
-    out = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
+    paths = [pos[i, : len(p_ref)].astype(float) for i, (p_ref, _) in enumerate(trimmed)]
+    costs = [np.linalg.norm(p[:, None] - p_ref[None], axis=-1)
+             for p, (p_ref, _) in zip(paths, trimmed)]
+    lengths = np.array([len(p_ref) for p_ref, _ in trimmed])
+    cols = {"rmse": [float(np.sqrt(((p - p_ref) ** 2).sum(-1).mean()))
+                     for p, (p_ref, _) in zip(paths, trimmed)],
+            "dtw": _dp_batch(costs, False) / lengths, "frechet": _dp_batch(costs, True)}
+    if demos.orientation:
+        acost = [orientation_errors_between(quat[i, : len(q_ref)].astype(float), q_ref)
+                 for i, (_, q_ref) in enumerate(trimmed)]
+        cols["rmse_angle"] = [float(np.sqrt((np.diag(c) ** 2).mean())) for c in acost]
+        cols["dtw_angle"] = _dp_batch(acost, False) / lengths
+        cols["frechet_angle"] = _dp_batch(acost, True)
+    out = {k: float(np.mean(v)) for k, v in cols.items()}
+    rows = [{"dtw": float(v)} for v in cols["dtw"]]
     out["dtw_max"] = float(max(r["dtw"] for r in rows))
     out["n_demos"] = len(rows)
     return out

@@ -50,6 +50,8 @@ class TrainConfig:
     stability_batch: int = 64
     stability_horizon: int = 10
     stability_weight: float = 1.0
+    stability_weight_end: float = 0.0
+    stability_ramp_from: float = 0.5
     margin: float = 1e-6
     decay_rate: float = 0.0
     near_goal_fraction: float = 0.0
@@ -80,12 +82,14 @@ class TrainConfig:
         _check(self, "puma.train",
                positive=("iterations", "lr", "batch_windows", "window", "stability_horizon",
                          "compat_eps", "threads", "log_every"),
-               nonneg=("stability_batch", "stability_weight", "margin", "decay_rate",
+               nonneg=("stability_batch", "stability_weight", "stability_weight_end", "margin",
+                       "decay_rate",
                        "val_starts", "val_confirm", "val_horizon", "stop_dtw", "keep_dtw",
                        "select_every", "compat_weight", "path_weight", "path_windows",
                        "sample_pad",
                        "boundary_weight", "vel_weight", "pos_weight", "grad_clip"),
-               fraction=("persist", "near_goal_fraction", "select_from", "stop_compat"))
+               fraction=("persist", "near_goal_fraction", "select_from", "stop_compat",
+                         "stability_ramp_from"))
         if not 0 <= self.ema < 1:
             raise ConfigError(f"puma.train.ema must be in [0, 1), got {self.ema!r}")
         if self.iterations > 1_000_000:

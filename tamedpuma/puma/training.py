@@ -313,6 +313,19 @@ def _rollouts(net: PumaNet, target, starts, dt: float, window: int, horizon: int
     return il, st
 
 
+def stability_weight(cfg: TrainConfig, it: int) -> float:
+    """λ of the stability loss at iteration ``it``: ``stability_weight``, or with
+    ``stability_weight_end`` > 0 that until ``stability_ramp_from`` of the run, then linear to
+    ``stability_weight_end`` at its end (a stronger push for convergence once the imitation has
+    formed: from the start, λ 2-3 set a pouring seed's training off course at iteration ~1100)."""
+    w0, w1 = cfg.stability_weight, cfg.stability_weight_end
+    if w1 <= 0:
+        return w0
+    start = cfg.stability_ramp_from * cfg.iterations
+    frac = min(1.0, max(0.0, (it - start) / max(1.0, cfg.iterations - start)))
+    return w0 + (w1 - w0) * frac
+
+
 def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
     """One optimisation step; returns the loss terms (floats)."""
     net = run.net
@@ -330,7 +343,7 @@ def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
         if cfg.persist > 0:
             run.chain = tuple(None if x is None else x[:, -1].detach() for x in states)
             run.chain_rest = rest
-        loss = l_il + cfg.stability_weight * l_st + cfg.boundary_weight * l_b
+        loss = l_il + stability_weight(cfg, run.it) * l_st + cfg.boundary_weight * l_b
         l_p = torch.zeros(())
         if cfg.path_weight > 0:
             k = cfg.path_windows or cfg.batch_windows  # the windows are in random order
