@@ -40,6 +40,32 @@ def dtw_per_point(a: np.ndarray, b: np.ndarray) -> float:
     return _dp(np.linalg.norm(a[:, None] - b[None], axis=-1), False) / len(b)
 
 
+def _dp_batch(costs: list[np.ndarray], frechet: bool) -> np.ndarray:
+    """:func:`_dp` of every cost matrix (N_i, M_i) in one anti-diagonal sweep: the matrices are
+    padded with infinite cost, which a coupling ending at (N_i, M_i) never reaches."""
+    d = len(costs)
+    n = np.array([c.shape[0] for c in costs])
+    m = np.array([c.shape[1] for c in costs])
+    big_n, big_m = int(n.max()), int(m.max())
+    cost = np.full((d, big_n, big_m), np.inf)
+    for i, c in enumerate(costs):
+        cost[i, : n[i], : m[i]] = c
+    acc = np.full((d, big_n + 1, big_m + 1), np.inf)
+    acc[:, 0, 0] = -np.inf if frechet else 0.0
+    for k in range(big_n + big_m - 1):
+        i = np.arange(max(0, k - big_m + 1), min(k, big_n - 1) + 1)
+        j = k - i
+        best = np.minimum(np.minimum(acc[:, i, j + 1], acc[:, i + 1, j]), acc[:, i, j])
+        acc[:, i + 1, j + 1] = np.maximum(cost[:, i, j], best) if frechet else cost[:, i, j] + best
+    return acc[np.arange(d), n, m]
+
+
+def dtw_per_point_batch(paths: list[np.ndarray], refs: list[np.ndarray]) -> np.ndarray:
+    """``dtw_per_point(paths[i], refs[i])`` for every i in one sweep (:func:`_dp_batch`)."""
+    costs = [np.linalg.norm(a[:, None] - b[None], axis=-1) for a, b in zip(paths, refs)]
+    return _dp_batch(costs, False) / np.array([len(b) for b in refs])
+
+
 def frechet(a: np.ndarray, b: np.ndarray) -> float:
     """Discrete Fréchet distance between paths a (N, d) and b (M, d)."""
     return _dp(np.linalg.norm(a[:, None] - b[None], axis=-1), True)
@@ -65,19 +91,21 @@ def imitation_metrics(net: PumaNet, demos: Demonstrations) -> dict:
     pos0 = np.stack([p[0] for p, _ in trimmed])
     quat0 = np.stack([q[0] for _, q in trimmed]) if demos.orientation else None
     pos, quat = rollout_paths(net, pos0, quat0, steps, demos.dt)
-    rows = []
-    for i, (p_ref, q_ref) in enumerate(trimmed):
-        p = pos[i, : len(p_ref)].astype(float)
-        r = {"rmse": float(np.sqrt(((p - p_ref) ** 2).sum(-1).mean())),
-             "dtw": dtw_per_point(p, p_ref), "frechet": frechet(p, p_ref)}
-        if q_ref is not None:
-            q = quat[i, : len(q_ref)].astype(float)
-            cost = orientation_errors_between(q, q_ref)
-            r["rmse_angle"] = float(np.sqrt((np.diag(cost) ** 2).mean()))
-            r["dtw_angle"] = _dp(cost, False) / len(q_ref)
-            r["frechet_angle"] = _dp(cost, True)
-        rows.append(r)
-    out = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
+    paths = [pos[i, : len(p_ref)].astype(float) for i, (p_ref, _) in enumerate(trimmed)]
+    costs = [np.linalg.norm(p[:, None] - p_ref[None], axis=-1)
+             for p, (p_ref, _) in zip(paths, trimmed)]
+    lengths = np.array([len(p_ref) for p_ref, _ in trimmed])
+    cols = {"rmse": [float(np.sqrt(((p - p_ref) ** 2).sum(-1).mean()))
+                     for p, (p_ref, _) in zip(paths, trimmed)],
+            "dtw": _dp_batch(costs, False) / lengths, "frechet": _dp_batch(costs, True)}
+    if demos.orientation:
+        acost = [orientation_errors_between(quat[i, : len(q_ref)].astype(float), q_ref)
+                 for i, (_, q_ref) in enumerate(trimmed)]
+        cols["rmse_angle"] = [float(np.sqrt((np.diag(c) ** 2).mean())) for c in acost]
+        cols["dtw_angle"] = _dp_batch(acost, False) / lengths
+        cols["frechet_angle"] = _dp_batch(acost, True)
+    out = {k: float(np.mean(v)) for k, v in cols.items()}
+    rows = [{"dtw": float(v)} for v in cols["dtw"]]
     out["dtw_max"] = float(max(r["dtw"] for r in rows))
     out["n_demos"] = len(rows)
     return out
@@ -132,16 +160,63 @@ def compatibility(net: PumaNet, ws: Workspace, cfg: EvalConfig) -> dict:
             "samples": int(far.sum()), "min_dist": cfg.compat_min_dist}
 
 
-def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int = 300):
-    """Validation for checkpoint selection: ``score = (converged fraction, −DTW)`` on its own
-    random starts (seed ``cfg.seed + 1000``, not the evaluation's), horizon ``cfg.horizon``."""
-    vcfg = EvalConfig(**{**cfg.__dict__, "random_starts": starts, "seed": cfg.seed + 1000})
+def imitation_dtw(net: PumaNet, demos: Demonstrations) -> float:
+    """Mean position DTW per point over the demonstrations (``imitation_metrics(...)["dtw"]``,
+    batched: the validation's quick check)."""
+    trimmed = [demos.trimmed(i) for i in range(len(demos))]
+    steps = max(len(p) for p, _ in trimmed) - 1
+    pos0 = np.stack([p[0] for p, _ in trimmed])
+    quat0 = np.stack([q[0] for _, q in trimmed]) if demos.orientation else None
+    pos, _ = rollout_paths(net, pos0, quat0, steps, demos.dt)
+    paths = [pos[i, : len(p)].astype(float) for i, (p, _) in enumerate(trimmed)]
+    return float(np.mean(dtw_per_point_batch(paths, [p for p, _ in trimmed])))
 
-    def run(net: PumaNet):
-        conv = convergence(net, ws, demos.dt, vcfg)
-        dtw = imitation_metrics(net, demos)["dtw"]
-        frac = conv["converged_fraction"]
-        return (frac, -dtw), {"converged_fraction": frac, "dtw": dtw}
+
+def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int = 300,
+              confirm: int = 0, horizon: float | None = None, stop_dtw: float = 0.0,
+              stop_compat: float = 0.0, keep_dtw: float = 0.0):
+    """Validation for checkpoint selection and early stopping, on its own random starts (seed
+    ``cfg.seed + 1000``, not the evaluation's) and ψ samples (``cfg.seed + 1001``).
+
+    Without ``stop_dtw``: ``score = (converged fraction of ``starts``, −DTW)`` (horizon
+    ``horizon`` or ``cfg.horizon``). With ``stop_dtw`` > 0 (early stopping), in stages: the DTW
+    (quick); only where it is ≤ ``keep_dtw`` (default ``stop_dtw``), or at the ``final``
+    validation, the ψ-compatible fraction (≥ ``stop_compat``) and ``starts`` random starts, and
+    where all of those pass, ``confirm`` more. ``info["stop"]`` when the DTW is ≤ ``stop_dtw``,
+    ψ passes and every start converges. ``score = (DTW ≤ keep_dtw, ψ passes, converged fraction
+    (of all starts run), −DTW)`` (the fraction 0 where not measured)."""
+    keep = max(keep_dtw, stop_dtw)
+    vcfg = EvalConfig(**{**cfg.__dict__, "random_starts": starts + confirm,
+                         "seed": cfg.seed + 1000,
+                         "horizon": float(horizon) if horizon else cfg.horizon})
+    rng = np.random.default_rng(vcfg.seed)
+    pos0, quat0 = ws.sample(rng, starts + confirm, demos.orientation)
+    ccfg = EvalConfig(**{**cfg.__dict__, "seed": cfg.seed + 1001})
+
+    def conv(net, lo, hi):
+        return convergence_from(net, pos0[lo:hi], None if quat0 is None else quat0[lo:hi],
+                                demos.dt, vcfg)["converged_fraction"]
+
+    def run(net: PumaNet, final: bool = False):
+        if stop_dtw <= 0:
+            dtw = imitation_metrics(net, demos)["dtw"]
+            frac = conv(net, 0, starts)
+            return (frac, -dtw), {"converged_fraction": frac, "dtw": dtw}
+        dtw = imitation_dtw(net, demos)
+        info = {"dtw": dtw, "stop": False}
+        dtw_ok = dtw <= keep
+        if not dtw_ok and not final:
+            return (False, False, 0.0, -dtw), info
+        psi_ok = True
+        if stop_compat > 0:
+            info["compatible_fraction"] = compatibility(net, ws, ccfg)["compatible_fraction"]
+            psi_ok = info["compatible_fraction"] >= stop_compat
+        frac = info["converged_fraction"] = conv(net, 0, starts)
+        if frac == 1.0 and confirm > 0 and dtw_ok and psi_ok:
+            info["confirmed_fraction"] = conv(net, starts, starts + confirm)
+            frac = (starts + confirm * info["confirmed_fraction"]) / (starts + confirm)
+        info["stop"] = dtw <= stop_dtw and psi_ok and frac == 1.0
+        return (dtw_ok, psi_ok, frac, -dtw), info
 
     return run
 

@@ -27,14 +27,28 @@ from . import dynamics, manifold
 from .network import PumaNet
 
 
-def imitation_loss(net: PumaNet, target, dt: float, vel_weight: float = 0.1) -> torch.Tensor:
+def imitation_loss(net: PumaNet, target, dt: float, vel_weight: float = 0.1,
+                   pos_weight: float = 1.0) -> torch.Tensor:
     """Closed-loop window loss. ``target = (pos (B, W+1, n), quat (B, W+1, 4) | None, vel)``."""
     pos_t, quat_t, vel_t = target
     window = pos_t.shape[1] - 1
     state = (pos_t[:, 0], quat_t[:, 0] if quat_t is not None else None,
              vel_t[:, 0] if net.spec.order == 2 else None)
-    pos, quat, vel = dynamics.stack(dynamics.rollout(net, state, dt, window)[1:])
+    rolled = dynamics.stack(dynamics.rollout(net, state, dt, window)[1:])
+    return imitation_error(net, rolled, target, vel_weight, pos_weight)
+
+
+def imitation_error(net: PumaNet, rolled, target, vel_weight: float = 0.1,
+                    pos_weight: float = 1.0) -> torch.Tensor:
+    """The window loss of rollouts ``rolled = (pos, quat, vel)`` (B, W, ·), the states after
+    steps 1..W from the first sample of each ``target`` window: squared position errors over
+    the position scale (× ``pos_weight``), all four quaternion components (sign aligned) and the
+    velocities (× ``vel_weight``) over their scale."""
+    pos_t, quat_t, vel_t = target
+    pos, quat, vel = rolled
     loss = (((pos - pos_t[:, 1:]) / net.pos_scale) ** 2).mean()
+    if pos_weight != 1.0:
+        loss = pos_weight * loss
     if quat is not None:
         qt = quat_t[:, 1:]
         sign = torch.sign((quat * qt).sum(-1, keepdim=True) + 1e-12)
@@ -50,13 +64,13 @@ def _hinge(x: torch.Tensor, squared: bool) -> torch.Tensor:
 
 
 def stability_terms(net, states, dt, margin, squared=False, low=None, high=None, rate=0.0):
-    """The triplet hinge and boundary terms over a list of rollout states.
+    """The triplet hinge and boundary terms over rollout states (a list, or stacked (B, T+1, ·)).
 
     ``max(0, m + d_{t+1} − (1 − r Δt) d_t)``: with ``rate`` r [1/s] > 0 the latent distance must
     also shrink by a fraction r Δt per step (exponential decrease), which keeps the hinge active
     near the goal where the absolute margin m alone is either trivial or unattainable.
     """
-    pos, quat, vel = dynamics.stack(states)
+    pos, quat, vel = states if isinstance(states, tuple) else dynamics.stack(states)
     y = net.encode(pos, quat, vel)
     dist = (y - net.goal_latent()).norm(dim=-1)  # (B, T+1)
     stable = _hinge(margin + dist[:, 1:] - (1.0 - rate * dt) * dist[:, :-1], squared)

@@ -20,6 +20,8 @@ that data preparation and training share one implementation); the others on torc
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
@@ -118,9 +120,68 @@ def qdot_to_omega(q: torch.Tensor, qdot: torch.Tensor) -> torch.Tensor:
 
 
 def step_orientation(q: torch.Tensor, omega: torch.Tensor, dt: float) -> torch.Tensor:
-    """One exponential-map step ``q ← exp(ω Δt) ⊗ q`` (ω [rad/s] world frame, Δt [s])."""
-    out = quat_mul(quat_exp(omega * dt), q)
+    """One exponential-map step ``q ← exp(ω Δt) ⊗ q`` (ω [rad/s] world frame, Δt [s]).
+
+    The same map as ``quat_mul(quat_exp(ω Δt), q)`` normalised, in fewer operations (training
+    rolls it out thousands of times per iteration, where the per-operation cost dominates):
+    ``sin(a)/a`` as ``torch.sinc``, ``a = sqrt(‖ωΔt/2‖² + 10⁻³⁰)`` (finite gradients at ω = 0;
+    the offset changes a only below a ~ 10⁻¹⁵ rad), the product as one matrix product.
+    """
+    half = omega * (0.5 * dt)
+    a = torch.sqrt((half * half).sum(-1, keepdim=True) + _TINY)
+    e = torch.cat((torch.sinc(a * (1.0 / math.pi)) * half, torch.cos(a)), dim=-1)
+    out = quat_mul_fused(e, q)
     return out / out.norm(dim=-1, keepdim=True)
+
+
+_TINY = 1e-30
+_CONST: dict = {}
+
+
+def _const(name: str, dtype: torch.dtype) -> torch.Tensor:
+    """The constant matrices of the fused products, one copy per dtype."""
+    key = (name, dtype)
+    if key not in _CONST:
+        _CONST[key] = torch.as_tensor(_TABLES[name], dtype=dtype)
+    return _CONST[key]
+
+
+def _tables() -> dict:
+    # Hamilton product as a bilinear map: (a ⊗ b)_k = Σ_ij a_i b_j T[i, j, k] (x, y, z, w order)
+    t = np.zeros((4, 4, 4))
+    e = np.eye(4)
+    for i in range(4):
+        for j in range(4):
+            t[i, j] = quat_mul(torch.as_tensor(e[i]), torch.as_tensor(e[j])).numpy()
+    # rotation matrix R(q) = I + Σ q_i q_j M[i, j]: the terms of quat_to_matrix
+    m = np.zeros((4, 4, 3, 3))
+    x, y, z, w = 0, 1, 2, 3
+    for (r, c), terms in {
+        (0, 0): ((-2, y, y), (-2, z, z)), (0, 1): ((2, x, y), (-2, z, w)),
+        (0, 2): ((2, x, z), (2, y, w)), (1, 0): ((2, x, y), (2, z, w)),
+        (1, 1): ((-2, x, x), (-2, z, z)), (1, 2): ((2, y, z), (-2, x, w)),
+        (2, 0): ((2, x, z), (-2, y, w)), (2, 1): ((2, y, z), (2, x, w)),
+        (2, 2): ((-2, x, x), (-2, y, y)),
+    }.items():
+        for k, i, j in terms:
+            m[i, j, r, c] += k
+    return {"qmul": t.reshape(16, 4), "rot": m.reshape(16, 9), "eye": np.eye(3).reshape(9)}
+
+
+def quat_mul_fused(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a ⊗ b`` as one outer product and one matrix product (= :func:`quat_mul`)."""
+    ab = (a.unsqueeze(-1) * b.unsqueeze(-2)).flatten(-2)
+    return ab @ _const("qmul", ab.dtype)
+
+
+def quat_to_matrix_flat(q: torch.Tensor) -> torch.Tensor:
+    """``quat_to_matrix(q).flatten(-2)`` (..., 9) as one outer product and one matrix product."""
+    qq = (q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2)
+    return torch.addmm(_const("eye", qq.dtype), qq.reshape(-1, 16),
+                       _const("rot", qq.dtype)).reshape(qq.shape[:-1] + (9,))
+
+
+_TABLES = _tables()
 
 
 # ----------------------------------------------------------------------------- numpy

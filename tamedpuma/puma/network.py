@@ -85,6 +85,7 @@ class PumaNet(nn.Module):
         self.register_buffer("vel_scale", torch.as_tensor(vel_scale, dtype=torch.float32))
         self.register_buffer("out_scale", torch.as_tensor(out_scale, dtype=torch.float32))
         self._goal_out: torch.Tensor | None = None
+        self._shared_goal: tuple[torch.Tensor, torch.Tensor] | None = None
 
     # --- pieces -------------------------------------------------------------------------
 
@@ -92,7 +93,7 @@ class PumaNet(nn.Module):
         """Normalised network input ``[e/s_p, vec R(ζ), ẋ/s_v]``."""
         parts = [pos / self.pos_scale]
         if self.spec.orientation:
-            parts.append(manifold.quat_to_matrix(quat).flatten(-2))
+            parts.append(manifold.quat_to_matrix_flat(quat))
         if self.spec.order == 2:
             parts.append(vel / self.vel_scale)
         return torch.cat(parts, dim=-1)
@@ -120,7 +121,20 @@ class PumaNet(nn.Module):
 
     def goal_latent(self) -> torch.Tensor:
         """``y_g = ρ(x_g, 0)`` (1, latent)."""
+        if self._shared_goal is not None:
+            return self._shared_goal[0]
         return self.encode(*self.goal_state((1,)))
+
+    def share_goal(self) -> None:
+        """Training: compute ``y_g`` and ``φ(y_g)`` once (with their graph) for every call until
+        :meth:`release_goal`, instead of once per call (a rollout calls the network per step;
+        the values and gradients are the same, the operations ~half)."""
+        self._shared_goal = None
+        yg = self.goal_latent()
+        self._shared_goal = (yg, self.decoder(yg))
+
+    def release_goal(self) -> None:
+        self._shared_goal = None
 
     def cache_goal(self) -> None:
         """Freeze ``φ(ρ(x_g, 0))`` for inference (the weights do not change any more)."""
@@ -133,7 +147,9 @@ class PumaNet(nn.Module):
         """Acceleration (order 2) or velocity (order 1) in physical units, shape (..., tangent)."""
         out = self.decoder(self.encode(pos, quat, vel))
         if self.cfg.pin_goal:
-            if self.training or self._goal_out is None:
+            if self._shared_goal is not None:
+                goal_out = self._shared_goal[1]
+            elif self.training or self._goal_out is None:
                 goal_out = self.decoder(self.goal_latent())
             else:
                 goal_out = self._goal_out
@@ -142,6 +158,7 @@ class PumaNet(nn.Module):
 
     def train(self, mode: bool = True):
         self._goal_out = None
+        self._shared_goal = None
         return super().train(mode)
 
 

@@ -307,13 +307,23 @@ def prepare(cfg: dict, log=print) -> Prepared:
     return Prepared(cfg, demos, ws, spec, train_cfg, net_cfg, eval_cfg, problems, derived)
 
 
+def validator_of(p: Prepared):
+    """The training's validation (checkpoint selection, early stopping: ``puma.train.val_*``,
+    ``stop_*``)."""
+    t = p.train_cfg
+    return evaluation.validator(p.demos, p.workspace, p.eval_cfg, starts=t.val_starts,
+                                confirm=t.val_confirm, horizon=t.val_horizon or None,
+                                stop_dtw=t.stop_dtw, stop_compat=t.stop_compat,
+                                keep_dtw=t.keep_dtw)
+
+
 def _training_report(p: Prepared, result, seed: int) -> dict:
     """The report of a finished training (before its evaluation)."""
     demos, ws = p.demos, p.workspace
     report = {"task": p.cfg["task"].get("name"), "data_source": demos.source,
               "data_hash": demos.data_hash, "n_demos": len(demos), "spec": asdict(p.spec),
               "seed": seed, "train_seconds": round(result.seconds, 2),
-              "iterations": p.train_cfg.iterations,
+              "iterations": p.train_cfg.iterations, "iterations_run": result.iterations_run,
               "final_losses": result.history[-1] if result.history else {},
               "selection": result.selection, "dt": demos.dt,
               "workspace": {"position_low": list(ws.low), "position_high": list(ws.high),
@@ -343,7 +353,7 @@ def run(cfg: dict, log=print) -> dict:
     result = train(demos, p.workspace, p.spec, p.net_cfg, p.train_cfg, seed=seed,
                    progress=bool(cfg["progress"]), resume=resume,
                    save=_saver(out_dir, cfg), save_every=int(cfg["save_every"]),
-                   validator=evaluation.validator(demos, p.workspace, p.eval_cfg))
+                   validator=validator_of(p))
     report = _training_report(p, result, seed)
     goal = {"position": task.get("goal_position"), "quaternion": task.get("goal_quaternion")}
     meta = checkpoint.Meta(demos.dt, data.GOAL_CONVENTION, goal, demos.unit, p.workspace, cfg,

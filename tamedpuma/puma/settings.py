@@ -50,20 +50,31 @@ class TrainConfig:
     stability_batch: int = 64
     stability_horizon: int = 10
     stability_weight: float = 1.0
+    stability_weight_end: float = 0.0
+    stability_ramp_from: float = 0.5
     margin: float = 1e-6
     decay_rate: float = 0.0
     near_goal_fraction: float = 0.0
     persist: float = 0.95
     select_every: int = 0
     select_from: float = 0.5
+    val_starts: int = 300
+    val_confirm: int = 0
+    val_horizon: float = 0.0
+    stop_dtw: float = 0.0
+    keep_dtw: float = 0.0
+    stop_compat: float = 0.0
     squared_hinge: bool = False
     compat_weight: float = 0.1
     compat_eps: float = 0.01
     path_weight: float = 0.0
+    path_windows: int = 0
     sample_pad: float = 0.0
     boundary_weight: float = 0.0
     vel_weight: float = 0.1
+    pos_weight: float = 1.0
     grad_clip: float = 1.0
+    ema: float = 0.0
     threads: int = 1
     log_every: int = 25
 
@@ -71,10 +82,16 @@ class TrainConfig:
         _check(self, "puma.train",
                positive=("iterations", "lr", "batch_windows", "window", "stability_horizon",
                          "compat_eps", "threads", "log_every"),
-               nonneg=("stability_batch", "stability_weight", "margin", "decay_rate",
-                       "select_every", "compat_weight", "path_weight", "sample_pad",
-                       "boundary_weight", "vel_weight", "grad_clip"),
-               fraction=("persist", "near_goal_fraction", "select_from"))
+               nonneg=("stability_batch", "stability_weight", "stability_weight_end", "margin",
+                       "decay_rate",
+                       "val_starts", "val_confirm", "val_horizon", "stop_dtw", "keep_dtw",
+                       "select_every", "compat_weight", "path_weight", "path_windows",
+                       "sample_pad",
+                       "boundary_weight", "vel_weight", "pos_weight", "grad_clip"),
+               fraction=("persist", "near_goal_fraction", "select_from", "stop_compat",
+                         "stability_ramp_from"))
+        if not 0 <= self.ema < 1:
+            raise ConfigError(f"puma.train.ema must be in [0, 1), got {self.ema!r}")
         if self.iterations > 1_000_000:
             raise ConfigError(f"puma.train.iterations must be at most 1000000 (time limit), "
                               f"got {self.iterations}")

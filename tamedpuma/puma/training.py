@@ -76,6 +76,7 @@ class TrainResult:
     seconds: float
     history: list[dict] = field(default_factory=list)
     selection: list[dict] = field(default_factory=list)  # validation scores, chosen one marked
+    iterations_run: int = 0  # < the configured iterations after an early stop
 
 
 def scales(demos: Demonstrations, ws: Workspace, order: int):
@@ -201,18 +202,22 @@ class _Selection:
         return cfg.select_every > 0 and (it == cfg.iterations - 1 or (
             it + 1 >= cfg.select_from * cfg.iterations and (it + 1) % cfg.select_every == 0))
 
-    def validate(self, net: PumaNet, validator, it: int) -> None:
+    def validate(self, net: PumaNet, validator, it: int, final: bool = False) -> bool:
+        """Validate the current weights, keep them if best; True when the validator says stop
+        (early stopping: the current weights are then the ones kept)."""
         net.eval()
         net.cache_goal()
         with torch.no_grad():
-            score, info = validator(net)
+            score, info = validator(net, final)
         net.train()
+        stop = bool(info.get("stop", False))
         self.records.append({"it": it, **info, "score": list(score)})
-        if self.best is None or score > self.best:
+        if self.best is None or score > self.best or stop:
             self.best, self.best_state = score, copy.deepcopy(net.state_dict())
-        chosen = max(self.records, key=lambda r: r["score"])
+        chosen = self.records[-1] if stop else max(self.records, key=lambda r: r["score"])
         for r in self.records:
             r["chosen"] = r is chosen
+        return stop
 
 
 @dataclass
@@ -231,6 +236,7 @@ class _Run:
     it: int = 0
     chain: tuple | None = None
     chain_rest: torch.Tensor | None = None
+    ema: PumaNet | None = None  # exponential moving average of the weights (cfg.ema > 0)
     history: list[dict] = field(default_factory=list)
     selection: _Selection = field(default_factory=_Selection)
 
@@ -240,6 +246,7 @@ class _Run:
                 "sched": self.sched.state_dict(), "rng": self.rng.bit_generator.state,
                 "torch_rng": torch.get_rng_state(), "chain": self.chain,
                 "chain_rest": self.chain_rest, "history": self.history,
+                "ema": None if self.ema is None else self.ema.state_dict(),
                 "selection": {"best": self.selection.best, "best_state": self.selection.best_state,
                               "records": self.selection.records}}
 
@@ -251,57 +258,116 @@ class _Run:
         self.rng.bit_generator.state = state["rng"]
         torch.set_rng_state(state["torch_rng"])
         self.chain, self.chain_rest = state["chain"], state["chain_rest"]
+        if self.ema is not None:
+            self.ema.load_state_dict(state["ema"])
         self.history = list(state["history"])
         sel = state["selection"]
         self.selection = _Selection(None if sel["best"] is None else tuple(sel["best"]),
                                     sel["best_state"], list(sel["records"]))
 
 
-def _stability(run: _Run, spec: StateSpec, cfg: TrainConfig):
-    """Stability rollouts from fresh or continued starts: (l_st, l_b, states, rest, pos0, quat0)."""
-    net, rng = run.net, run.rng
-    pos0, quat0, vel0 = _random_starts(rng, run.start_ws, spec, cfg, net.vel_scale.numpy())
+def _stability_starts(run: _Run, spec: StateSpec, cfg: TrainConfig):
+    """Stability starts, fresh or continued from the last iteration: (pos, quat, vel, rest)."""
+    pos0, quat0, vel0 = _random_starts(run.rng, run.start_ws, spec, cfg, run.net.vel_scale.numpy())
     rest = (torch.all(vel0 == 0, dim=-1) if vel0 is not None
             else torch.ones(len(pos0), dtype=torch.bool))  # rollouts that started at rest
     if run.chain is not None:  # continue earlier rollouts (long horizons at no extra cost)
-        keep = _keep(rng, run.chain, cfg.persist, run.low, run.high)
+        keep = _keep(run.rng, run.chain, cfg.persist, run.low, run.high)
         pos0 = torch.where(keep, run.chain[0], pos0)
         quat0 = torch.where(keep, run.chain[1], quat0) if quat0 is not None else None
         vel0 = torch.where(keep, run.chain[2], vel0) if vel0 is not None else None
         rest = torch.where(keep[:, 0], run.chain_rest, rest)
-    states = dynamics.rollout(net, (pos0, quat0, vel0), run.dt, cfg.stability_horizon)
-    l_st, l_b = losses.stability_terms(
-        net, states, run.dt, cfg.margin, cfg.squared_hinge,
-        run.low if cfg.boundary_weight > 0 else None, run.high, cfg.decay_rate)
-    if cfg.persist > 0:
-        run.chain = tuple(None if s is None else s.detach() for s in states[-1])
-        run.chain_rest = rest
-    return l_st, l_b, states, rest, pos0, quat0
+    return pos0, quat0, vel0, rest
+
+
+def _cat(a, b, dim=0):
+    return None if a is None else torch.cat((a, b), dim=dim)
+
+
+def _rollouts(net: PumaNet, target, starts, dt: float, window: int, horizon: int):
+    """The imitation windows (from the first sample of each ``target`` window, ``window`` steps)
+    and the stability rollouts (from ``starts``, ``horizon`` steps), stacked (B, T+1, ·) each.
+
+    Both run as one batch for their common steps (rows are independent: the same states as two
+    separate rollouts, at about half the per-operation cost), the longer one then alone."""
+    pos_t, quat_t, vel_t = target
+    order2 = net.spec.order == 2
+    il0 = (pos_t[:, 0], quat_t[:, 0] if quat_t is not None else None,
+           vel_t[:, 0] if order2 else None)
+    b = len(pos_t)
+    common = min(window, horizon)
+    both = dynamics.stack(dynamics.rollout(
+        net, tuple(_cat(a, c) for a, c in zip(il0, starts)), dt, common))
+    il = tuple(None if x is None else x[:b] for x in both)
+    st = tuple(None if x is None else x[b:] for x in both)
+
+    def extend(part, steps):
+        last = tuple(None if x is None else x[:, -1] for x in part)
+        more = dynamics.stack(dynamics.rollout(net, last, dt, steps)[1:])
+        return tuple(_cat(x, m, 1) for x, m in zip(part, more))
+
+    if window > common:
+        il = extend(il, window - common)
+    if horizon > common:
+        st = extend(st, horizon - common)
+    return il, st
+
+
+def stability_weight(cfg: TrainConfig, it: int) -> float:
+    """λ of the stability loss at iteration ``it``: ``stability_weight``, or with
+    ``stability_weight_end`` > 0 that until ``stability_ramp_from`` of the run, then linear to
+    ``stability_weight_end`` at its end (a stronger push for convergence once the imitation has
+    formed: from the start, λ 2-3 set a pouring seed's training off course at iteration ~1100)."""
+    w0, w1 = cfg.stability_weight, cfg.stability_weight_end
+    if w1 <= 0:
+        return w0
+    start = cfg.stability_ramp_from * cfg.iterations
+    frac = min(1.0, max(0.0, (it - start) / max(1.0, cfg.iterations - start)))
+    return w0 + (w1 - w0) * frac
 
 
 def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
     """One optimisation step; returns the loss terms (floats)."""
     net = run.net
     target = run.sampler.batch(run.rng, cfg.batch_windows)
-    l_il = losses.imitation_loss(net, target, run.dt, cfg.vel_weight)
-    l_st, l_b, states, rest, pos0, quat0 = _stability(run, spec, cfg)
-    loss = l_il + cfg.stability_weight * l_st + cfg.boundary_weight * l_b
-    l_p = torch.zeros(())
-    if cfg.path_weight > 0:
-        own = dynamics.stack(states)
-        l_p = (losses.path_potential_loss(net, target[0], target[1], cfg.margin)
-               + losses.path_potential_loss(net, own[0], own[1], cfg.margin, rest))
-        loss = loss + cfg.path_weight * l_p
-    l_c = torch.zeros(())
-    if cfg.compat_weight > 0:
-        l_c = losses.compat_loss(net, pos0, quat0, cfg.compat_eps, cfg.margin)
-        loss = loss + cfg.compat_weight * l_c
-    run.opt.zero_grad(set_to_none=True)
-    loss.backward()
+    pos0, quat0, vel0, rest = _stability_starts(run, spec, cfg)
+    net.share_goal()
+    try:
+        il, states = _rollouts(net, target, (pos0, quat0, vel0), run.dt, cfg.window,
+                               cfg.stability_horizon)
+        l_il = losses.imitation_error(net, tuple(None if x is None else x[:, 1:] for x in il),
+                                      target, cfg.vel_weight, cfg.pos_weight)
+        l_st, l_b = losses.stability_terms(
+            net, states, run.dt, cfg.margin, cfg.squared_hinge,
+            run.low if cfg.boundary_weight > 0 else None, run.high, cfg.decay_rate)
+        if cfg.persist > 0:
+            run.chain = tuple(None if x is None else x[:, -1].detach() for x in states)
+            run.chain_rest = rest
+        loss = l_il + stability_weight(cfg, run.it) * l_st + cfg.boundary_weight * l_b
+        l_p = torch.zeros(())
+        if cfg.path_weight > 0:
+            k = cfg.path_windows or cfg.batch_windows  # the windows are in random order
+            l_p = (losses.path_potential_loss(net, target[0][:k],
+                                              None if target[1] is None else target[1][:k],
+                                              cfg.margin)
+                   + losses.path_potential_loss(net, states[0], states[1], cfg.margin, rest))
+            loss = loss + cfg.path_weight * l_p
+        l_c = torch.zeros(())
+        if cfg.compat_weight > 0:
+            l_c = losses.compat_loss(net, pos0, quat0, cfg.compat_eps, cfg.margin)
+            loss = loss + cfg.compat_weight * l_c
+        run.opt.zero_grad(set_to_none=True)
+        loss.backward()
+    finally:
+        net.release_goal()
     if cfg.grad_clip > 0:
         torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
     run.opt.step()
     run.sched.step()
+    if run.ema is not None:
+        with torch.no_grad():
+            torch._foreach_lerp_(list(run.ema.parameters()), list(net.parameters()),
+                                 1.0 - cfg.ema)
     return {"loss": loss.item(), "il": l_il.item(), "stable": l_st.item(), "compat": l_c.item(),
             "path": l_p.item(), "boundary": l_b.item()}
 
@@ -323,14 +389,18 @@ def _start(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCo
     # stability starts also beyond the box (sample_pad): the field just outside the evaluated
     # workspace is trained too, else rollouts from its edges leave it into untrained space
     start_ws = ws.padded(cfg.sample_pad) if cfg.sample_pad > 0 else ws
+    ema = None
+    if cfg.ema > 0:
+        ema = copy.deepcopy(net)
+        ema.requires_grad_(False)
     return _Run(net, opt, sched, rng, _Sampler.of(demos, cfg.window, spec.orientation), start_ws,
                 torch.as_tensor(ws.low, dtype=torch.float32),
-                torch.as_tensor(ws.high, dtype=torch.float32), demos.dt)
+                torch.as_tensor(ws.high, dtype=torch.float32), demos.dt, ema=ema)
 
 
 def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetConfig,
           cfg: TrainConfig, seed: int = 0, progress: bool = True,
-          validator: Callable[[PumaNet], tuple[tuple, dict]] | None = None,
+          validator: Callable[[PumaNet, bool], tuple[tuple, dict]] | None = None,
           resume: dict | None = None, save: Callable[[dict], None] | None = None,
           save_every: int = 0) -> TrainResult:
     """Train a primitive on ``demos``; returns the network (eval mode) and the loss history.
@@ -362,9 +432,11 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
                                 cp=f"{terms['compat']:.2e}", refresh=False)
         if bar is not None:
             bar.update(1)
-        if validator is not None and run.selection.due(cfg, it):
-            run.selection.validate(run.net, validator, it + 1)
         run.it = it + 1
+        if validator is not None and run.selection.due(cfg, it) \
+                and run.selection.validate(run.ema if run.ema is not None else run.net,
+                                           validator, it + 1, it == cfg.iterations - 1):
+            break  # early stop: the validation met every target
         if save is not None and save_every > 0 and run.it % save_every == 0 \
                 and run.it < cfg.iterations:
             save(run.state())
@@ -372,6 +444,9 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
         bar.close()
     if run.selection.best_state is not None:
         run.net.load_state_dict(run.selection.best_state)
+    elif run.ema is not None:
+        run.net.load_state_dict(run.ema.state_dict())
     run.net.eval()
     run.net.cache_goal()
-    return TrainResult(run.net, time.perf_counter() - t0, run.history, run.selection.records)
+    return TrainResult(run.net, time.perf_counter() - t0, run.history, run.selection.records,
+                       run.it)

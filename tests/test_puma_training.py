@@ -1,0 +1,168 @@
+"""The training's fast paths (issue 16): each fused or batched piece equals the plain one it
+replaces, early stopping ends the run on the validator's word, the weights' moving average is
+kept, resumed and returned."""
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from tamedpuma.app.train import compose
+from tamedpuma.puma import dynamics, evaluation, losses, pipeline, training
+from tamedpuma.puma import manifold as m
+from tamedpuma.puma.network import NetConfig, PumaNet, StateSpec
+
+RNG = np.random.default_rng(0)
+
+
+def _quats(n, dtype=torch.float64):
+    q = torch.as_tensor(RNG.normal(size=(n, 4)), dtype=dtype)
+    return q / q.norm(dim=-1, keepdim=True)
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-12, 1e-6, 1e-3, 1.0, 30.0])
+def test_fused_orientation_step_equals_exp_then_product(scale):
+    q = _quats(200)
+    w = (torch.as_tensor(RNG.normal(size=(200, 3))) * scale).requires_grad_(True)
+    ref = m.quat_mul(m.quat_exp(w * 0.03), q)
+    ref = ref / ref.norm(dim=-1, keepdim=True)
+    new = m.step_orientation(q, w, 0.03)
+    weights = torch.arange(1.0, 5.0, dtype=torch.float64)
+    g_ref, = torch.autograd.grad((ref * weights).sum(), w)
+    g_new, = torch.autograd.grad((new * weights).sum(), w)
+    assert torch.allclose(new, ref, atol=1e-14)
+    assert torch.isfinite(g_new).all() and torch.allclose(g_new, g_ref, atol=1e-12)
+
+
+def test_fused_rotation_matrix_and_product():
+    q, a = _quats(300), _quats(300)
+    assert torch.allclose(m.quat_to_matrix_flat(q), m.quat_to_matrix(q).flatten(-2), atol=1e-15)
+    assert torch.allclose(m.quat_mul_fused(a, q), m.quat_mul(a, q), atol=1e-15)
+    q3 = _quats(24, torch.float32).reshape(4, 6, 4)  # batch shapes and float32
+    assert torch.allclose(m.quat_to_matrix_flat(q3), m.quat_to_matrix(q3).flatten(-2), atol=1e-6)
+
+
+def test_batched_dtw_and_frechet_equal_one_pair_at_a_time():
+    paths = [RNG.normal(size=(n, 3)) for n in (5, 17, 9, 30)]
+    refs = [RNG.normal(size=(n, 3)) for n in (5, 12, 20, 30)]
+    got = evaluation.dtw_per_point_batch(paths, refs)
+    want = [evaluation.dtw_per_point(a, b) for a, b in zip(paths, refs)]
+    assert np.array_equal(got, want)
+    costs = [np.linalg.norm(a[:, None] - b[None], axis=-1) for a, b in zip(paths, refs)]
+    assert np.array_equal(evaluation._dp_batch(costs, True),
+                          [evaluation.frechet(a, b) for a, b in zip(paths, refs)])
+
+
+def test_stability_weight_ramp():
+    from tamedpuma.puma.settings import TrainConfig
+
+    flat = TrainConfig(iterations=100, stability_weight=2.0)
+    assert {training.stability_weight(flat, i) for i in (0, 50, 99)} == {2.0}
+    ramp = TrainConfig(iterations=100, stability_weight=1.0, stability_weight_end=3.0,
+                       stability_ramp_from=0.5)
+    assert [training.stability_weight(ramp, i) for i in (0, 50, 75, 100)] == [1.0, 1.0, 2.0, 3.0]
+
+
+def _net(seed=0):
+    torch.manual_seed(seed)
+    spec = StateSpec(3, True, 2)
+    return PumaNet(spec, NetConfig(32, 8), np.ones(3), np.ones(6), np.ones(6)).double()
+
+
+def _state(n, seed=1):
+    g = torch.Generator().manual_seed(seed)
+    q = torch.randn(n, 4, generator=g, dtype=torch.float64)
+    return (0.3 * torch.randn(n, 3, generator=g, dtype=torch.float64),
+            q / q.norm(dim=-1, keepdim=True),
+            0.2 * torch.randn(n, 6, generator=g, dtype=torch.float64))
+
+
+def _grads(net, fn):
+    net.zero_grad(set_to_none=True)
+    out = fn()
+    out.backward()
+    return out.detach(), [p.grad.clone() for p in net.parameters()]
+
+
+def test_shared_goal_gives_the_same_values_and_gradients():
+    net = _net()
+    net.train()
+    s = _state(7)
+
+    def loss():
+        states = dynamics.stack(dynamics.rollout(net, s, 0.03, 4))
+        return losses.stability_terms(net, states, 0.03, 1e-3)[0] + net(*s).square().mean()
+
+    v0, g0 = _grads(net, loss)
+    net.share_goal()
+    v1, g1 = _grads(net, loss)
+    net.release_goal()
+    assert torch.allclose(v0, v1, rtol=1e-12)
+    assert all(torch.allclose(a, b, rtol=1e-9, atol=1e-15) for a, b in zip(g0, g1))
+
+
+@pytest.mark.parametrize("window,horizon", [(6, 3), (3, 6), (4, 4)])
+def test_joint_rollouts_equal_separate_ones(window, horizon):
+    net = _net()
+    pos, quat, vel = _state(5 * (window + 1), seed=2)
+    target = (pos.reshape(5, window + 1, 3), quat.reshape(5, window + 1, 4),
+              vel.reshape(5, window + 1, 6))
+    starts = _state(4, seed=3)
+    il, st = training._rollouts(net, target, starts, 0.03, window, horizon)
+    il_ref = dynamics.stack(dynamics.rollout(
+        net, tuple(x[:, 0] for x in target), 0.03, window))
+    st_ref = dynamics.stack(dynamics.rollout(net, starts, 0.03, horizon))
+    for got, want in zip(il + st, il_ref + st_ref):
+        assert got.shape == want.shape and torch.allclose(got, want, atol=1e-12)
+
+
+def _tiny(*overrides):
+    cfg = compose("train", ["task=tomato", "puma=tiny", "puma.train.ema=0.9", *overrides])
+    return pipeline.prepare(cfg, log=lambda msg: None)
+
+
+def _flat(state):
+    return torch.cat([v.flatten().double() for v in state.values()])
+
+
+def test_early_stop_returns_the_validated_average_and_resumes_exactly():
+    p = _tiny("puma.train.iterations=40", "puma.train.select_every=5", "puma.train.select_from=0")
+    calls = []
+
+    def validator(net, final):
+        calls.append(copy.deepcopy(net.state_dict()))
+        return (len(calls),), {"stop": len(calls) == 3}
+
+    args = (p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg)
+    res = training.train(*args, seed=4, progress=False, validator=validator)
+    assert res.iterations_run == 15 and len(calls) == 3
+    assert [r["chosen"] for r in res.selection] == [False, False, True]
+    assert torch.equal(_flat(res.net.state_dict()), _flat(calls[-1]))  # the average, validated
+    saved = {}
+    calls.clear()
+    training.train(*args, seed=4, progress=False, validator=validator,
+                   save=lambda s: saved.setdefault(s["it"], copy.deepcopy(s)), save_every=5)
+    assert sorted(saved) == [5, 10]
+    calls.clear()
+    calls.append(None)  # the validation at 5 happened before the save
+    again = training.train(*args, seed=4, progress=False, validator=validator, resume=saved[5])
+    assert again.iterations_run == 15
+    assert torch.equal(_flat(again.net.state_dict()), _flat(res.net.state_dict()))
+
+
+def test_without_validation_the_average_is_returned():
+    p = _tiny("puma.train.iterations=12", "puma.train.select_every=0")
+    args = (p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg)
+    res = training.train(*args, seed=0, progress=False)
+    run = training._start(*args, 0)
+    for _ in range(12):
+        training._iteration(run, p.spec, p.train_cfg)
+    assert torch.equal(_flat(res.net.state_dict()), _flat(run.ema.state_dict()))
+    assert not torch.equal(_flat(res.net.state_dict()), _flat(run.net.state_dict()))
+
+
+def test_the_default_config_trains_fast_and_stops_early():
+    t = compose("train", ["task=tomato"])["puma"]["train"]
+    assert t["iterations"] <= 2400 and t["stop_dtw"] <= t["keep_dtw"] <= 0.02
+    assert t["path_weight"] > 0 and t["ema"] > 0 and t["val_confirm"] + t["val_starts"] >= 1000
