@@ -224,20 +224,8 @@ class CpmController(TamedController):
                 beta = max(self.beta, r_coef - alpha)
             c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇
             if self.tank.capacity > 0.0:  # FPM's law where the tank pays for it
-                if not self.tank_level >= 0.0:  # first step: κ times the potential energy
-                    self.tank_level = self.tank_size = self.tank.capacity * psi
-                alpha_raw_h = energization_alpha(av, self.energy, qd, h, self.eps)
-                alpha_h = bounded_alpha(alpha_raw_h, self.alpha_min)
-                qn = float(qd @ Mqd)
-                limit_distance = float(np.min(np.minimum(obs.q - self.fabric.q_min,
-                                                         self.fabric.q_max - obs.q)))
-                engaged = self.tank.engaged(av.min_clearance, limit_distance)
-                c_fpm = -alpha_h if engaged else -np.inf
-                c_tank, self.tank_level = self.tank.coefficient(
-                    c, c_fpm, float(qd @ h_plus_f + dpsi @ qd), qn, self.beta,
-                    self.tank_level, self.tank_size, self.dt)
-                if c_tank != c:
-                    c, alpha_raw, alpha = c_tank, alpha_raw_h, alpha_h
+                c, alpha_raw, alpha = self._tank_law(obs, av, h, h_plus_f, Mqd, psi, dpsi,
+                                                     c, alpha_raw, alpha)
             a, c_split = braking_split(h_plus_f, c, qd, alpha_raw, alpha)
             if self.semi_implicit and (c_split < 0.0 or self.rate.implicit_geometry):
                 # the velocity-proportional part (with the geometry's own braking along q̇
@@ -261,6 +249,29 @@ class CpmController(TamedController):
             "beta": float(beta), "tank": float(self.tank_level),
             "task_acc_norm": float(np.linalg.norm(xdd))})
 
+
+    def _tank_law(self, obs: Observation, av, h, h_plus_f, Mqd, psi: float, dpsi,
+                  c: float, alpha_raw: float, alpha: float) -> tuple[float, float, float]:
+        """The energy tank's choice of ``(c, α_raw, α)`` in q̈ = (h + f) + c q̇ (``EnergyTank``).
+
+        Where the tank is engaged (near an obstacle or a joint limit) and holds energy, FPM's
+        coefficient c = −α_h replaces CPM's; the tank is drained by what that adds to dH/dt.
+        """
+        qd = obs.qd
+        if not self.tank_level >= 0.0:  # first step: κ times the potential energy
+            self.tank_level = self.tank_size = self.tank.capacity * psi
+        alpha_raw_h = energization_alpha(av, self.energy, qd, h, self.eps)
+        alpha_h = bounded_alpha(alpha_raw_h, self.alpha_min)
+        limit_distance = float(np.min(np.minimum(obs.q - self.fabric.q_min,
+                                                 self.fabric.q_max - obs.q)))
+        engaged = self.tank.engaged(av.min_clearance, limit_distance)
+        c_fpm = -alpha_h if engaged else -np.inf
+        c_tank, self.tank_level = self.tank.coefficient(
+            c, c_fpm, float(qd @ h_plus_f + dpsi @ qd), float(qd @ Mqd), self.beta,
+            self.tank_level, self.tank_size, self.dt)
+        if c_tank != c:
+            return c_tank, alpha_raw_h, alpha_h
+        return c, alpha_raw, alpha
 
     def _kinetic(self, av, qd: np.ndarray, Mqd: np.ndarray) -> float:
         """The energy the law conserves up to β: H_{L_e} (``energy: fabric``) or ½‖q̇‖²."""
