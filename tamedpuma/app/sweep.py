@@ -305,8 +305,17 @@ def _die_with_launcher() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PDEATHSIG
     except (OSError, AttributeError):  # pragma: no cover - no prctl in this libc
         pass
+    # a launcher that died before the prctl above sends no signal (the worker was still
+    # starting, e.g. under load): the worker is already orphaned, so it leaves now (seen in a
+    # test: the second worker ran its 100000-step run on, re-parented, after a SIGKILL)
+    launcher = os.environ.get(_LAUNCHER_PID)
+    if launcher and launcher.isdigit() and os.getppid() != int(launcher):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(143)
 
 
+_LAUNCHER_PID = "TAMEDPUMA_SWEEP_LAUNCHER_PID"  # set by main(), read by its launcher's workers
 _TERMINATED = []  # set in a launcher worker by SIGTERM (its launcher died, or it was stopped)
 
 
@@ -350,6 +359,10 @@ def _hydra_main(cfg: DictConfig) -> None:
             _exit_if_terminated()
         raise
     except Exception as exc:  # noqa: BLE001 - a sweep survives its worst run
+        if multirun and _TERMINATED:  # a SIGTERM mid-run that surfaced as another error (seen:
+            # raised inside OmegaConf's validation, it left a ConfigError): not the run's fault
+            print(_partial_log_line(run_dir), file=sys.stderr)
+            _exit_if_terminated()
         if not multirun:
             if isinstance(exc, TamedPumaError):
                 fail(str(exc))
@@ -360,6 +373,7 @@ def _hydra_main(cfg: DictConfig) -> None:
               f"[recorded in {run_dir / 'summary.json'}]", file=sys.stderr)
         return
     if multirun:
+        _exit_if_terminated()  # SIGTERMed just after the run ended: leave the worker all the same
         failed = summary["stop_reason"] == "nonfinite_command"
         _record_outcome(run_dir, "failed" if failed else "complete",
                         "controller returned NaN/inf" if failed else "")
@@ -381,6 +395,7 @@ def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     # a killed run (SIGTERM) unwinds normally, so recorders close their files as incomplete
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    os.environ[_LAUNCHER_PID] = str(os.getpid())  # inherited by the joblib launcher's workers
     error = precheck_overrides("sweep", argv)
     if error:
         fail(error)
