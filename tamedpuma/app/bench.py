@@ -1050,7 +1050,8 @@ def main(argv=None) -> int:
     models = [r["model"] for r in report["controller"] if r.get("model")]
     if models:
         report["models"] = ", ".join(dict.fromkeys(models))
-    report["cited"] = cited(args.root)
+    report["cited"] = {k: v for k, v in cited(args.root).items()
+                       if k not in report["commands"]}  # measured here: not cited as well
     machine["load_averages_end"] = load_averages()
     machine["load_average_1min_end"] = (machine["load_averages_end"] or [None])[0]
     print(json.dumps(report, indent=2))
