@@ -264,3 +264,28 @@ def test_a_stiff_barrier_geometry_is_braked_implicitly_never_reversed():
         if speed >= 0.5:
             assert explicit[0] < -speed  # reversed and faster
         assert 0.0 <= implicit[0] < speed
+
+
+def test_geometry_damping_leaves_the_ground_rows_out():
+    """With the ground leaf on, its rows come last in the barrier rows: the damping of the pair
+    and joint-limit rows is the one of the same fabric without the ground leaf."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(5)
+    jac = rng.normal(size=(2, 3, 7))
+    state = SimpleNamespace(sphere_centers=np.array([[0.3, 0.0, 0.08], [0.5, 0.1, 0.12]]),
+                            sphere_radii=np.array([0.05, 0.05]), sphere_jacobians=jac,
+                            sphere_jdqd=np.zeros((2, 3)))
+    q = np.array([0.9, 0.95, 0.8, 0.97, 0.85, 0.92, 0.99])
+    qd = np.array([0.3, 0.1, 0.5, 0.2, 0.4, 0.15, 0.05])
+    lim = np.full(7, 1.0)
+    damping = []
+    for ground in (False, True):
+        gains = FabricGains.from_mapping({"ground_enabled": ground})
+        av = Fabric(gains, -lim, lim).avoidance(state, q, qd, np.zeros((0, 3)), np.zeros(0),
+                                                np.zeros((0, 3)))
+        assert av.n_ground_rows == (2 if ground else 0)
+        damping.append(geometry_damping(av.barrier_rows, av.barrier_x, av.barrier_xd,
+                                        av.barrier_metric, 7, gains.obstacle, gains.joint_limit,
+                                        gains.barrier_margin, av.n_ground_rows))
+    np.testing.assert_allclose(damping[1], damping[0], rtol=1e-12, atol=1e-12)

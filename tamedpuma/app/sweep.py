@@ -305,9 +305,9 @@ def _die_with_launcher() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PDEATHSIG
     except (OSError, AttributeError):  # pragma: no cover - no prctl in this libc
         pass
-    # a launcher that died before the prctl above sends no signal (the worker was still
-    # starting, e.g. under load): the worker is already orphaned, so it leaves now (seen in a
-    # test: the second worker ran its 100000-step run on, re-parented, after a SIGKILL)
+    # a launcher that died before the prctl above sends no signal (prctl(2): the death signal
+    # is armed for a parent still alive): a worker still starting then is already orphaned,
+    # so it leaves now
     launcher = os.environ.get(_LAUNCHER_PID)
     if launcher and launcher.isdigit() and os.getppid() != int(launcher):
         sys.stdout.flush()

@@ -230,18 +230,20 @@ def implicit_velocity_step(qd: np.ndarray, a: np.ndarray, c: float, dt: float) -
 
 def geometry_damping(rows: np.ndarray | None, x: np.ndarray | None, xd: np.ndarray | None,
                      metric: np.ndarray | None, n_joints: int, obstacle, joint_limit,
-                     margin: float) -> np.ndarray | None:
+                     margin: float, n_ground: int = 0) -> np.ndarray | None:
     """The barrier geometries' velocity stiffness in the metric, ``D_M = Σ_r m_r κ_r a_r a_rᵀ``
     (n, n) [1/s], over the rows approaching their barrier (ẋ_r < 0); None when no row does.
 
     A barrier row r (Jacobian row a_r, distance x_r, rate ẋ_r, metric m_r) adds the geometry
     ``ẍ_r = k_h ẋ_r²/x_r^p`` along itself (pushes x up; ``obstacle``/``joint_limit``:
     :class:`~tamedpuma.fabrics.gains.BarrierGains`, the pairs first, then 2n joint-limit rows,
-    then ground rows, which are left out); while approaching this is a brake with rate
+    then ``n_ground`` ground rows, which are left out); while approaching this is a brake with rate
     ``κ_r = −∂ẍ_r/∂ẋ_r = 2 k_h |ẋ_r|/x_r^p`` [1/s], and the joint-space geometry
     ``q̈ = −M⁻¹Σ a_r m_r h_r`` changes with q̇ as ``−M⁻¹ D_M``. x is clamped to ``margin``."""
     if rows is None or metric is None or rows.shape[0] == 0:
         return None
+    if n_ground:
+        rows, x, xd, metric = rows[:-n_ground], x[:-n_ground], xd[:-n_ground], metric[:-n_ground]
     n_pairs = rows.shape[0] - 2 * n_joints
     if n_pairs < 0:
         return None

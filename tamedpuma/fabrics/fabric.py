@@ -66,7 +66,8 @@ class AvoidanceFabric:
     (:func:`tamedpuma.fabrics.discrete.barrier_step`). With many pairs, the pairs at or
     beyond the obstacle leaf's activation distance (metric 0) have no row here: far_rows
     (:class:`~tamedpuma.fabrics.discrete.FarRows`, else None) bounds them for the barrier step
-    and builds their rows on demand.
+    and builds their rows on demand. n_ground_rows: how many of the rows (the last ones) are
+    ground rows (0 without the ground leaf).
     """
 
     M: np.ndarray
@@ -82,6 +83,7 @@ class AvoidanceFabric:
     barrier_metric: np.ndarray | None = None
     barrier_xd: np.ndarray | None = None
     far_rows: FarRows | None = None
+    n_ground_rows: int = 0
 
     @property
     def f(self) -> np.ndarray:
@@ -211,6 +213,7 @@ class Fabric:
         x = v.x if ws.x_raw is None else ws.x_raw
         head, tail = v.head, v.tail  # pairs and limits; ground rows (maybe none)
         m, xd, jd = v.W0, v.xd, v.jd
+        n_ground = tail.stop - tail.start if ws.ground else 0
         if ws.ground:
             rows = np.concatenate((v.Z[head, :n], v.Z[tail, :n]))
             x, jd = np.concatenate((x[head], x[tail])), np.concatenate((jd[head], jd[tail]))
@@ -223,7 +226,7 @@ class Fabric:
                                n_clamped=n_clamped, n_limit_clamped=n_limit,
                                barrier_rows=rows, barrier_x=x, barrier_jdqd=jd,
                                barrier_metric=m, barrier_xd=xd,
-                               far_rows=ws.far if v.lo else None)
+                               far_rows=ws.far if v.lo else None, n_ground_rows=n_ground)
 
     def forcing(self, state, qd, goal_position, goal_rotation) -> Forcing:
         """The goal attractor pulled into joint space (see :class:`Forcing`).

@@ -278,7 +278,7 @@ class ControlRate:
         if self.implicit_geometry:
             D_M = geometry_damping(av.barrier_rows, av.barrier_x, av.barrier_xd,
                                    av.barrier_metric, len(qd), gains.obstacle,
-                                   gains.joint_limit, gains.barrier_margin)
+                                   gains.joint_limit, gains.barrier_margin, av.n_ground_rows)
         return linearly_implicit_step(qd, a, c, dt, av.M, D_M)
 
     def next_velocity(self, qd_next, av, dt: float, qd_max, state=None,

@@ -104,6 +104,7 @@ from tamedpuma.methods._tamed import (
 from tamedpuma.types import Command, Observation, Scenario
 
 VARIANTS = ("paper", "original")
+DAMPINGS = ("constant", "matched", "matched_forcing")
 
 
 @dataclass(frozen=True)
@@ -162,7 +163,6 @@ class EnergyTank:
         if level >= deficit * dt:
             return c_fpm, level - deficit * dt
         return max(c_cpm, c_fpm - (deficit - level / dt) / qn), 0.0
-DAMPINGS = ("constant", "matched", "matched_forcing")
 
 
 class CpmController(TamedController):
@@ -249,7 +249,6 @@ class CpmController(TamedController):
             "beta": float(beta), "tank": float(self.tank_level),
             "task_acc_norm": float(np.linalg.norm(xdd))})
 
-
     def _tank_law(self, obs: Observation, av, h, h_plus_f, Mqd, psi: float, dpsi,
                   c: float, alpha_raw: float, alpha: float) -> tuple[float, float, float]:
         """The energy tank's choice of ``(c, α_raw, α)`` in q̈ = (h + f) + c q̇ (``EnergyTank``).
@@ -260,11 +259,12 @@ class CpmController(TamedController):
         qd = obs.qd
         if not self.tank_level >= 0.0:  # first step: κ times the potential energy
             self.tank_level = self.tank_size = self.tank.capacity * psi
-        alpha_raw_h = energization_alpha(av, self.energy, qd, h, self.eps)
-        alpha_h = bounded_alpha(alpha_raw_h, self.alpha_min)
         limit_distance = float(np.min(np.minimum(obs.q - self.fabric.q_min,
                                                  self.fabric.q_max - obs.q)))
         engaged = self.tank.engaged(av.min_clearance, limit_distance)
+        # FPM's α only where the tank may pay (elsewhere c_fpm = −∞: CPM's law, the tank refills)
+        alpha_raw_h = energization_alpha(av, self.energy, qd, h, self.eps) if engaged else np.nan
+        alpha_h = bounded_alpha(alpha_raw_h, self.alpha_min) if engaged else np.nan
         c_fpm = -alpha_h if engaged else -np.inf
         c_tank, self.tank_level = self.tank.coefficient(
             c, c_fpm, float(qd @ h_plus_f + dpsi @ qd), float(qd @ Mqd), self.beta,

@@ -105,9 +105,8 @@ def imitation_metrics(net: PumaNet, demos: Demonstrations) -> dict:
         cols["dtw_angle"] = _dp_batch(acost, False) / lengths
         cols["frechet_angle"] = _dp_batch(acost, True)
     out = {k: float(np.mean(v)) for k, v in cols.items()}
-    rows = [{"dtw": float(v)} for v in cols["dtw"]]
-    out["dtw_max"] = float(max(r["dtw"] for r in rows))
-    out["n_demos"] = len(rows)
+    out["dtw_max"] = float(np.max(cols["dtw"]))
+    out["n_demos"] = len(trimmed)
     return out
 
 
