@@ -152,3 +152,27 @@ def test_a_missing_config_folder_or_option_is_a_one_line_error(tmp_path):
     folder = _own_config_folder(tmp_path)
     line = _error_line(_sweep("--config-dir", str(folder), "scenario=theirs"))
     assert "scenario/theirs" in line
+
+
+def test_the_sweep_validates_one_job_per_override_and_still_stops_a_bad_one_early(tmp_path):
+    """Hydra composes jobs before the first run to stop a sweep that cannot run; composing the
+    first job that holds each override finds the same one-override failures (the bad value is
+    the sweep's last job here) in far fewer composes."""
+    from itertools import product
+
+    from tamedpuma.app.sweep import representative_jobs
+
+    batch = [[f"case={c}", f"method={m}", f"without_obstacles={w}", "+experiment=table1"]
+             for c, m, w in product([f"tomato_{i:02d}" for i in range(15)],
+                                    ["puma", "fpm", "cpm", "fabrics"], ["false", "true"])]
+    jobs = representative_jobs(batch)
+    assert {o for job in jobs for o in job} == {o for job in batch for o in job}
+    assert len(jobs) <= 15 + 4 + 2 and jobs[0] == batch[0]
+    (tmp_path / "conf" / "experiment").mkdir(parents=True)
+    (tmp_path / "conf" / "experiment" / "bad.yaml").write_text(
+        "# @package _global_\nhydra:\n  sweeper:\n    params:\n"
+        "      method: fabrics,fpm,nonexistent\n")
+    proc = _sweep("-m", "--config-dir", str(tmp_path / "conf"), "+experiment=bad", "recorder=none",
+                  f"hydra.sweep.dir={tmp_path / 'out'}")
+    assert proc.returncode != 0 and "method/nonexistent" in proc.stderr
+    assert not list((tmp_path / "out").glob("*/summary.json"))  # stopped before any run

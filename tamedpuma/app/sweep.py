@@ -36,6 +36,7 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.plugins.sweeper import Sweeper
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
@@ -44,6 +45,7 @@ from tamedpuma.app.config import CONF_DIR
 from tamedpuma.errors import ConfigError, TamedPumaError
 
 log = logging.getLogger("tamedpuma.sweep")
+_VALIDATE_EVERY_JOB = Sweeper.validate_batch_is_legal  # Hydra's (see representative_jobs)
 
 
 @dataclass(frozen=True)
@@ -380,6 +382,29 @@ def _hydra_main(cfg: DictConfig) -> None:
     _report(summary)
 
 
+def representative_jobs(batch):
+    """The jobs of a sweep batch that between them hold every override at least once [list].
+
+    Hydra's sweeper composes every job's config in the launching process before the first run
+    (``Sweeper.validate_batch_is_legal``), so that a job that cannot be composed stops the sweep
+    early: about 0.15 s per job here, 5 min of the 2000-run randomized suite, 40 s of Table 1.
+    A job fails to compose through one of its overrides (an unknown group option, a missing
+    key), so composing the first job holding each override finds the same failures, in about
+    as many composes as there are distinct overrides (39 of Table 1's 420 jobs). A failure that
+    needs two overrides together is left to the run itself, which records it and lets the sweep
+    go on (see the module docstring)."""
+    seen, jobs = set(), []
+    for job in batch:
+        if not seen.issuperset(job):
+            seen.update(job)
+            jobs.append(job)
+    return jobs
+
+
+def _validate_representatives(sweeper, batch) -> None:
+    _VALIDATE_EVERY_JOB(sweeper, representative_jobs(batch))
+
+
 def _sweep_report() -> int:
     """Print the multirun's counts and failed runs; 1 if any run failed, else 0."""
     counts = {k: sum(1 for o in _OUTCOMES if o[1] == k) for k in ("complete", "skipped", "failed")}
@@ -400,6 +425,7 @@ def main(argv: list[str] | None = None) -> None:
     if error:
         fail(error)
     _OUTCOMES.clear()
+    Sweeper.validate_batch_is_legal = _validate_representatives
     try:
         _hydra_main()
     except KeyboardInterrupt:

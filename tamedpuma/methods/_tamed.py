@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tamedpuma.errors import ConfigError
-from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.fabrics import Fabric, FabricGains, solve_acceleration
 from tamedpuma.fabrics.discrete import (
     barrier_step,
     geometry_damping,
@@ -95,9 +95,11 @@ class PumaController:
                                           av.min_clearance)
             if forcing.directional:
                 W = approached_metric(av, qdd_free)
-            qdd_c = pull_through_metric(task, W, forcing.task_weights(len(task.xdd)),
-                                        forcing.null_metric, null, extra,
+            weights = forcing.task_weights(len(task.xdd))
+            qdd_c = pull_through_metric(task, W, weights, forcing.null_metric, null, extra,
                                         forcing.priority_rows(len(task.xdd)))
+            if forcing.geometry == "task_metric":
+                return geometry_with_task_metric(av, task.J, weights), qdd_c, task.xdd
             return av.acceleration(), qdd_c, task.xdd
         qdd_c, xdd = self.joint_acceleration(state, obs)
         return av.acceleration(), qdd_c, xdd
@@ -135,6 +137,24 @@ class TamedController:
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
         h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, self.circulation)
         return state, av, h, qdd_c, xdd
+
+
+def geometry_with_task_metric(av, J: np.ndarray, weights: float | np.ndarray) -> np.ndarray:
+    """The avoidance geometry with PUMA's task metric as one more leaf [rad/s²]::
+
+        h = −(M + Jᵀ diag(w) J)⁻¹ f
+
+    M, f: the avoidance fabric's metric and geometry force (base, obstacle pairs, joint
+    limits); J (m, n): PUMA's task Jacobian; w [1]: its task metric (scalar or (m,)). The task
+    leaf is ``ẍ = 0`` with the constant metric w: a Finsler energy ½ẋᵀ diag(w) ẋ with a zero
+    (degree-2 homogeneous) geometry, so the sum is still a fabric, energized as before.
+    Without it, h = −M⁻¹f moves the hand however the barriers' curvature terms (m_r J̇q̇ along
+    each barrier row, at full strength wherever a barrier's metric exceeds the base's) and the
+    joint-limit braking dictate, and PUMA's forcing, added after, is not weighed against it.
+    With it, h acts where PUMA's task metric does not hold the hand: in free space it leaves
+    the hand's acceleration to PUMA, near a barrier whose metric exceeds w it is the barrier's."""
+    Jw = J * weights if type(weights) is float else np.multiply(np.reshape(weights, (-1, 1)), J)
+    return solve_acceleration(av.M + J.T @ Jw, av.f)
 
 
 def approached_metric(av, qdd_free: np.ndarray) -> np.ndarray:
@@ -344,6 +364,7 @@ class Forcing:
     directional: bool = False
     rotation_weight: float = 1.0
     priority: str = "none"
+    geometry: str = "fabric"
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -383,12 +404,15 @@ class Forcing:
         cfg = dict(cfg or {})
         unknown = sorted(set(cfg) - {"mode", "weight", "null_metric", "circulation",
                                      "circulation_gain", "circulation_onset", "directional",
-                                     "rotation_weight", "priority"})
+                                     "rotation_weight", "priority", "geometry"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
         if f.mode not in ("additive", "metric"):
             raise ConfigError(f"method.forcing.mode must be 'additive' or 'metric', got {f.mode!r}")
+        if f.geometry not in ("fabric", "task_metric"):
+            raise ConfigError(f"method.forcing.geometry must be 'fabric' or 'task_metric', "
+                              f"got {f.geometry!r}")
         if f.priority not in ("none", "position"):
             raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
                               f"got {f.priority!r}")

@@ -26,6 +26,15 @@ Table 1"), and which of the paper's statements still holds with it:
   an obstacle PUMA's push along the barrier's normal is suppressed and the arm slides along it,
   as a forced fabric does. h is the paper's, and the zero set of f_θ^C is unchanged (q̇ = 0,
   ẍ_d = 0 gives q̈ = 0 up to the damped elbow objective), so the same statement holds.
+- ``forcing.geometry: task_metric`` computes the geometry with PUMA's task metric as one more
+  leaf, ``h = −(M + JᵀwJ)⁻¹f`` (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`),
+  instead of ``h = −M⁻¹f``. The leaf is ``ẍ = 0`` in PUMA's task space with the constant metric
+  w, a Finsler energy with a zero geometry, so the sum is still a fabric and its energized
+  form has the same statement. Why: the barriers' metric (×30) exceeds the base's wherever a
+  barrier is near, and there h = −M⁻¹f carries their curvature terms (m_r J̇q̇ along each
+  barrier row) and the joint-limit braking to the hand at full strength, unweighed against
+  PUMA's forcing added after it; in a logged failure (random tomato ``near_table1`` 7001)
+  it moved the hand away from the goal at 0.3-0.6 m/s² against PUMA's 0.1-0.2 m/s².
 - ``forcing.priority: position`` solves PUMA's position rows first and adds the orientation
   rows without changing the hand's acceleration (``prioritized_solve`` in
   :mod:`tamedpuma.methods._policy`): where a goal orientation needs a joint past its limit from
