@@ -3,12 +3,12 @@
 
 Per task and method label, on the runs with obstacles: success under both criteria
 (``tamedpuma/metrics.py``) and success with orientation under the paper criterion (the goal
-orientation also held after the settle time: the pose the task asks for) with 95 %
-percentile-bootstrap confidence intervals (10 000 resamples of the scenarios, seeded), time to success [s] (mean ± std over the paper-criterion successes), the
-path difference to PUMA [m] (mean ± std over the obstacle-free runs of the same scenarios) and
-the whole-body failures by class (sphere_penetration, obstacle_contact, ground_contact,
-joint_limit, stall, time, late). Writes ``random_suite.md``, ``random_suite.csv`` and
-``runs.csv``.
+orientation also held after the settle time: the pose the task asks for) with 95 % percentile-
+bootstrap confidence intervals (10 000 resamples of the scenarios, seeded), time to success [s]
+(mean ± std over the paper-criterion successes), the path difference to PUMA [m] (mean ± std over
+the obstacle-free runs of the same scenarios) and the whole-body failures by class
+(sphere_penetration, obstacle_contact, ground_contact, joint_limit, stall, time, late). Writes
+``random_suite.md``, ``random_suite.csv`` and ``runs.csv``.
 """
 
 from __future__ import annotations

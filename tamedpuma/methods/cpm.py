@@ -44,6 +44,11 @@ suppressed and the regulator's energy goes into sliding along it. f_θ^C keeps i
 stays compatible with it wherever ``P = wJA⁻¹Jᵀ ≈ I`` (free space: −∂ψᵀf_θ^C = −∂ψ_xᵀ P ẍ_d);
 near an obstacle P bends f_θ^C away from PUMA's direction and compatibility is no longer
 guaranteed there, where the barrier already keeps ψ from decreasing along PUMA's path.
+With ``forcing.geometry: task_metric`` (CPM's default since session 13; FPM keeps ``fabric``)
+h = −(M + JᵀwJ)⁻¹f: PUMA's task metric is one more leaf of the fabric (ẍ = 0, metric w), so
+the geometry no longer drives the hand against PUMA near barriers
+(:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`); the sum is still a fabric,
+energized as before, so dH/dt = −β‖q̇‖² holds unchanged.
 
 ``eps`` ε [(rad/s)²]: the regulariser of the energization and regulator denominators
 ``q̇ᵀMq̇ + ε``. Below the speed √ε both fade out and the law becomes ``h + f_θ^C − β q̇``, PUMA's

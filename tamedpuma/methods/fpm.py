@@ -35,6 +35,8 @@ Table 1"), and which of the paper's statements still holds with it:
   barrier row) and the joint-limit braking to the hand at full strength, unweighed against
   PUMA's forcing added after it; in a logged failure (random tomato ``near_table1`` 7001)
   it moved the hand away from the goal at 0.3-0.6 m/s² against PUMA's 0.1-0.2 m/s².
+  CPM's default; FPM keeps ``fabric`` (on 600 random scenarios 507 → 513 successes, within
+  the churn, and Table-1 pouring 06 then fails; BENCHMARKS.md "Session 13").
 - ``forcing.priority: position`` solves PUMA's position rows first and adds the orientation
   rows without changing the hand's acceleration (``prioritized_solve`` in
   :mod:`tamedpuma.methods._policy`): where a goal orientation needs a joint past its limit from
