@@ -117,7 +117,8 @@ def test_the_geometry_with_the_task_metric_is_the_spec_sum_and_leaves_the_hand_t
 
 
 @pytest.mark.parametrize("bad", [{"mode": "sum"}, {"weight": 0.0}, {"null_metric": -1.0},
-                                 {"wieght": 3.0}, {"geometry": "summed"}])
+                                 {"wieght": 3.0}, {"geometry": "summed"},
+                                 {"mode": "additive", "geometry": "task_metric"}])
 def test_bad_forcing_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="method.forcing"):
         Forcing.from_mapping(bad)

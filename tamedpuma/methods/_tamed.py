@@ -353,7 +353,9 @@ class Forcing:
     rotation_weight: ρ [1], the orientation rows' share of the task metric (:meth:`task_weights`;
     ``metric`` only); priority: ``position`` applies the orientation rows' force only in the
     dynamically consistent null space of the position rows
-    (:func:`~tamedpuma.methods._policy.prioritized_solve`), ``none``: one weighted solve."""
+    (:func:`~tamedpuma.methods._policy.prioritized_solve`), ``none``: one weighted solve;
+    geometry: ``fabric`` h = −M⁻¹f, ``task_metric`` h = −(M + Jᵀ diag(w) J)⁻¹f
+    (:func:`geometry_with_task_metric`; ``metric`` only)."""
 
     mode: str = "additive"
     weight: float = 100.0
@@ -413,6 +415,9 @@ class Forcing:
         if f.geometry not in ("fabric", "task_metric"):
             raise ConfigError(f"method.forcing.geometry must be 'fabric' or 'task_metric', "
                               f"got {f.geometry!r}")
+        if f.geometry == "task_metric" and f.mode != "metric":
+            raise ConfigError("method.forcing.geometry=task_metric needs method.forcing.mode="
+                              "metric; with mode=additive set method.forcing.geometry=fabric")
         if f.priority not in ("none", "position"):
             raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
                               f"got {f.priority!r}")
