@@ -243,6 +243,12 @@ def pull_to_joints(task: TaskAcceleration, damping: float | Damping,
     return qdd
 
 
+def weighted_rows(weight: float | np.ndarray, J: np.ndarray) -> np.ndarray:
+    """diag(w) J (m, n): J's rows times the task metric w, a scalar or one weight per row (m,).
+    A scalar multiplies as it is (the same numbers as broadcasting it as (1, 1))."""
+    return weight * J if type(weight) is float else np.multiply(np.reshape(weight, (-1, 1)), J)
+
+
 def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | np.ndarray,
                         m_null: float, qdd_null: np.ndarray | None = None,
                         extra=None, priority: int = 0) -> np.ndarray:
@@ -266,8 +272,7 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
     J = task.J
     m = J.shape[0]
     k = priority if priority > 0 else m
-    # diag(w) J: a scalar w multiplies as it is (the same numbers as broadcasting it as (1, 1))
-    wJ = weight * J if type(weight) is float else np.multiply(np.reshape(weight, (-1, 1)), J)
+    wJ = weighted_rows(weight, J)
     target = task.xdd - task.jdqd
     J1, wJ1 = (J, wJ) if k == m else (J[:k], wJ[:k])  # (views of all rows: the same numbers)
     A = W + J1.T @ wJ1

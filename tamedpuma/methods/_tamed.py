@@ -30,6 +30,7 @@ from tamedpuma.methods._policy import (
     TaskAcceleration,
     pull_through_metric,
     pull_to_joints,
+    weighted_rows,
 )
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
 
@@ -153,8 +154,7 @@ def geometry_with_task_metric(av, J: np.ndarray, weights: float | np.ndarray) ->
     joint-limit braking dictate, and PUMA's forcing, added after, is not weighed against it.
     With it, h acts where PUMA's task metric does not hold the hand: in free space it leaves
     the hand's acceleration to PUMA, near a barrier whose metric exceeds w it is the barrier's."""
-    Jw = J * weights if type(weights) is float else np.multiply(np.reshape(weights, (-1, 1)), J)
-    return solve_acceleration(av.M + J.T @ Jw, av.f)
+    return solve_acceleration(av.M + J.T @ weighted_rows(weights, J), av.f)
 
 
 def approached_metric(av, qdd_free: np.ndarray) -> np.ndarray:

@@ -268,9 +268,12 @@ class CpmController(TamedController):
                                                  self.fabric.q_max - obs.q)))
         engaged = self.tank.engaged(av.min_clearance, limit_distance)
         # FPM's α only where the tank may pay (elsewhere c_fpm = −∞: CPM's law, the tank refills)
-        alpha_raw_h = energization_alpha(av, self.energy, qd, h, self.eps) if engaged else np.nan
-        alpha_h = bounded_alpha(alpha_raw_h, self.alpha_min) if engaged else np.nan
-        c_fpm = -alpha_h if engaged else -np.inf
+        alpha_raw_h = alpha_h = np.nan
+        c_fpm = -np.inf
+        if engaged:
+            alpha_raw_h = energization_alpha(av, self.energy, qd, h, self.eps)
+            alpha_h = bounded_alpha(alpha_raw_h, self.alpha_min)
+            c_fpm = -alpha_h
         c_tank, self.tank_level = self.tank.coefficient(
             c, c_fpm, float(qd @ h_plus_f + dpsi @ qd), float(qd @ Mqd), self.beta,
             self.tank_level, self.tank_size, self.dt)
