@@ -229,6 +229,42 @@ def test_a_sigkilled_parallel_sweep_leaves_no_worker_behind(tmp_path):
     assert not partial.complete and len(partial.scalars) > 0
 
 
+_WORKER_SIGTERM = """
+import multiprocessing, os, signal, sys
+multiprocessing.current_process().name = "LokyProcess-1"   # as in a launcher's worker
+from tamedpuma.app import sweep
+sweep._die_with_launcher()
+try:   # the worker loop of a launcher catches everything a job raises
+    try:
+        {where}
+    finally:
+        print("unwound", flush=True)
+except BaseException as exc:
+    print("caught", type(exc).__name__, flush=True)
+    sweep._exit_if_terminated()
+print("worker still alive")
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="launcher workers: Linux")
+@pytest.mark.parametrize("run_open", [False, True], ids=["setting-up", "mid-run"])
+def test_a_sigterm_anywhere_in_a_workers_job_ends_the_worker(run_open):
+    """SIGTERM reached a loky worker while its job was still setting up: the SystemExit went to
+    the worker loop, which sent it back as a result and waited for work for ever (CI, session
+    14: a SIGKILLed sweep's worker left behind). With no run open the worker now leaves at
+    once; mid-run, SystemExit unwinds the run (its logs close) and the worker leaves after."""
+    where = ("sweep._RUN_OPEN.append(True); " if run_open else "") + \
+        "os.kill(os.getpid(), signal.SIGTERM)"
+    proc = subprocess.run([sys.executable, "-c", _WORKER_SIGTERM.format(where=where)],
+                          env=ENV, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 143, (proc.stdout, proc.stderr)
+    assert "worker still alive" not in proc.stdout
+    if run_open:
+        assert proc.stdout.split() == ["unwound", "caught", "SystemExit"], proc.stdout
+    else:
+        assert proc.stdout == "", proc.stdout
+
+
 def test_analysis_lists_and_excludes_incomplete_truncated_and_failed_runs(tmp_path, capsys):
     from tamedpuma.analysis import tables
 

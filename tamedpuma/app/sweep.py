@@ -312,59 +312,76 @@ def _die_with_launcher() -> None:
     # so it leaves now
     launcher = os.environ.get(_LAUNCHER_PID)
     if launcher and launcher.isdigit() and os.getppid() != int(launcher):
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(143)
+        _leave_worker()
 
 
 _LAUNCHER_PID = "TAMEDPUMA_SWEEP_LAUNCHER_PID"  # set by main(), read by its launcher's workers
 _TERMINATED = []  # set in a launcher worker by SIGTERM (its launcher died, or it was stopped)
+_RUN_OPEN = []  # non-empty while a launcher worker's run has its logs open
 
 
 def _terminated(*_) -> None:
-    """SIGTERM in a launcher worker: unwind the run (its logs close as incomplete), then exit."""
+    """SIGTERM in a launcher worker. During a run: unwind it (its logs close as incomplete),
+    then exit. Anywhere else in the job (before the run opens its logs, after they closed):
+    leave at once, there is nothing to close."""
     _TERMINATED.append(True)
+    if not _RUN_OPEN:
+        _leave_worker()
     sys.exit(143)
 
 
+def _leave_worker() -> None:
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(143)
+
+
 def _exit_if_terminated() -> None:
-    """After a SIGTERMed run has closed its logs, leave the worker process for good: raised
+    """After a SIGTERMed job has closed its logs, leave the worker process for good: raised
     into the launcher's worker loop, the SystemExit was caught and sent back as a task result,
     and the loky worker, its launcher gone, waited for more work for ever (seen in session 7:
-    workers of a SIGKILLed sweep left asleep, re-parented to init)."""
+    workers of a SIGKILLed sweep left asleep, re-parented to init; in session 14 the same for
+    a SIGTERM that reached a worker while its job was still setting up, before the run)."""
     if _TERMINATED:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(143)
+        _leave_worker()
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="sweep", version_base="1.3")
 def _hydra_main(cfg: DictConfig) -> None:
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
-    multirun = hydra_cfg.mode == RunMode.MULTIRUN
+    if hydra_cfg.mode != RunMode.MULTIRUN:
+        _job(cfg, run_dir, multirun=False)
+        return
+    _die_with_launcher()
+    try:
+        _job(cfg, run_dir, multirun=True)
+    finally:  # a SIGTERM anywhere in the job ends the worker, not just the job
+        _exit_if_terminated()
+
+
+def _job(cfg: DictConfig, run_dir: Path, multirun: bool) -> None:
+    """One run of the sweep (or the single run): set aside a previous attempt, run, record."""
     if multirun:
-        _die_with_launcher()
         state = run_state(run_dir)
         if state == "complete":
             _record_outcome(run_dir, "skipped", "already complete")
             print(f"skipped (already complete): {run_dir}")
             return
         _set_aside(run_dir)
+    _RUN_OPEN.append(True)
     try:
         summary = run_one(cfg, run_dir)
     except (KeyboardInterrupt, SystemExit) as exc:
         if isinstance(exc, SystemExit) and exc.code in (0, None):
             raise
         print(_partial_log_line(run_dir), file=sys.stderr)
-        if multirun:
-            _exit_if_terminated()
         raise
     except Exception as exc:  # noqa: BLE001 - a sweep survives its worst run
         if multirun and _TERMINATED:  # a SIGTERM mid-run that surfaced as another error (seen:
             # raised inside OmegaConf's validation, it left a ConfigError): not the run's fault
             print(_partial_log_line(run_dir), file=sys.stderr)
-            _exit_if_terminated()
+            return
         if not multirun:
             if isinstance(exc, TamedPumaError):
                 fail(str(exc))
@@ -374,6 +391,8 @@ def _hydra_main(cfg: DictConfig) -> None:
         print(f"error: run failed ({failure['failure']}): {failure['reason']} "
               f"[recorded in {run_dir / 'summary.json'}]", file=sys.stderr)
         return
+    finally:
+        _RUN_OPEN.clear()
     if multirun:
         _exit_if_terminated()  # SIGTERMed just after the run ended: leave the worker all the same
         failed = summary["stop_reason"] == "nonfinite_command"
