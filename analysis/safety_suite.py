@@ -151,6 +151,24 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     return out.join(fails).fillna("")
 
 
+def split_by_puma_limits(df: pd.DataFrame, puma_free: pd.DataFrame) -> pd.DataFrame:
+    """Success per (task, kind, label), split by whether PUMA alone, on the same scenario
+    without obstacles, drove a joint past its limit (``puma_free``: this script's CSV of
+    ``--methods puma --free``; its ``limit_steps`` > 0). Where PUMA's own motion needs a joint
+    past its limit, a method that keeps the limits can only reach the goal by another route:
+    the split says how much of a method's failure rate is that (session 14)."""
+    puma = puma_free[puma_free.method == "puma"]
+    past = puma.assign(puma_past_limit=puma.limit_steps > 0)[
+        ["task", "kind", "seed", "puma_past_limit"]]
+    both = df.merge(past, on=["task", "kind", "seed"], how="inner")
+    if both.empty:
+        raise ValueError("no scenario of the runs is in the PUMA obstacle-free CSV")
+    out = both.groupby(["task", "kind", "label", "puma_past_limit"]).agg(
+        n=("seed", "size"), paper=("success_paper", "mean"),
+        whole_body=("success_whole_body", "mean"))
+    return out.unstack("puma_past_limit")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tasks", nargs="+", default=["tomato", "pouring"])
@@ -165,6 +183,9 @@ def main(argv=None) -> None:
     ap.add_argument("--free", action="store_true", help="without obstacles (path differences)")
     ap.add_argument("--paths", default="", help="save every run's end-effector path (.npy) here")
     ap.add_argument("--out", required=True)
+    ap.add_argument("--puma-free", default="", help="a CSV of this script with --methods puma "
+                    "--free on the same scenarios: also print success split by whether PUMA's "
+                    "own obstacle-free run drove a joint past its limit")
     args = ap.parse_args(argv)
     specs = [{"task": t, "kind": k, "seed": s, "method": m, "models": args.models,
               "set": args.set, "label": args.label or m, "free": args.free, "paths": args.paths}
@@ -188,6 +209,10 @@ def main(argv=None) -> None:
     partial.unlink(missing_ok=True)
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         print(summarise(df))
+        if args.puma_free:
+            print("success where PUMA's own obstacle-free run keeps every joint inside its "
+                  "limits (False) or drives one past it (True):")
+            print(split_by_puma_limits(df, pd.read_csv(args.puma_free)))
     print(f"wrote {out}")
 
 

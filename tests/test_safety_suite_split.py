@@ -1,0 +1,38 @@
+"""analysis.safety_suite.split_by_puma_limits: success split by PUMA's own joint-limit need."""
+
+import pandas as pd
+import pytest
+
+from analysis.safety_suite import split_by_puma_limits
+
+
+def _runs():
+    return pd.DataFrame({
+        "task": ["tomato"] * 4, "kind": ["anywhere"] * 4, "seed": [1, 2, 3, 4],
+        "label": ["fpm"] * 4, "success_paper": [True, True, False, True],
+        "success_whole_body": [True, False, False, True]})
+
+
+def test_success_is_split_by_whether_puma_alone_passed_a_limit():
+    puma = pd.DataFrame({"task": ["tomato"] * 4, "kind": ["anywhere"] * 4, "seed": [1, 2, 3, 4],
+                         "method": ["puma"] * 4, "limit_steps": [0, 0, 12, 3]})
+    split = split_by_puma_limits(_runs(), puma)
+    row = split.loc[("tomato", "anywhere", "fpm")]
+    assert row[("n", False)] == 2 and row[("n", True)] == 2
+    assert row[("paper", False)] == 1.0 and row[("paper", True)] == 0.5
+    assert row[("whole_body", False)] == 0.5 and row[("whole_body", True)] == 0.5
+
+
+def test_other_methods_rows_and_other_scenarios_are_ignored():
+    puma = pd.DataFrame({"task": ["tomato"] * 3, "kind": ["anywhere"] * 3, "seed": [1, 1, 9],
+                         "method": ["puma", "cpm", "puma"], "limit_steps": [5, 0, 0]})
+    split = split_by_puma_limits(_runs(), puma)
+    row = split.loc[("tomato", "anywhere", "fpm")]
+    assert row[("n", True)] == 1 and row[("paper", True)] == 1.0
+
+
+def test_no_common_scenario_is_an_error():
+    puma = pd.DataFrame({"task": ["pouring"], "kind": ["anywhere"], "seed": [1],
+                         "method": ["puma"], "limit_steps": [0]})
+    with pytest.raises(ValueError, match="no scenario"):
+        split_by_puma_limits(_runs(), puma)
