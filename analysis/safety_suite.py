@@ -187,6 +187,16 @@ def main(argv=None) -> None:
                     "--free on the same scenarios: also print success split by whether PUMA's "
                     "own obstacle-free run drove a joint past its limit")
     args = ap.parse_args(argv)
+    puma_free = None
+    if args.puma_free:  # read before the runs: a bad file is a one-line error, not lost work
+        try:
+            puma_free = pd.read_csv(args.puma_free)
+        except (OSError, ValueError) as exc:
+            ap.error(f"--puma-free {args.puma_free}: {' '.join(str(exc).split())}")
+        missing = {"task", "kind", "seed", "method", "limit_steps"} - set(puma_free.columns)
+        if missing:
+            ap.error(f"--puma-free {args.puma_free}: not a safety_suite CSV (no column "
+                     f"{', '.join(sorted(missing))})")
     specs = [{"task": t, "kind": k, "seed": s, "method": m, "models": args.models,
               "set": args.set, "label": args.label or m, "free": args.free, "paths": args.paths}
              for t in args.tasks for k in args.kinds for m in args.methods
@@ -209,10 +219,13 @@ def main(argv=None) -> None:
     partial.unlink(missing_ok=True)
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         print(summarise(df))
-        if args.puma_free:
+        if puma_free is not None:
             print("success where PUMA's own obstacle-free run keeps every joint inside its "
                   "limits (False) or drives one past it (True):")
-            print(split_by_puma_limits(df, pd.read_csv(args.puma_free)))
+            try:
+                print(split_by_puma_limits(df, puma_free))
+            except ValueError as exc:
+                print(f"--puma-free: {exc}")
     print(f"wrote {out}")
 
 

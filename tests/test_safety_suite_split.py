@@ -36,3 +36,18 @@ def test_no_common_scenario_is_an_error():
                          "method": ["puma"], "limit_steps": [0]})
     with pytest.raises(ValueError, match="no scenario"):
         split_by_puma_limits(_runs(), puma)
+
+
+@pytest.mark.parametrize("content", [None, "a,b\n1,2\n"], ids=["missing", "not-a-suite-csv"])
+def test_a_bad_puma_free_file_is_a_one_line_error_before_any_run(tmp_path, capsys, content):
+    from analysis.safety_suite import main
+
+    path = tmp_path / "puma_free.csv"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(SystemExit) as exit_:
+        main(["--out", str(tmp_path / "out.csv"), "--puma-free", str(path)])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "error: --puma-free" in err[-1]
+    assert not (tmp_path / "out.csv").exists()
