@@ -359,3 +359,41 @@ def test_the_geometry_braking_past_the_alpha_bound_is_taken_implicitly():
     assert np.linalg.norm(implicit) < np.linalg.norm(qd) + dt * np.linalg.norm(side)
     a3, c3 = braking_split(h, c, qd, 5.0, 5.0)  # bound inactive: unchanged
     assert a3 is h and c3 == c
+
+
+def test_forcing_reach_leaves_out_only_the_obstacle_pairs_farther_than_it(kinematics):
+    """``approached_metric(av, q̈_P, x_r)`` = M minus the receding rows (as without reach) and
+    minus every obstacle pair farther than x_r from contact; joint-limit rows stay whatever
+    their distance (x in rad); x_r = inf is the plain directional metric."""
+    from tamedpuma.methods._tamed import approached_metric
+
+    fab = Fabric(FabricGains(), kinematics.spec.q_min, kinematics.spec.q_max)
+    q, qd = Q0.copy(), np.zeros(7)
+    state = kinematics.evaluate(q, qd)
+    av = fab.avoidance(state, q, qd, *OBSTACLES)
+    rows, x, m = av.barrier_rows, av.barrier_x, av.barrier_metric
+    n_pairs = rows.shape[0] - 14 - av.n_ground_rows
+    assert n_pairs > 0 and np.any(m[:n_pairs] > 0)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        free = rng.normal(size=7)
+        reach = float(np.median(x[:n_pairs][m[:n_pairs] > 0]))
+        drop = (rows @ free > 0) & (m > 0)
+        drop[:n_pairs] |= (x[:n_pairs] > reach) & (m[:n_pairs] > 0)
+        expected = av.M - (rows[drop].T * m[drop]) @ rows[drop]
+        got = approached_metric(av, free, reach)
+        assert np.allclose(got, expected, rtol=0, atol=1e-12)
+        assert np.array_equal(approached_metric(av, free, np.inf), approached_metric(av, free))
+        tiny = approached_metric(av, free, 1e-9)  # no pair counts: the joint limits remain
+        keep = ~((rows @ free > 0) & (m > 0))
+        keep[:n_pairs] = False
+        assert np.allclose(tiny, fab.gains.base_metric * np.eye(7)
+                           + (rows[keep].T * m[keep]) @ rows[keep], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("reach", [0.0, -1.0])
+def test_forcing_reach_must_be_positive(reach):
+    from tamedpuma.methods._tamed import Forcing
+
+    with pytest.raises(ConfigError, match="reach"):
+        Forcing.from_mapping({"mode": "metric", "directional": True, "reach": reach})

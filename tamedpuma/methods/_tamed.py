@@ -7,7 +7,7 @@ Methods never import each other; what two of them share lives here.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -95,7 +95,7 @@ class PumaController:
                                           lambda: self.pull_at_rest(state, obs),
                                           av.min_clearance)
             if forcing.directional:
-                W = approached_metric(av, qdd_free)
+                W = approached_metric(av, qdd_free, forcing.reach)
             weights = forcing.task_weights(len(task.xdd))
             qdd_c = pull_through_metric(task, W, weights, forcing.null_metric, null, extra,
                                         forcing.priority_rows(len(task.xdd)))
@@ -157,7 +157,7 @@ def geometry_with_task_metric(av, J: np.ndarray, weights: float | np.ndarray) ->
     return solve_acceleration(av.M + J.T @ weighted_rows(weights, J), av.f)
 
 
-def approached_metric(av, qdd_free: np.ndarray) -> np.ndarray:
+def approached_metric(av, qdd_free: np.ndarray, reach: float = np.inf) -> np.ndarray:
     """The avoidance metric without the barrier rows PUMA's free acceleration q̈_P recedes from
     (``forcing.directional``): ``M − Σ_{r: a_r·q̈_P > 0} m_r a_r a_rᵀ`` (n, n), a fresh array.
 
@@ -168,12 +168,24 @@ def approached_metric(av, qdd_free: np.ndarray) -> np.ndarray:
     as a push into it: the arm stayed where it was for good (random scenarios: joints 3 and 7
     at their limits, 0.55 m from the goal, obstacles 0.5 m away). Here s is evaluated on the
     direction the forcing moves each barrier, ``a_r·q̈_P``: the forcing is resisted only along
-    the barriers it approaches. The fabric (h, its metric, energization) is unchanged."""
+    the barriers it approaches. The fabric (h, its metric, energization) is unchanged.
+
+    ``reach`` x_r [1, the obstacle leaf's x units, radius sums]: an obstacle pair counts only
+    within x_r of contact (``forcing.reach``); beyond it PUMA's pull is realised as in free
+    space, and only the fabric's geometry and the barrier step act on that pair. Why: goals may
+    lie 10 cm from an obstacle, where every wrist pair is inside the leaf's activation (x < 2)
+    with metric 2k w(x)/x = 10-15 at x ≈ 0.4 (k = 3); PUMA's weak pull near the goal
+    (0.03 m/s²) then reached the hand at a third, and CPM stalled 5.4 cm short (random pouring
+    ``near_table1`` 7028; BENCHMARKS.md "Session 14"). Joint-limit and ground rows are not
+    affected."""
     rows, m = av.barrier_rows, av.barrier_metric
     W = av.M.copy()
     if rows is None or m is None or rows.shape[0] == 0:
         return W
     recede = (rows @ qdd_free > 0.0) & (m > 0.0)
+    if np.isfinite(reach):  # pairs come first, then 2n joint-limit rows, then the ground rows
+        n_pairs = rows.shape[0] - 2 * len(qdd_free) - av.n_ground_rows
+        recede[:n_pairs] |= (av.barrier_x[:n_pairs] > reach) & (m[:n_pairs] > 0.0)
     if recede.any():
         r = rows[recede]
         W -= (r.T * m[recede]) @ r
@@ -355,7 +367,9 @@ class Forcing:
     dynamically consistent null space of the position rows
     (:func:`~tamedpuma.methods._policy.prioritized_solve`), ``none``: one weighted solve;
     geometry: ``fabric`` h = −M⁻¹f, ``task_metric`` h = −(M + Jᵀ diag(w) J)⁻¹f
-    (:func:`geometry_with_task_metric`; ``metric`` only)."""
+    (:func:`geometry_with_task_metric`; ``metric`` only); reach: x_r [1], the obstacle pairs
+    that resist the push are those within x_r of contact (:func:`approached_metric`; inf: every
+    pair within the leaf's activation; ``directional`` only)."""
 
     mode: str = "additive"
     weight: float = 100.0
@@ -367,6 +381,7 @@ class Forcing:
     rotation_weight: float = 1.0
     priority: str = "none"
     geometry: str = "fabric"
+    reach: float = np.inf
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -406,7 +421,7 @@ class Forcing:
         cfg = dict(cfg or {})
         unknown = sorted(set(cfg) - {"mode", "weight", "null_metric", "circulation",
                                      "circulation_gain", "circulation_onset", "directional",
-                                     "rotation_weight", "priority", "geometry"})
+                                     "rotation_weight", "priority", "geometry", "reach"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
@@ -418,6 +433,9 @@ class Forcing:
         if f.geometry == "task_metric" and f.mode != "metric":
             raise ConfigError("method.forcing.geometry=task_metric needs method.forcing.mode="
                               "metric; with mode=additive set method.forcing.geometry=fabric")
+        f = replace(f, reach=float(f.reach))
+        if not f.reach > 0:
+            raise ConfigError(f"method.forcing.reach must be > 0 (.inf: every pair), got {f.reach}")
         if f.priority not in ("none", "position"):
             raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
                               f"got {f.priority!r}")
