@@ -372,8 +372,9 @@ def test_forcing_reach_leaves_out_only_the_obstacle_pairs_farther_than_it(kinema
     state = kinematics.evaluate(q, qd)
     av = fab.avoidance(state, q, qd, *OBSTACLES)
     rows, x, m = av.barrier_rows, av.barrier_x, av.barrier_metric
-    n_pairs = rows.shape[0] - 14 - av.n_ground_rows
-    assert n_pairs > 0 and np.any(m[:n_pairs] > 0)
+    n_pairs = av.n_pair_rows  # the layout: pairs, then 2n joint-limit rows, then ground rows
+    assert n_pairs == rows.shape[0] - 14 - av.n_ground_rows == 10  # 5 spheres × 2 obstacles
+    assert np.any(m[:n_pairs] > 0)
     rng = np.random.default_rng(0)
     for _ in range(5):
         free = rng.normal(size=7)

@@ -67,7 +67,8 @@ class AvoidanceFabric:
     beyond the obstacle leaf's activation distance (metric 0) have no row here: far_rows
     (:class:`~tamedpuma.fabrics.discrete.FarRows`, else None) bounds them for the barrier step
     and builds their rows on demand. n_ground_rows: how many of the rows (the last ones) are
-    ground rows (0 without the ground leaf).
+    ground rows (0 without the ground leaf); n_pair_rows: how many (the first ones) are obstacle
+    pairs (the joint-limit rows, 2n, come between).
     """
 
     M: np.ndarray
@@ -84,6 +85,7 @@ class AvoidanceFabric:
     barrier_xd: np.ndarray | None = None
     far_rows: FarRows | None = None
     n_ground_rows: int = 0
+    n_pair_rows: int = 0
 
     @property
     def f(self) -> np.ndarray:
@@ -226,7 +228,8 @@ class Fabric:
                                n_clamped=n_clamped, n_limit_clamped=n_limit,
                                barrier_rows=rows, barrier_x=x, barrier_jdqd=jd,
                                barrier_metric=m, barrier_xd=xd,
-                               far_rows=ws.far if v.lo else None, n_ground_rows=n_ground)
+                               far_rows=ws.far if v.lo else None, n_ground_rows=n_ground,
+                               n_pair_rows=v.n_pairs)
 
     def forcing(self, state, qd, goal_position, goal_rotation) -> Forcing:
         """The goal attractor pulled into joint space (see :class:`Forcing`).

@@ -7,7 +7,7 @@ Methods never import each other; what two of them share lives here.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -183,9 +183,9 @@ def approached_metric(av, qdd_free: np.ndarray, reach: float = np.inf) -> np.nda
     if rows is None or m is None or rows.shape[0] == 0:
         return W
     recede = (rows @ qdd_free > 0.0) & (m > 0.0)
-    if np.isfinite(reach):  # pairs come first, then 2n joint-limit rows, then the ground rows
-        n_pairs = rows.shape[0] - 2 * len(qdd_free) - av.n_ground_rows
-        recede[:n_pairs] |= (av.barrier_x[:n_pairs] > reach) & (m[:n_pairs] > 0.0)
+    if np.isfinite(reach):  # the pair rows come first
+        pairs = slice(0, av.n_pair_rows)
+        recede[pairs] |= (av.barrier_x[pairs] > reach) & (m[pairs] > 0.0)
     if recede.any():
         r = rows[recede]
         W -= (r.T * m[recede]) @ r
@@ -433,7 +433,6 @@ class Forcing:
         if f.geometry == "task_metric" and f.mode != "metric":
             raise ConfigError("method.forcing.geometry=task_metric needs method.forcing.mode="
                               "metric; with mode=additive set method.forcing.geometry=fabric")
-        f = replace(f, reach=float(f.reach))
         if not f.reach > 0:
             raise ConfigError(f"method.forcing.reach must be > 0 (.inf: every pair), got {f.reach}")
         if f.priority not in ("none", "position"):
