@@ -53,7 +53,8 @@ def test_command_writes_json_and_keeps_other_sections(tmp_path):
     (tmp_path / "BENCHMARKS.md").write_text("# Benchmarks\n\n## Fabrics\nkeep\n\n## Controller "
                                             "step\nold figures\n\n## Z\nz\n")
     code = bench.main(["--methods", "fabrics", "nope", "--counts", "2", "--calls", "10",
-                       "--budget", "0.5", "--episodes", "0", "--root", str(tmp_path)])
+                       "--budget", "0.5", "--episodes", "0", "--skip-fabrics",
+                       "--root", str(tmp_path)])
     assert code == 0
     report = json.loads((tmp_path / "benchmarks" / "bench.json").read_text())
     assert [r["n_obstacles"] for r in report["controller"]] == [2]
@@ -61,6 +62,23 @@ def test_command_writes_json_and_keeps_other_sections(tmp_path):
     text = (tmp_path / "BENCHMARKS.md").read_text()
     assert "keep" in text and "## Z\nz" in text and "old figures" not in text
     assert text.count("## Controller step") == 1 and "| fabrics | 2 |" in text
+
+
+def test_one_command_also_regenerates_the_fabrics_section(tmp_path, monkeypatch):
+    """Without --skip-fabrics the "Fabrics" section (ours against the reference planner) is
+    rewritten by the same command; with no reference Python its figures are cited as dated."""
+    monkeypatch.delenv("TAMEDPUMA_REFERENCE_PYTHON", raising=False)
+    (tmp_path / "BENCHMARKS.md").write_text("# Benchmarks\n\n## Fabrics\nold\n\n## Z\nz\n")
+    code = bench.main(["--methods", "fabrics", "--counts", "2", "--calls", "20", "--budget",
+                       "0.5", "--episodes", "0", "--parts", "--root", str(tmp_path)])
+    assert code == 0
+    text = (tmp_path / "BENCHMARKS.md").read_text()
+    fabrics = text.split("## Fabrics")[1].split("## ")[0]
+    assert "old" not in fabrics and "python -m tamedpuma.bench" in fabrics
+    assert "dated" in fabrics and "## Z\nz" in text
+    saved = json.loads((tmp_path / "benchmarks" / "fabrics.json").read_text())
+    assert [r["n_obstacles"] for r in saved["results"]] == [2, 10, 100, 1000]
+    assert saved["reference_live"] == {}
 
 
 def test_bad_arguments_exit_2(capsys):

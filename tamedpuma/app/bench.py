@@ -15,17 +15,24 @@ Sections (each regenerated, never typed in):
 2. **Episode speed**: one FPM episode of the default scenario run through the sweep's own
    ``run_one`` with each recorder setting (none, MCAP, Rerun, both): simulated seconds per wall
    second, and each recorder's overhead against ``recorder=none``.
-3. **PUMA training** and the **Table-1 sweep**: measured only on request (``--training``,
-   ``--table1``: minutes each); otherwise the last dated figures found in ``benchmarks/`` are
-   cited as such.
+3. **Fabrics**: the vanilla fabric at 2-1000 obstacles against the reference ``fabrics``
+   planner, measured live at 2 and 10 obstacles where a Python with it is given
+   (``--reference-python`` or ``$TAMEDPUMA_REFERENCE_PYTHON``), its dated figures cited otherwise
+   (:mod:`tamedpuma.app.bench_fabrics`; ``--skip-fabrics`` leaves the section as it is).
+4. **PUMA training** and the **Table-1 sweep**: measured only on request (``--training``,
+   ``--training-seeds``, ``--table1``: minutes each; :mod:`tamedpuma.app.bench_runs`), each judged
+   against issue 16's targets, with the profile of the sweep's time from its runs' summaries;
+   otherwise the last dated training figures found in ``benchmarks/`` are cited as such.
 
-    python -m tamedpuma.bench                       # sections 1-2, writes the files below
-    python -m tamedpuma.bench --methods fpm cpm --counts 2 1000 --no-write
+    python -m tamedpuma.bench                       # sections 1-3, writes the files below
+    python -m tamedpuma.bench --methods fpm cpm --counts 2 1000 --skip-fabrics --no-write
     python -m tamedpuma.bench --baseline 93ed4a1      # also time revision 93ed4a1, side by side
+    python -m tamedpuma.bench --training --training-seeds 0 1 2 --table1   # everything
 
-Writes ``benchmarks/bench.json`` (every figure, machine, load averages at start and end), the
-"## Controller step" section of ``BENCHMARKS.md`` (other sections are kept) and the one-line
-summary between README.md's ``<!-- bench-summary -->`` markers.
+Writes ``benchmarks/bench.json`` (every figure, machine, load averages at start and end) and
+``benchmarks/fabrics.json``, the "## Controller step" and "## Fabrics" sections of
+``BENCHMARKS.md`` (other sections are kept) and the one-line summary between README.md's
+``<!-- bench-summary -->`` markers.
 """
 
 from __future__ import annotations
@@ -42,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tamedpuma.app import bench_fabrics, bench_runs
 from tamedpuma.app.bench_fabrics import ROOT, machine_info, random_obstacles, update_markdown
 
 COUNTS = (2, 10, 100, 1000)
@@ -656,13 +664,6 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split("Config search path")[0].split()) or type(exc).__name__
 
 
-def _timed_command(argv: list[str]) -> dict:
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, *argv], capture_output=True, text=True)
-    return {"command": "python " + " ".join(argv), "wall_s": round(time.perf_counter() - t0, 1),
-            "returncode": proc.returncode}
-
-
 def cited(root: Path) -> dict:
     """Dated figures already in ``benchmarks/`` (training reports), cited, not re-measured."""
     out = {}
@@ -786,6 +787,9 @@ def target_lines(report: dict) -> list[str]:
                      f"step above: the physics evicts its caches) "
                      f"{sim_s / (phys + ctrl):.0f}× at most, before any state read or record.")
         out.append(line)
+    training = bench_runs.training_target_line(report.get("training") or [])
+    out += [training] if training else []
+    out += bench_runs.table1_lines(report.get("table1"))[1:2]
     if not out:
         return []
     return ["", "Targets of issue 16 (medians of this run; the machine is shared, so the p10 "
@@ -903,6 +907,8 @@ def markdown_section(report: dict) -> str:
                       f"rest {rest:.3f} s (the simulator's state reads, "
                       "contacts, the step records, metrics)."]
     lines += target_lines(report)
+    lines += bench_runs.training_lines(report.get("training") or [])
+    lines += bench_runs.table1_lines(report.get("table1"))[2:]
     for key, item in report.get("commands", {}).items():
         lines += ["", f"{key}: `{item['command']}` took {item['wall_s']} s "
                   f"(exit {item['returncode']})."]
@@ -961,6 +967,8 @@ def main(argv=None) -> int:
     parser.add_argument("--episodes", type=int, default=3,
                         help="repeats per recorder setting (0: skip episode speed)")
     parser.add_argument("--training", action="store_true", help="also time PUMA training")
+    parser.add_argument("--training-seeds", type=int, nargs="+", default=[0], metavar="SEED",
+                        help="seeds of each task trained with --training")
     parser.add_argument("--table1", action="store_true", help="also time +experiment=table1")
     parser.add_argument("--parts", nargs="*",
                         default=["fabrics", "fabrics+numba", "puma", "fpm", "fpm+numba", "cpm",
@@ -975,6 +983,13 @@ def main(argv=None) -> int:
     parser.add_argument("--episode-baseline", metavar="REV",
                         help="also time the episodes on git revision REV, side by side "
                         "(default: --baseline)")
+    parser.add_argument("--skip-fabrics", action="store_true",
+                        help="leave BENCHMARKS.md's \"Fabrics\" section (the vanilla fabric "
+                        "against the reference planner) as it is")
+    parser.add_argument("--reference-python", default=os.environ.get(bench_fabrics.REFERENCE_ENV)
+                        or None, metavar="PATH", help="a Python with the reference `fabrics` "
+                        "package: measured live at 2 and 10 obstacles (default: "
+                        f"${bench_fabrics.REFERENCE_ENV}, else its dated figures are cited)")
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root to write into")
     parser.add_argument("overrides", nargs="*", help="config overrides for every build")
@@ -1037,21 +1052,21 @@ def main(argv=None) -> int:
                 report["episodes"] = time_episodes("fpm", args.episodes, args.overrides, trees)
             except Exception as exc:  # a missing model, a composition error: reported
                 report["errors"].append({"method": "episode", "error": _one_line(exc)})
+    fabrics = None
+    if not args.skip_fabrics:  # the "Fabrics" section: our fabric and the reference planner
+        fabrics = bench_fabrics.run(calls=args.calls, reference_python=args.reference_python)
+        fabrics["command"] = report["command"]
+        report["fabrics"] = {k: fabrics[k] for k in ("results", "reference_live",
+                                                      "reference_note")}
     report["commands"] = {}
     if args.training:
-        for task in ("tomato", "pouring"):
-            with tempfile.TemporaryDirectory() as tmp:
-                report["commands"][f"training_{task}"] = _timed_command(
-                    ["-m", "tamedpuma.train", f"task={task}", f"out_dir={tmp}/m"])
+        report["training"] = bench_runs.time_training(seeds=args.training_seeds)
     if args.table1:
-        with tempfile.TemporaryDirectory() as tmp:
-            report["commands"]["table1"] = _timed_command(
-                ["-m", "tamedpuma.sweep", "+experiment=table1", f"output_root={tmp}"])
+        report["table1"] = bench_runs.time_table1(machine["cores"] or 1)
     models = [r["model"] for r in report["controller"] if r.get("model")]
     if models:
         report["models"] = ", ".join(dict.fromkeys(models))
-    report["cited"] = {k: v for k, v in cited(args.root).items()
-                       if k not in report["commands"]}  # measured here: not cited as well
+    report["cited"] = {} if args.training else cited(args.root)  # measured here: not cited
     machine["load_averages_end"] = load_averages()
     machine["load_average_1min_end"] = (machine["load_averages_end"] or [None])[0]
     print(json.dumps(report, indent=2))
@@ -1061,6 +1076,8 @@ def main(argv=None) -> int:
         out.write_text(json.dumps(report, indent=2) + "\n")
         update_markdown(args.root / "BENCHMARKS.md", markdown_section(report), SECTION)
         update_readme(args.root / "README.md", readme_summary(report))
+        if fabrics is not None:
+            bench_fabrics.write(fabrics, args.root)
         print(f"wrote {out}, {args.root / 'BENCHMARKS.md'} and the README summary",
               file=sys.stderr)
     return 0

@@ -30,6 +30,7 @@ import os
 import shutil
 import signal
 import sys
+import time
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
@@ -131,7 +132,9 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
     from tamedpuma.recording.records import RunInfo
     from tamedpuma.worlds.bullet import Simulator
 
+    t_start = time.perf_counter()
     built = build(cfg)
+    t_built = time.perf_counter()
     run, spec, scenario = built.run, built.spec, built.scenario
     kinds = [k for k in ("mcap", "rerun") if getattr(run.recorder, k)]
     recorders = make_recorders(kinds, run_dir, flush_every=run.recorder.flush_every)
@@ -146,6 +149,7 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
     with Simulator(spec, built.sim_config, built.disturbance) as sim:
         result = run_episode(scenario, built.controller, sim, recorders, info,
                              stop_on_success=run.stop_on_success, settle_time=run.settle_time)
+    t_episode = time.perf_counter()
     summary = {"status": "complete", "run_dir": str(run_dir), "method": run.method.name,
                "method_label": run.method.label or run.method.name, "task": run.task.name,
                "scenario": scenario.name, "seed": run.seed,
@@ -156,7 +160,12 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                "files": {k: str(v) for k, v in files.items()},
                "model": built.model.metadata() if built.model else None,
                # every step's controller time [ms] (pooled statistics across runs)
-               "step_compute_ms": [round(float(v), 5) for v in result.compute_ms]}
+               "step_compute_ms": [round(float(v), 5) for v in result.compute_ms],
+               # where this process's time went [s, wall]: building config, model, scenario and
+               # controller; the simulator's set-up and the episode with its recorders
+               # (informational: not part of any result, varies with the machine's load)
+               "wall_s": {"build": round(t_built - t_start, 4),
+                          "episode": round(t_episode - t_built, 4)}}
     write_summary(run_dir, summary)
     return summary
 
