@@ -81,3 +81,21 @@ def test_a_failing_command_reports_its_last_error_line():
     item = bench_runs.timed_command(["-c", "import sys; sys.exit('no such task: x')"])
     assert item["returncode"] == 1 and item["error"] == "no such task: x"
     assert item["command"].startswith("python -c") and sys.executable
+
+
+def test_the_training_table_gives_the_cost_of_an_iteration():
+    row = _row("pouring", 2, wall=250.0)  # 118 s CPU over 1200 iterations
+    (line,) = [ln for ln in bench_runs.training_lines([row]) if ln.startswith("| pouring")]
+    assert "| 1200 | 98 |" in line and "missed: 250 s wall" in line
+    assert "1200 × 98" in bench_runs.training_target_line([row])
+
+
+def test_training_uses_the_authors_demonstrations_where_they_are(monkeypatch, tmp_path):
+    from tamedpuma.puma import download
+
+    monkeypatch.setattr(download, "find_root", lambda folders=(): None)
+    assert bench_runs.demos_override("pouring") == []  # synthetic, said in the row
+    monkeypatch.setattr(download, "find_root", lambda folders=(): tmp_path)
+    assert bench_runs.demos_override("pouring") == [f"task.demos={tmp_path / 'pouring_v2'}"]
+    rows = [{**_row("pouring"), "demos": "/data/pouring_v2"}]
+    assert "pouring: /data/pouring_v2" in bench_runs.training_lines(rows)[1]

@@ -958,6 +958,22 @@ def update_readme(path: Path, summary: str) -> bool:
     return True
 
 
+def render(root: Path) -> int:
+    """Rewrite the sections and the README line from the saved reports (``--render``)."""
+    try:
+        report = json.loads((root / "benchmarks" / "bench.json").read_text())
+        fabrics = json.loads((root / "benchmarks" / "fabrics.json").read_text())
+    except (OSError, ValueError) as exc:
+        print(f"error: --render needs the saved reports: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    update_markdown(root / "BENCHMARKS.md", markdown_section(report), SECTION)
+    update_readme(root / "README.md", readme_summary(report))
+    bench_fabrics.write(fabrics, root)
+    print(f"rewrote {root / 'BENCHMARKS.md'} and the README summary from benchmarks/*.json",
+          file=sys.stderr)
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--methods", nargs="+", default=list(METHODS))
@@ -990,10 +1006,15 @@ def main(argv=None) -> int:
                         or None, metavar="PATH", help="a Python with the reference `fabrics` "
                         "package: measured live at 2 and 10 obstacles (default: "
                         f"${bench_fabrics.REFERENCE_ENV}, else its dated figures are cited)")
+    parser.add_argument("--render", action="store_true",
+                        help="measure nothing: rewrite BENCHMARKS.md's sections and the README "
+                        "line from benchmarks/bench.json and benchmarks/fabrics.json")
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root to write into")
     parser.add_argument("overrides", nargs="*", help="config overrides for every build")
     args = parser.parse_args(argv)
+    if args.render:
+        return render(args.root)
     if any(n < 0 for n in args.counts) or args.calls < 1 or args.budget <= 0:
         print("error: counts must be ≥ 0, calls ≥ 1 and budget > 0", file=sys.stderr)
         return 2
