@@ -8,7 +8,8 @@ from tamedpuma.app import bench_runs
 
 
 def _report(conv=1.0, dtw=0.015, comp=0.997, iterations=1200):
-    return {"iterations": iterations, "pipeline_seconds": 120.0, "pipeline_cpu_seconds": 118.0,
+    return {"iterations": 2400, "iterations_run": iterations, "pipeline_seconds": 120.0,
+            "pipeline_cpu_seconds": 118.0,
             "evaluation": {"convergence": {"converged_fraction": conv, "starts": 1000,
                                            "final_pos_error_max": 0.001},
                            "imitation": {"dtw": dtw},
@@ -23,7 +24,7 @@ def _row(task="tomato", seed=0, wall=100.0, code=0, **kw):
 def test_training_figures_are_read_from_the_report():
     row = bench_runs.training_figures(_report(conv=0.999, dtw=0.021))
     assert row["converged_fraction"] == 0.999 and row["dtw_m"] == 0.021
-    assert row["starts"] == 1000 and row["iterations"] == 1200
+    assert row["starts"] == 1000 and row["iterations"] == 1200 and row["iterations_max"] == 2400
     assert bench_runs.training_figures({})["dtw_m"] is None  # a report without evaluation
 
 
@@ -86,7 +87,7 @@ def test_a_failing_command_reports_its_last_error_line():
 def test_the_training_table_gives_the_cost_of_an_iteration():
     row = _row("pouring", 2, wall=250.0)  # 118 s CPU over 1200 iterations
     (line,) = [ln for ln in bench_runs.training_lines([row]) if ln.startswith("| pouring")]
-    assert "| 1200 | 98 |" in line and "missed: 250 s wall" in line
+    assert "| 1200 (of 2400) | 98 |" in line and "missed: 250 s wall" in line
     assert "1200 × 98" in bench_runs.training_target_line([row])
 
 

@@ -907,7 +907,8 @@ def markdown_section(report: dict) -> str:
                       f"rest {rest:.3f} s (the simulator's state reads, "
                       "contacts, the step records, metrics)."]
     lines += target_lines(report)
-    lines += bench_runs.training_lines(report.get("training") or [])
+    lines += bench_runs.training_lines(report.get("training") or [],
+                                       report.get("training_measured_by"))
     lines += bench_runs.table1_lines(report.get("table1"))[2:]
     for key, item in report.get("commands", {}).items():
         lines += ["", f"{key}: `{item['command']}` took {item['wall_s']} s "
@@ -1082,6 +1083,7 @@ def main(argv=None) -> int:
     report["commands"] = {}
     if args.training:
         report["training"] = bench_runs.time_training(seeds=args.training_seeds)
+        report["training_measured_by"] = f"`{report['command']}` ({report['date']})"
     if args.table1:
         report["table1"] = bench_runs.time_table1(machine["cores"] or 1)
     models = [r["model"] for r in report["controller"] if r.get("model")]

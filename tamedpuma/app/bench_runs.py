@@ -54,7 +54,8 @@ def training_figures(report: dict) -> dict:
     """Issue 16's training figures from a training ``report.json`` (missing ones: None)."""
     ev = report.get("evaluation") or {}
     conv, imit, comp = (ev.get(k) or {} for k in ("convergence", "imitation", "compatibility"))
-    return {"iterations": report.get("iterations"),
+    return {"iterations": report.get("iterations_run") or report.get("iterations"),
+            "iterations_max": report.get("iterations"),
             "pipeline_s": report.get("pipeline_seconds"),
             "pipeline_cpu_s": report.get("pipeline_cpu_seconds"),
             "converged_fraction": conv.get("converged_fraction"), "starts": conv.get("starts"),
@@ -124,8 +125,9 @@ def _cm(x) -> str:
     return "?" if x is None else f"{100 * x:.2f}"
 
 
-def training_lines(rows: list[dict]) -> list[str]:
-    """Markdown: the training table and issue 16's verdict."""
+def training_lines(rows: list[dict], measured_by: str | None = None) -> list[str]:
+    """Markdown: the training table and issue 16's verdict (``measured_by``: the bench command
+    and date that measured it, when another run than the rest of the report's)."""
     if not rows:
         return []
     demos = "; ".join(f"{t}: {d}" for t, d in dict.fromkeys(
@@ -133,15 +135,18 @@ def training_lines(rows: list[dict]) -> list[str]:
     lines = ["", "PUMA training, the default config (`python -m tamedpuma.train task=<task> "
              "task.demos=<folder> seed=<seed> out_dir=...`, one run after another, one torch "
              f"thread; demonstrations: {demos}; targets: 100% of the evaluation's random "
-             "starts converged, mean DTW per point ≤ 2 cm, ψ-compatible ≥ 99%, ≤ 180 s):", "",
-             "| task | seed | process wall [s] | pipeline CPU [s] | iterations | CPU per "
-             "iteration [ms] | converged | mean DTW/point [cm] | ψ-compatible | targets |",
+             "starts converged, mean DTW per point ≤ 2 cm, ψ-compatible ≥ 99%, ≤ 180 s"
+             + (f"; measured by {measured_by}" if measured_by else "") + "):", "",
+             "| task | seed | process wall [s] | pipeline CPU [s] | iterations run (of max) "
+             "| CPU per iteration [ms] | converged | mean DTW/point [cm] | ψ-compatible "
+             "| targets |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
     for r in rows:
         missed = training_verdict(r)
         cpu = r.get("pipeline_cpu_s")
         lines.append(f"| {r['task']} | {r['seed']} | {r['wall_s']:.0f} | "
-                     f"{'?' if cpu is None else f'{cpu:.0f}'} | {r.get('iterations', '?')} | "
+                     f"{'?' if cpu is None else f'{cpu:.0f}'} | {r.get('iterations', '?')} "
+                     f"(of {r.get('iterations_max', '?')}) | "
                      f"{_per_iteration(r)} | "
                      f"{_pct(r.get('converged_fraction'))} of {r.get('starts', '?')} | "
                      f"{_cm(r.get('dtw_m'))} | {_pct(r.get('compatible_fraction'))} | "
