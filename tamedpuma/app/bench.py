@@ -789,7 +789,7 @@ def target_lines(report: dict) -> list[str]:
         out.append(line)
     training = bench_runs.training_target_line(report.get("training") or [])
     out += [training] if training else []
-    out += bench_runs.table1_lines(report.get("table1"))[1:2]
+    out += bench_runs.table1_lines(report.get("table1"))[1:2]  # its verdict with the profile
     if not out:
         return []
     return ["", "Targets of issue 16 (medians of this run; the machine is shared, so the p10 "
@@ -909,10 +909,7 @@ def markdown_section(report: dict) -> str:
     lines += target_lines(report)
     lines += bench_runs.training_lines(report.get("training") or [],
                                        report.get("training_measured_by"))
-    lines += bench_runs.table1_lines(report.get("table1"))[2:]
-    for key, item in report.get("commands", {}).items():
-        lines += ["", f"{key}: `{item['command']}` took {item['wall_s']} s "
-                  f"(exit {item['returncode']})."]
+    lines += bench_runs.table1_lines(report.get("table1"))[2:]  # its per-method table
     for key, item in report.get("cited", {}).items():
         lines += ["", f"{key} (cited from `{item['source']}`, not re-measured in this run): "
                   f"{item['wall_s']:.0f} s wall (file dated {item['date']})."]
@@ -1080,7 +1077,6 @@ def main(argv=None) -> int:
         fabrics["command"] = report["command"]
         report["fabrics"] = {k: fabrics[k] for k in ("results", "reference_live",
                                                       "reference_note")}
-    report["commands"] = {}
     if args.training:
         report["training"] = bench_runs.time_training(seeds=args.training_seeds)
         report["training_measured_by"] = f"`{report['command']}` ({report['date']})"

@@ -260,7 +260,8 @@ def time_table1(cores: int, timeout: float = 7200.0) -> dict:
 
 
 def table1_lines(item: dict | None) -> list[str]:
-    """Markdown: the Table-1 sweep's wall time, issue 16's verdict and where the time went."""
+    """Markdown: ``["", verdict line with the profile in words, "", caption, "", table...]``
+    (the verdict joins issue 16's target list, the rest follows the training table)."""
     if not item:
         return []
     wall, cores = item["wall_s"], item.get("cores") or 1
