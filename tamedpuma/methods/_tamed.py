@@ -32,6 +32,7 @@ from tamedpuma.methods._policy import (
     pull_to_joints,
     weighted_rows,
 )
+from tamedpuma.methods._stall import StallMonitor, StallPull
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
 
 
@@ -52,18 +53,25 @@ class PumaController:
         if self.task.reference is not None:
             self.task.reference.reset()
 
-    def joint_acceleration(self, state, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+    def joint_acceleration(self, state, obs: Observation, stall: StallMonitor | None = None
+                           ) -> tuple[np.ndarray, np.ndarray]:
         """(q̈_C, ẍ_d): the pulled PUMA acceleration at the observation (state = kinematics)."""
-        task, null = self.task_and_null(state, obs)
+        task, null = self.task_and_null(state, obs, stall=stall)
         return pull_to_joints(task, self.damping, null), task.xdd
 
-    def task_and_null(self, state, obs: Observation, clearance: float = np.inf):
+    def task_and_null(self, state, obs: Observation, clearance: float = np.inf,
+                      stall: StallMonitor | None = None):
         """(PUMA's TaskAcceleration, the secondary objective's q̈_null or None); clearance [m]:
-        the body spheres' least clearance from the obstacles (the orientation reference's)."""
+        the body spheres' least clearance from the obstacles (the orientation reference's);
+        stall: FPM's and CPM's stall pull (:mod:`tamedpuma.methods._stall`), added to the
+        position rows while armed."""
         vg = obs.goal_velocity if self.feed_goal_velocity else None
         if self.task.reference is not None:
             self.task.reference.sync(obs.t, state, obs.qd, obs.goal_position, clearance)
         task = self.task.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
+        if stall is not None:
+            task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
+                self.task.potential(state, obs.goal_position, obs.goal_quaternion)[0]))
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
         return task, null
 
@@ -78,14 +86,15 @@ class PumaController:
                               self.damping)
 
     def with_avoidance(self, state, obs: Observation, av, forcing: Forcing,
-                       circulation: Circulation | None = None
+                       circulation: Circulation | None = None, stall: StallMonitor | None = None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(h, q̈_C, ẍ_d): the avoidance geometry ``h = −M⁻¹f`` of ``av`` and PUMA's forcing,
         pulled by the damped pseudo-inverse (``additive``) or through the avoidance fabric's
         metric M (``metric``; :class:`Forcing`), with the tangent specs of ``circulation``
-        (:mod:`tamedpuma.methods._circulation`) summed in when given."""
+        (:mod:`tamedpuma.methods._circulation`) summed in when given, and the stall pull of
+        ``stall`` (:mod:`tamedpuma.methods._stall`) added to PUMA's position rows while armed."""
         if forcing.mode == "metric":
-            task, null = self.task_and_null(state, obs, av.min_clearance)
+            task, null = self.task_and_null(state, obs, av.min_clearance, stall)
             extra, W = None, av.M
             if circulation is not None or forcing.directional:
                 qdd_free = pull_to_joints(task, self.damping, null)
@@ -102,7 +111,7 @@ class PumaController:
             if forcing.geometry == "task_metric":
                 return geometry_with_task_metric(av, task.J, weights), qdd_c, task.xdd
             return av.acceleration(), qdd_c, task.xdd
-        qdd_c, xdd = self.joint_acceleration(state, obs)
+        qdd_c, xdd = self.joint_acceleration(state, obs, stall)
         return av.acceleration(), qdd_c, xdd
 
     def step(self, obs: Observation) -> Command:
@@ -126,18 +135,25 @@ class TamedController:
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.circulation = self.forcing.make_circulation()
+        self.stall = self.forcing.make_stall_monitor()
         self.dt = float("nan")  # the scenario's, from reset
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
         self.circulation = self.forcing.make_circulation()
+        self.stall = self.forcing.make_stall_monitor()
         self.dt = float(scenario.dt)
 
     def forced(self, obs: Observation):
         """(kinematic state, avoidance fabric, h, q̈_C, ẍ_d) at the observation."""
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
-        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, self.circulation)
+        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, self.circulation,
+                                                 self.stall)
         return state, av, h, qdd_c, xdd
+
+    def stall_scalars(self) -> dict[str, float]:
+        """``stall_pull``: 1 while the stall pull is armed, else 0 (a log scalar)."""
+        return {"stall_pull": float(self.stall is not None and self.stall.armed)}
 
 
 def geometry_with_task_metric(av, J: np.ndarray, weights: float | np.ndarray) -> np.ndarray:
@@ -369,7 +385,12 @@ class Forcing:
     geometry: ``fabric`` h = −M⁻¹f, ``task_metric`` h = −(M + Jᵀ diag(w) J)⁻¹f
     (:func:`geometry_with_task_metric`; ``metric`` only); reach: x_r [1], the obstacle pairs
     that resist the push are those within x_r of contact (:func:`approached_metric`; inf: every
-    pair within the leaf's activation; ``directional`` only)."""
+    pair within the leaf's activation; ``directional`` only); stall_pull: g [m/s²] of the goal
+    attractor added to PUMA's position rows once the hand stalls (0: off), armed after
+    stall_window [s] in which neither the hand's distance improved by stall_progress [m] nor
+    PUMA's potential by the fraction stall_psi_progress, while farther than stall_radius [m]
+    from the goal, ramped in over stall_ramp [s], released once PUMA's potential is
+    stall_release [1] below its value at arming (:mod:`tamedpuma.methods._stall`)."""
 
     mode: str = "additive"
     weight: float = 100.0
@@ -382,6 +403,13 @@ class Forcing:
     priority: str = "none"
     geometry: str = "fabric"
     reach: float = np.inf
+    stall_pull: float = 0.0
+    stall_window: float = 2.0
+    stall_progress: float = 0.005
+    stall_psi_progress: float = 0.1
+    stall_radius: float = 0.045
+    stall_ramp: float = 1.0
+    stall_release: float = 0.05
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -416,12 +444,24 @@ class Forcing:
         return Circulation(self.circulation, self.circulation_gain, self.weight,
                            self.circulation_onset)
 
+    def make_stall_monitor(self) -> StallMonitor | None:
+        """A fresh :class:`~tamedpuma.methods._stall.StallMonitor` (None when ``stall_pull``
+        is 0)."""
+        if self.stall_pull <= 0.0:
+            return None
+        return StallMonitor(StallPull(self.stall_pull, self.stall_window, self.stall_progress,
+                                      self.stall_psi_progress, self.stall_radius,
+                                      self.stall_ramp, self.stall_release))
+
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
         cfg = dict(cfg or {})
         unknown = sorted(set(cfg) - {"mode", "weight", "null_metric", "circulation",
                                      "circulation_gain", "circulation_onset", "directional",
-                                     "rotation_weight", "priority", "geometry", "reach"})
+                                     "rotation_weight", "priority", "geometry", "reach",
+                                     "stall_pull", "stall_window", "stall_progress",
+                                     "stall_psi_progress", "stall_radius", "stall_ramp",
+                                     "stall_release"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
@@ -445,6 +485,12 @@ class Forcing:
                 and 0 <= f.circulation_onset < 1):
             raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0, "
                               "circulation_onset in [0, 1)")
+        if not (f.stall_pull >= 0 and f.stall_window > 0 and f.stall_progress >= 0
+                and f.stall_radius >= 0 and f.stall_ramp >= 0 and 0 <= f.stall_release < 1
+                and 0 <= f.stall_psi_progress < 1):
+            raise ConfigError("method.forcing.stall_pull [m/s²], stall_progress [m], stall_radius "
+                              "[m] and stall_ramp [s] must be ≥ 0, stall_window [s] > 0, "
+                              "stall_psi_progress and stall_release in [0, 1)")
         return f
 
 

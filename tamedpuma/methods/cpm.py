@@ -50,6 +50,11 @@ the geometry no longer drives the hand against PUMA near barriers
 (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`); the sum is still a fabric,
 energized as before, so dH/dt = −β‖q̇‖² holds unchanged.
 
+``forcing.stall_pull`` (default 1.5 m/s², as FPM's; :mod:`tamedpuma.methods._stall`): a goal
+attractor added to PUMA's position rows while the hand has stopped approaching the goal. It is
+part of f_θ^C, whose power along q̇ energization takes away, so dH/dt = −β q̇ᵀMq̇ holds with it as
+without it: the pull steers CPM out of the direction it was pressing into a barrier.
+
 ``eps`` ε [(rad/s)²]: the regulariser of the energization and regulator denominators
 ``q̇ᵀMq̇ + ε``. Below the speed √ε both fade out and the law becomes ``h + f_θ^C − β q̇``, PUMA's
 own start from rest. It must exceed the square of the joint controller's velocity noise: in
@@ -248,7 +253,8 @@ class CpmController(TamedController):
                                                  self.qd_max, state, qd)
         qdd = (qd_next - qd) / self.dt
         return Command(qdd=qdd, scalars={
-            **extra, **fabric_scalars(av), "psi": psi, "psi_rate": float(dpsi @ qd),
+            **extra, **fabric_scalars(av), **self.stall_scalars(), "psi": psi,
+            "psi_rate": float(dpsi @ qd),
             "dissipation": float(beta * (qd @ Mqd)),
             "energy_total": float(self._kinetic(av, qd, Mqd) + psi), "alpha": float(alpha),
             "beta": float(beta), "tank": float(self.tank_level),

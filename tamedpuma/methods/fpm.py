@@ -54,6 +54,13 @@ Table 1"), and which of the paper's statements still holds with it:
   goes on. Where the hand follows the reference this is the feedback law, so the statement
   above holds; the closed loop gains the reference's state (ζ_r, ω_r), which PUMA itself
   drives to the goal's.
+- ``forcing.stall_pull`` (FPM's and CPM's default 1.5 m/s²; :mod:`tamedpuma.methods._stall`):
+  once for 2 s neither the hand's distance to the goal (by 5 mm) nor PUMA's potential ψ (by
+  10 %) has improved, a goal attractor is added to PUMA's position rows until ψ has fallen 5 %
+  below its value at the stall. Where the hand keeps approaching, in distance or in ψ, the
+  forcing is PUMA's to the bit, so the statement above holds there;
+  while armed the rest set is that of PUMA's forcing plus a convex attractor to the same goal,
+  which no longer contains the stall point unless the barriers hold the attractor too.
 - ``energization: bounded`` (α ≥ −alpha_bound) only adds damping; ``control_rate`` filters only
   remove energy (:mod:`tamedpuma.fabrics.discrete`); ``limit_margin`` moves the joint-limit
   barriers inside the real limits.
@@ -104,6 +111,7 @@ class FpmController(TamedController):
         qdd = (qd_next - qd) / self.dt
         return Command(qdd=qdd, scalars={**fabric_scalars(av), "alpha": alpha,
                                          "alpha_raw": alpha_raw, **extra,
+                                         **self.stall_scalars(),
                                          "task_acc_norm": float(np.linalg.norm(xdd))})
 
 

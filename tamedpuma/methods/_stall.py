@@ -1,0 +1,141 @@
+"""Stall pull: a goal attractor added to PUMA's position rows once the hand stops making
+progress (``method.forcing.stall_pull``; FPM and CPM only, never PUMA alone).
+
+Why. In the logs of the random scenarios most FPM/CPM failures are local minima of the forced
+fabric, not unsafe motion: the arm comes to rest (or circles slowly) short of the goal where PUMA's
+forcing, pulled through the avoidance metric, is balanced by a barrier. Two classes were read in
+the logs (BENCHMARKS.md "Session 15"): joints held at their limit barriers where PUMA's field, a
+task-space field pulled to the joints, asks for motion past them (random tomato ``anywhere`` 7014:
+joints 3 and 7 at their limits, 0.55 m from the goal); and near-goal stalls where a nearby
+obstacle's metric eats PUMA's weak pull (random pouring 7028, 5.4 cm short). A forced fabric only
+promises convergence to *a* local minimum of its forcing's potential plus the barriers (Ratliff
+et al. 2023, Prop. II.17-18); PUMA's field is not a gradient in joint space, so these rest points
+are real and no change of gains removes them (the circulation module's note).
+
+What. Two measures of progress are watched: the hand's distance to the goal d = ‖p_g − p‖ [m]
+and PUMA's potential ψ (the latent distance to the goal, 0 there; sampled every
+:data:`PSI_SAMPLE_S`). While either improves on its best so far within ``window`` [s] (d by
+``progress`` [m], ψ by the fraction ``psi_progress``) nothing changes. Distance alone is not
+PUMA's measure: a demonstrated motion may first move away from the goal (the real-data tomato
+model's default case goes 0.72 → 0.98 m in its first 4 s under impedance control, with ψ
+falling throughout), and a pull armed there cut across PUMA's path and left the hand 0.27 m short.
+Once neither has improved for ``window`` seconds, and d > ``radius`` [m], the pull arms: PUMA's
+position acceleration becomes
+
+    ẍ_p ← ẍ_p + a(t) · g · (p_g − p) / max(d, ℓ)                                    [m/s²]
+
+with g = ``stall_pull`` [m/s²], a(t) ramping 0 → 1 over ``ramp`` [s] from the moment it armed and
+ℓ = 0.1 m: the negative gradient of ψ_s = g·φ(d), φ(d) = d²/(2ℓ) for d ≤ ℓ and d − ℓ/2 beyond
+(convex, its only minimum the goal; a goal attractor of the kind the Fabrics method forces with),
+pulled through the same metric as PUMA's own rows.
+
+When it lets go is PUMA's own measure: the pull disarms once PUMA's potential ψ (the latent
+distance to the goal, 0 there) has fallen below (1 − ``release``) times its value when the pull
+armed. Where the stall is a local minimum of ψ on the barriers (the hand held against an
+obstacle, PUMA's field pointing through it), ψ first rises as the pull takes the hand round, and
+the pull holds until the hand is over the ridge, in the part of ψ's sublevel set that no longer
+drains into the stall point; letting go at the first few millimetres of progress instead handed
+the hand back to PUMA's field, which returned it to the stall (the point-robot test). Disarmed,
+the watch starts afresh from the hand's current distance.
+
+What holds. Safety never depended on the forcing: the barriers' metric and geometry, the
+energization bound and the control-rate barrier step are unchanged, so the pull cannot carry the
+arm through a barrier the fabric holds (what it can do is press harder where the barriers'
+coverage is incomplete: a link mesh outside the body spheres). Away from stalls (every run that
+keeps approaching the goal) the forcing is PUMA's to the bit, and so are FPM's statement (PUMA's
+zero set, once reached, kept) and CPM's. While armed the forcing is PUMA's plus a convex
+attractor with the same goal, so the rest set of the forced system (where the sum vanishes in
+the metric) no longer contains the stall point unless the barriers also hold the attractor there
+(then the arm stays, safely). CPM's energy statement (dH/dt = −β q̇ᵀMq̇ above the speed √ε, H =
+½‖q̇‖² + k_ψψ) does not depend on the forcing, whose power along q̇ energization takes away: the
+pull steers CPM rather than powering it, and CPM climbs ψ only as far as below √ε (where its law
+is PUMA's start from rest) and its energy tank let it, as without the pull. What is given up
+while armed: the hand's path is not PUMA's (the imitation is suspended exactly where it had
+stopped delivering the goal).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from tamedpuma.methods._policy import TaskAcceleration
+
+#: ℓ [m]: below this distance the attractor's strength falls linearly to 0 at the goal
+PULL_LENGTH_M = 0.1
+#: [s] PUMA's potential is evaluated at most this often (a network pass with its gradient)
+PSI_SAMPLE_S = 0.1
+
+
+@dataclass(frozen=True)
+class StallPull:
+    """The stall pull's settings (``method.forcing.stall_*``): gain g [m/s²] (0: off), window
+    [s], progress [m], psi_progress [1], radius [m], ramp [s], release [1] (see the module)."""
+
+    gain: float = 0.0
+    window: float = 2.0
+    progress: float = 0.005
+    psi_progress: float = 0.1
+    radius: float = 0.045
+    ramp: float = 1.0
+    release: float = 0.05
+
+
+class StallMonitor:
+    """The per-episode state of one :class:`StallPull`: the best distance and potential so far
+    and when each was last beaten, when the pull armed and ψ then."""
+
+    def __init__(self, pull: StallPull):
+        self.pull = pull
+        self.best = self.best_psi = np.inf
+        self.t_best = self.t_best_psi = self.t_psi = -np.inf
+        self.psi = np.nan
+        self.t_armed: float | None = None
+        self.psi_armed = np.nan
+
+    @property
+    def armed(self) -> bool:
+        return self.t_armed is not None
+
+    def _potential(self, t: float, potential: Callable[[], float]) -> float:
+        if not t - self.t_psi < PSI_SAMPLE_S - 1e-9:  # (rounding of t)
+            self.psi, self.t_psi = float(potential()), t
+        return self.psi
+
+    def acceleration(self, t: float, position: np.ndarray, goal: np.ndarray,
+                     potential: Callable[[], float]) -> np.ndarray | None:
+        """The attractor's task acceleration [m/s²] at time t [s] (hand ``position`` and
+        ``goal`` [m]; ``potential()``: PUMA's ψ there, called at most every
+        :data:`PSI_SAMPLE_S`), or None while disarmed. Updates the monitor's state."""
+        e = np.asarray(goal, dtype=float) - np.asarray(position, dtype=float)
+        d = float(np.linalg.norm(e))
+        p = self.pull
+        psi = self._potential(t, potential)
+        if self.t_armed is not None and psi < (1.0 - p.release) * self.psi_armed:
+            self.t_armed = None  # over the ridge: PUMA's again, watched afresh from here
+            self.best, self.t_best, self.best_psi, self.t_best_psi = d, t, psi, t
+        if self.t_armed is None:
+            if d < self.best - p.progress:
+                self.best, self.t_best = d, t
+            if psi < (1.0 - p.psi_progress) * self.best_psi:
+                self.best_psi, self.t_best_psi = psi, t
+            if d > p.radius and t - max(self.t_best, self.t_best_psi) >= p.window:
+                self.t_armed, self.psi_armed = t, psi
+        if self.t_armed is None:
+            return None
+        a = 1.0 if p.ramp <= 0.0 else min(1.0, (t - self.t_armed) / p.ramp)
+        return (a * p.gain / max(d, PULL_LENGTH_M)) * e
+
+    def applied(self, t: float, position: np.ndarray, goal: np.ndarray, task: TaskAcceleration,
+                potential: Callable[[], float]) -> TaskAcceleration:
+        """``task`` with the attractor added to its position rows (the first three, or all of
+        a planar task's)."""
+        extra = self.acceleration(t, position, goal, potential)
+        if extra is None:
+            return task
+        xdd = np.array(task.xdd, dtype=float)
+        k = min(3, len(xdd))
+        xdd[:k] += extra[:k]
+        return TaskAcceleration(xdd, task.J, task.jdqd)

@@ -1,0 +1,166 @@
+"""The stall pull (``method.forcing.stall_pull``, :mod:`tamedpuma.methods._stall`): a goal
+attractor on PUMA's position rows once neither the hand's distance to the goal nor PUMA's
+potential makes progress, let go once the potential is below its value at the stall. The
+monitor's rule on synthetic distances, and the local minimum it is for on the point robot: CPM
+held against an obstacle by a primitive whose potential has its minimum there."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tamedpuma.episode import run_episode
+from tamedpuma.errors import ConfigError
+from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.methods._policy import PlanarTask, TaskAcceleration
+from tamedpuma.methods._stall import PULL_LENGTH_M, StallMonitor, StallPull
+from tamedpuma.methods._tamed import Forcing, PumaController
+from tamedpuma.methods.cpm import CpmController
+from tamedpuma.methods.fpm import FpmController
+from tamedpuma.types import Goal, Obstacles, Scenario
+from tamedpuma.worlds.pointmass import PointKinematics, PointMassWorld, point_spec
+
+SPEC = point_spec(speed_limit=50.0)
+GOAL = np.array([1.0, 0.0, 0.0])
+PULL = StallPull(gain=1.5, window=2.0, progress=0.005, psi_progress=0.1, radius=0.045, ramp=1.0,
+                 release=0.05)
+
+
+def _feed(monitor, times, distances, psi=lambda: 1.0):
+    """The monitor's output at each (t, d), the hand on the x axis d [m] short of GOAL; psi: a
+    constant ψ, or a sequence of ψ one per step."""
+    psis = [psi] * len(times) if callable(psi) else [lambda v=v: v for v in psi]
+    return [monitor.acceleration(t, GOAL - [d, 0.0, 0.0], GOAL, f)
+            for t, d, f in zip(times, distances, psis, strict=True)]
+
+
+def test_the_pull_arms_only_after_a_window_without_progress_and_ramps_in():
+    m = StallMonitor(PULL)
+    t = np.arange(0.0, 4.01, 0.5)
+    out = _feed(m, t, np.full(len(t), 0.3))
+    armed_at = 2.0  # the window after the first (best) distance
+    for ti, a in zip(t, out, strict=True):
+        if ti < armed_at:
+            assert a is None
+        else:  # a(t) g e / max(d, ℓ), along the goal direction
+            ramp = min(1.0, (ti - armed_at) / PULL.ramp)
+            assert a == pytest.approx([ramp * 1.5 * 0.3 / 0.3, 0.0, 0.0])
+    assert m.armed
+
+
+def test_steady_progress_or_a_hand_at_the_goal_never_arms_it():
+    t = np.round(np.arange(0.0, 10.0, 0.1), 6)
+    slow = StallMonitor(PULL)  # 1 cm per second: the 5 mm progress is made every 0.5 s
+    assert all(a is None for a in _feed(slow, t, 0.5 - 0.01 * t))
+    # PUMA's own motion first leads away from the goal while its potential keeps falling
+    away = StallMonitor(PULL)
+    assert all(a is None for a in _feed(away, t, 0.5 + 0.03 * t, psi=np.exp(-0.1 * t)))
+    near = StallMonitor(PULL)  # resting inside the radius
+    assert all(a is None for a in _feed(near, t, np.full(len(t), 0.04)))
+    # neither measure improves: armed after the window
+    still = StallMonitor(PULL)
+    out = _feed(still, t, np.full(len(t), 0.5), psi=np.full(len(t), 2.0))
+    assert [a is None for a in out] == list(t < 2.0)
+
+
+def test_the_potential_is_evaluated_at_most_every_sample_period():
+    calls = []
+
+    def psi():
+        calls.append(1)
+        return 1.0
+
+    m = StallMonitor(PULL)
+    for t in np.round(np.arange(0.0, 1.0, 0.02), 6):  # 50 control steps of 20 ms
+        m.acceleration(t, GOAL - [0.5, 0, 0], GOAL, psi)
+    assert len(calls) == 10
+
+
+def test_within_the_length_the_pull_falls_linearly_to_the_goal():
+    m = StallMonitor(PULL)
+    _feed(m, [0.0, 2.0, 3.0], [0.08, 0.08, 0.08])
+    a = m.acceleration(3.5, GOAL - [0.08, 0.0, 0.0], GOAL, lambda: 1.0)
+    assert a == pytest.approx([1.5 * 0.08 / PULL_LENGTH_M, 0.0, 0.0])
+
+
+def test_it_lets_go_on_puma_potential_not_on_distance_and_watches_afresh():
+    """Armed with ψ = 1: the hand coming 10 cm closer while ψ rises (going round the ridge)
+    keeps it; ψ below 0.95 lets go, and only a new window without progress re-arms it."""
+    m = StallMonitor(PULL)
+    _feed(m, [0.0, 2.0], [0.5, 0.5], psi=lambda: 1.0)
+    assert m.armed and m.psi_armed == 1.0
+    assert m.acceleration(3.0, GOAL - [0.4, 0.0, 0.0], GOAL, lambda: 1.3) is not None
+    assert m.acceleration(4.0, GOAL - [0.3, 0.0, 0.0], GOAL, lambda: 0.96) is not None
+    assert m.acceleration(5.0, GOAL - [0.3, 0.0, 0.0], GOAL, lambda: 0.94) is None
+    assert not m.armed and m.best == pytest.approx(0.3)
+    assert _feed(m, [6.0, 6.9], [0.3, 0.3], psi=lambda: 0.94) == [None, None]
+    assert m.acceleration(7.0, GOAL - [0.3, 0.0, 0.0], GOAL, lambda: 0.94) is not None
+
+
+def test_applied_adds_to_the_position_rows_only():
+    m = StallMonitor(StallPull(gain=2.0, window=1.0, ramp=0.0))
+    task = TaskAcceleration(np.arange(6.0), np.eye(6, 7), np.zeros(6))
+    assert m.applied(0.0, GOAL - [0.5, 0, 0], GOAL, task, lambda: 1.0) is task
+    out = m.applied(1.0, GOAL - [0.5, 0, 0], GOAL, task, lambda: 1.0)
+    assert out.xdd == pytest.approx([0.0 + 2.0, 1, 2, 3, 4, 5])
+    assert task.xdd == pytest.approx(np.arange(6.0))  # not modified in place
+
+
+class _Anisotropic:
+    """A primitive with the potential ψ = eᵀKe, K = diag(1, 5): ``ẍ = −Ke − 2ẋ``. Its
+    restriction to the near side of the obstacle below has a minimum (the y error costs 5×
+    the x error), where the barrier holds it; the Euclidean attractor has none there."""
+
+    K = np.diag([1.0, 5.0])
+
+    def acceleration(self, x, xd, goal):
+        return -self.K @ (np.asarray(x) - goal) - 2.0 * np.asarray(xd)
+
+    def potential(self, x, goal):
+        e = np.asarray(x) - goal
+        return float(e @ self.K @ e), 2.0 * self.K @ e
+
+
+def _scenario() -> Scenario:
+    obstacles = Obstacles([[1.5, 0.15, 0.0]], [0.5], np.zeros((1, 3)))
+    return Scenario(name="held", task="point", q0=np.zeros(2),
+                    goal=Goal([3.0, 0.0, 0.0], [0, 0, 0, 1]), obstacles=obstacles, dt=0.02,
+                    max_steps=2000, goal_tolerance=0.05)
+
+
+def _controller(name: str, pull: float):
+    kin = PointKinematics(SPEC)
+    puma = PumaController(PlanarTask(_Anisotropic()), kin)
+    fabric = Fabric(FabricGains.from_mapping(None), SPEC.q_min, SPEC.q_max)
+    forcing = Forcing(mode="metric", weight=20.0, null_metric=0.0, stall_pull=pull)
+    if name == "fpm":
+        return FpmController(puma, fabric, energy="execution", forcing=forcing)
+    return CpmController(puma, fabric, beta=8.0, eps=1e-6, variant="paper", regulator_scale=1.0,
+                         potential_scale=1.0, damping="matched", semi_implicit=True,
+                         energy="execution", forcing=forcing)
+
+
+def test_cpm_held_at_its_potentials_minimum_on_an_obstacle_reaches_the_goal_with_the_pull():
+    """Without the pull CPM rests against the obstacle, over 2 m short; with it the point goes
+    round and reaches the goal, never touching the obstacle."""
+    stuck = run_episode(_scenario(), _controller("cpm", 0.0), PointMassWorld(SPEC)).metrics
+    assert not stuck.success_paper and stuck.final_position_error_m > 2.0
+    m = run_episode(_scenario(), _controller("cpm", 1.5), PointMassWorld(SPEC)).metrics
+    assert m.success_paper and m.success_whole_body, (m.failure_paper, m.final_position_error_m)
+    assert m.min_clearance_m > 0
+
+
+def test_a_run_that_keeps_approaching_is_unchanged_by_the_pull():
+    """FPM goes round this obstacle by itself: the pull never arms and the path is the same,
+    step for step."""
+    runs = [run_episode(_scenario(), _controller("fpm", pull), PointMassWorld(SPEC))
+            for pull in (0.0, 1.5)]
+    assert runs[0].metrics.success_paper
+    np.testing.assert_array_equal(runs[0].ee_position, runs[1].ee_position)
+
+
+@pytest.mark.parametrize("bad", [{"stall_pull": -1.0}, {"stall_window": 0.0},
+                                 {"stall_release": 1.0}, {"stall_ramp": -0.5}])
+def test_bad_stall_settings_are_refused(bad):
+    with pytest.raises(ConfigError, match="stall"):
+        Forcing.from_mapping({"mode": "metric", **bad})
