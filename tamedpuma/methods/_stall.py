@@ -6,7 +6,7 @@ fabric, not unsafe motion: the arm comes to rest (or circles slowly) short of th
 forcing, pulled through the avoidance metric, is balanced by a barrier. Two classes were read in
 the logs (BENCHMARKS.md "Session 15"): joints held at their limit barriers where PUMA's field, a
 task-space field pulled to the joints, asks for motion past them (random tomato ``anywhere`` 7014:
-joints 3 and 7 at their limits, 0.55 m from the goal); and near-goal stalls where a nearby
+joints 3 and 5 on their lower limits from 16 s on); and near-goal stalls where a nearby
 obstacle's metric eats PUMA's weak pull (random pouring 7028, 5.4 cm short). A forced fabric only
 promises convergence to *a* local minimum of its forcing's potential plus the barriers (Ratliff
 et al. 2023, Prop. II.17-18); PUMA's field is not a gradient in joint space, so these rest points
