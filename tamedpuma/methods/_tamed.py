@@ -403,13 +403,13 @@ class Forcing:
     priority: str = "none"
     geometry: str = "fabric"
     reach: float = np.inf
-    stall_pull: float = 0.0
-    stall_window: float = 2.0
-    stall_progress: float = 0.005
-    stall_psi_progress: float = 0.1
-    stall_radius: float = 0.045
-    stall_ramp: float = 1.0
-    stall_release: float = 0.05
+    stall_pull: float = StallPull.gain  # the stall pull's defaults are StallPull's
+    stall_window: float = StallPull.window
+    stall_progress: float = StallPull.progress
+    stall_psi_progress: float = StallPull.psi_progress
+    stall_radius: float = StallPull.radius
+    stall_ramp: float = StallPull.ramp
+    stall_release: float = StallPull.release
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -449,9 +449,10 @@ class Forcing:
         is 0)."""
         if self.stall_pull <= 0.0:
             return None
-        return StallMonitor(StallPull(self.stall_pull, self.stall_window, self.stall_progress,
-                                      self.stall_psi_progress, self.stall_radius,
-                                      self.stall_ramp, self.stall_release))
+        return StallMonitor(StallPull(
+            gain=self.stall_pull, window=self.stall_window, progress=self.stall_progress,
+            psi_progress=self.stall_psi_progress, radius=self.stall_radius, ramp=self.stall_ramp,
+            release=self.stall_release))
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
