@@ -134,6 +134,9 @@ class RobotSchema:
     limit_margin: float = 1e-3       # ... to this far inside [rad]
     spheres: list[SphereSchema] = MISSING
     home: list[float] | None = None   # default start [rad] (a scenario with q0: null uses it)
+    guard_spheres: list[SphereSchema] = field(default_factory=list)  # the controllers' body
+                                      # only: spheres over the links between ``spheres`` (not in
+                                      # the paper's collision check; RobotSpec.controller_body)
     null_space: RobotNullSpaceSchema | None = None  # replaces the method's "elbow up" objective
     body_model: BodyModelOptions = field(default_factory=BodyModelOptions)
     body_model_tolerance: float | None = None  # [m], written by python -m tamedpuma.body_model

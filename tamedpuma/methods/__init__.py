@@ -25,8 +25,12 @@ def available() -> list[str]:
 
 
 def make(name: str, cfg: Mapping, kinematics: Kinematics) -> Controller:
-    """Build the controller of method ``name`` from its config."""
+    """Build the controller of method ``name`` from its config, on the robot's controller body
+    (its ``spheres`` and ``guard_spheres``: :meth:`RobotSpec.controller_body`)."""
     if name not in available():
         raise ConfigError(f"unknown method {name!r}; choose one of {available()}")
     module = importlib.import_module(f"tamedpuma.methods.{name}")
+    body = kinematics.spec.controller_body()
+    if body is not kinematics.spec:
+        kinematics = Kinematics(body)
     return module.make({k: v for k, v in cfg.items() if k != "label"}, kinematics)

@@ -19,7 +19,7 @@ numpy and pinocchio only.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pinocchio as pin
@@ -75,8 +75,11 @@ class RobotSpec:
     """Robot data from config.
 
     q_min, q_max: joint position limits [rad]; qd_max: joint speed limits [rad/s];
-    ee_link: end-effector frame (its origin is the task point); spheres: collision spheres;
-    link_names: the links whose poses are logged (base first).
+    ee_link: end-effector frame (its origin is the task point); spheres: collision spheres, the
+    body of the paper's collision check (the simulator's clearance) and of every controller;
+    guard_spheres: more spheres only the controllers keep clear of obstacles, covering the stretches
+    of link between ``spheres`` (:meth:`controller_body`); link_names: the links whose poses are
+    logged (base first).
     """
 
     urdf_path: str
@@ -88,6 +91,7 @@ class RobotSpec:
     qd_max: np.ndarray
     spheres: tuple[BodySphere, ...]
     home: tuple[float, ...] | None = None  # default start [rad] (a scenario with q0: null)
+    guard_spheres: tuple[BodySphere, ...] = ()
 
     def __post_init__(self):
         n = len(self.joint_names)
@@ -112,6 +116,23 @@ class RobotSpec:
     def sphere_radii(self) -> np.ndarray:
         return np.array([s.radius for s in self.spheres])
 
+    def controller_body(self) -> RobotSpec:
+        """The robot as the controllers see it: ``spheres`` followed by ``guard_spheres`` (the
+        same spec when there are none). The simulator, the recorders and the success criteria
+        keep ``spheres`` alone, so the paper's collision check is the authors' five spheres
+        whatever the controllers avoid with."""
+        if not self.guard_spheres:
+            return self
+        return replace(self, spheres=self.spheres + self.guard_spheres, guard_spheres=())
+
+
+def _body_spheres(entries, key: str) -> tuple[BodySphere, ...]:
+    """``robot.<key>`` as :class:`BodySphere` s; a bad entry is a one-line :class:`ConfigError`."""
+    try:
+        return tuple(BodySphere(**s) for s in entries)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"robot.{key}: {exc}") from None
+
 
 def robot_spec_from_config(cfg) -> RobotSpec:
     """Build a :class:`RobotSpec` from the ``robot`` config group: a complete mapping (every key
@@ -120,10 +141,8 @@ def robot_spec_from_config(cfg) -> RobotSpec:
     urdf = resolve_urdf(cfg["urdf"])
     if not os.path.isfile(urdf):
         raise ConfigError(f"robot.urdf: no such file: {urdf}")
-    try:
-        spheres = tuple(BodySphere(**s) for s in cfg["spheres"])
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"robot.spheres: {exc}") from None
+    spheres = _body_spheres(cfg["spheres"], "spheres")
+    guards = _body_spheres(cfg.get("guard_spheres") or (), "guard_spheres")
     return RobotSpec(
         urdf_path=urdf,
         joint_names=tuple(cfg["joint_names"]),
@@ -134,6 +153,7 @@ def robot_spec_from_config(cfg) -> RobotSpec:
         qd_max=np.array(cfg["qd_max"], dtype=float),
         spheres=spheres,
         home=None if cfg["home"] is None else tuple(float(v) for v in cfg["home"]),
+        guard_spheres=guards,
     )
 
 
