@@ -160,6 +160,7 @@ def test_the_body_model_command_writes_a_robot_option_and_updates_its_block(tmp_
     assert text.count(app.BEGIN) == 1 and "excess" in text and "defaults:" in text
     cfg = OmegaConf.to_container(OmegaConf.load(out))
     assert len(cfg["spheres"]) == 8 and cfg["body_model_tolerance"] == 0.0  # one per link
+    assert cfg["guard_spheres"] == []  # a generated covering takes no guards from its base
     # run again on the file it wrote: the block is replaced, not appended
     assert app.main(args) == 0
     assert out.read_text().count(app.BEGIN) == 1

@@ -58,6 +58,7 @@ def block(robot: str, fits, tolerance: float, command: str) -> str:
                      f"union {f.union_volume * 1e3:.2f}, excess {f.excess_volume * 1e3:.2f}, "
                      f"missed {f.missed_volume * 1e3:.3f}")
     lines.append("body_model_tolerance: " + repr(float(tolerance)) + "  # [m], see above")
+    lines.append("guard_spheres: []  # these spheres cover every link (no base robot's guards)")
     lines.append("spheres:")
     for f in fits:
         for c, r in zip(f.centers, f.radii):
