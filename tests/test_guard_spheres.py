@@ -10,7 +10,6 @@ import pybullet_data
 import pytest
 from omegaconf import OmegaConf
 
-from tamedpuma import methods
 from tamedpuma.app.config import robot_config
 from tamedpuma.app.sweep import build
 from tamedpuma.app.train import compose
@@ -84,7 +83,9 @@ def test_the_controller_sees_an_obstacle_at_the_gap_the_paper_check_does_not(gua
                         obstacles=Obstacles([obstacle], [0.02], [[0.0, 0.0, 0.0]]), dt=0.02,
                         max_steps=1,
                         goal_tolerance=0.05)
-    controller = methods.make("fabrics", _fabrics_cfg(), Kinematics(guarded))
+    # the Fabrics method as the sweep builds it (methods.make: the controller body)
+    controller = build(OmegaConf.create(compose("sweep", ["method=fabrics",
+                                                         "recorder=none"]))).controller
     controller.reset(scenario)
     with Simulator(guarded) as sim:
         obs = sim.reset(scenario)
@@ -92,12 +93,6 @@ def test_the_controller_sees_an_obstacle_at_the_gap_the_paper_check_does_not(gua
     with pytest.warns(RuntimeWarning, match="penetration"):  # the controller sees it touch
         seen = controller.step(obs).scalars
     assert seen["min_clearance_m"] == pytest.approx(-0.01, abs=1e-3)
-
-
-def _fabrics_cfg():
-    cfg = compose("sweep", ["method=fabrics", "recorder=none"])
-    return {k: v for k, v in OmegaConf.to_container(OmegaConf.create(cfg))["method"].items()
-            if k != "name"}
 
 
 @pytest.mark.parametrize("override, n_controller", [(None, 7), ("robot.guard_spheres=[]", 5)])
