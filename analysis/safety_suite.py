@@ -19,7 +19,9 @@ composed by Hydra and run in-process (no files per run); one CSV row per run:
   criterion: ``mesh`` / ``ground`` / ``joint_limit``;
 - ``alpha_max``: max |α| logged by the method [1/s]; ``speed_ratio_max``: max over steps and joints
   of |q̇|/q̇_max; ``clamp_frac``: fraction of steps where the commanded ``q̇ + q̈Δt`` exceeded a
-  velocity limit (the simulator's clamp acted); ``min_clearance``, ``min_ground_clearance`` [m].
+  velocity limit (the simulator's clamp acted); ``min_clearance``, ``min_ground_clearance`` [m];
+  ``max_error`` [m]: the hand's largest distance to the goal; ``path_length`` [m]: the length of
+  the hand's path (a flailing arm shows in both).
 
 Prints a summary per (task, kind, method). Hydra is used here (an entry point), not in the library.
 """
@@ -122,6 +124,9 @@ def run_one(spec: dict) -> dict:
             "label": spec["label"], "success_paper": bool(paper), "success_whole_body": bool(whole),
             "failure": failure, "time_to_success": float(t[reached[0]]) if paper else np.nan,
             "final_error": float(err[-1]), "min_error": float(err.min()),
+            "max_error": float(err.max()),
+            "path_length": float(np.sum(np.linalg.norm(np.diff(result.ee_position, axis=0),
+                                                       axis=1))),
             "min_clearance": float(clear.min()), "min_ground_clearance": float(a[:, 9].min()),
             "mesh_contact": bool(contact.any()), "ground_contact": bool(ground.any()),
             "limit_steps": int(limit.sum()), "alpha_max": float(a[:, 5].max()),

@@ -398,3 +398,82 @@ def test_forcing_reach_must_be_positive(reach):
 
     with pytest.raises(ConfigError, match="reach"):
         Forcing.from_mapping({"mode": "metric", "directional": True, "reach": reach})
+
+
+def _approach_cases(kinematics, n=200, seed=3):
+    """Random iiwa states with joints near their limits (limit rows on) and random PUMA task
+    accelerations: (av, task, q̈_P) per case."""
+    fab = Fabric(FabricGains(), kinematics.spec.q_min, kinematics.spec.q_max)
+    lo, hi = kinematics.spec.q_min, kinematics.spec.q_max
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        q = rng.uniform(lo + 0.02, hi - 0.02)
+        near = rng.random(7) < 0.4  # these joints within 0.3 rad of a limit, moving towards it
+        side = rng.random(7) < 0.5
+        q[near & side] = (lo + rng.uniform(0.02, 0.3, 7))[near & side]
+        q[near & ~side] = (hi - rng.uniform(0.02, 0.3, 7))[near & ~side]
+        qd = rng.normal(scale=0.3, size=7)
+        qd[near & side] = -np.abs(qd[near & side])
+        qd[near & ~side] = np.abs(qd[near & ~side])
+        state = kinematics.evaluate(q, qd)
+        av = fab.avoidance(state, q, qd, *OBSTACLES)
+        task = TaskAcceleration(rng.normal(size=6), state.ee_jacobian, state.ee_jdqd)
+        yield av, task, pull_to_joints(task, 0.01)
+
+
+def test_forcing_approach_solution_leaves_out_no_barrier_the_forcing_approaches(kinematics):
+    """``forcing.approach: solution``: rows left out because PUMA's free pull q̈_P recedes from
+    them are put back wherever the weighted solution q̈_C approaches them. Over random states
+    near the joint limits: q̈_C approaches no row still left out, the rows left out are a subset
+    of the receding ones, and q̈_C is the weighted solve through M without exactly those rows;
+    where q̈_C from q̈_P's rows approaches none of them the two modes agree to the bit. And the
+    defect exists: with ``pull`` q̈_C approaches a left-out row in some of the cases."""
+    from tamedpuma.methods._tamed import metric_without, receding_rows, restore_approached
+
+    pulled_into, changed = 0, 0
+    for av, task, free in _approach_cases(kinematics):
+        def solve(W, task=task):
+            return pull_through_metric(task, W, 100.0, 0.05)
+
+        receding = receding_rows(av, free)
+        W = metric_without(av, receding)
+        by_pull = solve(W)
+        got, out = restore_approached(av, receding, W, by_pull, solve)
+        rows = av.barrier_rows
+        assert not np.any(out & (rows @ got < 0.0))
+        assert not np.any(out & ~receding)
+        np.testing.assert_allclose(got, solve(metric_without(av, out)), rtol=1e-9, atol=1e-9)
+        if np.any(receding & (rows @ by_pull < 0.0)):
+            pulled_into += 1
+            changed += not np.array_equal(got, by_pull)
+        else:
+            assert np.array_equal(got, by_pull)
+    assert pulled_into >= 5 and changed == pulled_into
+
+
+def test_forcing_approach_must_be_pull_or_solution():
+    with pytest.raises(ConfigError, match="approach"):
+        Forcing.from_mapping({"mode": "metric", "directional": True, "approach": "free"})
+    assert Forcing.from_mapping({"approach": "solution"}).approach == "solution"
+
+
+def test_forcing_approach_solution_keeps_the_pairs_beyond_reach_out(kinematics):
+    """With a finite ``forcing.reach`` the obstacle pairs farther than x_r from contact stay
+    out of the metric whatever q̈_C does; only rows left out for receding come back."""
+    from tamedpuma.methods._tamed import metric_without, receding_rows, restore_approached
+
+    reach, seen = 0.3, 0
+    for av, task, free in _approach_cases(kinematics, n=60, seed=5):
+        def solve(W, task=task):
+            return pull_through_metric(task, W, 100.0, 0.05)
+
+        receding = receding_rows(av, free, reach)
+        got, out = restore_approached(av, receding, metric_without(av, receding),
+                                      solve(metric_without(av, receding)), solve, reach)
+        far = np.zeros_like(out)
+        far[:av.n_pair_rows] = (av.barrier_x[:av.n_pair_rows] > reach) & (
+            av.barrier_metric[:av.n_pair_rows] > 0)
+        assert np.all(out[far])
+        seen += int(far.any())
+        assert not np.any(out & ~far & (av.barrier_rows @ got < 0.0))
+    assert seen > 10

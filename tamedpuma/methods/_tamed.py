@@ -103,11 +103,21 @@ class PumaController:
                                           obs.obstacle_radii,
                                           lambda: self.pull_at_rest(state, obs),
                                           av.min_clearance)
-            if forcing.directional:
-                W = approached_metric(av, qdd_free, forcing.reach)
             weights = forcing.task_weights(len(task.xdd))
-            qdd_c = pull_through_metric(task, W, weights, forcing.null_metric, null, extra,
-                                        forcing.priority_rows(len(task.xdd)))
+
+            def solve(W: np.ndarray) -> np.ndarray:
+                return pull_through_metric(task, W, weights, forcing.null_metric, null, extra,
+                                           forcing.priority_rows(len(task.xdd)))
+
+            if forcing.directional:
+                receding = receding_rows(av, qdd_free, forcing.reach)
+                W = metric_without(av, receding)
+                qdd_c = solve(W)
+                if forcing.approach == "solution":
+                    qdd_c, _ = restore_approached(av, receding, W, qdd_c, solve,
+                                                  forcing.reach)
+            else:
+                qdd_c = solve(W)
             if forcing.geometry == "task_metric":
                 return geometry_with_task_metric(av, task.J, weights), qdd_c, task.xdd
             return av.acceleration(), qdd_c, task.xdd
@@ -194,18 +204,72 @@ def approached_metric(av, qdd_free: np.ndarray, reach: float = np.inf) -> np.nda
     (0.03 m/s²) then reached the hand at a third, and CPM stalled 5.4 cm short (random pouring
     ``near_table1`` 7028; BENCHMARKS.md "Session 14"). Joint-limit and ground rows are not
     affected."""
+    return metric_without(av, receding_rows(av, qdd_free, reach))
+
+
+def receding_rows(av, qdd: np.ndarray, reach: float = np.inf) -> np.ndarray | None:
+    """The barrier rows of ``av`` the joint acceleration ``qdd`` [rad/s²] recedes from
+    (``a_r·q̈ > 0``, metric on), plus with a finite ``reach`` the obstacle pairs farther than
+    x_r from contact: a boolean mask over ``av.barrier_rows`` (None without rows). These are
+    the rows :func:`approached_metric` leaves out."""
     rows, m = av.barrier_rows, av.barrier_metric
-    W = av.M.copy()
     if rows is None or m is None or rows.shape[0] == 0:
-        return W
-    recede = (rows @ qdd_free > 0.0) & (m > 0.0)
+        return None
+    recede = (rows @ qdd > 0.0) & (m > 0.0)
     if np.isfinite(reach):  # the pair rows come first
         pairs = slice(0, av.n_pair_rows)
         recede[pairs] |= (av.barrier_x[pairs] > reach) & (m[pairs] > 0.0)
-    if recede.any():
-        r = rows[recede]
-        W -= (r.T * m[recede]) @ r
+    return recede
+
+
+def metric_without(av, rows_out: np.ndarray | None) -> np.ndarray:
+    """``M − Σ_{r ∈ rows_out} m_r a_r a_rᵀ`` (n, n), a fresh array (M itself when none)."""
+    W = av.M.copy()
+    if rows_out is not None and rows_out.any():
+        r = av.barrier_rows[rows_out]
+        W -= (r.T * av.barrier_metric[rows_out]) @ r
     return W
+
+
+def restore_approached(av, receding: np.ndarray | None, W: np.ndarray, qdd_c: np.ndarray,
+                       solve, reach: float = np.inf) -> tuple[np.ndarray, np.ndarray | None]:
+    """(q̈_C [rad/s²], the rows still left out): PUMA's forcing with the directional metric
+    settled on q̈_C itself (``forcing.approach: solution``).
+
+    :func:`approached_metric` decides which barriers resist the forcing from PUMA's *free* pull
+    q̈_P (the damped pseudo-inverse). The weighted solution ``q̈_C = solve(W)`` is not q̈_P:
+    where an approached barrier's metric holds one joint, q̈_C moves the others instead, and it
+    can drive one of them towards a limit whose row q̈_P recedes from and which W therefore
+    leaves out. Nothing then weighs that joint against PUMA, and q̈_C accelerates it into its
+    limit (Table-1 pouring 05 without obstacles: joint 2 driven into its lower limit at
+    0.5 rad/s by 0.6-17 rad/s² of self-motion while ‖ẍ_d‖ ≈ 0.1 m/s², the hand then 1.2 m from
+    the goal; BENCHMARKS.md "Session 18"). Here every left-out row that q̈_C approaches
+    (``a_r·q̈_C < 0``) is put back with its metric and q̈_C solved again, until no left-out row
+    is approached: an active set that only grows, so at most as many solves as rows left out.
+    The result is the same weighted pseudo-inverse of PUMA's spec through a metric between
+    ``approached_metric`` and M, so the zero set of the forcing and the statements of
+    :class:`Forcing` are unchanged.
+
+    receding: the mask of :func:`receding_rows` (None: nothing left out); W: the metric without
+    them; qdd_c: ``solve(W)``; solve: W ↦ q̈_C; reach: ``forcing.reach``, the obstacle pairs
+    farther than it from contact stay out whatever q̈_C does."""
+    if receding is None:
+        return qdd_c, None
+    out = receding.copy()
+    rows, m = av.barrier_rows, av.barrier_metric
+    eligible = out.copy()
+    if np.isfinite(reach):
+        pairs = slice(0, av.n_pair_rows)
+        eligible[pairs] &= ~(av.barrier_x[pairs] > reach)
+    while out.any():
+        back = out & eligible & (rows @ qdd_c < 0.0)
+        if not back.any():
+            break
+        r = rows[back]
+        W = W + (r.T * m[back]) @ r
+        out &= ~back
+        qdd_c = solve(W)
+    return qdd_c, out
 
 
 def damping_rule(cfg: Mapping) -> Damping:
@@ -377,7 +441,9 @@ class Forcing:
     circulation_gain: g [1], the fraction of that push given back along the tangent;
     circulation_onset: c₀ [1], the cosine of the largest angle from head-on that counts;
     directional: leave out of the metric the barrier rows PUMA's push recedes from
-    (:func:`approached_metric`; ``metric`` only);
+    (:func:`approached_metric`; ``metric`` only); approach: which push decides that,
+    ``pull`` PUMA's free pull q̈_P, ``solution`` q̈_C itself (rows q̈_C approaches are put back
+    and q̈_C solved again: :func:`restore_approached`; ``directional`` only);
     rotation_weight: ρ [1], the orientation rows' share of the task metric (:meth:`task_weights`;
     ``metric`` only); priority: ``position`` applies the orientation rows' force only in the
     dynamically consistent null space of the position rows
@@ -399,6 +465,7 @@ class Forcing:
     circulation_gain: float = 1.0
     circulation_onset: float = 0.0
     directional: bool = False
+    approach: str = "pull"
     rotation_weight: float = 1.0
     priority: str = "none"
     geometry: str = "fabric"
@@ -459,6 +526,7 @@ class Forcing:
         cfg = dict(cfg or {})
         unknown = sorted(set(cfg) - {"mode", "weight", "null_metric", "circulation",
                                      "circulation_gain", "circulation_onset", "directional",
+                                     "approach",
                                      "rotation_weight", "priority", "geometry", "reach",
                                      "stall_pull", "stall_window", "stall_progress",
                                      "stall_psi_progress", "stall_radius", "stall_ramp",
@@ -476,6 +544,9 @@ class Forcing:
                               "metric; with mode=additive set method.forcing.geometry=fabric")
         if not f.reach > 0:
             raise ConfigError(f"method.forcing.reach must be > 0 (.inf: every pair), got {f.reach}")
+        if f.approach not in ("pull", "solution"):
+            raise ConfigError(f"method.forcing.approach must be 'pull' or 'solution', "
+                              f"got {f.approach!r}")
         if f.priority not in ("none", "position"):
             raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
                               f"got {f.priority!r}")

@@ -26,6 +26,14 @@ Table 1"), and which of the paper's statements still holds with it:
   an obstacle PUMA's push along the barrier's normal is suppressed and the arm slides along it,
   as a forced fabric does. h is the paper's, and the zero set of f_θ^C is unchanged (q̇ = 0,
   ẍ_d = 0 gives q̈ = 0 up to the damped elbow objective), so the same statement holds.
+- ``forcing.directional`` with ``forcing.approach: solution`` (FPM's and CPM's default since
+  session 18): the metric resists PUMA only along the barriers the forcing q̈_C itself
+  approaches (:func:`~tamedpuma.methods._tamed.restore_approached`). With ``pull`` (before)
+  that was decided on PUMA's free pull q̈_P, and the weighted solution could drive a joint
+  into a limit whose row q̈_P recedes from and W therefore lacked: on Table-1 pouring 05
+  without obstacles 0.6-17 rad/s² of self-motion while ‖ẍ_d‖ ≈ 0.1 m/s², joint 2 into its
+  limit, the hand 1.2 m from the goal. The forcing is still a weighted pseudo-inverse of
+  PUMA's spec through a PSD metric, so its zero set and the statement below are unchanged.
 - ``forcing.geometry: task_metric`` computes the geometry with PUMA's task metric as one more
   leaf, ``h = −(M + JᵀwJ)⁻¹f`` (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`),
   instead of ``h = −M⁻¹f``. The leaf is ``ẍ = 0`` in PUMA's task space with the constant metric
