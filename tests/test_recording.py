@@ -388,3 +388,34 @@ def test_mcap_static_obstacles_are_logged_every_step_and_changes_seen(tmp_path):
     assert list(obs["step"]) == [r.step for r in recs for _ in r.obstacle_radii]
     np.testing.assert_array_equal(obs[["x", "y", "z"]].to_numpy(),
                                   np.concatenate([r.obstacle_centers for r in recs]))
+
+
+def test_a_chunk_cut_short_leaves_every_step_once(tmp_path, monkeypatch):
+    """An exception (a signal handler's, as the sweep's SIGTERM handler raises) while a chunk's
+    records are being logged: closing the log as incomplete must not log the chunk's records
+    again (a killed sweep run's log held steps 80-98 twice). The log ends before the
+    interrupted record; every step in it appears once."""
+    urdf = _urdf(tmp_path)
+    path = tmp_path / "episode.mcap"
+    rec = McapRecorder(path, flush_every=20)
+    rec.open(_info(urdf))
+    original, raised = McapRecorder._log, []
+
+    class Terminated(Exception):
+        pass
+
+    def log_or_interrupt(self, r):
+        if r.step == 29 and not raised:  # the second chunk (steps 20-39), its 10th record
+            raised.append(r.step)
+            raise Terminated
+        original(self, r)
+
+    monkeypatch.setattr(McapRecorder, "_log", log_or_interrupt)
+    with pytest.raises(Terminated):
+        for i in range(100):
+            rec.write(_record(i))
+    rec.close(complete=False, summary={"success": False})
+    log = read_mcap(path)
+    assert not log.complete
+    assert list(log.joints.index) == list(range(log.n_steps))
+    assert log.n_steps == 29

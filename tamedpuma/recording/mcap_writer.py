@@ -186,6 +186,7 @@ class McapRecorder:
                     "additionalProperties": {"type": ["number", "null"]}})
         self._count = 0
         self._pending: list[StepRecord] = []  # steps taken since the last flush
+        self._in_chunk = False  # True while _log_pending runs (an exception may cut it short)
         self._obstacle_spheres = _LastSpheres(_OBSTACLE_COLOR)
         self._body_spheres = _Spheres(_BODY_COLOR)
         self._goal_style = _Spheres(_GOAL_COLOR)
@@ -225,9 +226,11 @@ class McapRecorder:
             self._writer.flush()
 
     def _log_pending(self) -> None:
+        self._in_chunk = True
         for rec in self._pending:
             self._log(rec)
         self._pending.clear()
+        self._in_chunk = False
 
     def _log(self, rec: StepRecord) -> None:
         """Log one step on every channel."""
@@ -290,6 +293,14 @@ class McapRecorder:
         if self._writer is None:
             return
         try:
+            if self._in_chunk:
+                # a chunk cut short by an exception (the sweep's SIGTERM handler, Ctrl-C) while
+                # its records were being logged: those before the interrupted one are logged
+                # already, that one perhaps in part; logging the chunk again repeated them (a
+                # killed run's log held steps 80-98 twice). The log ends there: the steps
+                # after it were not flushed, which a killed run may lose.
+                self._pending.clear()
+                self._in_chunk = False
             self._log_pending()
             self._writer.write_metadata(META_SUMMARY, {
                 "complete": "true" if complete else "false",
