@@ -216,10 +216,18 @@ def receding_rows(av, qdd: np.ndarray, reach: float = np.inf) -> np.ndarray | No
     if rows is None or m is None or rows.shape[0] == 0:
         return None
     recede = (rows @ qdd > 0.0) & (m > 0.0)
-    if np.isfinite(reach):  # the pair rows come first
-        pairs = slice(0, av.n_pair_rows)
-        recede[pairs] |= (av.barrier_x[pairs] > reach) & (m[pairs] > 0.0)
+    if np.isfinite(reach):
+        recede |= beyond_reach(av, reach) & (m > 0.0)
     return recede
+
+
+def beyond_reach(av, reach: float) -> np.ndarray:
+    """Mask over ``av.barrier_rows``: the obstacle pairs (the first rows) farther than
+    ``reach`` x_r [radius sums] from contact; joint-limit and ground rows never."""
+    far = np.zeros(av.barrier_rows.shape[0], dtype=bool)
+    pairs = slice(0, av.n_pair_rows)
+    far[pairs] = av.barrier_x[pairs] > reach
+    return far
 
 
 def metric_without(av, rows_out: np.ndarray | None) -> np.ndarray:
@@ -257,10 +265,7 @@ def restore_approached(av, receding: np.ndarray | None, W: np.ndarray, qdd_c: np
         return qdd_c, None
     out = receding.copy()
     rows, m = av.barrier_rows, av.barrier_metric
-    eligible = out.copy()
-    if np.isfinite(reach):
-        pairs = slice(0, av.n_pair_rows)
-        eligible[pairs] &= ~(av.barrier_x[pairs] > reach)
+    eligible = ~beyond_reach(av, reach)
     while out.any():
         back = out & eligible & (rows @ qdd_c < 0.0)
         if not back.any():
