@@ -13,6 +13,7 @@ from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.methods._policy import (
     LinearTaskPrimitive,
     PlanarTask,
+    SecondaryDamping,
     TaskAcceleration,
     prioritized_solve,
     pull_through_metric,
@@ -477,3 +478,87 @@ def test_forcing_approach_solution_keeps_the_pairs_beyond_reach_out(kinematics):
         seen += int(far.any())
         assert not np.any(out & ~far & (av.barrier_rows @ got < 0.0))
     assert seen > 10
+
+
+def _secondary_problem(rng, n=7, k=3, m2=3):
+    """A random first-stage metric A₁ (SPD, with position rows), J₁ (k, n) and secondary rows
+    A₂ = J₂ᵀwJ₂ (rank m₂), some of whose directions left to them are near-singular."""
+    B = rng.normal(size=(n, n))
+    J1 = rng.normal(size=(k, n))
+    A1 = B @ B.T + 0.1 * np.eye(n) + 100.0 * J1.T @ J1
+    J2 = 0.05 * rng.normal(size=(m2, n))
+    J2[0] *= 1e-2  # one orientation row nearly singular in the joints left to it
+    return A1, J1, 100.0 * J2.T @ J2, J2
+
+
+def test_secondary_damping_acts_only_on_near_singular_directions_left_to_the_orientation(
+        monkeypatch):
+    """:class:`SecondaryDamping`: D is symmetric PSD of rank ≤ m₂ and invisible to the first
+    rows (J₁A₁⁻¹D = 0), so the position rows' acceleration is unchanged (undamped constraint);
+    with f₁ = 0 the orientation's share along each direction vᵢ left to it is exactly
+    vᵢ·L⁻¹f₂/(1 + σ̂ᵢ² + μᵢ), μᵢ = μ_max(1 − σ̂ᵢ/σ₀)² below σ₀, 0 above; directions all above σ₀
+    leave q̈ bit for bit; it is on only under ``priority: position`` and refused when negative."""
+    import tamedpuma.methods._policy as policy
+
+    monkeypatch.setattr(policy, "PRIORITY_DAMPING", 0.0)  # the exact lexicographic solve
+    rng = np.random.default_rng(11)
+    damping = SecondaryDamping(gain=100.0, threshold=3.0)
+    n_damped = 0
+    for _ in range(20):
+        A1, J1, A2, _ = _secondary_problem(rng)
+        D = damping.metric(A1, J1, A2, 3)
+        assert np.allclose(D, D.T, atol=1e-9 * np.abs(D).max(initial=1.0))
+        eig = np.linalg.eigvalsh(D)
+        assert eig.min() > -1e-9 * max(eig.max(), 1.0) and np.sum(eig > 1e-9 * eig.max()) <= 3
+        assert np.allclose(J1 @ np.linalg.solve(A1, D), 0.0, atol=1e-8 * np.abs(D).max())
+        f1, f2 = rng.normal(size=7), rng.normal(size=7)
+        plain = prioritized_solve(A1, f1, J1, A2, f2)
+        damped = prioritized_solve(A1, f1, J1, A2 + D, f2)
+        assert np.allclose(J1 @ damped, J1 @ plain, atol=1e-9)
+        # the exact share with f₁ = 0, in u = Lᵀq̈
+        L = np.linalg.cholesky(A1)
+        Ju = np.linalg.solve(L, J1.T).T
+        N = np.eye(7) - Ju.T @ np.linalg.solve(Ju @ Ju.T, Ju)
+        X = np.linalg.solve(L, np.linalg.solve(L, A2).T)
+        lam, V = np.linalg.eigh(N @ X @ N)
+        sig, V = np.sqrt(np.maximum(lam[-3:], 0.0)), V[:, -3:]
+        mu = np.where(sig < 3.0, 100.0 * (1.0 - sig / 3.0) ** 2, 0.0)
+        n_damped += int(np.sum(mu > 0))
+        u = L.T @ prioritized_solve(A1, np.zeros(7), J1, A2 + D, f2)
+        assert np.allclose(V.T @ u, (V.T @ np.linalg.solve(L, f2)) / (1.0 + sig**2 + mu),
+                           atol=1e-8)
+        # every direction above σ₀: nothing changes
+        assert not SecondaryDamping(100.0, 1e-9).metric(A1, J1, A2, 3).any()
+        assert not SecondaryDamping(0.0, 3.0).metric(A1, J1, A2, 3).any()
+    assert n_damped >= 20  # the near-singular row was damped in every draw
+    assert Forcing(priority="position", singular_damping=100.0).secondary_damping() == damping
+    assert Forcing(priority="none", singular_damping=100.0).secondary_damping() is None
+    assert Forcing(priority="position").secondary_damping() is None
+    with pytest.raises(ConfigError, match="singular_damping"):
+        Forcing.from_mapping({"mode": "metric", "singular_damping": -1.0})
+
+
+def test_secondary_damping_calms_the_orientation_rows_at_the_wrist_singularity(kinematics):
+    """On the iiwa with the wrist at q₆ ≈ 0 and the shoulder joints held by barrier metrics
+    (the default tomato scenario's swing, BENCHMARKS.md "Session 19"), PUMA's orientation pull
+    drives the remaining joints hard; with the damping the joint acceleration falls in most
+    such states (median ≤ 0.9 of it), while with the wrist away from the singularity and no
+    barrier metric it is unchanged in most states."""
+    rng = np.random.default_rng(3)
+    damping = SecondaryDamping(gain=100.0, threshold=3.0)
+    ratio = {0.005: [], 0.8: []}
+    for _ in range(120):
+        q6 = float(rng.choice([0.005, 0.8]))
+        q = Q0 + rng.normal(scale=0.5, size=7)
+        q[5] = q6
+        state = kinematics.evaluate(q, np.zeros(7))
+        xdd = np.r_[rng.normal(scale=0.2, size=3), 2.0 * rng.normal(size=3)]
+        task = TaskAcceleration(xdd, state.ee_jacobian, np.zeros(6))
+        held = q6 < 0.1
+        W = np.diag(np.r_[(300.0 if held else 0.2) * np.ones(3), 1.0, 0.2, 0.2, 0.2])
+        plain = pull_through_metric(task, W, 100.0, 0.05, None, None, 3)
+        damped = pull_through_metric(task, W, 100.0, 0.05, None, None, 3, damping)
+        ratio[q6].append(np.linalg.norm(damped) / np.linalg.norm(plain))
+    assert np.median(ratio[0.005]) <= 0.9
+    assert np.mean(np.array(ratio[0.005]) < 0.75) >= 0.3
+    assert np.mean(np.abs(np.array(ratio[0.8]) - 1.0) < 1e-12) >= 0.5

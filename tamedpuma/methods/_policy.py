@@ -251,7 +251,8 @@ def weighted_rows(weight: float | np.ndarray, J: np.ndarray) -> np.ndarray:
 
 def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | np.ndarray,
                         m_null: float, qdd_null: np.ndarray | None = None,
-                        extra=None, priority: int = 0) -> np.ndarray:
+                        extra=None, priority: int = 0,
+                        secondary: SecondaryDamping | None = None) -> np.ndarray:
     """PUMA's task acceleration pulled to the joints through a metric (a weighted
     pseudo-inverse): the task spec ``(w I, −w ẍ_d)`` pulled back and summed with a joint-space
     spec ``(W, 0)`` and the secondary objective's ``(m_null I, −m_null q̈_null)``::
@@ -268,7 +269,9 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
     :class:`~tamedpuma.methods._circulation.TangentSpecs`): ``+ Σ w_k R_kᵀR_k`` in the metric,
     ``+ Σ w_k R_kᵀ a_k`` on the right.
     priority: the first ``priority`` task rows (J₁, the position rows of a pose task) take
-    precedence over the rest (J₂): see :func:`prioritized_solve`. 0: one weighted solve."""
+    precedence over the rest (J₂): see :func:`prioritized_solve`. 0: one weighted solve.
+    secondary: the singularity-robust damping of the rest (J₂) under a priority
+    (:class:`SecondaryDamping`; None: none)."""
     J = task.J
     m = J.shape[0]
     k = priority if priority > 0 else m
@@ -286,7 +289,71 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
         rhs = rhs + wr.T @ extra.targets
     if k == m:
         return linear_solve(A, rhs)
-    return prioritized_solve(A, rhs, J1, J[k:].T @ wJ[k:], wJ[k:].T @ target[k:])
+    A2 = J[k:].T @ wJ[k:]
+    if secondary is not None:
+        A2 = A2 + secondary.metric(A, J1, A2, m - k)
+    return prioritized_solve(A, rhs, J1, A2, wJ[k:].T @ target[k:])
+
+
+@dataclass(frozen=True)
+class SecondaryDamping:
+    """Singularity-robust damping of the secondary (orientation) rows of a prioritized pullback
+    (``method.forcing.singular_damping`` μ_max [1], ``singular_threshold`` σ₀ [1]; Chiaverini
+    1997's singularity-robust task priority, in the metric of the first stage).
+
+    The second stage of :func:`prioritized_solve` minimises ``½q̈ᵀ(A₁ + A₂)q̈ − (f₁ + f₂)ᵀq̈``
+    under the position constraint, A₁ = LLᵀ the first stage's metric (the avoidance metric, the
+    position rows' wJ₁ᵀJ₁, the elbow objective's), A₂ = J₂ᵀdiag(w)J₂. In u = Lᵀq̈ the secondary
+    rows are ``Ĵ₂ = diag(√w) J₂ L⁻ᵀ`` and the position constraint fixes u's component in
+    the row space of ``Ĵ₁ = J₁L⁻ᵀ``; what is left to the secondary rows is ``Ĵ₂N₁``, N₁ the
+    orthogonal projector onto Ĵ₁'s null space, with singular values σ̂ᵢ (σ̂ᵢ² the eigenvalues
+    of N₁L⁻¹A₂L⁻ᵀN₁, at most m₂ non-zero) and right singular vectors vᵢ ∈ range(N₁): the
+    target's share along vᵢ is realised as the fraction σ̂ᵢ²/(σ̂ᵢ² + 1), with a joint
+    acceleration per unit of target ∝ σ̂ᵢ/(σ̂ᵢ² + 1), largest at σ̂ᵢ = 1: where the joints that
+    could turn the hand are held by barrier metrics or at a singularity of their own (the wrist
+    at q₆ ≈ 0), the orientation rows drive the rest hard. Each direction with σ̂ᵢ < σ₀ gets the
+    extra metric
+
+        D = Σ_{σ̂ᵢ<σ₀} μᵢ (Lvᵢ)(Lvᵢ)ᵀ,   μᵢ = μ_max (1 − σ̂ᵢ/σ₀)²                  [1]
+
+    in the second stage only (gain σ̂ᵢ/(σ̂ᵢ² + 1 + μᵢ)); directions at or above σ₀ and the
+    position rows' acceleration J₁q̈ = J₁q̈₁ are unchanged (vᵢ ⊥ Ĵ₁'s rows: damping them never
+    shifts the position rows onto other joints, which the unprojected σ̂ of Ĵ₂ did, raising ‖q̈‖
+    up to 5× at random wrist-singular states). With the first rows asking nothing (f₁ = 0,
+    undamped constraint) the orientation's share is exactly ``vᵢ·Lᵀq̈ = vᵢ·L⁻¹f₂/(1 + σ̂ᵢ² +
+    μᵢ)``. D is PSD and depends only on the configuration and the metrics, so q̈_C is still a
+    weighted pseudo-inverse of PUMA's spec through a PSD metric: at ẍ_d = 0 and q̇ = 0 it is
+    the damped elbow objective (with more damping along the vᵢ), 0 without one, so the zero set
+    of the forcing and the statements resting on it are unchanged.
+
+    Why: the default tomato scenario (shipped models), FPM: at 6.5-7.0 s the orientation rows
+    asked 1.4-4 rad/s² with σ̂_min 0.2-1 (the wrist through q₆ ≈ 0, joints 1-3 held by obstacle
+    metrics of 130-480), q̈_C reached 14 rad/s², joints 5 and 7 spun at 2.2 rad/s in opposite
+    directions, joint 7 ran into its limit and the hand swung out to 0.85 m from the goal
+    (BENCHMARKS.md "Session 19")."""
+
+    gain: float = 0.0
+    threshold: float = 3.0
+
+    def metric(self, A1: np.ndarray, J1: np.ndarray, A2: np.ndarray, rank: int) -> np.ndarray:
+        """D (n, n) [1] for the first stage's metric A₁ (SPD), the first rows J₁ (k, n) and the
+        secondary rows' A₂ (PSD, rank ≤ ``rank``); zeros when no direction is below σ₀ or
+        μ_max = 0."""
+        n = A1.shape[0]
+        if self.gain <= 0.0 or rank <= 0:
+            return np.zeros((n, n))
+        L = np.linalg.cholesky(A1)
+        X = np.linalg.solve(L, np.linalg.solve(L, A2).T)  # L⁻¹A₂L⁻ᵀ (A₂ symmetric)
+        J1u = np.linalg.solve(L, J1.T).T  # J₁L⁻ᵀ: the first rows in u
+        N1 = np.eye(n) - J1u.T @ np.linalg.solve(J1u @ J1u.T, J1u)
+        lam, V = np.linalg.eigh(N1 @ (0.5 * (X + X.T)) @ N1)
+        sigma = np.sqrt(np.maximum(lam[-rank:], 0.0))
+        low = sigma < self.threshold
+        if not low.any():
+            return np.zeros((n, n))
+        mu = self.gain * (1.0 - sigma[low] / self.threshold) ** 2
+        LV = L @ V[:, -rank:][:, low]
+        return (LV * mu) @ LV.T
 
 
 #: δ [1] of :func:`prioritized_solve`: the priority constraint's damping relative to tr(S)/k

@@ -27,6 +27,7 @@ from tamedpuma.methods._policy import (
     NullSpaceObjective,
     OrientationReference,
     PoseTask,
+    SecondaryDamping,
     TaskAcceleration,
     pull_through_metric,
     pull_to_joints,
@@ -104,10 +105,11 @@ class PumaController:
                                           lambda: self.pull_at_rest(state, obs),
                                           av.min_clearance)
             weights = forcing.task_weights(len(task.xdd))
+            secondary = forcing.secondary_damping()
 
             def solve(W: np.ndarray) -> np.ndarray:
                 return pull_through_metric(task, W, weights, forcing.null_metric, null, extra,
-                                           forcing.priority_rows(len(task.xdd)))
+                                           forcing.priority_rows(len(task.xdd)), secondary)
 
             if forcing.directional:
                 receding = receding_rows(av, qdd_free, forcing.reach)
@@ -453,6 +455,10 @@ class Forcing:
     ``metric`` only); priority: ``position`` applies the orientation rows' force only in the
     dynamically consistent null space of the position rows
     (:func:`~tamedpuma.methods._policy.prioritized_solve`), ``none``: one weighted solve;
+    singular_damping: μ_max [1] of the orientation rows' singularity-robust damping under
+    ``priority: position`` (0: off), singular_threshold: σ₀ [1], the singular value (in the
+    first stage's metric) below which it acts
+    (:class:`~tamedpuma.methods._policy.SecondaryDamping`);
     geometry: ``fabric`` h = −M⁻¹f, ``task_metric`` h = −(M + Jᵀ diag(w) J)⁻¹f
     (:func:`geometry_with_task_metric`; ``metric`` only); reach: x_r [1], the obstacle pairs
     that resist the push are those within x_r of contact (:func:`approached_metric`; inf: every
@@ -473,6 +479,8 @@ class Forcing:
     approach: str = "pull"
     rotation_weight: float = 1.0
     priority: str = "none"
+    singular_damping: float = 0.0
+    singular_threshold: float = 3.0
     geometry: str = "fabric"
     reach: float = np.inf
     stall_pull: float = StallPull.gain  # the stall pull's defaults are StallPull's
@@ -488,6 +496,13 @@ class Forcing:
         rows of a pose task, m = 6; :func:`~tamedpuma.methods._policy.prioritized_solve`),
         else 0."""
         return 3 if self.priority == "position" and m == 6 else 0
+
+    def secondary_damping(self) -> SecondaryDamping | None:
+        """The orientation rows' singularity-robust damping (None when ``singular_damping`` is
+        0 or without ``priority: position``)."""
+        if self.priority != "position" or self.singular_damping <= 0.0:
+            return None
+        return SecondaryDamping(self.singular_damping, self.singular_threshold)
 
     def task_weights(self, m: int) -> float | np.ndarray:
         """The task metric's diagonal [1]: w on every row of a position task; for a pose task
@@ -532,7 +547,8 @@ class Forcing:
         unknown = sorted(set(cfg) - {"mode", "weight", "null_metric", "circulation",
                                      "circulation_gain", "circulation_onset", "directional",
                                      "approach",
-                                     "rotation_weight", "priority", "geometry", "reach",
+                                     "rotation_weight", "priority", "singular_damping",
+                                     "singular_threshold", "geometry", "reach",
                                      "stall_pull", "stall_window", "stall_progress",
                                      "stall_psi_progress", "stall_radius", "stall_ramp",
                                      "stall_release"})
@@ -555,6 +571,9 @@ class Forcing:
         if f.priority not in ("none", "position"):
             raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
                               f"got {f.priority!r}")
+        if not (f.singular_damping >= 0 and f.singular_threshold > 0):
+            raise ConfigError("method.forcing.singular_damping must be ≥ 0 and "
+                              "singular_threshold > 0")
         if not (f.weight > 0 and f.null_metric >= 0 and 0 < f.rotation_weight <= 1):
             raise ConfigError("method.forcing.weight must be > 0, null_metric ≥ 0 and "
                               "rotation_weight in (0, 1]")
