@@ -531,6 +531,14 @@ def test_secondary_damping_acts_only_on_near_singular_directions_left_to_the_ori
         assert not SecondaryDamping(100.0, 1e-9).metric(A1, J1, A2, 3).any()
         assert not SecondaryDamping(0.0, 3.0).metric(A1, J1, A2, 3).any()
     assert n_damped >= 20  # the near-singular row was damped in every draw
+    # position rows of rank 1 (a singular arm): finite, still invisible to them
+    J1 = np.zeros((3, 7))
+    J1[0] = rng.normal(size=7)
+    A1 = np.eye(7) + 100.0 * J1.T @ J1
+    J2 = 0.05 * rng.normal(size=(3, 7))
+    D = damping.metric(A1, J1, 100.0 * J2.T @ J2, 3)
+    assert np.all(np.isfinite(D)) and np.abs(D).max() > 0
+    assert np.allclose(J1 @ np.linalg.solve(A1, D), 0.0, atol=1e-8 * np.abs(D).max())
     assert Forcing(priority="position", singular_damping=100.0).secondary_damping() == damping
     assert Forcing(priority="none", singular_damping=100.0).secondary_damping() is None
     assert Forcing(priority="position").secondary_damping() is None

@@ -345,10 +345,16 @@ class SecondaryDamping:
         L = np.linalg.cholesky(A1)
         X = np.linalg.solve(L, np.linalg.solve(L, A2).T)  # L⁻¹A₂L⁻ᵀ (A₂ symmetric)
         J1u = np.linalg.solve(L, J1.T).T  # J₁L⁻ᵀ: the first rows in u
-        N1 = np.eye(n) - J1u.T @ np.linalg.solve(J1u @ J1u.T, J1u)
+        try:
+            N1 = np.eye(n) - J1u.T @ np.linalg.solve(J1u @ J1u.T, J1u)
+        except np.linalg.LinAlgError:  # the position rows singular (e.g. the arm straight up)
+            N1 = np.eye(n) - np.linalg.pinv(J1u) @ J1u
         lam, V = np.linalg.eigh(N1 @ (0.5 * (X + X.T)) @ N1)
-        sigma = np.sqrt(np.maximum(lam[-rank:], 0.0))
-        low = sigma < self.threshold
+        lam = lam[-rank:]
+        sigma = np.sqrt(np.maximum(lam, 0.0))
+        # only directions the secondary rows reach (σ̂ > 0): an eigenvector of a zero eigenvalue
+        # may lie along the position rows (where the whole Jacobian is singular)
+        low = (sigma < self.threshold) & (lam > 1e-12 * max(float(lam[-1]), 1.0))
         if not low.any():
             return np.zeros((n, n))
         mu = self.gain * (1.0 - sigma[low] / self.threshold) ** 2
