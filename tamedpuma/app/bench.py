@@ -199,8 +199,9 @@ def _tamed_parts(ctrl, state, obs, av, accel, null) -> dict:
         parts["directional metric"] = lambda: approached_metric(av, free, forcing.reach)
     weights = forcing.task_weights(len(accel.xdd))
     priority = forcing.priority_rows(len(accel.xdd))  # as the step solves it
+    secondary = forcing.secondary_damping()  # the orientation rows' damping, as the step
     parts["pullback through the metric"] = lambda: pull_through_metric(
-        accel, W, weights, forcing.null_metric, null, None, priority)
+        accel, W, weights, forcing.null_metric, null, None, priority, secondary)
     qd_next = obs.qd + ctrl.dt * (av.acceleration() + free)
     parts["control-rate filters"] = lambda: ctrl.rate.next_velocity(
         qd_next, av, ctrl.dt, ctrl.qd_max, state, obs.qd)
