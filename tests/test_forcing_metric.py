@@ -528,8 +528,8 @@ def test_secondary_damping_acts_only_on_near_singular_directions_left_to_the_ori
         assert np.allclose(V.T @ u, (V.T @ np.linalg.solve(L, f2)) / (1.0 + sig**2 + mu),
                            atol=1e-8)
         # every direction above σ₀: nothing changes
-        assert not SecondaryDamping(100.0, 1e-9).metric(A1, J1, A2, 3).any()
-        assert not SecondaryDamping(0.0, 3.0).metric(A1, J1, A2, 3).any()
+        assert SecondaryDamping(100.0, 1e-9).metric(A1, J1, A2, 3) is None
+        assert SecondaryDamping(0.0, 3.0).metric(A1, J1, A2, 3) is None
     assert n_damped >= 20  # the near-singular row was damped in every draw
     # position rows of rank 1 (a singular arm): finite, still invisible to them
     J1 = np.zeros((3, 7))

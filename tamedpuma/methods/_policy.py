@@ -290,8 +290,9 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
     if k == m:
         return linear_solve(A, rhs)
     A2 = J[k:].T @ wJ[k:]
-    if secondary is not None:
-        A2 = A2 + secondary.metric(A, J1, A2, m - k)
+    D = None if secondary is None else secondary.metric(A, J1, A2, m - k)
+    if D is not None:
+        A2 = A2 + D
     return prioritized_solve(A, rhs, J1, A2, wJ[k:].T @ target[k:])
 
 
@@ -335,13 +336,14 @@ class SecondaryDamping:
     gain: float = 0.0
     threshold: float = 3.0
 
-    def metric(self, A1: np.ndarray, J1: np.ndarray, A2: np.ndarray, rank: int) -> np.ndarray:
+    def metric(self, A1: np.ndarray, J1: np.ndarray, A2: np.ndarray,
+               rank: int) -> np.ndarray | None:
         """D (n, n) [1] for the first stage's metric A₁ (SPD), the first rows J₁ (k, n) and the
-        secondary rows' A₂ (PSD, rank ≤ ``rank``); zeros when no direction is below σ₀ or
-        μ_max = 0."""
+        secondary rows' A₂ (PSD, rank ≤ ``rank``); None (nothing to add: the common case in
+        free space) when no direction is below σ₀ or μ_max = 0."""
         n = A1.shape[0]
         if self.gain <= 0.0 or rank <= 0:
-            return np.zeros((n, n))
+            return None
         L = np.linalg.cholesky(A1)
         X = np.linalg.solve(L, np.linalg.solve(L, A2).T)  # L⁻¹A₂L⁻ᵀ (A₂ symmetric)
         J1u = np.linalg.solve(L, J1.T).T  # J₁L⁻ᵀ: the first rows in u
@@ -356,7 +358,7 @@ class SecondaryDamping:
         # may lie along the position rows (where the whole Jacobian is singular)
         low = (sigma < self.threshold) & (lam > 1e-12 * max(float(lam[-1]), 1.0))
         if not low.any():
-            return np.zeros((n, n))
+            return None
         mu = self.gain * (1.0 - sigma[low] / self.threshold) ** 2
         LV = L @ V[:, -rank:][:, low]
         return (LV * mu) @ LV.T
