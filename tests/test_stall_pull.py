@@ -97,6 +97,32 @@ def test_it_lets_go_on_puma_potential_not_on_distance_and_watches_afresh():
     assert m.acceleration(7.0, GOAL - [0.3, 0.0, 0.0], GOAL, lambda: 0.94) is not None
 
 
+def test_near_the_goal_only_distance_is_progress_and_the_pull_holds_until_the_goal():
+    """Within hold_radius a falling ψ (the orientation converging) does not count as progress,
+    and the pull armed there is not let go on ψ, only once the hand is inside the radius."""
+    near = StallPull(gain=1.5, window=2.0, progress=0.005, psi_progress=0.1, radius=0.045,
+                     ramp=1.0, release=0.05, hold_radius=0.15)
+    t = np.round(np.arange(0.0, 6.0, 0.1), 6)
+    falling = np.exp(-0.5 * t)  # ψ falls 10 % well within every window
+    # 8 cm short, ψ falling: without the hold never armed, with it armed after the window
+    off = _feed(StallMonitor(PULL), t, np.full(len(t), 0.08), psi=falling)
+    assert all(a is None for a in off)
+    on = _feed(StallMonitor(near), t, np.full(len(t), 0.08), psi=falling)
+    assert [a is None for a in on] == list(t < 2.0)
+    # armed near the goal, ψ then drops far below its value at arming: still held ...
+    m = StallMonitor(near)
+    psi = np.where(t < 3.0, 1.0, 0.1)
+    d = np.where(t < 4.0, 0.08, 0.06)
+    out = _feed(m, t, d, psi=psi)
+    assert all(a is not None for a, ti in zip(out, t, strict=True) if ti >= 2.0)
+    # ... until the hand is within the radius
+    assert m.acceleration(6.0, GOAL - [0.04, 0, 0], GOAL, lambda: 0.1) is None
+    assert not m.armed
+    # farther than hold_radius the rules are unchanged: progress on ψ keeps it disarmed
+    far = _feed(StallMonitor(near), t, np.full(len(t), 0.3), psi=falling)
+    assert all(a is None for a in far)
+
+
 def test_applied_adds_to_the_position_rows_only():
     m = StallMonitor(StallPull(gain=2.0, window=1.0, ramp=0.0))
     task = TaskAcceleration(np.arange(6.0), np.eye(6, 7), np.zeros(6))
@@ -160,7 +186,8 @@ def test_a_run_that_keeps_approaching_is_unchanged_by_the_pull():
 
 
 @pytest.mark.parametrize("bad", [{"stall_pull": -1.0}, {"stall_window": 0.0},
-                                 {"stall_release": 1.0}, {"stall_ramp": -0.5}])
+                                 {"stall_release": 1.0}, {"stall_ramp": -0.5},
+                                 {"stall_hold_radius": -0.1}])
 def test_bad_stall_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="stall"):
         Forcing.from_mapping({"mode": "metric", **bad})

@@ -38,6 +38,17 @@ drains into the stall point; letting go at the first few millimetres of progress
 the hand back to PUMA's field, which returned it to the stall (the point-robot test). Disarmed,
 the watch starts afresh from the hand's current distance.
 
+Near the goal (``hold_radius`` [m], 0: off) the hand's distance is the only measure. ψ is the
+latent distance of the whole pose, and within a few centimetres of the goal it is dominated by
+the orientation: in the logs of random tomato scenarios it fell 0.28 → 0.17 in 15 s as the
+orientation converged while joint 2's limit and the ground barrier held the hand 6.5-8.8 cm
+short (``near_table1`` 2047, CPM), and it swung 0.18 ↔ 0.54 as the wrist turned while the hand
+crept 8 → 7 cm in 20 s (``anywhere`` 2065, FPM): each fall counted as progress or let the pull
+go again. Within ``hold_radius`` therefore only d ≤ best − ``progress`` is progress, and a pull
+armed there is let go only once the hand is inside ``radius``, not on ψ: there the convex
+attractor's only minimum is the goal a few centimetres away, and there is no demonstrated path
+left for it to cut across.
+
 What holds. Safety never depended on the forcing: the barriers' metric and geometry, the
 energization bound and the control-rate barrier step are unchanged, so the pull cannot carry the
 arm through a barrier the fabric holds (what it can do is press harder where the barriers'
@@ -72,7 +83,8 @@ PSI_SAMPLE_S = 0.1
 @dataclass(frozen=True)
 class StallPull:
     """The stall pull's settings (``method.forcing.stall_*``): gain g [m/s²] (0: off), window
-    [s], progress [m], psi_progress [1], radius [m], ramp [s], release [1] (see the module)."""
+    [s], progress [m], psi_progress [1], radius [m], ramp [s], release [1], hold_radius [m]
+    (see the module)."""
 
     gain: float = 0.0
     window: float = 2.0
@@ -81,6 +93,7 @@ class StallPull:
     radius: float = 0.045
     ramp: float = 1.0
     release: float = 0.05
+    hold_radius: float = 0.0
 
 
 class StallMonitor:
@@ -93,7 +106,7 @@ class StallMonitor:
         self.t_best = self.t_best_psi = self.t_psi = -np.inf
         self.psi = np.nan
         self.t_armed: float | None = None
-        self.psi_armed = np.nan
+        self.psi_armed = self.d_armed = np.nan
 
     @property
     def armed(self) -> bool:
@@ -113,7 +126,9 @@ class StallMonitor:
         d = float(np.linalg.norm(e))
         p = self.pull
         psi = self._potential(t, potential)
-        if self.t_armed is not None and psi < (1.0 - p.release) * self.psi_armed:
+        holding = self.d_armed <= p.hold_radius  # armed near the goal: held until it is reached
+        if self.t_armed is not None and (d <= p.radius if holding else
+                                         psi < (1.0 - p.release) * self.psi_armed):
             self.t_armed = None  # over the ridge: PUMA's again, watched afresh from here
             self.best, self.t_best, self.best_psi, self.t_best_psi = d, t, psi, t
         if self.t_armed is None:
@@ -121,8 +136,10 @@ class StallMonitor:
                 self.best, self.t_best = d, t
             if psi < (1.0 - p.psi_progress) * self.best_psi:
                 self.best_psi, self.t_best_psi = psi, t
-            if d > p.radius and t - max(self.t_best, self.t_best_psi) >= p.window:
-                self.t_armed, self.psi_armed = t, psi
+            near = d <= p.hold_radius  # near the goal only the distance counts as progress
+            last = self.t_best if near else max(self.t_best, self.t_best_psi)
+            if d > p.radius and t - last >= p.window:
+                self.t_armed, self.psi_armed, self.d_armed = t, psi, d
         if self.t_armed is None:
             return None
         a = 1.0 if p.ramp <= 0.0 else min(1.0, (t - self.t_armed) / p.ramp)

@@ -467,7 +467,9 @@ class Forcing:
     stall_window [s] in which neither the hand's distance improved by stall_progress [m] nor
     PUMA's potential by the fraction stall_psi_progress, while farther than stall_radius [m]
     from the goal, ramped in over stall_ramp [s], released once PUMA's potential is
-    stall_release [1] below its value at arming (:mod:`tamedpuma.methods._stall`)."""
+    stall_release [1] below its value at arming; within stall_hold_radius [m] of the goal only
+    the distance is progress and the pull holds until stall_radius
+    (:mod:`tamedpuma.methods._stall`)."""
 
     mode: str = "additive"
     weight: float = 100.0
@@ -490,6 +492,7 @@ class Forcing:
     stall_radius: float = StallPull.radius
     stall_ramp: float = StallPull.ramp
     stall_release: float = StallPull.release
+    stall_hold_radius: float = StallPull.hold_radius
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -539,7 +542,7 @@ class Forcing:
         return StallMonitor(StallPull(
             gain=self.stall_pull, window=self.stall_window, progress=self.stall_progress,
             psi_progress=self.stall_psi_progress, radius=self.stall_radius, ramp=self.stall_ramp,
-            release=self.stall_release))
+            release=self.stall_release, hold_radius=self.stall_hold_radius))
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
@@ -551,7 +554,7 @@ class Forcing:
                                      "singular_threshold", "geometry", "reach",
                                      "stall_pull", "stall_window", "stall_progress",
                                      "stall_psi_progress", "stall_radius", "stall_ramp",
-                                     "stall_release"})
+                                     "stall_release", "stall_hold_radius"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
@@ -583,9 +586,10 @@ class Forcing:
                               "circulation_onset in [0, 1)")
         if not (f.stall_pull >= 0 and f.stall_window > 0 and f.stall_progress >= 0
                 and f.stall_radius >= 0 and f.stall_ramp >= 0 and 0 <= f.stall_release < 1
-                and 0 <= f.stall_psi_progress < 1):
+                and 0 <= f.stall_psi_progress < 1 and f.stall_hold_radius >= 0):
             raise ConfigError("method.forcing.stall_pull [m/s²], stall_progress [m], stall_radius "
-                              "[m] and stall_ramp [s] must be ≥ 0, stall_window [s] > 0, "
+                              "[m], stall_hold_radius [m] and stall_ramp [s] must be ≥ 0, "
+                              "stall_window [s] > 0, "
                               "stall_psi_progress and stall_release in [0, 1)")
         return f
 
