@@ -106,7 +106,8 @@ class StallMonitor:
         self.t_best = self.t_best_psi = self.t_psi = -np.inf
         self.psi = np.nan
         self.t_armed: float | None = None
-        self.psi_armed = self.d_armed = np.nan
+        self.psi_armed = np.nan
+        self.armed_near = False  # armed within hold_radius: held until the goal radius
 
     @property
     def armed(self) -> bool:
@@ -126,8 +127,7 @@ class StallMonitor:
         d = float(np.linalg.norm(e))
         p = self.pull
         psi = self._potential(t, potential)
-        holding = self.d_armed <= p.hold_radius  # armed near the goal: held until it is reached
-        if self.t_armed is not None and (d <= p.radius if holding else
+        if self.t_armed is not None and (d <= p.radius if self.armed_near else
                                          psi < (1.0 - p.release) * self.psi_armed):
             self.t_armed = None  # over the ridge: PUMA's again, watched afresh from here
             self.best, self.t_best, self.best_psi, self.t_best_psi = d, t, psi, t
@@ -139,7 +139,7 @@ class StallMonitor:
             near = d <= p.hold_radius  # near the goal only the distance counts as progress
             last = self.t_best if near else max(self.t_best, self.t_best_psi)
             if d > p.radius and t - last >= p.window:
-                self.t_armed, self.psi_armed, self.d_armed = t, psi, d
+                self.t_armed, self.psi_armed, self.armed_near = t, psi, near
         if self.t_armed is None:
             return None
         a = 1.0 if p.ramp <= 0.0 else min(1.0, (t - self.t_armed) / p.ramp)
