@@ -123,6 +123,28 @@ def test_near_the_goal_only_distance_is_progress_and_the_pull_holds_until_the_go
     assert all(a is None for a in far)
 
 
+def test_hold_keep_never_lets_go_and_the_pull_vanishes_at_the_goal():
+    """With hold_keep a pull armed within hold_radius stays armed inside the goal radius (where
+    the plain hold lets go), and its acceleration falls to zero at the goal (a rest point)."""
+    keep = StallPull(gain=1.5, window=2.0, radius=0.045, ramp=0.0, hold_radius=0.15,
+                     hold_keep=True)
+    m = StallMonitor(keep)
+    t = np.round(np.arange(0.0, 2.6, 0.1), 6)
+    out = _feed(m, t, np.full(len(t), 0.08), psi=np.exp(-0.5 * t))
+    assert out[-1] is not None and m.armed
+    inside = [m.acceleration(3.0 + k, GOAL - [r, 0, 0], GOAL, lambda: 0.1)
+              for k, r in enumerate([0.04, 0.01, 0.0])]
+    assert m.armed
+    assert np.linalg.norm(inside[0]) == pytest.approx(1.5 * 0.04 / 0.1)
+    assert np.linalg.norm(inside[1]) < np.linalg.norm(inside[0])
+    assert inside[2] == pytest.approx(np.zeros(3))
+    # armed far from the goal (outside hold_radius) it is still let go on ψ
+    far = StallMonitor(keep)
+    _feed(far, t, np.full(len(t), 0.3), psi=np.ones(len(t)))
+    assert far.armed
+    assert far.acceleration(3.0, GOAL - [0.3, 0, 0], GOAL, lambda: 0.5) is None
+
+
 def test_applied_adds_to_the_position_rows_only():
     m = StallMonitor(StallPull(gain=2.0, window=1.0, ramp=0.0))
     task = TaskAcceleration(np.arange(6.0), np.eye(6, 7), np.zeros(6))

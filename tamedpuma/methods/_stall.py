@@ -47,7 +47,10 @@ crept 8 → 7 cm in 20 s (``anywhere`` 2065, FPM): each fall counted as progress
 go again. Within ``hold_radius`` therefore only d ≤ best − ``progress`` is progress, and a pull
 armed there is let go only once the hand is inside ``radius``, not on ψ: there the convex
 attractor's only minimum is the goal a few centimetres away, and there is no demonstrated path
-left for it to cut across.
+left for it to cut across. With ``hold_keep`` a pull armed there is never let go: at the goal it
+vanishes (g·(p_g − p)/ℓ → 0), so the goal stays a rest point of the forced system and PUMA's
+zero set is kept, while a PUMA field that still orients the hand can no longer carry it back out
+unopposed (let go at the radius, it did: the default tomato FPM run, 3 → 10 cm, session 20).
 
 What holds. Safety never depended on the forcing: the barriers' metric and geometry, the
 energization bound and the control-rate barrier step are unchanged, so the pull cannot carry the
@@ -83,8 +86,8 @@ PSI_SAMPLE_S = 0.1
 @dataclass(frozen=True)
 class StallPull:
     """The stall pull's settings (``method.forcing.stall_*``): gain g [m/s²] (0: off), window
-    [s], progress [m], psi_progress [1], radius [m], ramp [s], release [1], hold_radius [m]
-    (see the module)."""
+    [s], progress [m], psi_progress [1], radius [m], ramp [s], release [1], hold_radius [m],
+    hold_keep (see the module)."""
 
     gain: float = 0.0
     window: float = 2.0
@@ -94,6 +97,7 @@ class StallPull:
     ramp: float = 1.0
     release: float = 0.05
     hold_radius: float = 0.0
+    hold_keep: bool = False
 
 
 class StallMonitor:
@@ -127,8 +131,9 @@ class StallMonitor:
         d = float(np.linalg.norm(e))
         p = self.pull
         psi = self._potential(t, potential)
-        if self.t_armed is not None and (d <= p.radius if self.armed_near else
-                                         psi < (1.0 - p.release) * self.psi_armed):
+        if self.t_armed is not None and (
+                (not p.hold_keep and d <= p.radius) if self.armed_near else
+                psi < (1.0 - p.release) * self.psi_armed):
             self.t_armed = None  # over the ridge: PUMA's again, watched afresh from here
             self.best, self.t_best, self.best_psi, self.t_best_psi = d, t, psi, t
         if self.t_armed is None:

@@ -468,7 +468,7 @@ class Forcing:
     PUMA's potential by the fraction stall_psi_progress, while farther than stall_radius [m]
     from the goal, ramped in over stall_ramp [s], released once PUMA's potential is
     stall_release [1] below its value at arming; within stall_hold_radius [m] of the goal only
-    the distance is progress and the pull holds until stall_radius
+    the distance is progress and the pull holds until stall_radius (stall_hold_keep: for good)
     (:mod:`tamedpuma.methods._stall`)."""
 
     mode: str = "additive"
@@ -493,6 +493,7 @@ class Forcing:
     stall_ramp: float = StallPull.ramp
     stall_release: float = StallPull.release
     stall_hold_radius: float = StallPull.hold_radius
+    stall_hold_keep: bool = StallPull.hold_keep
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -542,7 +543,8 @@ class Forcing:
         return StallMonitor(StallPull(
             gain=self.stall_pull, window=self.stall_window, progress=self.stall_progress,
             psi_progress=self.stall_psi_progress, radius=self.stall_radius, ramp=self.stall_ramp,
-            release=self.stall_release, hold_radius=self.stall_hold_radius))
+            release=self.stall_release, hold_radius=self.stall_hold_radius,
+            hold_keep=bool(self.stall_hold_keep)))
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
@@ -554,7 +556,8 @@ class Forcing:
                                      "singular_threshold", "geometry", "reach",
                                      "stall_pull", "stall_window", "stall_progress",
                                      "stall_psi_progress", "stall_radius", "stall_ramp",
-                                     "stall_release", "stall_hold_radius"})
+                                     "stall_release", "stall_hold_radius",
+                                     "stall_hold_keep"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
