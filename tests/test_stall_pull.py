@@ -209,7 +209,8 @@ def test_a_run_that_keeps_approaching_is_unchanged_by_the_pull():
 
 @pytest.mark.parametrize("bad", [{"stall_pull": -1.0}, {"stall_window": 0.0},
                                  {"stall_release": 1.0}, {"stall_ramp": -0.5},
-                                 {"stall_hold_radius": -0.1}])
+                                 {"stall_hold_radius": -0.1}, {"stall_hold_keep": "maybe"},
+                                 {"stall_hold_keep": 1}])
 def test_bad_stall_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="stall"):
         Forcing.from_mapping({"mode": "metric", **bad})

@@ -544,7 +544,7 @@ class Forcing:
             gain=self.stall_pull, window=self.stall_window, progress=self.stall_progress,
             psi_progress=self.stall_psi_progress, radius=self.stall_radius, ramp=self.stall_ramp,
             release=self.stall_release, hold_radius=self.stall_hold_radius,
-            hold_keep=bool(self.stall_hold_keep)))
+            hold_keep=self.stall_hold_keep))
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
@@ -587,6 +587,9 @@ class Forcing:
                 and 0 <= f.circulation_onset < 1):
             raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0, "
                               "circulation_onset in [0, 1)")
+        if not isinstance(f.stall_hold_keep, bool):
+            raise ConfigError(f"method.forcing.stall_hold_keep must be true or false, "
+                              f"got {f.stall_hold_keep!r}")
         if not (f.stall_pull >= 0 and f.stall_window > 0 and f.stall_progress >= 0
                 and f.stall_radius >= 0 and f.stall_ramp >= 0 and 0 <= f.stall_release < 1
                 and 0 <= f.stall_psi_progress < 1 and f.stall_hold_radius >= 0):
