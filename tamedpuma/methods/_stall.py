@@ -111,7 +111,7 @@ class StallMonitor:
         self.psi = np.nan
         self.t_armed: float | None = None
         self.psi_armed = np.nan
-        self.armed_near = False  # armed within hold_radius: held until the goal radius
+        self.armed_near = False  # armed within hold_radius: see _released
 
     @property
     def armed(self) -> bool:
@@ -122,6 +122,15 @@ class StallMonitor:
             self.psi, self.t_psi = float(potential()), t
         return self.psi
 
+    def _released(self, d: float, psi: float) -> bool:
+        """Whether an armed pull lets go at distance d [m] and potential ψ: armed near the goal,
+        once inside the radius (never with hold_keep); armed elsewhere, once ψ is ``release``
+        below its value at arming."""
+        p = self.pull
+        if self.armed_near:
+            return not p.hold_keep and d <= p.radius
+        return psi < (1.0 - p.release) * self.psi_armed
+
     def acceleration(self, t: float, position: np.ndarray, goal: np.ndarray,
                      potential: Callable[[], float]) -> np.ndarray | None:
         """The attractor's task acceleration [m/s²] at time t [s] (hand ``position`` and
@@ -131,9 +140,7 @@ class StallMonitor:
         d = float(np.linalg.norm(e))
         p = self.pull
         psi = self._potential(t, potential)
-        if self.t_armed is not None and (
-                (not p.hold_keep and d <= p.radius) if self.armed_near else
-                psi < (1.0 - p.release) * self.psi_armed):
+        if self.t_armed is not None and self._released(d, psi):
             self.t_armed = None  # over the ridge: PUMA's again, watched afresh from here
             self.best, self.t_best, self.best_psi, self.t_best_psi = d, t, psi, t
         if self.t_armed is None:
