@@ -13,13 +13,16 @@ composed by Hydra and run in-process (no files per run); one CSV row per run:
   obstacle sphere before (the authors' check); ``success_whole_body``: also no PyBullet
   robot-obstacle contact, no ground contact and no joint-limit violation before success;
 - ``failure``: for a run failing the paper criterion, the first that applies of ``contact`` (a body
-  sphere penetrated an obstacle), ``ground`` (robot-ground contact or a body sphere below the
-  ground), ``joint_limit``, ``stall`` (at rest, ‖q̇‖ < 0.05 rad/s over the last second, short of
+  sphere penetrated an obstacle), ``ground`` (robot-ground contact or a link's collision mesh
+  below the ground; before session 22 a body sphere below it, which the spheres' inflation makes
+  stricter than the contact: the hand's 7 cm sphere dips below while the flange is clear),
+  ``joint_limit``, ``stall`` (at rest, ‖q̇‖ < 0.05 rad/s over the last second, short of
   the goal), ``time`` (still moving at the end); for a paper success failing the whole-body
   criterion: ``mesh`` / ``ground`` / ``joint_limit``;
 - ``alpha_max``: max |α| logged by the method [1/s]; ``speed_ratio_max``: max over steps and joints
   of |q̇|/q̇_max; ``clamp_frac``: fraction of steps where the commanded ``q̇ + q̈Δt`` exceeded a
-  velocity limit (the simulator's clamp acted); ``min_clearance``, ``min_ground_clearance`` [m];
+  velocity limit (the simulator's clamp acted); ``min_clearance``, ``min_ground_clearance`` (the
+  body spheres'), ``min_mesh_ground_clearance`` (the links' lowest hull points) [m];
   ``max_error`` [m]: the hand's largest distance to the goal; ``path_length`` [m]: the length of
   the hand's path (a flailing arm shows in both).
 
@@ -36,12 +39,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tamedpuma.robot.ground import hull_heights_from_poses
+
 
 class _Tracker:
     """A recorder that keeps what the classification needs, per step."""
 
-    def __init__(self, dt, qd_max, radii):
+    def __init__(self, dt, qd_max, radii, hulls=None, link_names=()):
         self.dt, self.qd_max, self.radii = dt, np.asarray(qd_max), np.asarray(radii)
+        self.hulls, self.link_names = hulls, link_names
         self.rows = []
 
     def open(self, info):
@@ -55,7 +61,13 @@ class _Tracker:
                           float(np.max(np.abs(rec.qd) / self.qd_max)), float(cmd.max()),
                           float(np.linalg.norm(rec.qd)),
                           float(np.min(rec.body_sphere_centers[:, 2] - self.radii)),
-                          s["orientation_error_rad"]))
+                          s["orientation_error_rad"], self._lowest_mesh_point(rec)))
+
+    def _lowest_mesh_point(self, rec) -> float:
+        if self.hulls is None:
+            return np.inf
+        return float(np.min(hull_heights_from_poses(self.hulls, self.link_names,
+                                                    rec.link_positions, rec.link_quaternions)))
 
     def close(self, complete, summary):
         pass
@@ -67,6 +79,8 @@ def run_one(spec: dict) -> dict:
     from tamedpuma.app.sweep import build
     from tamedpuma.app.train import compose
     from tamedpuma.episode import run_episode
+    from tamedpuma.robot.ground import link_hulls
+    from tamedpuma.robot.kinematics import Kinematics
     from tamedpuma.worlds.bullet import Simulator
 
     task, kind, seed, method = spec["task"], spec["kind"], spec["seed"], spec["method"]
@@ -83,7 +97,8 @@ def run_one(spec: dict) -> dict:
     cfg = OmegaConf.create(compose("sweep", overrides))
     built = build(cfg)
     sc, robot = built.scenario, built.spec
-    tracker = _Tracker(sc.dt, robot.qd_max, robot.sphere_radii)
+    tracker = _Tracker(sc.dt, robot.qd_max, robot.sphere_radii,
+                       link_hulls(Kinematics(robot)), robot.link_names)
     start = time.perf_counter()
     with Simulator(robot, built.sim_config) as sim:
         result = run_episode(sc, built.controller, sim, [tracker], None, stop_on_success=True)
@@ -97,7 +112,7 @@ def run_one(spec: dict) -> dict:
     t, err, clear, contact, ground = a[:, 0], a[:, 1], a[:, 2], a[:, 3] > 0, a[:, 4] > 0
     q = result.q
     limit = np.any((q < robot.q_min - 1e-6) | (q > robot.q_max + 1e-6), axis=1)
-    below = a[:, 9] < 0
+    below = a[:, 11] < 0  # a link's mesh below the ground plane
     pen = clear < 0
     first_pen = int(np.argmax(pen)) if pen.any() else len(t)
     reached = np.flatnonzero(err[:first_pen] <= sc.goal_tolerance)
@@ -128,6 +143,7 @@ def run_one(spec: dict) -> dict:
             "path_length": float(np.sum(np.linalg.norm(np.diff(result.ee_position, axis=0),
                                                        axis=1))),
             "min_clearance": float(clear.min()), "min_ground_clearance": float(a[:, 9].min()),
+            "min_mesh_ground_clearance": float(a[:, 11].min()),
             "mesh_contact": bool(contact.any()), "ground_contact": bool(ground.any()),
             "limit_steps": int(limit.sum()), "alpha_max": float(a[:, 5].max()),
             "speed_ratio_max": float(a[:, 6].max()), "clamp_frac": float(np.mean(a[:, 7] > 1.0)),

@@ -1,6 +1,7 @@
 """FPM and CPM stay safe at the control rate on a random scenario (issue 12), with a tiny trained
 model: every commanded joint speed within its limit, the energization coefficient within its
-bound, no body sphere inside an obstacle or below the ground, no joint past its limit; and the
+bound, no body sphere inside an obstacle, nothing below the ground (the link meshes or the body
+spheres, whichever the ground rows keep), no joint past its limit; and the
 singularity-robust inverse keeps the pulled acceleration bounded at the stretched elbow."""
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from omegaconf import OmegaConf
 from tamedpuma.app import train
 from tamedpuma.episode import run_episode
 from tamedpuma.methods._policy import Damping, TaskAcceleration, manipulability, pull_to_joints
+from tamedpuma.robot.ground import hull_ground_rows, link_hulls
 from tamedpuma.worlds.bullet import Simulator
 
 
@@ -66,8 +68,14 @@ def test_fpm_and_cpm_respect_speed_limits_and_barriers_on_a_random_scenario(
         assert min(r[1]["alpha"] for r in spy.rows) >= -float(cfg.method.alpha_bound) - 1e-9
     assert run.metrics.min_clearance_m > 0
     assert np.all(run.q >= spec.q_min) and np.all(run.q <= spec.q_max)
-    centers = np.array([kinematics.sphere_centers(q) for q in run.q])
-    assert np.min(centers[:, :, 2] - spec.sphere_radii) > 0
+    if cfg.method.control_rate.ground_geometry == "mesh":  # every link's mesh above the ground
+        hulls = link_hulls(kinematics)
+        lowest = [hull_ground_rows(kinematics, hulls, q, np.zeros(7)).heights.min()
+                  for q in run.q]
+        assert min(lowest) > 0
+    else:
+        centers = np.array([kinematics.sphere_centers(q) for q in run.q])
+        assert np.min(centers[:, :, 2] - spec.sphere_radii) > 0
 
 
 def test_singularity_robust_inverse_bounds_the_joint_acceleration(kinematics):

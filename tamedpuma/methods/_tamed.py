@@ -34,6 +34,13 @@ from tamedpuma.methods._policy import (
     weighted_rows,
 )
 from tamedpuma.methods._stall import StallMonitor, StallPull
+from tamedpuma.robot.ground import (
+    POINT_SPEED_BOUND,
+    GroundRows,
+    hull_ground_rows,
+    link_hulls,
+    sphere_ground_rows,
+)
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
 
 
@@ -149,6 +156,8 @@ class TamedController:
         self.circulation = self.forcing.make_circulation()
         self.stall = self.forcing.make_stall_monitor()
         self.dt = float("nan")  # the scenario's, from reset
+        self.hulls = (link_hulls(self.kinematics) if self.rate.barrier_step and self.rate.ground
+                      and self.rate.ground_geometry == "mesh" else None)
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
@@ -162,6 +171,17 @@ class TamedController:
         h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, self.circulation,
                                                  self.stall)
         return state, av, h, qdd_c, xdd
+
+    def ground_rows(self, state, q: np.ndarray, qd: np.ndarray) -> GroundRows | None:
+        """The heights above the ground the barrier step keeps (``control_rate.ground``, of
+        ``ground_geometry``), or None without them."""
+        if not (self.rate.barrier_step and self.rate.ground):
+            return None
+        if self.hulls is None:
+            return sphere_ground_rows(state)
+        below = POINT_SPEED_BOUND * self.dt / self.rate.kappa  # higher links: no row needed
+        return hull_ground_rows(self.kinematics, self.hulls, q, qd,
+                                below if np.isfinite(below) else np.inf)
 
     def stall_scalars(self) -> dict[str, float]:
         """``stall_pull``: 1 while the stall pull is armed, else 0 (a log scalar)."""
@@ -356,9 +376,12 @@ class ControlRate:
     beyond the α bound implicitly (:func:`braking_split`; CPM always does); standoff: the
     barrier step lets a barrier distance shrink towards this value instead of 0 (in each row's
     units: obstacle pairs in radius sums, joint limits in rad, ground in m);
-    ground: add the body spheres' ground distances ``c_z − r − ground_height`` [m] (rows
-    ``(J_i)_z``) to the barrier step only (no continuous ground leaf, whose metres-scaled barrier
-    also blocked the tomato goal 4.5 cm above the table).
+    ground: add the robot's heights above the ground minus ``ground_height`` [m] to the barrier
+    step only (no continuous ground leaf, whose metres-scaled barrier also blocked the tomato
+    goal 4.5 cm above the table); ground_geometry: whose heights (:mod:`tamedpuma.robot.ground`):
+    ``spheres`` (the body spheres, ``c_z − r``) or ``mesh`` (each moving link's lowest
+    collision-hull point: the geometry the whole-body criterion judges, without the spheres'
+    inflation).
     All of them only remove energy (see the module), so the paper's energy arguments still hold.
     """
 
@@ -370,19 +393,23 @@ class ControlRate:
     standoff: float = 0.0
     ground: bool = False
     ground_height: float = 0.0
+    ground_geometry: str = "spheres"
     implicit_geometry: bool = False
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> ControlRate:
         cfg = dict(cfg or {})
         keys = {"barrier_step", "kappa", "speed_limit", "semi_implicit", "braking_split",
-                "standoff", "ground", "ground_height", "implicit_geometry"}
+                "standoff", "ground", "ground_height", "ground_geometry", "implicit_geometry"}
         unknown = sorted(set(cfg) - keys)
         if unknown:
             raise ConfigError(f"unknown method.control_rate keys {unknown}")
         rate = ControlRate(**cfg)  # missing keys: the dataclass defaults
         if not 0.0 < rate.kappa < 1.0:
             raise ConfigError(f"method.control_rate.kappa must be in (0, 1), got {rate.kappa}")
+        if rate.ground_geometry not in ("spheres", "mesh"):
+            raise ConfigError(f"method.control_rate.ground_geometry must be 'spheres' or 'mesh', "
+                              f"got {rate.ground_geometry!r}")
         if not 0.0 <= rate.standoff < 0.1:
             raise ConfigError(f"method.control_rate.standoff must be in [0, 0.1), got "
                               f"{rate.standoff}")
@@ -400,23 +427,22 @@ class ControlRate:
                                    gains.joint_limit, gains.barrier_margin, av.n_ground_rows)
         return linearly_implicit_step(qd, a, c, dt, av.M, D_M)
 
-    def next_velocity(self, qd_next, av, dt: float, qd_max, state=None,
+    def next_velocity(self, qd_next, av, dt: float, qd_max, ground: GroundRows | None = None,
                       qd=None) -> tuple[np.ndarray, dict]:
-        """Filter the next velocity q̇⁺ [rad/s] (state: the KinematicState, for the ground rows;
-        qd: the current velocity, whose rows' rates give the moving obstacles' drift);
-        returns it and the log scalars ``n_barrier_active`` (rows projected) and ``speed_scale``
-        (s ≤ 1)."""
+        """Filter the next velocity q̇⁺ [rad/s] (ground: the robot's heights above the ground
+        and their rows, :meth:`TamedController.ground_rows`, used with ``ground``; qd: the
+        current velocity, whose rows' rates give the moving obstacles' drift); returns it and
+        the log scalars ``n_barrier_active`` (rows projected) and ``speed_scale`` (s ≤ 1)."""
         n_active, scale = 0, 1.0
         if self.barrier_step and av.barrier_rows is not None:
             rows, x, jd = av.barrier_rows, av.barrier_x, av.barrier_jdqd
             drift = None if av.barrier_xd is None or qd is None else av.barrier_xd - rows @ qd
-            if self.ground and state is not None:
-                rows = np.concatenate((rows, state.sphere_jacobians[:, 2, :]))
-                x = np.concatenate((x, state.sphere_centers[:, 2] - state.sphere_radii
-                                    - self.ground_height))
-                jd = np.concatenate((jd, state.sphere_jdqd[:, 2]))
+            if self.ground and ground is not None:
+                rows = np.concatenate((rows, ground.rows))
+                x = np.concatenate((x, ground.heights - self.ground_height))
+                jd = np.concatenate((jd, ground.jdqd))
                 if drift is not None:
-                    drift = np.concatenate((drift, np.zeros(len(state.sphere_radii))))
+                    drift = np.concatenate((drift, np.zeros(len(ground.heights))))
             qd_next, n_active = barrier_step(qd_next, rows, x, dt, self.kappa, av.M, jd, drift,
                                              av.far_rows, self.standoff)
         if self.speed_limit:

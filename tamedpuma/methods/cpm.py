@@ -249,8 +249,8 @@ class CpmController(TamedController):
         else:  # the authors' code: no energization, no damping
             alpha = 0.0
             qdd = h_plus_f + r_coef * qd
-        qd_next, extra = self.rate.next_velocity(qd + self.dt * qdd, av, self.dt,
-                                                 self.qd_max, state, qd)
+        qd_next, extra = self.rate.next_velocity(qd + self.dt * qdd, av, self.dt, self.qd_max,
+                                                 self.ground_rows(state, obs.q, qd), qd)
         qdd = (qd_next - qd) / self.dt
         return Command(qdd=qdd, scalars={
             **extra, **fabric_scalars(av), **self.stall_scalars(), "psi": psi,

@@ -114,8 +114,8 @@ class FpmController(TamedController):
             qd_next = self.rate.velocity_step(qd, a, c, self.dt, av, self.fabric.gains)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
-        qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, state,
-                                                  qd)
+        qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max,
+                                                  self.ground_rows(state, obs.q, qd), qd)
         qdd = (qd_next - qd) / self.dt
         return Command(qdd=qdd, scalars={**fabric_scalars(av), "alpha": alpha,
                                          "alpha_raw": alpha_raw, **extra,

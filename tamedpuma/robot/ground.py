@@ -1,0 +1,152 @@
+"""How far the robot is above the ground plane z = 0: the rows the control-rate barrier step keeps
+positive (``method.control_rate.ground_geometry``; tamedpuma/methods/_tamed.py ControlRate).
+
+Two geometries, each a set of heights x_i [m] with their rows a_i = ∂x_i/∂q [m/rad] and
+curvature terms ȧ_i q̇ [m/s²]:
+
+- ``spheres``: the body spheres, ``x_i = c_{i,z} − r_i`` (the authors' five, radius 7-9 cm
+  round the link origins, plus the guard spheres);
+- ``mesh``: each moving link's collision mesh, ``x_l = min_v (R_l v + p_l)_z`` over the vertices
+  v of its convex hull (link frame): the height of the link's lowest point, the support point
+  of the hull in the direction −z. Its row is the z row of that point's Jacobian,
+  ``a_l = J_{v,l} + ω-part × r``: ``(J_p)_z + (J_ω)_x r_y − (J_ω)_y r_x`` with r = R_l v the
+  vertex relative to the link origin, and its curvature term the z component of
+  ``a_o + α × r + ω × (ω × r)`` (the origin's classical acceleration, the link's angular
+  acceleration α and velocity ω at q̈ = 0).
+
+Why the mesh. The whole-body criterion judges the links' meshes against the ground (PyBullet
+contacts), and the spheres are far bulkier there: the hand's sphere (7 cm round the flange
+origin, the task point) keeps the task point 8 cm above the ground with the barrier's 1 cm
+margin, while the flange's own mesh (a 5.2 cm cylinder reaching 4.5 cm past the origin) lets it
+come down to 5.5 cm when it points down. Random tomato goals shifted down by up to 8 cm
+(z ≥ 3.5 cm) were then out of the hand's reach by up to 4.5 cm, inside the 5 cm goal tolerance
+by millimetres only, and FPM and CPM stalled against the ground rows there (BENCHMARKS.md
+"Session 22"). The support point is exact for the hull (no inflation) and continuous in q; its
+row jumps where the lowest vertex changes, which the barrier step, a projection of one
+period's velocity, does not mind.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from tamedpuma.errors import ConfigError
+from tamedpuma.robot.body_model import urdf_collision_geometry
+
+_WORLD = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+#: [m/s] faster than any point of the arm moves within the joint speed limits (KUKA iiwa 14:
+#: Σ_i q̇_max,i × the joint's reach is under 4 m/s). The barrier step acts on a row only when one
+#: period Δt would take more than κ of its height, so a link higher than this × Δt / κ needs no
+#: row (0.2 m at Δt = 20 ms, κ = 0.5)
+POINT_SPEED_BOUND = 5.0
+
+
+@dataclass(frozen=True)
+class GroundRows:
+    """Heights x (k,) [m], rows a (k, n) [m/rad] and curvature terms ȧq̇ (k,) [m/s²]."""
+
+    heights: np.ndarray
+    rows: np.ndarray
+    jdqd: np.ndarray
+
+
+@dataclass(frozen=True)
+class LinkHulls:
+    """The moving links' collision hulls: pinocchio frame ids and each hull's vertices (V, 3)
+    in its link frame [m]."""
+
+    links: tuple[str, ...]
+    frame_ids: tuple[int, ...]
+    vertices: tuple[np.ndarray, ...]
+
+
+def link_hulls(kinematics) -> LinkHulls:
+    """The convex-hull vertices of every URDF link with collision geometry that moves with a
+    joint (the fixed base never comes nearer the ground; a gripper's fingers, locked in the
+    model, move with the last joint and are included)."""
+    from scipy.spatial import ConvexHull
+
+    geometry = urdf_collision_geometry(kinematics.spec.urdf_path)
+    model = kinematics.model
+    links, ids, verts = [], [], []
+    for name in geometry:
+        if not model.existFrame(name):
+            continue
+        fid = model.getFrameId(name)
+        if model.frames[fid].parentJoint == 0:  # attached to the universe: the base
+            continue
+        v = geometry[name].vertices
+        try:
+            v = v[ConvexHull(v).vertices]
+        except Exception:  # a flat or degenerate point set: keep every point
+            pass
+        links.append(name)
+        ids.append(fid)
+        verts.append(np.ascontiguousarray(v, dtype=float))
+    if not links:
+        raise ConfigError("method.control_rate.ground_geometry=mesh: no moving link has "
+                          f"collision geometry in {kinematics.spec.urdf_path}")
+    return LinkHulls(tuple(links), tuple(ids), tuple(verts))
+
+
+def sphere_ground_rows(state) -> GroundRows:
+    """The body spheres' heights ``c_z − r`` from a KinematicState."""
+    return GroundRows(state.sphere_centers[:, 2] - state.sphere_radii,
+                      state.sphere_jacobians[:, 2, :], state.sphere_jdqd[:, 2])
+
+
+def hull_ground_rows(kinematics, hulls: LinkHulls, q: np.ndarray, qd: np.ndarray,
+                     below: float = np.inf) -> GroundRows:
+    """The lowest point of each hull lower than ``below`` [m] at (q [rad], q̇ [rad/s]): its
+    height, the z row of its point Jacobian and its ȧq̇ (see the module). One forward pass of
+    its own, so it does not depend on what the kinematics last evaluated; the Jacobians only
+    when some hull is lower than ``below``."""
+    model, data = kinematics.model, kinematics.data
+    q, qd = np.asarray(q, dtype=float), np.asarray(qd, dtype=float)
+    pin.forwardKinematics(model, data, q, qd, np.zeros(model.nv))
+    pin.updateFramePlacements(model, data)
+    lowest = []  # (link index, height, vertex relative to the origin in world axes)
+    for i, (fid, v) in enumerate(zip(hulls.frame_ids, hulls.vertices)):
+        placement = data.oMf[fid]
+        R = placement.rotation
+        z = v @ R[2]
+        j = int(np.argmin(z))
+        height = float(placement.translation[2] + z[j])
+        if height < below:
+            lowest.append((i, height, R @ v[j]))
+    k = len(lowest)
+    heights, rows, jdqd = np.empty(k), np.empty((k, model.nv)), np.empty(k)
+    if k:
+        pin.computeJointJacobians(model, data)
+    for n, (i, height, r) in enumerate(lowest):
+        fid = hulls.frame_ids[i]
+        J = pin.getFrameJacobian(model, data, fid, _WORLD)  # [v; ω] of the origin
+        heights[n] = height
+        rows[n] = J[2] + J[3] * r[1] - J[4] * r[0]
+        acc = pin.getFrameClassicalAcceleration(model, data, fid, _WORLD)
+        lin, ang, w = acc.linear, acc.angular, J[3:] @ qd
+        # z of a_o + α × r + ω × (ω × r), with ω × (ω × r) = ω (ω·r) − r ‖ω‖²
+        jdqd[n] = (lin[2] + ang[0] * r[1] - ang[1] * r[0]
+                   + w[2] * float(w @ r) - r[2] * float(w @ w))
+    return GroundRows(heights, rows, jdqd)
+
+
+def hull_heights_from_poses(hulls: LinkHulls, link_names, positions: np.ndarray,
+                            quaternions: np.ndarray) -> np.ndarray:
+    """The lowest point [m] of each hull whose link is logged, from the link poses
+    (``link_names`` with positions (L, 3) [m] and quaternions (L, 4) (x, y, z, w), e.g. a step
+    record's): the same heights as :func:`hull_ground_rows`, without the kinematics' forward
+    pass (a link not logged, such as a gripper's finger, is left out)."""
+    from tamedpuma.robot.rotations import quat_to_matrix
+
+    index = {name: j for j, name in enumerate(link_names)}
+    out = []
+    for link, v in zip(hulls.links, hulls.vertices):
+        if link in index:
+            j = index[link]
+            out.append(positions[j][2] + float(np.min(v @ quat_to_matrix(quaternions[j])[2])))
+    return np.array(out)

@@ -1,0 +1,129 @@
+"""The ground rows of the control-rate barrier step (tamedpuma/robot/ground.py): each moving link's
+lowest collision-hull point, its height checked against every mesh vertex placed by an independent
+forward-kinematics route, its row and curvature term against finite differences, and the barrier
+step keeping every link's mesh above the plane while the arm is driven into the ground."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tamedpuma.app.config import robot_config
+from tamedpuma.errors import ConfigError
+from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.methods._tamed import ControlRate
+from tamedpuma.robot.body_model import urdf_collision_geometry
+from tamedpuma.robot.ground import (
+    hull_ground_rows,
+    hull_heights_from_poses,
+    link_hulls,
+    sphere_ground_rows,
+)
+from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
+from tamedpuma.robot.rotations import quat_to_matrix
+
+Q0 = np.array([0.0, 0.7, 0.0, -1.2, 0.0, 1.0, 0.0])
+
+
+@pytest.fixture(scope="module")
+def hulls(kinematics):
+    return link_hulls(kinematics)
+
+
+def _lowest_mesh_points(kinematics, hulls, q):
+    """min z over every vertex of each hull link's mesh, placed with link_poses (quaternions)."""
+    geometry = urdf_collision_geometry(kinematics.spec.urdf_path)
+    pos, quat = kinematics.link_poses(q)
+    names = list(kinematics.spec.link_names)
+    out = []
+    for link in hulls.links:
+        i = names.index(link)
+        world = geometry[link].vertices @ quat_to_matrix(quat[i]).T + pos[i]
+        out.append(world[:, 2].min())
+    return np.array(out)
+
+
+def test_the_hulls_are_the_moving_links(kinematics, hulls):
+    assert "lbr_iiwa_link_0" not in hulls.links  # the base never moves
+    assert {"lbr_iiwa_link_4", "lbr_iiwa_link_7"} <= set(hulls.links)
+    assert all(v.ndim == 2 and v.shape[1] == 3 and len(v) >= 4 for v in hulls.vertices)
+
+
+def test_heights_are_the_lowest_mesh_points(kinematics, hulls):
+    rng = np.random.default_rng(0)
+    lo, hi = kinematics.spec.q_min, kinematics.spec.q_max
+    for _ in range(10):
+        q = rng.uniform(lo, hi)
+        g = hull_ground_rows(kinematics, hulls, q, np.zeros(7))
+        assert np.allclose(g.heights, _lowest_mesh_points(kinematics, hulls, q), atol=1e-9)
+        logged = hull_heights_from_poses(hulls, kinematics.spec.link_names,
+                                         *kinematics.link_poses(q))  # a step record's poses
+        assert np.allclose(logged, g.heights, atol=1e-9)
+        low = hull_ground_rows(kinematics, hulls, q, np.zeros(7), below=0.3)
+        assert np.array_equal(low.heights, g.heights[g.heights < 0.3])
+
+
+def test_a_grippers_fingers_are_hulls_too():
+    panda = link_hulls(Kinematics(robot_spec_from_config(robot_config("panda"))))
+    assert {"panda_hand", "panda_leftfinger", "panda_rightfinger"} <= set(panda.links)
+    assert "panda_link0" not in panda.links
+
+
+def test_rows_and_curvature_match_finite_differences(kinematics, hulls):
+    """a = ∂x/∂q and ȧq̇ = d²x/dt² along q(t) = q + t q̇ (q̈ = 0), both by central differences
+    (the lowest vertex stays the same over the tiny steps)."""
+    rng = np.random.default_rng(1)
+    for _ in range(10):
+        q = rng.uniform(kinematics.spec.q_min + 0.2, kinematics.spec.q_max - 0.2)
+        qd = rng.normal(size=7)
+        g = hull_ground_rows(kinematics, hulls, q, qd)
+        h = 1e-6
+        x = [hull_ground_rows(kinematics, hulls, q + s * h * qd, qd).heights for s in (-1, 0, 1)]
+        assert np.allclose(g.rows @ qd, (x[2] - x[0]) / (2 * h), atol=1e-6)
+        h = 1e-4
+        x = [hull_ground_rows(kinematics, hulls, q + s * h * qd, qd).heights for s in (-1, 0, 1)]
+        second = (x[2] - 2 * x[1] + x[0]) / h**2
+        assert np.allclose(g.jdqd, second, atol=1e-3 * (1 + np.abs(g.jdqd)))
+
+
+def test_the_sphere_rows_are_the_body_spheres(kinematics):
+    state = kinematics.evaluate(Q0, np.ones(7))
+    g = sphere_ground_rows(state)
+    assert np.allclose(g.heights, state.sphere_centers[:, 2] - state.sphere_radii)
+    assert np.array_equal(g.rows, state.sphere_jacobians[:, 2, :])
+
+
+@pytest.mark.parametrize("geometry", ["mesh", "spheres"])
+def test_the_barrier_step_keeps_the_links_above_the_plane(kinematics, hulls, geometry):
+    """Drive the hand straight down at 0.5 m/s for 1.2 s through the barrier step: the rows of
+    the chosen geometry never go below the plane. The mesh rows let the hand closer to the
+    ground than the spheres (the hand's 7 cm sphere), and every link's mesh stays above it."""
+    rate = ControlRate(barrier_step=True, ground=True, ground_height=0.01,
+                       ground_geometry=geometry, standoff=0.001)
+    fab = Fabric(FabricGains(), kinematics.spec.q_min, kinematics.spec.q_max)
+    q, qd, dt = Q0.copy(), np.zeros(7), 0.02
+    far = np.array([[5.0, 5.0, 5.0]]), np.array([0.05]), np.zeros((1, 3))
+    for _ in range(60):
+        state = kinematics.evaluate(q, qd)
+        J = state.ee_jacobian[:3]
+        want = np.linalg.pinv(J) @ np.array([0.0, 0.0, -0.5])
+        av = fab.avoidance(state, q, qd, *far)
+        rows = (hull_ground_rows(kinematics, hulls, q, qd) if geometry == "mesh"
+                else sphere_ground_rows(state))
+        qd, _ = rate.next_velocity(want, av, dt, kinematics.spec.qd_max, rows, qd)
+        q = q + dt * qd
+        g = (hull_ground_rows(kinematics, hulls, q, qd) if geometry == "mesh"
+             else sphere_ground_rows(kinematics.evaluate(q, qd)))
+        assert g.heights.min() > 0.0
+    lowest = _lowest_mesh_points(kinematics, hulls, q).min()
+    assert lowest > 0.0
+    hand_z = kinematics.ee_pose(q)[0][2]
+    if geometry == "mesh":
+        assert lowest < 0.03 and hand_z < 0.07  # down to the plane, below the sphere's 8 cm
+    else:
+        assert hand_z > 0.07
+
+
+def test_an_unknown_ground_geometry_is_a_config_error():
+    with pytest.raises(ConfigError, match="ground_geometry"):
+        ControlRate.from_mapping({"ground": True, "ground_geometry": "capsules"})
