@@ -127,3 +127,25 @@ def test_the_barrier_step_keeps_the_links_above_the_plane(kinematics, hulls, geo
 def test_an_unknown_ground_geometry_is_a_config_error():
     with pytest.raises(ConfigError, match="ground_geometry"):
         ControlRate.from_mapping({"ground": True, "ground_geometry": "capsules"})
+
+
+def test_no_hull_point_moves_faster_than_the_speed_bound(kinematics, hulls):
+    """The bound that decides which links need a row holds at random configurations with
+    every joint at its speed limit, either sign (each hull's fastest vertex, by differencing
+    its world position over a tiny step)."""
+    import pinocchio as pin
+
+    rng = np.random.default_rng(5)
+    model, data = kinematics.model, kinematics.data
+    fastest = 0.0
+    for _ in range(200):
+        q = rng.uniform(kinematics.spec.q_min, kinematics.spec.q_max)
+        qd = kinematics.spec.qd_max * rng.choice([-1.0, 1.0], size=7)
+        h = 1e-6
+        pos = []
+        for qq in (q, q + h * qd):
+            pin.framesForwardKinematics(model, data, qq)
+            pos.append(np.concatenate([v @ data.oMf[f].rotation.T + data.oMf[f].translation
+                                       for f, v in zip(hulls.frame_ids, hulls.vertices)]))
+        fastest = max(fastest, float(np.max(np.linalg.norm(pos[1] - pos[0], axis=1))) / h)
+    assert 1.0 < fastest <= hulls.speed_bound

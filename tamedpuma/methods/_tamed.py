@@ -35,7 +35,6 @@ from tamedpuma.methods._policy import (
 )
 from tamedpuma.methods._stall import StallMonitor, StallPull
 from tamedpuma.robot.ground import (
-    POINT_SPEED_BOUND,
     GroundRows,
     hull_ground_rows,
     link_hulls,
@@ -179,7 +178,7 @@ class TamedController:
             return None
         if self.hulls is None:
             return sphere_ground_rows(state)
-        below = POINT_SPEED_BOUND * self.dt / self.rate.kappa  # higher links: no row needed
+        below = self.hulls.speed_bound * self.dt / self.rate.kappa  # higher: no row needed
         return hull_ground_rows(self.kinematics, self.hulls, q, qd,
                                 below if np.isfinite(below) else np.inf)
 

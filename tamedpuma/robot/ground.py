@@ -38,12 +38,6 @@ from tamedpuma.robot.body_model import urdf_collision_geometry
 
 _WORLD = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
-#: [m/s] faster than any point of the arm moves within the joint speed limits (KUKA iiwa 14:
-#: Σ_i q̇_max,i × the joint's reach is under 4 m/s). The barrier step acts on a row only when one
-#: period Δt would take more than κ of its height, so a link higher than this × Δt / κ needs no
-#: row (0.2 m at Δt = 20 ms, κ = 0.5)
-POINT_SPEED_BOUND = 5.0
-
 
 @dataclass(frozen=True)
 class GroundRows:
@@ -62,6 +56,26 @@ class LinkHulls:
     links: tuple[str, ...]
     frame_ids: tuple[int, ...]
     vertices: tuple[np.ndarray, ...]
+    speed_bound: float  # [m/s] no hull point moves faster within the joint speed limits
+
+
+def point_speed_bound(kinematics, frame_ids, vertices) -> float:
+    """An upper bound [m/s] on the speed of any hull point within the joint speed limits:
+    ``Σ_i q̇_max,i ρ_i``, ρ_i the largest distance of a hull point from joint i (the joint
+    origins' distances further down the chain plus the farthest hull point from its own joint:
+    the triangle inequality, whatever the configuration). The barrier step acts on a row only
+    when one period Δt would take more than κ of its height, so a link higher than
+    ``bound Δt / κ`` needs no row."""
+    model = kinematics.model
+    tip = 0.0
+    for fid, v in zip(frame_ids, vertices):
+        placement = model.frames[fid].placement  # the link frame in its joint's frame
+        tip = max(tip, float(np.max(np.linalg.norm(v @ placement.rotation.T
+                                                   + placement.translation, axis=1))))
+    lengths = [float(np.linalg.norm(model.jointPlacements[j].translation))
+               for j in range(1, model.njoints)]
+    qd_max = np.asarray(kinematics.spec.qd_max, dtype=float)
+    return float(sum(qd_max[i] * (sum(lengths[i + 1:]) + tip) for i in range(len(qd_max))))
 
 
 def link_hulls(kinematics) -> LinkHulls:
@@ -90,7 +104,8 @@ def link_hulls(kinematics) -> LinkHulls:
     if not links:
         raise ConfigError("method.control_rate.ground_geometry=mesh: no moving link has "
                           f"collision geometry in {kinematics.spec.urdf_path}")
-    return LinkHulls(tuple(links), tuple(ids), tuple(verts))
+    return LinkHulls(tuple(links), tuple(ids), tuple(verts),
+                     point_speed_bound(kinematics, ids, verts))
 
 
 def sphere_ground_rows(state) -> GroundRows:
