@@ -30,6 +30,12 @@ def hulls(kinematics):
     return link_hulls(kinematics)
 
 
+def _rows_at(kinematics, hulls, q, qd, below=np.inf):
+    """The ground rows at (q, q̇): one evaluate, then the rows read from its pass."""
+    kinematics.evaluate(q, qd)
+    return hull_ground_rows(kinematics, hulls, qd, below)
+
+
 def _lowest_mesh_points(kinematics, hulls, q):
     """min z over every vertex of each hull link's mesh, placed with link_poses (quaternions)."""
     geometry = urdf_collision_geometry(kinematics.spec.urdf_path)
@@ -54,12 +60,12 @@ def test_heights_are_the_lowest_mesh_points(kinematics, hulls):
     lo, hi = kinematics.spec.q_min, kinematics.spec.q_max
     for _ in range(10):
         q = rng.uniform(lo, hi)
-        g = hull_ground_rows(kinematics, hulls, q, np.zeros(7))
+        g = _rows_at(kinematics, hulls, q, np.zeros(7))
         assert np.allclose(g.heights, _lowest_mesh_points(kinematics, hulls, q), atol=1e-9)
         logged = hull_heights_from_poses(hulls, kinematics.spec.link_names,
                                          *kinematics.link_poses(q))  # a step record's poses
         assert np.allclose(logged, g.heights, atol=1e-9)
-        low = hull_ground_rows(kinematics, hulls, q, np.zeros(7), below=0.3)
+        low = _rows_at(kinematics, hulls, q, np.zeros(7), below=0.3)
         assert np.array_equal(low.heights, g.heights[g.heights < 0.3])
 
 
@@ -76,12 +82,12 @@ def test_rows_and_curvature_match_finite_differences(kinematics, hulls):
     for _ in range(10):
         q = rng.uniform(kinematics.spec.q_min + 0.2, kinematics.spec.q_max - 0.2)
         qd = rng.normal(size=7)
-        g = hull_ground_rows(kinematics, hulls, q, qd)
+        g = _rows_at(kinematics, hulls, q, qd)
         h = 1e-6
-        x = [hull_ground_rows(kinematics, hulls, q + s * h * qd, qd).heights for s in (-1, 0, 1)]
+        x = [_rows_at(kinematics, hulls, q + s * h * qd, qd).heights for s in (-1, 0, 1)]
         assert np.allclose(g.rows @ qd, (x[2] - x[0]) / (2 * h), atol=1e-6)
         h = 1e-4
-        x = [hull_ground_rows(kinematics, hulls, q + s * h * qd, qd).heights for s in (-1, 0, 1)]
+        x = [_rows_at(kinematics, hulls, q + s * h * qd, qd).heights for s in (-1, 0, 1)]
         second = (x[2] - 2 * x[1] + x[0]) / h**2
         assert np.allclose(g.jdqd, second, atol=1e-3 * (1 + np.abs(g.jdqd)))
 
@@ -108,11 +114,11 @@ def test_the_barrier_step_keeps_the_links_above_the_plane(kinematics, hulls, geo
         J = state.ee_jacobian[:3]
         want = np.linalg.pinv(J) @ np.array([0.0, 0.0, -0.5])
         av = fab.avoidance(state, q, qd, *far)
-        rows = (hull_ground_rows(kinematics, hulls, q, qd) if geometry == "mesh"
+        rows = (_rows_at(kinematics, hulls, q, qd) if geometry == "mesh"
                 else sphere_ground_rows(state))
         qd, _ = rate.next_velocity(want, av, dt, kinematics.spec.qd_max, rows, qd)
         q = q + dt * qd
-        g = (hull_ground_rows(kinematics, hulls, q, qd) if geometry == "mesh"
+        g = (_rows_at(kinematics, hulls, q, qd) if geometry == "mesh"
              else sphere_ground_rows(kinematics.evaluate(q, qd)))
         assert g.heights.min() > 0.0
     lowest = _lowest_mesh_points(kinematics, hulls, q).min()

@@ -70,8 +70,10 @@ def test_fpm_and_cpm_respect_speed_limits_and_barriers_on_a_random_scenario(
     assert np.all(run.q >= spec.q_min) and np.all(run.q <= spec.q_max)
     if cfg.method.control_rate.ground_geometry == "mesh":  # every link's mesh above the ground
         hulls = link_hulls(kinematics)
-        lowest = [hull_ground_rows(kinematics, hulls, q, np.zeros(7)).heights.min()
-                  for q in run.q]
+        lowest = []
+        for q in run.q:
+            kinematics.evaluate(q, np.zeros(7))
+            lowest.append(hull_ground_rows(kinematics, hulls, np.zeros(7)).heights.min())
         assert min(lowest) > 0
     else:
         centers = np.array([kinematics.sphere_centers(q) for q in run.q])

@@ -204,7 +204,7 @@ def _tamed_parts(ctrl, state, obs, av, accel, null) -> dict:
         accel, W, weights, forcing.null_metric, null, None, priority, secondary)
     qd_next = obs.qd + ctrl.dt * (av.acceleration() + free)
     parts["control-rate filters"] = lambda: ctrl.rate.next_velocity(
-        qd_next, av, ctrl.dt, ctrl.qd_max, ctrl.ground_rows(state, obs.q, obs.qd), obs.qd)
+        qd_next, av, ctrl.dt, ctrl.qd_max, ctrl.ground_rows(state, obs.qd), obs.qd)
     return parts
 
 

@@ -165,21 +165,22 @@ class TamedController:
         self.dt = float(scenario.dt)
 
     def forced(self, obs: Observation):
-        """(kinematic state, avoidance fabric, h, q̈_C, ẍ_d) at the observation."""
+        """(kinematic state, avoidance fabric, h, q̈_C, ẍ_d, ground rows) at the observation."""
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
+        ground = self.ground_rows(state, obs.qd)  # from the pass that evaluated ``state``
         h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, self.circulation,
                                                  self.stall)
-        return state, av, h, qdd_c, xdd
+        return state, av, h, qdd_c, xdd, ground
 
-    def ground_rows(self, state, q: np.ndarray, qd: np.ndarray) -> GroundRows | None:
+    def ground_rows(self, state, qd: np.ndarray) -> GroundRows | None:
         """The heights above the ground the barrier step keeps (``control_rate.ground``, of
-        ``ground_geometry``), or None without them."""
-        if not (self.rate.barrier_step and self.rate.ground):
-            return None
+        ``ground_geometry``), or None without them; ``state`` must be the kinematics' last
+        evaluation, at velocity qd (the mesh rows read its pass)."""
         if self.hulls is None:
-            return sphere_ground_rows(state)
+            return sphere_ground_rows(state) if self.rate.barrier_step and self.rate.ground \
+                else None
         below = self.hulls.speed_bound * self.dt / self.rate.kappa  # higher: no row needed
-        return hull_ground_rows(self.kinematics, self.hulls, q, qd,
+        return hull_ground_rows(self.kinematics, self.hulls, qd,
                                 below if np.isfinite(below) else np.inf)
 
     def stall_scalars(self) -> dict[str, float]:

@@ -211,7 +211,7 @@ class CpmController(TamedController):
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
-        state, av, h, qdd_c, xdd = self.forced(obs)
+        state, av, h, qdd_c, xdd, ground = self.forced(obs)
         psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
         psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
         h_plus_f = h + qdd_c
@@ -250,7 +250,7 @@ class CpmController(TamedController):
             alpha = 0.0
             qdd = h_plus_f + r_coef * qd
         qd_next, extra = self.rate.next_velocity(qd + self.dt * qdd, av, self.dt, self.qd_max,
-                                                 self.ground_rows(state, obs.q, qd), qd)
+                                                 ground, qd)
         qdd = (qd_next - qd) / self.dt
         return Command(qdd=qdd, scalars={
             **extra, **fabric_scalars(av), **self.stall_scalars(), "psi": psi,

@@ -103,7 +103,7 @@ class FpmController(TamedController):
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
-        state, av, h, qdd_c, xdd = self.forced(obs)
+        _, av, h, qdd_c, xdd, ground = self.forced(obs)
         alpha_raw = energization_alpha(av, self.energy, qd, h,
                                        self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
@@ -114,8 +114,7 @@ class FpmController(TamedController):
             qd_next = self.rate.velocity_step(qd, a, c, self.dt, av, self.fabric.gains)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
-        qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max,
-                                                  self.ground_rows(state, obs.q, qd), qd)
+        qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, ground, qd)
         qdd = (qd_next - qd) / self.dt
         return Command(qdd=qdd, scalars={**fabric_scalars(av), "alpha": alpha,
                                          "alpha_raw": alpha_raw, **extra,

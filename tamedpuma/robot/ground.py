@@ -114,16 +114,15 @@ def sphere_ground_rows(state) -> GroundRows:
                       state.sphere_jacobians[:, 2, :], state.sphere_jdqd[:, 2])
 
 
-def hull_ground_rows(kinematics, hulls: LinkHulls, q: np.ndarray, qd: np.ndarray,
+def hull_ground_rows(kinematics, hulls: LinkHulls, qd: np.ndarray,
                      below: float = np.inf) -> GroundRows:
-    """The lowest point of each hull lower than ``below`` [m] at (q [rad], q̇ [rad/s]): its
-    height, the z row of its point Jacobian and its ȧq̇ (see the module). One forward pass of
-    its own, so it does not depend on what the kinematics last evaluated; the Jacobians only
-    when some hull is lower than ``below``."""
+    """The lowest point of each hull lower than ``below`` [m] at the kinematics' last
+    ``evaluate(q, q̇)`` (its placements, joint Jacobians and q̈ = 0 accelerations, as
+    :meth:`~tamedpuma.robot.kinematics.Kinematics.link_position_jacobian` reads them: no
+    forward pass of its own); qd: that q̇ [rad/s]. Its height, the z row of its point Jacobian
+    and its ȧq̇ (see the module)."""
     model, data = kinematics.model, kinematics.data
-    q, qd = np.asarray(q, dtype=float), np.asarray(qd, dtype=float)
-    pin.forwardKinematics(model, data, q, qd, np.zeros(model.nv))
-    pin.updateFramePlacements(model, data)
+    qd = np.asarray(qd, dtype=float)
     lowest = []  # (link index, height, vertex relative to the origin in world axes)
     for i, (fid, v) in enumerate(zip(hulls.frame_ids, hulls.vertices)):
         placement = data.oMf[fid]
@@ -135,8 +134,6 @@ def hull_ground_rows(kinematics, hulls: LinkHulls, q: np.ndarray, qd: np.ndarray
             lowest.append((i, height, R @ v[j]))
     k = len(lowest)
     heights, rows, jdqd = np.empty(k), np.empty((k, model.nv)), np.empty(k)
-    if k:
-        pin.computeJointJacobians(model, data)
     for n, (i, height, r) in enumerate(lowest):
         fid = hulls.frame_ids[i]
         J = pin.getFrameJacobian(model, data, fid, _WORLD)  # [v; ω] of the origin
