@@ -24,7 +24,11 @@ composed by Hydra and run in-process (no files per run); one CSV row per run:
   velocity limit (the simulator's clamp acted); ``min_clearance``, ``min_ground_clearance`` (the
   body spheres'), ``min_mesh_ground_clearance`` (the links' lowest hull points) [m];
   ``max_error`` [m]: the hand's largest distance to the goal; ``path_length`` [m]: the length of
-  the hand's path (a flailing arm shows in both).
+  the hand's path (a flailing arm shows in both);
+- ``success_orientation_paper`` / ``_whole_body``: the criterion's success with the goal
+  orientation also held (within the scenario's orientation tolerance) ``--settle`` seconds after
+  the first reach, the position still within the goal tolerance (:mod:`tamedpuma.metrics`, the
+  sweep's rule with ``settle_time``); ``settled_orientation_error`` [rad] there.
 
 Prints a summary per (task, kind, method). Hydra is used here (an entry point), not in the library.
 """
@@ -101,7 +105,8 @@ def run_one(spec: dict) -> dict:
                        link_hulls(Kinematics(robot)), robot.link_names)
     start = time.perf_counter()
     with Simulator(robot, built.sim_config) as sim:
-        result = run_episode(sc, built.controller, sim, [tracker], None, stop_on_success=True)
+        result = run_episode(sc, built.controller, sim, [tracker], None, stop_on_success=True,
+                             settle_time=spec.get("settle", 0.0))
     wall = time.perf_counter() - start
     if spec.get("paths"):
         out = Path(spec["paths"])
@@ -151,6 +156,10 @@ def run_one(spec: dict) -> dict:
             "end_at_limit": int(np.sum(np.minimum(q[-1] - robot.q_min, robot.q_max - q[-1])
                                        < 0.05)),
             "end_orientation_error": float(a[-1, 10]),
+            "settled_orientation_error": result.metrics.settled_orientation_error_rad,
+            "success_orientation_paper": bool(result.metrics.orientation_success_paper),
+            "success_orientation_whole_body": bool(
+                whole and result.metrics.orientation_success_whole_body),
             "ms_mean": float(result.metrics.compute_ms_mean)}
 
 
@@ -165,7 +174,8 @@ def _seeds(text: str) -> list[int]:
 def summarise(df: pd.DataFrame) -> pd.DataFrame:
     g = df.groupby(["task", "kind", "label"])
     out = g.agg(n=("seed", "size"), paper=("success_paper", "mean"),
-                whole_body=("success_whole_body", "mean"), alpha_max=("alpha_max", "max"),
+                whole_body=("success_whole_body", "mean"),
+                oriented=("success_orientation_paper", "mean"), alpha_max=("alpha_max", "max"),
                 speed_ratio_max=("speed_ratio_max", "max"), clamp_frac=("clamp_frac", "mean"))
     fails = df[df.failure != ""].groupby(["task", "kind", "label"])["failure"].agg(
         lambda s: " ".join(f"{k}:{v}" for k, v in s.value_counts().items()))
@@ -203,6 +213,9 @@ def main(argv=None) -> None:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--free", action="store_true", help="without obstacles (path differences)")
     ap.add_argument("--paths", default="", help="save every run's end-effector path (.npy) here")
+    ap.add_argument("--settle", type=float, default=0.0, help="[s] continue this long after the "
+                    "first reach and judge the orientation then (the sweep's settle_time; 0: stop "
+                    "at the reach and judge the orientation there)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--puma-free", default="", help="a CSV of this script with --methods puma "
                     "--free on the same scenarios: also print success split by whether PUMA's "
@@ -219,7 +232,8 @@ def main(argv=None) -> None:
             ap.error(f"--puma-free {args.puma_free}: not a safety_suite CSV (no column "
                      f"{', '.join(sorted(missing))})")
     specs = [{"task": t, "kind": k, "seed": s, "method": m, "models": args.models,
-              "set": args.set, "label": args.label or m, "free": args.free, "paths": args.paths}
+              "set": args.set, "label": args.label or m, "free": args.free, "paths": args.paths,
+              "settle": args.settle}
              for t in args.tasks for k in args.kinds for m in args.methods
              for s in _seeds(args.seeds)]
     if args.label:

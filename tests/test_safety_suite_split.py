@@ -51,3 +51,23 @@ def test_a_bad_puma_free_file_is_a_one_line_error_before_any_run(tmp_path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert "error: --puma-free" in err[-1]
     assert not (tmp_path / "out.csv").exists()
+
+
+def test_settle_continues_the_run_after_the_reach_and_judges_the_orientation_there():
+    """With ``settle`` S the run goes on S seconds past the first reach (the sweep's rule): the
+    position outcome is the same as without, the run is S/Δt steps longer, and the orientation
+    is judged at its end (Fabrics on a random tomato scenario: no model needed)."""
+    from analysis.safety_suite import run_one
+
+    spec = {"task": "tomato", "kind": "near_table1", "seed": 2001, "method": "fabrics",
+            "models": "", "set": [], "label": "fabrics"}
+    at_reach = run_one({**spec, "settle": 0.0})
+    settled = run_one({**spec, "settle": 1.0})
+    assert at_reach["success_paper"] and settled["success_paper"]
+    assert settled["time_to_success"] == at_reach["time_to_success"]
+    assert settled["steps"] == at_reach["steps"] + 50  # Δt = 0.02 s
+    assert at_reach["settled_orientation_error"] == pytest.approx(
+        at_reach["end_orientation_error"])
+    assert settled["settled_orientation_error"] == pytest.approx(
+        settled["end_orientation_error"])
+    assert settled["success_orientation_paper"] == (settled["settled_orientation_error"] <= 0.2)

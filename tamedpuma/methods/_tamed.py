@@ -381,7 +381,10 @@ class ControlRate:
     goal 4.5 cm above the table); ground_geometry: whose heights (:mod:`tamedpuma.robot.ground`):
     ``spheres`` (the body spheres, ``c_z − r``) or ``mesh`` (each moving link's lowest
     collision-hull point: the geometry the whole-body criterion judges, without the spheres'
-    inflation).
+    inflation); speed_headroom h [1]: with ``speed_limit``, the uniform scaling aims at
+    ``(1 − h) q̇_max`` instead of q̇_max, a margin for the joint velocity loop's tracking error
+    (PyBullet's velocity motors, given a target at the limit, ran up to 1.0009× it in session
+    22's random suites; BENCHMARKS.md "Session 23").
     All of them only remove energy (see the module), so the paper's energy arguments still hold.
     """
 
@@ -395,12 +398,14 @@ class ControlRate:
     ground_height: float = 0.0
     ground_geometry: str = "spheres"
     implicit_geometry: bool = False
+    speed_headroom: float = 0.0
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> ControlRate:
         cfg = dict(cfg or {})
         keys = {"barrier_step", "kappa", "speed_limit", "semi_implicit", "braking_split",
-                "standoff", "ground", "ground_height", "ground_geometry", "implicit_geometry"}
+                "standoff", "ground", "ground_height", "ground_geometry", "implicit_geometry",
+                "speed_headroom"}
         unknown = sorted(set(cfg) - keys)
         if unknown:
             raise ConfigError(f"unknown method.control_rate keys {unknown}")
@@ -413,6 +418,9 @@ class ControlRate:
         if not 0.0 <= rate.standoff < 0.1:
             raise ConfigError(f"method.control_rate.standoff must be in [0, 0.1), got "
                               f"{rate.standoff}")
+        if not 0.0 <= rate.speed_headroom < 0.5:
+            raise ConfigError(f"method.control_rate.speed_headroom must be in [0, 0.5), got "
+                              f"{rate.speed_headroom}")
         return rate
 
     def velocity_step(self, qd: np.ndarray, a: np.ndarray, c: float, dt: float, av,
@@ -446,7 +454,7 @@ class ControlRate:
             qd_next, n_active = barrier_step(qd_next, rows, x, dt, self.kappa, av.M, jd, drift,
                                              av.far_rows, self.standoff)
         if self.speed_limit:
-            qd_next, scale = limit_speed(qd_next, qd_max)
+            qd_next, scale = limit_speed(qd_next, (1.0 - self.speed_headroom) * qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}
 
 
