@@ -11,8 +11,12 @@ filtered, so the minimum-distance constraint is exactly ``min_ij d_ij(q) ≥ d_m
 Drake's minimum-distance constraint is a smoothed penalty that is feasible iff every pair is beyond
 its bound; the bound passed to Drake is ``d_min + options.drake_margin`` (1e-4 m by default:
 :class:`~tamedpuma.ik_solvers.problem.SolverOptions`) so that SNOPT's feasibility tolerance cannot
-leave a pair below d_min. SNOPT reports no iteration count through Drake: ``iterations`` is the
-number of objective evaluations (counted by a visualization callback).
+leave a pair below d_min. The objective is scaled by ``1/s²`` (s = ``options.scale``, 0.01 m), as
+in the SLSQP backend; the minimiser is the same. Unscaled, a step of a fraction of a millimetre
+(Modulation-IK's slow final approach, 9 mm/s × 0.02 s) improves the objective by ~10⁻⁸, below
+SNOPT's optimality tolerance: SNOPT returned the start and the arm stood 5.6 cm from the goal
+for 30 s (Table-1 pouring 0; session 23). SNOPT reports no iteration count through Drake:
+``iterations`` is the number of objective evaluations (counted by a visualization callback).
 """
 
 from __future__ import annotations
@@ -142,12 +146,14 @@ def solve(problem: IKProblem) -> IKResult:
         margin = float(problem.options.drake_margin)
         influence = float(problem.options.drake_influence)
         ik.AddMinimumDistanceLowerBoundConstraint(problem.d_min + margin, influence)
+    scale = 1.0 / float(problem.options.scale) ** 2  # the objective ×1/s², as SLSQP's
     ik.AddPositionCost(plant.world_frame(), problem.target_position, world.ee_frame, np.zeros(3),
-                       problem.position_weight * np.eye(3))
+                       scale * problem.position_weight * np.eye(3))
     if problem.target_rotation is not None and problem.orientation_weight > 0:
         ik.AddOrientationCost(plant.world_frame(), pd.RotationMatrix(problem.target_rotation),
-                              world.ee_frame, pd.RotationMatrix(), problem.orientation_weight)
-    prog.AddQuadraticErrorCost(problem.regularization_weight * np.eye(len(idx)),
+                              world.ee_frame, pd.RotationMatrix(),
+                              scale * problem.orientation_weight)
+    prog.AddQuadraticErrorCost(scale * problem.regularization_weight * np.eye(len(idx)),
                                problem.q_ref, qv)
     counter = [0]
 

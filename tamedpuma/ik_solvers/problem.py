@@ -33,7 +33,8 @@ def _frozen(value, shape, name) -> np.ndarray:
 class SolverOptions:
     """The backends' own settings (each read by one backend; see its module docstring).
 
-    scale: s [m], SLSQP's objective is scaled by 1/s²; ftol: SLSQP's absolute tolerance on the
+    scale: s [m], both backends' objective is scaled by 1/s² (same minimiser; the solvers'
+    tolerances then resolve sub-millimetre steps); ftol: SLSQP's absolute tolerance on the
     scaled objective; drake_margin [m]: added to d_min in the bound passed to Drake (SNOPT's
     feasibility tolerance cannot then leave a pair below d_min); drake_influence [m]: Drake's
     influence distance beyond that bound (pairs further apart are not evaluated)."""
