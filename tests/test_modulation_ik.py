@@ -430,3 +430,37 @@ def test_episode_reaches_the_tomato_goal_without_penetration(robot_spec, kinemat
     assert m.joint_limit_violation_steps == 0
     assert all(s["ik_success"] == 1.0 for s in scalars)
     assert min(s["min_clearance_m"] for s in scalars) >= ctrl.params.d_min - 1e-5
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_an_arm_that_starts_within_d_min_backs_out(kinematics, backend):
+    """An obstacle 2 cm from the elbow's sphere (d_min = 5 cm). With a fixed d_min no step in the
+    trust box is admissible, every solve fails and the arm is held (Table-1 tomato 1 and 6 for
+    40 s); with ``hold_clearance`` the bound is the current clearance plus the recovery (2 mm
+    per step): every solve succeeds and the arm backs out to d_min, its clearance never falling."""
+    c = kinematics.sphere_centers(Q0)[1]
+    center = c + np.array([0.0, 0.0, 1.0]) * (kinematics.spec.sphere_radii[1] + 0.05 + 0.02)
+    held = make(_method_cfg(ik_backend=backend, hold_clearance=False), kinematics,
+                primitive=LinearVelocityField(1.0)).step(_obs(Q0, [center]))
+    assert held.scalars["ik_brake"] == 1.0
+    np.testing.assert_allclose(held.qdd * 0.02, 0.0, atol=1e-12)  # q̇_cmd = 0: held
+    ctrl = make(_method_cfg(ik_backend=backend), kinematics, primitive=LinearVelocityField(1.0))
+
+    def gap(q):
+        return float(np.min(np.linalg.norm(kinematics.sphere_centers(q) - center, axis=1)
+                            - kinematics.spec.sphere_radii - 0.05))
+
+    q, gaps, bounds = Q0.copy(), [gap(Q0)], []
+    for _ in range(20):
+        command = ctrl.step(_obs(q, [center]))
+        assert command.scalars["ik_success"] == 1.0 and command.scalars["ik_brake"] == 0.0
+        bounds.append(command.scalars["ik_d_min_m"])
+        q = q + command.qdd * 0.02 * 0.02  # q̇_cmd Δt from rest: the IK's answer
+        gaps.append(gap(q))
+    assert bounds[0] == pytest.approx(0.022, abs=1e-6) and bounds[-1] == 0.05
+    assert np.all(np.diff(gaps) >= -1e-5) and gaps[-1] >= 0.05 - 1e-4
+
+
+def test_hold_clearance_must_be_a_boolean(kinematics):
+    with pytest.raises(ConfigError, match="hold_clearance must be true or false"):
+        make(_method_cfg(hold_clearance="yes"), kinematics, primitive=LinearVelocityField(1.0))

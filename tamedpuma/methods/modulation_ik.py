@@ -17,8 +17,18 @@ Each control step (period Δt [s]), everything in the robot base (= world) frame
        min_q w_p ‖p(q) − p*‖² + w_R (1 − cos θ(R(q), R*)) + w_q ‖q − q_k‖²
        s.t. joint limits shrunk by ``limit_margin``,
             |q − q_k| ≤ trust · q̇_max Δt (what the joints can do in one step),
-            ‖c_i(q) − (o_j + ȯ_j Δt)‖ − r_i − r_j ≥ d_min  (every body sphere, every obstacle at
+            ‖c_i(q) − (o_j + ȯ_j Δt)‖ − r_i − r_j ≥ d_min'  (every body sphere, every obstacle at
             the time the step ends);
+
+   ``d_min' = d_min``, or with ``hold_clearance`` (the default), where the current
+   configuration's smallest clearance c_k to those obstacles is below d_min,
+   ``d_min' = max(0, min(d_min, c_k + r))`` (r = ``clearance_recovery`` [m per step]): the arm
+   must move back out towards d_min by r per step; if no step in the trust box can (the solve
+   fails), it is solved again with ``d_min' = max(0, c_k)``: the arm may not come closer but q_k
+   itself is admissible, so it can always stay or move away. With a fixed d_min an arm that
+   starts within it has no admissible step, every solve fails and the arm is held for the whole
+   run (Table-1 tomato 1 and 6, 4 and 3.4 cm clear at the start; session 23). Beyond d_min the
+   bound is d_min, as without the option;
 
 5. joint acceleration for the simulator's velocity control ``q̇_cmd = clip(q̇ + q̈ Δt, ±q̇_max)``:
    ``q̈ = (κ (q_ik − q)/Δt − q̇)/Δt`` so that ``q̇_cmd = κ (q_ik − q)/Δt`` (κ = ``tracking_gain``;
@@ -32,7 +42,8 @@ ignored: the IK returns the safest configuration it knows (its iterate if it sat
 constraint, else the current q); the controller moves there only if it satisfies every constraint,
 and otherwise brakes (``q_ik = q``: ``q̇_cmd = 0``); ``ik_brake`` = 1 when a failed step holds the
 current configuration. Logged scalars per step: ``ik_success``,
-``ik_iterations``, ``ik_constraint_violation_m``, ``ik_solve_ms``, ``ik_brake``, ``ik_failures``
+``ik_iterations``, ``ik_constraint_violation_m``, ``ik_solve_ms``, ``ik_brake``, ``ik_d_min_m``
+(the step's bound d_min'), ``ik_failures``
 (failed solves so far in the episode; the first one's solver message is also a log warning),
 ``ik_position_error_m`` (‖p(q_ik) − p*‖), ``modulation_gamma_min``, ``min_clearance_m`` (the
 commanded configuration's clearance to the obstacles at the end of the step, as the IK sees it),
@@ -41,6 +52,7 @@ commanded configuration's clearance to the obstacles at the end of the step, as 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
@@ -83,7 +95,9 @@ class ModulationIKParams:
 
     safety_radius: added to every obstacle radius in Γ [m]; gamma_power: p in Γ = (d/R)^(2p);
     max_speed: clip of the nominal speed [m/s]; orientation_gain: k_R [1/s];
-    ik_backend: 'drake' or 'slsqp'; d_min: IK clearance bound [m];
+    ik_backend: 'drake' or 'slsqp'; d_min: IK clearance bound [m]; hold_clearance: an arm
+    within d_min backs out by clearance_recovery [m] per step, or if it cannot, does not come
+    closer (module docstring, step 4);
     position_weight [1/m²], orientation_weight [-], regularization_weight [1/rad²]: IK cost weights;
     trust: step box as a fraction of q̇_max Δt [-]; limit_margin: the IK keeps this far inside the
     joint limits [rad] (the simulator's tracking overshoots a target on the limit slightly);
@@ -97,6 +111,8 @@ class ModulationIKParams:
     orientation_gain: float = 1.0
     ik_backend: str = "drake"
     d_min: float = 0.05
+    hold_clearance: bool = True
+    clearance_recovery: float = 0.002
     position_weight: float = 1.0
     orientation_weight: float = 0.1
     regularization_weight: float = 1e-4
@@ -113,6 +129,7 @@ class ModulationIKParams:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"method.{name} must be positive, got {getattr(self, name)!r}")
         for name in ("safety_radius", "orientation_gain", "d_min", "orientation_weight",
+                     "clearance_recovery",
                      "regularization_weight", "limit_margin"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"method.{name} must be >= 0, got {getattr(self, name)!r}")
@@ -171,15 +188,23 @@ class ModulationIK:
         upper = np.minimum(q + box, spec.q_max - prm.limit_margin)
         lower = np.minimum(np.maximum(q - box, spec.q_min + prm.limit_margin), upper)
         obstacles_next = obs.obstacle_centers + dt * obs.obstacle_velocities
+        current = np.inf
+        if prm.hold_clearance and len(obs.obstacle_radii):
+            current = _smallest_gap(self.kinematics, q, obstacles_next, obs.obstacle_radii)
+        d_min = max(0.0, min(prm.d_min, current + prm.clearance_recovery))
         problem = IKProblem(
             kinematics=self.kinematics, q_start=q, target_position=p_target,
             target_rotation=rot_target, obstacle_centers=obstacles_next,
-            obstacle_radii=obs.obstacle_radii, d_min=prm.d_min, q_lower=lower,
+            obstacle_radii=obs.obstacle_radii, d_min=d_min, q_lower=lower,
             q_upper=upper, position_weight=prm.position_weight,
             orientation_weight=prm.orientation_weight,
             regularization_weight=prm.regularization_weight, tolerance=prm.ik_tolerance,
             max_iterations=prm.ik_max_iterations)
         result = solve_ik(problem, prm.ik_backend)
+        if not result.success and d_min > max(0.0, current):  # cannot back out: do not come closer
+            d_min = max(0.0, current)
+            problem = dataclasses.replace(problem, d_min=d_min)
+            result = solve_ik(problem, prm.ik_backend)
         safe = result.max_violation <= prm.ik_tolerance
         q_ik = result.q if safe else q
         brake = not safe or (not result.success and np.array_equal(result.q, q))
@@ -197,6 +222,7 @@ class ModulationIK:
             "ik_constraint_violation_m": float(result.max_violation),
             "ik_solve_ms": float(result.solve_time_ms),
             "ik_brake": float(brake),
+            "ik_d_min_m": float(d_min),
             "ik_failures": float(self.failures),
             "ik_position_error_m": float(np.linalg.norm(p_ik - p_target)),
             "modulation_gamma_min": min(mod.gamma_min, NO_OBSTACLE_CLEARANCE),
@@ -205,6 +231,14 @@ class ModulationIK:
             "modulated_speed_mps": float(np.linalg.norm(v_mod)),
         }
         return Command(qdd=qdd, scalars=scalars)
+
+
+def _smallest_gap(kinematics: Kinematics, q: np.ndarray, centers: np.ndarray,
+                  radii: np.ndarray) -> float:
+    """``min_ij ‖c_i(q) − o_j‖ − r_i − r_j`` [m] over the body spheres i and obstacles j."""
+    c = kinematics.sphere_centers(q)
+    d = np.linalg.norm(c[:, None, :] - np.asarray(centers)[None, :, :], axis=2)
+    return float(np.min(d - kinematics.spec.sphere_radii[:, None] - np.asarray(radii)[None, :]))
 
 
 def _clearance(problem: IKProblem, q: np.ndarray) -> float:
@@ -260,6 +294,12 @@ def params_from_config(cfg: Mapping) -> ModulationIKParams:
     kwargs = {}
     for f in fields(ModulationIKParams):
         if f.name in cfg:
+            if f.type == "bool":
+                if not isinstance(cfg[f.name], bool):
+                    raise ConfigError(f"method.{f.name} must be true or false, got "
+                                      f"{cfg[f.name]!r}")
+                kwargs[f.name] = cfg[f.name]
+                continue
             kind = str if f.type == "str" else int if f.type == "int" else float
             try:
                 kwargs[f.name] = kind(cfg[f.name])
