@@ -188,22 +188,23 @@ class ModulationIK:
         upper = np.minimum(q + box, spec.q_max - prm.limit_margin)
         lower = np.minimum(np.maximum(q - box, spec.q_min + prm.limit_margin), upper)
         obstacles_next = obs.obstacle_centers + dt * obs.obstacle_velocities
-        current = np.inf
-        if prm.hold_clearance and len(obs.obstacle_radii):
-            current = _smallest_gap(self.kinematics, q, obstacles_next, obs.obstacle_radii)
-        d_min = max(0.0, min(prm.d_min, current + prm.clearance_recovery))
         problem = IKProblem(
             kinematics=self.kinematics, q_start=q, target_position=p_target,
             target_rotation=rot_target, obstacle_centers=obstacles_next,
-            obstacle_radii=obs.obstacle_radii, d_min=d_min, q_lower=lower,
+            obstacle_radii=obs.obstacle_radii, d_min=prm.d_min, q_lower=lower,
             q_upper=upper, position_weight=prm.position_weight,
             orientation_weight=prm.orientation_weight,
             regularization_weight=prm.regularization_weight, tolerance=prm.ik_tolerance,
             max_iterations=prm.ik_max_iterations)
+        current = np.inf  # c_k, the current clearance (module docstring, step 4)
+        if prm.hold_clearance and problem.n_obstacles:
+            current = _clearance(problem, q)
+            if current + prm.clearance_recovery < prm.d_min:
+                problem = dataclasses.replace(
+                    problem, d_min=max(0.0, current + prm.clearance_recovery))
         result = solve_ik(problem, prm.ik_backend)
-        if not result.success and d_min > max(0.0, current):  # cannot back out: do not come closer
-            d_min = max(0.0, current)
-            problem = dataclasses.replace(problem, d_min=d_min)
+        if not result.success and problem.d_min > max(0.0, current):  # cannot back out:
+            problem = dataclasses.replace(problem, d_min=max(0.0, current))  # no closer
             result = solve_ik(problem, prm.ik_backend)
         safe = result.max_violation <= prm.ik_tolerance
         q_ik = result.q if safe else q
@@ -222,7 +223,7 @@ class ModulationIK:
             "ik_constraint_violation_m": float(result.max_violation),
             "ik_solve_ms": float(result.solve_time_ms),
             "ik_brake": float(brake),
-            "ik_d_min_m": float(d_min),
+            "ik_d_min_m": float(problem.d_min),
             "ik_failures": float(self.failures),
             "ik_position_error_m": float(np.linalg.norm(p_ik - p_target)),
             "modulation_gamma_min": min(mod.gamma_min, NO_OBSTACLE_CLEARANCE),
@@ -231,14 +232,6 @@ class ModulationIK:
             "modulated_speed_mps": float(np.linalg.norm(v_mod)),
         }
         return Command(qdd=qdd, scalars=scalars)
-
-
-def _smallest_gap(kinematics: Kinematics, q: np.ndarray, centers: np.ndarray,
-                  radii: np.ndarray) -> float:
-    """``min_ij ‖c_i(q) − o_j‖ − r_i − r_j`` [m] over the body spheres i and obstacles j."""
-    c = kinematics.sphere_centers(q)
-    d = np.linalg.norm(c[:, None, :] - np.asarray(centers)[None, :, :], axis=2)
-    return float(np.min(d - kinematics.spec.sphere_radii[:, None] - np.asarray(radii)[None, :]))
 
 
 def _clearance(problem: IKProblem, q: np.ndarray) -> float:
