@@ -119,3 +119,28 @@ def test_summaries_without_step_times_are_skipped(tmp_path):
     frame, _ = load_summaries(tmp_path)
     assert frame.empty and len(frame.attrs["skipped"]) == 1
     assert isinstance(frame, pd.DataFrame)
+
+
+def test_random_suite_splits_the_rates_by_kind_of_start():
+    from tamedpuma.analysis.random_suite import by_start_table, start_kind
+
+    assert start_kind("random_tomato_near_table1_2004") == "near_table1"
+    assert start_kind("random_pouring_anywhere_17") == "anywhere"
+    assert start_kind("tomato_03") == start_kind("random_tomato_sideways_3") == "other"
+    rows = []
+    for seed in range(10):  # near_table1: 10 of 10 succeed; anywhere: 4 of 10
+        for kind, ok in (("near_table1", True), ("anywhere", seed < 4)):
+            for n_obstacles in (2, 0):  # the obstacle-free twins are not scored
+                rows.append({"task": "tomato", "method_label": "fpm", "n_obstacles": n_obstacles,
+                             "scenario": f"random_tomato_{kind}_{seed}",
+                             "success_paper": ok or n_obstacles == 0,
+                             "success_whole_body": ok and seed != 0,
+                             "orientation_success_paper": ok and seed % 2 == 0})
+    table = by_start_table(pd.DataFrame(rows)).set_index("start")
+    assert list(table.index) == ["near_table1", "anywhere"]
+    assert (table["scenarios"] == 10).all()
+    near, anywhere = table.loc["near_table1"], table.loc["anywhere"]
+    assert near["success (paper) [95% CI]"] == "1.00 [1.00, 1.00]"
+    assert anywhere["success (paper) [95% CI]"].startswith("0.40 [")
+    assert anywhere["success (whole body) [95% CI]"].startswith("0.30 [")
+    assert near["with orientation (paper) [95% CI]"].startswith("0.50 [")

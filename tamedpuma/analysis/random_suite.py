@@ -7,8 +7,10 @@ orientation also held after the settle time: the pose the task asks for) with 95
 bootstrap confidence intervals (10 000 resamples of the scenarios, seeded), time to success [s]
 (mean ± std over the paper-criterion successes), the path difference to PUMA [m] (mean ± std over
 the obstacle-free runs of the same scenarios) and the whole-body failures by class
-(sphere_penetration, obstacle_contact, ground_contact, joint_limit, stall, time, late). Writes
-``random_suite.md``, ``random_suite.csv`` and ``runs.csv``.
+(sphere_penetration, obstacle_contact, ground_contact, joint_limit, stall, time, late); then the
+same three rates per kind of start (``near_table1``, ``anywhere``: read from the scenario's name,
+``random_<task>_<kind>_<seed>``). Writes ``random_suite.md``/``.csv``,
+``random_suite_by_start.md``/``.csv`` and ``runs.csv``.
 """
 
 from __future__ import annotations
@@ -20,11 +22,46 @@ import pandas as pd
 from tamedpuma.analysis.runs import parse_and_load, runs_parser, write_table
 from tamedpuma.analysis.summaries import bootstrap_ci
 from tamedpuma.analysis.tables import _pm, failure_counts, ordered_labels, path_differences
+from tamedpuma.worlds.random_scenarios import START_KINDS
 
 
 def _rate(values) -> str:
     lo, hi = bootstrap_ci(values)
     return f"{pd.Series(values).mean():.2f} [{lo:.2f}, {hi:.2f}]"
+
+
+def start_kind(scenario: str) -> str:
+    """The kind of start of a generated scenario's name ``random_<task>_<kind>_<seed>`` (one of
+    :data:`~tamedpuma.worlds.random_scenarios.START_KINDS`), or ``other``."""
+    parts = str(scenario).split("_")
+    if parts[0] == "random" and parts[-1].isdigit():
+        kind = "_".join(parts[2:-1])
+        if kind in START_KINDS:
+            return kind
+    return "other"
+
+
+def _rates(scored: pd.DataFrame) -> dict[str, str]:
+    return {"scenarios": len(scored),
+            "success (paper) [95% CI]": _rate(scored["success_paper"].astype(float)),
+            "success (whole body) [95% CI]": _rate(scored["success_whole_body"].astype(float)),
+            "with orientation (paper) [95% CI]":
+                _rate(scored["orientation_success_paper"].astype(float))}
+
+
+def by_start_table(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per task, kind of start and method label, on the runs with obstacles: the three success
+    rates of :func:`random_table` with their intervals (the scenarios of one kind resampled)."""
+    scored = runs[runs["n_obstacles"] > 0].assign(start=runs["scenario"].map(start_kind))
+    rows = []
+    for task in sorted(scored["task"].unique()):
+        t = scored[scored["task"] == task]
+        for kind in [k for k in (*START_KINDS, "other") if (t["start"] == k).any()]:
+            k = t[t["start"] == kind]
+            for label in ordered_labels(k["method_label"]):
+                rows.append({"task": task, "start": kind, "method": label,
+                             **_rates(k[k["method_label"] == label])})
+    return pd.DataFrame(rows)
 
 
 def random_table(runs: pd.DataFrame) -> pd.DataFrame:
@@ -36,12 +73,7 @@ def random_table(runs: pd.DataFrame) -> pd.DataFrame:
             scored = r[r["n_obstacles"] > 0]
             ok = scored[scored["success_paper"]]
             rows.append({
-                "task": task, "method": label, "scenarios": len(scored),
-                "success (paper) [95% CI]": _rate(scored["success_paper"].astype(float)),
-                "success (whole body) [95% CI]":
-                    _rate(scored["success_whole_body"].astype(float)),
-                "with orientation (paper) [95% CI]":
-                    _rate(scored["orientation_success_paper"].astype(float)),
+                "task": task, "method": label, **_rates(scored),
                 "time-to-success [s]": _pm(ok["time_to_success_s"]),
                 "path difference to PUMA [m]": _pm(r["path_difference_m"], 3),
                 "whole-body failures": failure_counts(scored["failure_whole_body"]),
@@ -59,6 +91,8 @@ def main(argv: list[str] | None = None) -> int:
     table = random_table(runs)
     out = args.out or args.runs
     text = write_table(table, out, "random_suite")
+    text += "\nBy kind of start:\n\n" + write_table(by_start_table(runs), out,
+                                                      "random_suite_by_start")
     runs.to_csv(out / "runs.csv", index=False)
     print(text)
     print(f"{len(runs)} runs read, {len(runs.attrs.get('skipped', []))} skipped; tables in {out}")
