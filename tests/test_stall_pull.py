@@ -145,6 +145,35 @@ def test_hold_keep_never_lets_go_and_the_pull_vanishes_at_the_goal():
     assert far.acceleration(3.0, GOAL - [0.3, 0, 0], GOAL, lambda: 0.5) is None
 
 
+def test_the_orientation_rows_yield_only_while_a_near_pull_presses_outside_the_radius():
+    """pressing_near: armed within hold_radius and the hand still outside the radius. Then, and
+    only then, the orientation rows weigh ρ·s (stall_rotation_weight); a pull armed far from the
+    goal, a disarmed monitor and a hand inside the radius keep ρ."""
+    keep = StallPull(gain=1.5, window=2.0, radius=0.045, ramp=0.0, hold_radius=0.15,
+                     hold_keep=True)
+    forcing = Forcing(mode="metric", weight=100.0, rotation_weight=0.5,
+                      stall_rotation_weight=0.01)
+    full, reduced = [100.0] * 3 + [50.0] * 3, [100.0] * 3 + [0.5] * 3
+    t = np.round(np.arange(0.0, 2.6, 0.1), 6)
+    m = StallMonitor(keep)
+    states = []
+    for ti, di in zip(t, np.full(len(t), 0.08), strict=True):
+        m.acceleration(ti, GOAL - [di, 0, 0], GOAL, lambda: 1.0)
+        states.append(m.pressing_near)
+    assert states == list(t >= 2.0)  # from arming on
+    np.testing.assert_allclose(forcing.task_weights(6, stalled_near=m.pressing_near), reduced)
+    m.acceleration(3.0, GOAL - [0.03, 0, 0], GOAL, lambda: 1.0)  # inside the radius: ρ again
+    assert m.armed and not m.pressing_near
+    np.testing.assert_allclose(forcing.task_weights(6, stalled_near=m.pressing_near), full)
+    m.acceleration(3.1, GOAL - [0.06, 0, 0], GOAL, lambda: 1.0)  # back out: yields again
+    assert m.pressing_near
+    far = StallMonitor(keep)
+    _feed(far, t, np.full(len(t), 0.3))
+    assert far.armed and not far.pressing_near
+    assert Forcing(weight=100.0).task_weights(6, stalled_near=True) == 100.0  # s = 1: off
+    assert forcing.task_weights(3, stalled_near=True) == 100.0  # no orientation rows
+
+
 def test_applied_adds_to_the_position_rows_only():
     m = StallMonitor(StallPull(gain=2.0, window=1.0, ramp=0.0))
     task = TaskAcceleration(np.arange(6.0), np.eye(6, 7), np.zeros(6))
@@ -210,7 +239,8 @@ def test_a_run_that_keeps_approaching_is_unchanged_by_the_pull():
 @pytest.mark.parametrize("bad", [{"stall_pull": -1.0}, {"stall_window": 0.0},
                                  {"stall_release": 1.0}, {"stall_ramp": -0.5},
                                  {"stall_hold_radius": -0.1}, {"stall_hold_keep": "maybe"},
-                                 {"stall_hold_keep": 1}])
+                                 {"stall_hold_keep": 1}, {"stall_rotation_weight": 0.0},
+                                 {"stall_rotation_weight": 1.5}])
 def test_bad_stall_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="stall"):
         Forcing.from_mapping({"mode": "metric", **bad})

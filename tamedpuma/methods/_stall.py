@@ -112,10 +112,16 @@ class StallMonitor:
         self.t_armed: float | None = None
         self.psi_armed = np.nan
         self.armed_near = False  # armed within hold_radius: see _released
+        self.distance = np.inf  # the hand's distance to the goal at the last call [m]
 
     @property
     def armed(self) -> bool:
         return self.t_armed is not None
+
+    @property
+    def pressing_near(self) -> bool:
+        """A pull armed within hold_radius is on and the hand is still outside the radius."""
+        return self.armed_near and self.t_armed is not None and self.distance > self.pull.radius
 
     def _potential(self, t: float, potential: Callable[[], float]) -> float:
         if not t - self.t_psi < PSI_SAMPLE_S - 1e-9:  # (rounding of t)
@@ -137,7 +143,7 @@ class StallMonitor:
         ``goal`` [m]; ``potential()``: PUMA's ψ there, called at most every
         :data:`PSI_SAMPLE_S`), or None while disarmed. Updates the monitor's state."""
         e = np.asarray(goal, dtype=float) - np.asarray(position, dtype=float)
-        d = float(np.linalg.norm(e))
+        d = self.distance = float(np.linalg.norm(e))
         p = self.pull
         psi = self._potential(t, potential)
         if self.t_armed is not None and self._released(d, psi):

@@ -110,7 +110,8 @@ class PumaController:
                                           obs.obstacle_radii,
                                           lambda: self.pull_at_rest(state, obs),
                                           av.min_clearance)
-            weights = forcing.task_weights(len(task.xdd))
+            weights = forcing.task_weights(
+                len(task.xdd), stalled_near=stall is not None and stall.pressing_near)
             secondary = forcing.secondary_damping()
 
             def solve(W: np.ndarray) -> np.ndarray:
@@ -503,7 +504,9 @@ class Forcing:
     from the goal, ramped in over stall_ramp [s], released once PUMA's potential is
     stall_release [1] below its value at arming; within stall_hold_radius [m] of the goal only
     the distance is progress and the pull holds until stall_radius (stall_hold_keep: for good)
-    (:mod:`tamedpuma.methods._stall`)."""
+    (:mod:`tamedpuma.methods._stall`); stall_rotation_weight: s [1], the factor on ρ while such a
+    pull, armed within stall_hold_radius, is on and the hand is outside stall_radius
+    (:meth:`task_weights`; 1: off)."""
 
     mode: str = "additive"
     weight: float = 100.0
@@ -528,6 +531,7 @@ class Forcing:
     stall_release: float = StallPull.release
     stall_hold_radius: float = StallPull.hold_radius
     stall_hold_keep: bool = StallPull.hold_keep
+    stall_rotation_weight: float = 1.0
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -542,7 +546,7 @@ class Forcing:
             return None
         return SecondaryDamping(self.singular_damping, self.singular_threshold)
 
-    def task_weights(self, m: int) -> float | np.ndarray:
+    def task_weights(self, m: int, stalled_near: bool = False) -> float | np.ndarray:
         """The task metric's diagonal [1]: w on every row of a position task; for a pose task
         (m = 6, rows [v; ω]) w on the position rows and ρw on the orientation rows, an (m,)
         array (the scalar w when ρ = 1: no array per control step).
@@ -554,11 +558,26 @@ class Forcing:
         rests short of the goal (an online goal change: 7.6 cm, joints 2 and 5 at their
         limits). ρ < 1 gives the position rows priority there, as the goal is judged on
         position. ẍ_d = 0 still gives q̈_C = the damped elbow objective, so PUMA's zero set
-        (FPM) and CPM's energy statement are unchanged."""
-        if m != 6 or self.rotation_weight == 1.0:
+        (FPM) and CPM's energy statement are unchanged.
+
+        ``stalled_near``: a stall pull armed within the hold radius is on and the hand is still
+        outside the stall radius (:attr:`~tamedpuma.methods._stall.StallMonitor.pressing_near`);
+        the orientation rows then weigh ρ·s (s = ``stall_rotation_weight``). Why: in the random
+        tomato ``anywhere`` failures the hand rests 5-10 cm short with a joint on its limit and
+        the forearm's sphere at an obstacle; from the branch the arm is in, no pose with the
+        goal's orientation (within 0.1 rad) and every sphere 1 cm clear comes within 5 cm
+        (random 2097: 6.5 cm; 4.9 cm with the orientation free to 0.5 rad), so the orientation
+        rows, realised in the position rows' null space, keep the arm where the pull cannot
+        bring the hand in. Only there, only while the pull presses, the position comes first;
+        inside the stall radius the full ρ returns and the orientation converges in the position
+        rows' null space where it can. What holds is what holds for ρ: the weights scale the
+        forcing's metric only (the barriers, the zero set and CPM's energy statement do not
+        depend on them)."""
+        rho = self.rotation_weight * (self.stall_rotation_weight if stalled_near else 1.0)
+        if m != 6 or rho == 1.0:
             return self.weight
         w = np.full(m, self.weight)
-        w[3:] *= self.rotation_weight
+        w[3:] *= rho
         return w
 
     def make_circulation(self) -> Circulation | None:
@@ -591,7 +610,7 @@ class Forcing:
                                      "stall_pull", "stall_window", "stall_progress",
                                      "stall_psi_progress", "stall_radius", "stall_ramp",
                                      "stall_release", "stall_hold_radius",
-                                     "stall_hold_keep"})
+                                     "stall_hold_keep", "stall_rotation_weight"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
@@ -614,9 +633,10 @@ class Forcing:
         if not (f.singular_damping >= 0 and f.singular_threshold > 0):
             raise ConfigError("method.forcing.singular_damping must be ≥ 0 and "
                               "singular_threshold > 0")
-        if not (f.weight > 0 and f.null_metric >= 0 and 0 < f.rotation_weight <= 1):
-            raise ConfigError("method.forcing.weight must be > 0, null_metric ≥ 0 and "
-                              "rotation_weight in (0, 1]")
+        if not (f.weight > 0 and f.null_metric >= 0 and 0 < f.rotation_weight <= 1
+                and 0 < f.stall_rotation_weight <= 1):
+            raise ConfigError("method.forcing.weight must be > 0, null_metric ≥ 0, "
+                              "rotation_weight and stall_rotation_weight in (0, 1]")
         if not (f.circulation >= 0 and f.circulation_gain >= 0
                 and 0 <= f.circulation_onset < 1):
             raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0, "
