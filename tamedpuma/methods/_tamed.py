@@ -572,7 +572,10 @@ class Forcing:
         inside the stall radius the full ρ returns and the orientation converges in the position
         rows' null space where it can. What holds is what holds for ρ: the weights scale the
         forcing's metric only (the barriers, the zero set and CPM's energy statement do not
-        depend on them)."""
+        depend on them). Off by default (s = 1): measured in session 24 it reaches some of those
+        runs and loses others (with s = 0.01 random tomato 2022: the wrist, no longer held,
+        turned 2 rad and PUMA's position field, evaluated at that orientation, carried the hand
+        0.10 → 0.21 m out), net within the churn (BENCHMARKS.md "Session 24")."""
         rho = self.rotation_weight * (self.stall_rotation_weight if stalled_near else 1.0)
         if m != 6 or rho == 1.0:
             return self.weight
