@@ -126,6 +126,7 @@ def test_random_suite_splits_the_rates_by_kind_of_start():
 
     assert start_kind("random_tomato_near_table1_2004") == "near_table1"
     assert start_kind("random_pouring_anywhere_17") == "anywhere"
+    assert start_kind("random_panda_reach_near_table1_3") == "near_table1"
     assert start_kind("tomato_03") == start_kind("random_tomato_sideways_3") == "other"
     rows = []
     for seed in range(10):  # near_table1: 10 of 10 succeed; anywhere: 4 of 10

@@ -33,11 +33,11 @@ def _rate(values) -> str:
 def start_kind(scenario: str) -> str:
     """The kind of start of a generated scenario's name ``random_<task>_<kind>_<seed>`` (one of
     :data:`~tamedpuma.worlds.random_scenarios.START_KINDS`), or ``other``."""
-    parts = str(scenario).split("_")
-    if parts[0] == "random" and parts[-1].isdigit():
-        kind = "_".join(parts[2:-1])
-        if kind in START_KINDS:
-            return kind
+    stem, _, seed = str(scenario).rpartition("_")
+    if stem.startswith("random_") and seed.isdigit():
+        for kind in START_KINDS:  # the task's name may hold underscores too (panda_reach)
+            if stem.endswith(f"_{kind}"):
+                return kind
     return "other"
 
 
