@@ -96,9 +96,9 @@ def run_one(spec: dict) -> dict:
                      f"scenario.start_kind={kind}", f"method={method}", "recorder=none",
                      *spec["set"]]
     overrides.append(f"without_obstacles={spec.get('free', False)}")
-    if spec["models"]:
-        overrides.append(f"method.checkpoint={spec['models']}/{task}/puma.pt")
     cfg = OmegaConf.create(compose("sweep", overrides))
+    if spec["models"] and "checkpoint" in cfg.method:  # Fabrics has no model
+        cfg.method.checkpoint = model_path(spec["models"], task, str(cfg.method.name))
     built = build(cfg)
     sc, robot = built.scenario, built.spec
     tracker = _Tracker(sc.dt, robot.qd_max, robot.sphere_radii,
@@ -163,6 +163,13 @@ def run_one(spec: dict) -> dict:
             "ms_mean": float(result.metrics.compute_ms_mean)}
 
 
+def model_path(models: str, task: str, method: str) -> str:
+    """The checkpoint in the ``--models`` folder a method uses: ``<task>_position/puma.pt``
+    (the first-order model) for Modulation-IK, ``<task>/puma.pt`` for the others."""
+    folder = f"{task}_position" if method == "modulation_ik" else task
+    return f"{models}/{folder}/puma.pt"
+
+
 def _seeds(text: str) -> list[int]:
     out = []
     for part in text.split(","):
@@ -206,8 +213,9 @@ def main(argv=None) -> None:
     ap.add_argument("--kinds", nargs="+", default=["near_table1", "anywhere"])
     ap.add_argument("--seeds", default="1000-1049")
     ap.add_argument("--methods", nargs="+", default=["puma", "fpm", "cpm"])
-    ap.add_argument("--models", default="/work/models", help="folder of <task>/puma.pt ('' = "
-                    "the method config's checkpoint)")
+    ap.add_argument("--models", default="/work/models", help="folder of <task>/puma.pt and, "
+                    "for Modulation-IK, <task>_position/puma.pt ('' = the method config's "
+                    "checkpoint; methods without a model, Fabrics, ignore it)")
     ap.add_argument("--set", nargs="*", default=[], help="extra Hydra overrides for every run")
     ap.add_argument("--label", default=None, help="label of this configuration in the table")
     ap.add_argument("--jobs", type=int, default=1)

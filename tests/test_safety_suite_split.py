@@ -71,3 +71,19 @@ def test_settle_continues_the_run_after_the_reach_and_judges_the_orientation_the
     assert settled["settled_orientation_error"] == pytest.approx(
         settled["end_orientation_error"])
     assert settled["success_orientation_paper"] == (settled["settled_orientation_error"] <= 0.2)
+
+
+def test_models_folder_is_given_to_the_methods_with_a_model_only():
+    """``--models`` names the checkpoint of the learned methods (Modulation-IK's first-order
+    one under ``<task>_position``); Fabrics, which has none, runs with it as without it (it
+    used to stop the whole suite with Hydra's "Could not override 'method.checkpoint'")."""
+    from analysis.safety_suite import model_path, run_one
+
+    assert model_path("/m", "tomato", "fpm") == "/m/tomato/puma.pt"
+    assert model_path("/m", "pouring", "modulation_ik") == "/m/pouring_position/puma.pt"
+    spec = {"task": "tomato", "kind": "near_table1", "seed": 2001, "method": "fabrics",
+            "set": ["scenario.max_steps=20"], "label": "fabrics"}
+    with_folder = run_one({**spec, "models": "/nowhere"})
+    without = run_one({**spec, "models": ""})
+    assert with_folder["steps"] == without["steps"] == 20
+    assert with_folder["final_error"] == without["final_error"]
