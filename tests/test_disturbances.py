@@ -138,8 +138,12 @@ def test_after_an_online_goal_change_fpm_reaches_the_new_goal(robot_spec, kinema
     assert np.linalg.norm(dist.goal_offset) >= 0.1
     assert run.metrics.success_whole_body, run.metrics.failure_whole_body
     assert run.metrics.time_to_success_s >= dist.onset  # only a reach after the change counts
-    assert np.linalg.norm(run.ee_position[-1] - new_goal) <= scenario.goal_tolerance
-    assert np.linalg.norm(run.ee_position[-1] - scenario.goal.position) > 0.1
+    to_new = np.linalg.norm(run.ee_position[-1] - new_goal)
+    to_old = np.linalg.norm(run.ee_position[-1] - scenario.goal.position)
+    assert to_new <= scenario.goal_tolerance
+    # it went to the new goal, not the old one: outside the old goal's ball and nearer the new
+    # one (with |offset| = 0.14 m and a 0.05 m ball the end can be 0.09 m from the old goal)
+    assert to_old > scenario.goal_tolerance and to_old > to_new
 
 
 def test_obstacles_are_seen_at_30_hz_with_noise_while_the_truth_decides_contacts(robot_spec):
