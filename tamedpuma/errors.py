@@ -27,3 +27,7 @@ class CheckpointError(TamedPumaError):
 
 class LogError(TamedPumaError):
     """A run log that is missing, unreadable or truncated beyond recovery."""
+
+
+class LogExistsError(LogError, FileExistsError):
+    """A log file (or its ``.active`` partial) already exists where a new run would write."""

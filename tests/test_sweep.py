@@ -86,6 +86,16 @@ def test_unwritable_output_folder_is_a_one_line_error(tmp_path):
     assert "not writable" in line
 
 
+def test_a_run_folder_that_already_holds_a_run_is_a_one_line_error(tmp_path):
+    run_dir = f"hydra.run.dir={tmp_path / 'run'}"
+    first = _sweep("recorder=mcap", "scenario.max_steps=5", run_dir)
+    assert first.returncode == 0, first.stderr
+    before = (tmp_path / "run" / "episode.mcap").read_bytes()
+    line = _error_line(_sweep("recorder=mcap", "scenario.max_steps=5", run_dir))
+    assert "episode.mcap exists" in line and "hydra.run.dir" in line
+    assert (tmp_path / "run" / "episode.mcap").read_bytes() == before  # not replaced
+
+
 def test_start_just_past_a_limit_is_clamped_with_a_warning(tmp_path):
     proc = _sweep(f"output_root={tmp_path}", "recorder=none", "scenario.max_steps=5",
                   "scenario.q0=[0,-2.0944,0,-1,0,0,0]")

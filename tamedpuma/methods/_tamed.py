@@ -21,6 +21,8 @@ from tamedpuma.fabrics.discrete import (
 )
 from tamedpuma.fabrics.energy import execution_alpha
 from tamedpuma.methods._circulation import Circulation
+from tamedpuma.methods._configuration_pull import MODES as CONFIGURATION_MODES
+from tamedpuma.methods._configuration_pull import ConfigurationMonitor, ConfigurationPull
 from tamedpuma.methods._learned import load_task, null_objective
 from tamedpuma.methods._policy import (
     Damping,
@@ -67,11 +69,14 @@ class PumaController:
         return pull_to_joints(task, self.damping, null), task.xdd
 
     def task_and_null(self, state, obs: Observation, clearance: float = np.inf,
-                      stall: StallMonitor | None = None):
+                      stall: StallMonitor | None = None,
+                      configuration: ConfigurationMonitor | None = None):
         """(PUMA's TaskAcceleration, the secondary objective's q̈_null or None); clearance [m]:
         the body spheres' least clearance from the obstacles (the orientation reference's);
         stall: FPM's and CPM's stall pull (:mod:`tamedpuma.methods._stall`), added to the
-        position rows while armed."""
+        position rows while armed; configuration: the configuration pull
+        (:mod:`tamedpuma.methods._configuration_pull`), a joint-space spec (J = I) replacing the
+        task rows while engaged."""
         vg = obs.goal_velocity if self.feed_goal_velocity else None
         if self.task.reference is not None:
             self.task.reference.sync(obs.t, state, obs.qd, obs.goal_position, clearance)
@@ -79,6 +84,8 @@ class PumaController:
         if stall is not None:
             task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
                 self.task.potential(state, obs.goal_position, obs.goal_quaternion)[0]))
+            if configuration is not None:
+                task = configuration.applied(obs.q, obs.qd, stall.distance, stall, obs, task)
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
         return task, null
 
@@ -93,15 +100,17 @@ class PumaController:
                               self.damping)
 
     def with_avoidance(self, state, obs: Observation, av, forcing: Forcing,
-                       circulation: Circulation | None = None, stall: StallMonitor | None = None
+                       circulation: Circulation | None = None, stall: StallMonitor | None = None,
+                       configuration: ConfigurationMonitor | None = None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(h, q̈_C, ẍ_d): the avoidance geometry ``h = −M⁻¹f`` of ``av`` and PUMA's forcing,
         pulled by the damped pseudo-inverse (``additive``) or through the avoidance fabric's
         metric M (``metric``; :class:`Forcing`), with the tangent specs of ``circulation``
         (:mod:`tamedpuma.methods._circulation`) summed in when given, and the stall pull of
-        ``stall`` (:mod:`tamedpuma.methods._stall`) added to PUMA's position rows while armed."""
+        ``stall`` (:mod:`tamedpuma.methods._stall`) added to PUMA's position rows while armed
+        (and the configuration pull's joint-space spec in their place while it is engaged)."""
         if forcing.mode == "metric":
-            task, null = self.task_and_null(state, obs, av.min_clearance, stall)
+            task, null = self.task_and_null(state, obs, av.min_clearance, stall, configuration)
             extra, W = None, av.M
             if circulation is not None or forcing.directional:
                 qdd_free = pull_to_joints(task, self.damping, null)
@@ -155,6 +164,7 @@ class TamedController:
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.circulation = self.forcing.make_circulation()
         self.stall = self.forcing.make_stall_monitor()
+        self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec)
         self.dt = float("nan")  # the scenario's, from reset
         self.hulls = (link_hulls(self.kinematics) if self.rate.barrier_step and self.rate.ground
                       and self.rate.ground_geometry == "mesh" else None)
@@ -163,6 +173,7 @@ class TamedController:
         self.puma.reset(scenario)
         self.circulation = self.forcing.make_circulation()
         self.stall = self.forcing.make_stall_monitor()
+        self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec)
         self.dt = float(scenario.dt)
 
     def forced(self, obs: Observation):
@@ -170,7 +181,7 @@ class TamedController:
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
         ground = self.ground_rows(state, obs.qd)  # from the pass that evaluated ``state``
         h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, self.circulation,
-                                                 self.stall)
+                                                 self.stall, self.configuration)
         return state, av, h, qdd_c, xdd, ground
 
     def ground_rows(self, state, qd: np.ndarray) -> GroundRows | None:
@@ -185,8 +196,12 @@ class TamedController:
                                 below if np.isfinite(below) else np.inf)
 
     def stall_scalars(self) -> dict[str, float]:
-        """``stall_pull``: 1 while the stall pull is armed, else 0 (a log scalar)."""
-        return {"stall_pull": float(self.stall is not None and self.stall.armed)}
+        """``stall_pull``: 1 while the stall pull is armed, else 0; with the configuration pull
+        on, ``configuration_pull``: 1 while it is engaged (log scalars)."""
+        out = {"stall_pull": float(self.stall is not None and self.stall.armed)}
+        if self.configuration is not None:
+            out["configuration_pull"] = float(self.configuration.engaged)
+        return out
 
 
 def geometry_with_task_metric(av, J: np.ndarray, weights: float | np.ndarray) -> np.ndarray:
@@ -506,7 +521,11 @@ class Forcing:
     the distance is progress and the pull holds until stall_radius (stall_hold_keep: for good)
     (:mod:`tamedpuma.methods._stall`); stall_rotation_weight: s [1], the factor on ρ while such a
     pull, armed within stall_hold_radius, is on and the hand is outside stall_radius
-    (:meth:`task_weights`; 1: off)."""
+    (:meth:`task_weights`; 1: off); stall_configuration: ``off``, ``limits`` or ``always``, when
+    a joint-space attractor to a goal configuration replaces PUMA's rows after the stall pull
+    arms (with a joint within 0.1 rad of a limit, or at every arming), with gain
+    stall_configuration_gain [rad/s²], until the hand is within stall_configuration_release [m]
+    of the goal (:mod:`tamedpuma.methods._configuration_pull`)."""
 
     mode: str = "additive"
     weight: float = 100.0
@@ -532,6 +551,9 @@ class Forcing:
     stall_hold_radius: float = StallPull.hold_radius
     stall_hold_keep: bool = StallPull.hold_keep
     stall_rotation_weight: float = 1.0
+    stall_configuration: str = ConfigurationPull.mode
+    stall_configuration_gain: float = ConfigurationPull.gain
+    stall_configuration_release: float = ConfigurationPull.release
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -591,6 +613,15 @@ class Forcing:
         return Circulation(self.circulation, self.circulation_gain, self.weight,
                            self.circulation_onset)
 
+    def make_configuration_monitor(self, spec) -> ConfigurationMonitor | None:
+        """A fresh :class:`~tamedpuma.methods._configuration_pull.ConfigurationMonitor` for the
+        robot ``spec`` (None when ``stall_configuration`` is off or there is no stall pull)."""
+        if self.stall_configuration == "off" or self.stall_pull <= 0.0:
+            return None
+        return ConfigurationMonitor(ConfigurationPull(
+            mode=self.stall_configuration, gain=self.stall_configuration_gain,
+            release=self.stall_configuration_release), spec)
+
     def make_stall_monitor(self) -> StallMonitor | None:
         """A fresh :class:`~tamedpuma.methods._stall.StallMonitor` (None when ``stall_pull``
         is 0)."""
@@ -613,7 +644,9 @@ class Forcing:
                                      "stall_pull", "stall_window", "stall_progress",
                                      "stall_psi_progress", "stall_radius", "stall_ramp",
                                      "stall_release", "stall_hold_radius",
-                                     "stall_hold_keep", "stall_rotation_weight"})
+                                     "stall_hold_keep", "stall_rotation_weight",
+                                     "stall_configuration", "stall_configuration_gain",
+                                     "stall_configuration_release"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
@@ -644,6 +677,12 @@ class Forcing:
                 and 0 <= f.circulation_onset < 1):
             raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0, "
                               "circulation_onset in [0, 1)")
+        if f.stall_configuration not in CONFIGURATION_MODES:
+            raise ConfigError(f"method.forcing.stall_configuration must be one of "
+                              f"{CONFIGURATION_MODES}, got {f.stall_configuration!r}")
+        if not (f.stall_configuration_gain > 0 and f.stall_configuration_release >= 0):
+            raise ConfigError("method.forcing.stall_configuration_gain [rad/s²] must be > 0 and "
+                              "stall_configuration_release [m] ≥ 0")
         if not isinstance(f.stall_hold_keep, bool):
             raise ConfigError(f"method.forcing.stall_hold_keep must be true or false, "
                               f"got {f.stall_hold_keep!r}")

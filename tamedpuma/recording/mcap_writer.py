@@ -56,6 +56,8 @@ from foxglove.messages import (
     Vector3,
 )
 
+from tamedpuma.errors import LogExistsError
+
 from ..runlog import ACTIVE_SUFFIX, ATTACH_URDF, META_CONFIG, META_RUN_INFO, META_SUMMARY
 from .records import RunInfo, StepRecord
 
@@ -79,7 +81,9 @@ def prepare_output(path: Path, active: Path, overwrite: bool) -> None:
     replace an existing file unless ``overwrite``; create the parent folder."""
     for existing in (path, active):
         if existing.exists() and not overwrite:
-            raise FileExistsError(f"{existing} exists (pass overwrite=True to replace it)")
+            raise LogExistsError(f"{existing} exists (a run was already written there: choose "
+                                 f"another run folder, e.g. hydra.run.dir, or pass "
+                                 f"overwrite=True to replace it)")
     path.unlink(missing_ok=True)
     path.parent.mkdir(parents=True, exist_ok=True)
 

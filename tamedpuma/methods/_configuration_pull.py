@@ -1,0 +1,189 @@
+"""Configuration pull: when the stall pull arms with a joint at its limit, a joint-space
+attractor to a goal configuration takes the forcing over (``method.forcing.stall_configuration``;
+FPM and CPM only, off by default).
+
+Why. In the logs of the random scenarios (BENCHMARKS.md "Session 26") every FPM failure on
+seeds 31000-31049 ends with one to four joints on their limit barriers and the hand 0.2-0.5 m
+from the goal, turned 1.1-2.5 rad off the goal orientation. Random pouring ``anywhere`` 31007:
+the goal lies at an azimuth of −97°, the base starts at q₁ = 1.08 rad; PUMA's field, a
+task-space field pulled to the joints, turns the base the short way round and into its upper
+limit (2.95 rad at 4 s); from there the hand can come no nearer than 0.34 m (the base would
+have to turn on past its limit), and the task-space stall pull, which pulls the hand straight
+at the goal, presses the arm further into the same limits. The way out leads the hand away
+from the goal first (the base back through −4.6 rad), which no attractor in task space asks
+for: these rest points are made by the joint limits, whatever the forcing in task space.
+
+What. The joint-limit box is convex: the straight segment between two configurations inside
+the limits stays inside them, so an attractor in joint space has no rest point made by the
+limits. Once the stall pull (:mod:`tamedpuma.methods._stall`) has armed with a joint within
+``limit_band`` [rad] of a limit (``mode: limits``; ``always``: at every arming) and the hand
+farther than ``release`` [m] from the goal, a goal configuration q_g is chosen (an IK solution
+of the goal pose inside the limits by ``margin`` [rad], every body sphere clear of the
+obstacles and the ground, the one nearest to q; :func:`goal_configuration`), and PUMA's task
+rows are replaced by the joint-space spec
+
+    q̈_q = g (q_g − q) / max(‖q_g − q‖, ℓ) − k q̇,    k = 2√(g/ℓ)                 [rad/s²]
+
+(g = ``gain`` [rad/s²], ℓ = ``length`` [rad]: a critically damped attractor near q_g, a constant
+pull g beyond ℓ), pulled through the same avoidance metric with the task weight w on each joint
+row. It lets go once the hand is within ``release`` of the goal, and PUMA (with the stall pull
+still armed, as before) finishes the motion; it engages at most once per arming of the stall
+pull and re-chooses q_g when the goal has moved more than 2 cm.
+
+What holds. Safety never depended on the forcing: the barriers, the energization bound and the
+control-rate barrier step are unchanged, so the arm cannot be carried through an obstacle or a
+limit by it. Away from these stalls the forcing is PUMA's (and the stall pull's) to the bit, so
+FPM's statement (PUMA's zero set, once reached, kept) is unchanged; q_g puts the hand at the goal
+pose, PUMA's own rest point, so the attractor's rest point lies in PUMA's zero set. While it acts
+the hand's path is not PUMA's (the imitation is suspended where it had stopped delivering the
+goal); for CPM the regulator still watches PUMA's ψ, so the attractor steers CPM where its energy
+lets it rather than powering it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tamedpuma.methods._policy import TaskAcceleration
+from tamedpuma.robot.kinematics import Kinematics
+from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
+
+#: modes of ``method.forcing.stall_configuration``
+MODES = ("off", "limits", "always")
+#: [m] the goal may move this far before q_g is chosen again
+REPLAN_DISTANCE_M = 0.02
+
+
+@dataclass(frozen=True)
+class ConfigurationPull:
+    """Settings (``method.forcing.stall_configuration*``): mode (``off``, ``limits``,
+    ``always``), gain g [rad/s²], length ℓ [rad], limit_band [rad], release [m], margin [rad]
+    (q_g's distance from the limits), clearance [m] (q_g's body spheres from the obstacles),
+    restarts (random IK starts besides q)."""
+
+    mode: str = "off"
+    gain: float = 1.5
+    length: float = 0.3
+    limit_band: float = 0.1
+    release: float = 0.15
+    margin: float = 0.1
+    clearance: float = 0.02
+    restarts: int = 24
+
+
+def _pose_ik(kin: Kinematics, position: np.ndarray, goal_rot: np.ndarray, q: np.ndarray,
+             lo: np.ndarray, hi: np.ndarray, iterations: int = 200, damping: float = 0.05,
+             tolerance: float = 1e-4) -> tuple[np.ndarray, float]:
+    """Damped least squares on the pose error ``e = [p_g − p; log(R_g Rᵀ)]`` from q, clipped to
+    [lo, hi] each iteration, stopped at ‖e‖ < tolerance or once 20 iterations have not
+    reduced ‖e‖ by 1 % (stuck on the limits): (q, ‖e‖ at q)."""
+    zeros = np.zeros_like(q)
+    best, since = np.inf, 0
+    for _ in range(iterations):
+        state = kin.evaluate(q, zeros)
+        err = np.concatenate([position - state.ee_position,
+                              rotation_error(state.ee_rotation, goal_rot)])
+        norm = float(np.linalg.norm(err))
+        if norm < tolerance:
+            return q, norm
+        if norm < 0.99 * best:
+            best, since = norm, 0
+        else:
+            since += 1
+            if since >= 20:
+                return q, norm
+        jac = state.ee_jacobian
+        q = np.clip(q + jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(6), err), lo, hi)
+    p, rot = kin.ee_frame(q)
+    return q, float(np.linalg.norm(np.concatenate([position - p, rotation_error(rot, goal_rot)])))
+
+
+def goal_configuration(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
+                       q: np.ndarray, obstacle_centers: np.ndarray, obstacle_radii: np.ndarray,
+                       pull: ConfigurationPull, seed: int = 0) -> np.ndarray | None:
+    """The goal configuration q_g [rad] nearest to q (Euclidean in the joints) among IK
+    solutions of the goal pose (position [m], quaternion (x, y, z, w)) started from q and from
+    ``pull.restarts`` seeded random configurations: inside the limits by ``pull.margin``, the
+    pose within 1 mm / 0.01 rad, every body sphere ``pull.clearance`` clear of every obstacle
+    and of the ground (z = 0). None when no start gives one. Deterministic for a seed."""
+    spec = kin.spec
+    lo = np.asarray(spec.q_min, dtype=float) + pull.margin
+    hi = np.asarray(spec.q_max, dtype=float) - pull.margin
+    goal_rot = quat_to_matrix(np.asarray(quaternion, dtype=float))
+    position = np.asarray(position, dtype=float)
+    rng = np.random.default_rng(seed)
+    starts = [np.clip(np.asarray(q, dtype=float), lo, hi)]
+    starts += [rng.uniform(lo, hi) for _ in range(pull.restarts)]
+    centers = np.asarray(obstacle_centers, dtype=float).reshape(-1, 3)
+    radii = np.asarray(obstacle_radii, dtype=float).reshape(-1)
+    body_r = np.asarray(kin.sphere_radii, dtype=float)
+    best, best_d = None, np.inf
+    for start in starts:
+        qg, err = _pose_ik(kin, position, goal_rot, start, lo, hi)
+        if err > 1e-3:
+            continue
+        spheres = kin.sphere_centers(qg)
+        if np.any(spheres[:, 2] - body_r < pull.clearance):
+            continue
+        if len(radii):
+            gaps = (np.linalg.norm(spheres[:, None, :] - centers[None], axis=2)
+                    - body_r[:, None] - radii[None])
+            if gaps.min() < pull.clearance:
+                continue
+        d = float(np.linalg.norm(qg - q))
+        if d < best_d:
+            best, best_d = qg, d
+    return best
+
+
+class ConfigurationMonitor:
+    """The per-episode state of one :class:`ConfigurationPull`: q_g, the goal it was chosen
+    for, and which arming of the stall pull it serves."""
+
+    def __init__(self, pull: ConfigurationPull, spec):
+        self.pull = pull
+        self.kin = Kinematics(spec)  # its own pinocchio data: the controller's pass is kept
+        self.q_min = np.asarray(spec.q_min, dtype=float)
+        self.q_max = np.asarray(spec.q_max, dtype=float)
+        self.q_goal: np.ndarray | None = None
+        self.goal_for = np.full(3, np.nan)
+        self.served: float | None = None  # t_armed of the stall pull last engaged for
+        self.engaged = False
+
+    def _at_limit(self, q: np.ndarray) -> bool:
+        band = self.pull.limit_band
+        return bool(np.any(q - self.q_min < band) or np.any(self.q_max - q < band))
+
+    def applied(self, q: np.ndarray, qd: np.ndarray, distance: float, stall, obs,
+                task: TaskAcceleration) -> TaskAcceleration:
+        """``task``, or the joint-space spec (J = I) while the pull is engaged (see the
+        module). distance: the hand's distance to the goal [m]; stall: the
+        :class:`~tamedpuma.methods._stall.StallMonitor` (its ``t_armed``)."""
+        p = self.pull
+        if self.engaged and (distance <= p.release or stall is None or not stall.armed):
+            self.engaged = False
+        armed_at = None if stall is None else stall.t_armed
+        if (not self.engaged and armed_at is not None and armed_at != self.served
+                and distance > p.release and (p.mode == "always" or self._at_limit(q))):
+            self.served = armed_at
+            self._choose(q, obs)
+            self.engaged = self.q_goal is not None
+        if not self.engaged:
+            return task
+        if np.linalg.norm(np.asarray(obs.goal_position) - self.goal_for) > REPLAN_DISTANCE_M:
+            self._choose(q, obs)
+            if self.q_goal is None:
+                self.engaged = False
+                return task
+        e = self.q_goal - q
+        n = len(q)
+        acc = p.gain * e / max(float(np.linalg.norm(e)), p.length) \
+            - 2.0 * np.sqrt(p.gain / p.length) * qd
+        return TaskAcceleration(acc, np.eye(n), np.zeros(n))
+
+    def _choose(self, q: np.ndarray, obs) -> None:
+        self.goal_for = np.array(obs.goal_position, dtype=float)
+        self.q_goal = goal_configuration(self.kin, obs.goal_position, obs.goal_quaternion, q,
+                                         obs.obstacle_centers, obs.obstacle_radii, self.pull)

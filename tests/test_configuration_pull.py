@@ -1,0 +1,178 @@
+"""The configuration pull (``method.forcing.stall_configuration``,
+:mod:`tamedpuma.methods._configuration_pull`): its goal configuration, when it engages and lets
+go, and the joint-limit trap it removes, in PyBullet with FPM around a globally stable
+task-space pose attractor standing in for PUMA (no trained model needed)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import tamedpuma.methods._tamed as tamed
+from tamedpuma.app.config import load_group, start_options
+from tamedpuma.episode import run_episode
+from tamedpuma.errors import ConfigError
+from tamedpuma.methods import make
+from tamedpuma.methods._configuration_pull import (
+    ConfigurationMonitor,
+    ConfigurationPull,
+    goal_configuration,
+)
+from tamedpuma.methods._policy import PoseTask, TaskAcceleration
+from tamedpuma.methods._tamed import Forcing
+from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
+from tamedpuma.types import Obstacles
+from tamedpuma.worlds.bullet import Disturbance, SimConfig, Simulator
+from tamedpuma.worlds.scenarios import scenario_from_config
+
+PULL = ConfigurationPull(mode="limits")
+
+
+def _pose(kinematics, q):
+    p, rot = kinematics.ee_frame(q)
+    return p, rot
+
+
+def test_the_goal_configuration_reaches_the_pose_inside_the_limits_clear_of_everything(
+        kinematics):
+    spec = kinematics.spec
+    rng = np.random.default_rng(3)
+    found = 0
+    for _ in range(4):
+        target = rng.uniform(spec.q_min + 0.3, spec.q_max - 0.3)
+        p_goal, rot_goal = _pose(kinematics, target)
+        if p_goal[2] < 0.25:
+            continue
+        quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
+        q = rng.uniform(spec.q_min + 0.1, spec.q_max - 0.1)
+        obstacle = p_goal + np.array([0.0, 0.0, 0.25])  # 25 cm above the goal, r = 5 cm
+        qg = goal_configuration(kinematics, p_goal, quat, q, obstacle[None], np.array([0.05]),
+                                PULL)
+        assert qg is not None
+        found += 1
+        p, rot = _pose(kinematics, qg)
+        assert np.linalg.norm(p - p_goal) < 1e-3
+        assert np.linalg.norm(rotation_error(rot, rot_goal)) < 1e-3
+        assert np.all(qg >= spec.q_min + PULL.margin - 1e-12)
+        assert np.all(qg <= spec.q_max - PULL.margin + 1e-12)
+        spheres = kinematics.sphere_centers(qg)
+        radii = np.asarray(kinematics.sphere_radii)
+        gaps = np.linalg.norm(spheres - obstacle, axis=1) - radii - 0.05
+        assert gaps.min() >= PULL.clearance
+        assert np.all(spheres[:, 2] - radii >= PULL.clearance)
+        # deterministic, and no farther from q than the solution started from q alone
+        again = goal_configuration(kinematics, p_goal, quat, q, obstacle[None],
+                                   np.array([0.05]), PULL)
+        np.testing.assert_array_equal(qg, again)
+        local = goal_configuration(kinematics, p_goal, quat, q, obstacle[None],
+                                   np.array([0.05]), replace(PULL, restarts=0))
+        if local is not None:
+            assert np.linalg.norm(qg - q) <= np.linalg.norm(local - q) + 1e-12
+    assert found >= 2
+
+
+def test_an_unreachable_pose_gives_no_goal_configuration(kinematics):
+    quat = np.array([0.0, 0.0, 0.0, 1.0])
+    assert goal_configuration(kinematics, np.array([3.0, 0.0, 0.5]), quat, np.zeros(7),
+                              np.zeros((0, 3)), np.zeros(0), replace(PULL, restarts=2)) is None
+
+
+def _stall(t_armed, distance):
+    return SimpleNamespace(t_armed=t_armed, armed=t_armed is not None, distance=distance)
+
+
+def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go_near_the_goal(
+        kinematics):
+    spec = kinematics.spec
+    q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
+    p_goal, _ = _pose(kinematics, q_goal)
+    quat = kinematics.evaluate(q_goal, np.zeros(7)).ee_quaternion
+    obs = SimpleNamespace(goal_position=p_goal, goal_quaternion=quat,
+                          obstacle_centers=np.zeros((0, 3)), obstacle_radii=np.zeros(0))
+    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    monitor = ConfigurationMonitor(PULL, spec)
+    free = np.array([1.0, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])  # no joint within 0.1 rad of a limit
+    at_limit = free.copy()
+    at_limit[0] = spec.q_max[0] - 0.05
+    qd = np.zeros(7)
+    assert monitor.applied(at_limit, qd, 0.5, _stall(None, 0.5), obs, task) is task  # not armed
+    assert monitor.applied(free, qd, 0.5, _stall(3.0, 0.5), obs, task) is task  # no limit
+    monitor = ConfigurationMonitor(PULL, spec)
+    spec_q = monitor.applied(at_limit, qd, 0.5, _stall(3.0, 0.5), obs, task)
+    assert monitor.engaged and spec_q is not task
+    np.testing.assert_array_equal(spec_q.J, np.eye(7))
+    # at rest the attractor points at q_g with the constant pull g beyond ℓ
+    e = monitor.q_goal - at_limit
+    assert spec_q.xdd @ e > 0
+    assert np.linalg.norm(spec_q.xdd) == pytest.approx(PULL.gain)
+    # the same arming with the hand at the release distance: let go, and not again for it
+    assert monitor.applied(at_limit, qd, PULL.release, _stall(3.0, 0.15), obs, task) is task
+    assert monitor.applied(at_limit, qd, 0.5, _stall(3.0, 0.5), obs, task) is task
+    # a new arming engages again; ``always`` needs no limit
+    assert monitor.applied(at_limit, qd, 0.5, _stall(9.0, 0.5), obs, task) is not task
+    always = ConfigurationMonitor(replace(PULL, mode="always"), spec)
+    assert always.applied(free, qd, 0.5, _stall(3.0, 0.5), obs, task) is not task
+
+
+@pytest.mark.parametrize("bad", [{"stall_configuration": "sometimes"},
+                                 {"stall_configuration_gain": 0.0},
+                                 {"stall_configuration_release": -1.0}])
+def test_bad_configuration_pull_settings_are_refused(bad):
+    with pytest.raises(ConfigError, match="stall_configuration"):
+        Forcing.from_mapping(bad)
+
+
+def test_without_the_stall_pull_or_switched_off_there_is_no_monitor(robot_spec):
+    assert Forcing(stall_pull=1.5).make_configuration_monitor(robot_spec) is None
+    assert Forcing(stall_pull=0.0, stall_configuration="limits"
+                   ).make_configuration_monitor(robot_spec) is None
+    assert Forcing(stall_pull=1.5, stall_configuration="limits"
+                   ).make_configuration_monitor(robot_spec) is not None
+
+
+class StablePose:
+    """ẍ = (p_g − p) − 2v, α̇ = log(R_g Rᵀ) − 2ω, ψ = ½‖p_g − p‖² + ½‖log(R_g Rᵀ)‖²: a
+    globally stable pose attractor in task space with a potential (the stall pull watches ψ)."""
+
+    def acceleration(self, p, quat, v, omega, goal_p, goal_quat):
+        err = rotation_error(quat_to_matrix(quat), quat_to_matrix(goal_quat))
+        return np.asarray(goal_p) - p - 2.0 * np.asarray(v), err - 2.0 * np.asarray(omega)
+
+    def potential(self, p, quat, goal_p, goal_quat):
+        e = np.asarray(goal_p) - p
+        r = rotation_error(quat_to_matrix(quat), quat_to_matrix(goal_quat))
+        return 0.5 * e @ e + 0.5 * r @ r, -e, -r
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("q1", [2.2, 2.6])
+def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_it(
+        robot_spec, kinematics, monkeypatch, q1):
+    """The pouring goal lies at an azimuth of −97°; the arm starts reaching out at q₁ = q1
+    (126-149°): the straight task-space way round turns the base into its upper limit
+    (2.97 rad), the way out leads the hand away from the goal first."""
+    monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
+    task = load_group("task", "pouring")
+    cfg = load_group("scenario", "default")
+    cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
+    scenario = scenario_from_config(cfg, robot_spec, task="pouring", **start_options())
+    scenario = replace(scenario, q0=np.array([q1, 0.6, 0.0, -1.2, 0.0, 0.6, 0.0]),
+                       obstacles=Obstacles(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))))
+    method = {**load_group("method", "puma"), **load_group("method", "fpm")}
+    method.pop("defaults")
+    method["fabric"] = load_group("fabric", "default")
+    results = {}
+    for mode in ("off", "limits"):
+        method["forcing"] = {**method["forcing"], "stall_configuration": mode}
+        with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
+            run = run_episode(scenario, make("fpm", method, kinematics), world)
+        results[mode] = run
+    trapped, freed = results["off"].metrics, results["limits"].metrics
+    assert not trapped.success_paper and trapped.final_position_error_m > 0.3
+    q = results["off"].q
+    assert q[:, 0].max() > robot_spec.q_max[0] - 0.05  # the base on its limit
+    assert freed.success_whole_body, freed.failure_whole_body
+    assert results["limits"].q[:, 0].max() <= robot_spec.q_max[0]
