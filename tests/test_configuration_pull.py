@@ -90,7 +90,7 @@ def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go
     q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
     p_goal, _ = _pose(kinematics, q_goal)
     quat = kinematics.evaluate(q_goal, np.zeros(7)).ee_quaternion
-    obs = SimpleNamespace(goal_position=p_goal, goal_quaternion=quat,
+    obs = SimpleNamespace(t=0.0, goal_position=p_goal, goal_quaternion=quat,
                           obstacle_centers=np.zeros((0, 3)), obstacle_radii=np.zeros(0))
     task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
     monitor = ConfigurationMonitor(PULL, spec)

@@ -19,15 +19,19 @@ limits. Once the stall pull (:mod:`tamedpuma.methods._stall`) has armed with a j
 ``limit_band`` [rad] of a limit (``mode: limits``; ``always``: at every arming) and the hand
 farther than ``release`` [m] from the goal, a goal configuration q_g is chosen (an IK solution
 of the goal pose inside the limits by ``margin`` [rad], every body sphere clear of the
-obstacles and the ground, the one nearest to q; :func:`goal_configuration`), and PUMA's task
-rows are replaced by the joint-space spec
+obstacles and the ground, the straight joint-space segment from q to it clear of the obstacles
+where they are now, the one nearest to q; :func:`goal_configuration`; none such: nothing
+changes), and PUMA's task rows are replaced by the joint-space spec
 
     q̈_q = g (q_g − q) / max(‖q_g − q‖, ℓ) − k q̇,    k = 2√(g/ℓ)                 [rad/s²]
 
 (g = ``gain`` [rad/s²], ℓ = ``length`` [rad]: a critically damped attractor near q_g, a constant
 pull g beyond ℓ), pulled through the same avoidance metric with the task weight w on each joint
 row. It lets go once the hand is within ``release`` of the goal, and PUMA (with the stall pull
-still armed, as before) finishes the motion; it engages at most once per arming of the stall
+still armed, as before) finishes the motion, or once ‖q − q_g‖ has not fallen by ``progress``
+[rad] for ``window`` [s] (a barrier holds the attractor: a moving obstacle on the segment; the
+first form, without the segment check, rested 18 s against an obstacle in random pouring
+``near_table1`` 31039); it engages at most once per arming of the stall
 pull and re-chooses q_g when the goal has moved more than 2 cm.
 
 What holds. Safety never depended on the forcing: the barriers, the energization bound and the
@@ -61,7 +65,8 @@ class ConfigurationPull:
     """Settings (``method.forcing.stall_configuration*``): mode (``off``, ``limits``,
     ``always``), gain g [rad/s²], length ℓ [rad], limit_band [rad], release [m], margin [rad]
     (q_g's distance from the limits), clearance [m] (q_g's body spheres from the obstacles),
-    restarts (random IK starts besides q)."""
+    restarts (random IK starts besides q), window [s] and progress [rad] (let go when ‖q − q_g‖
+    has not fallen by ``progress`` for ``window``)."""
 
     mode: str = "off"
     gain: float = 1.5
@@ -71,6 +76,8 @@ class ConfigurationPull:
     margin: float = 0.1
     clearance: float = 0.02
     restarts: int = 24
+    window: float = 2.0
+    progress: float = 0.05
 
 
 def _pose_ik(kin: Kinematics, position: np.ndarray, goal_rot: np.ndarray, q: np.ndarray,
@@ -133,9 +140,25 @@ def goal_configuration(kin: Kinematics, position: np.ndarray, quaternion: np.nda
             if gaps.min() < pull.clearance:
                 continue
         d = float(np.linalg.norm(qg - q))
-        if d < best_d:
+        if d < best_d and _segment_clear(kin, q, qg, centers, radii, body_r):
             best, best_d = qg, d
     return best
+
+
+def _segment_clear(kin: Kinematics, q: np.ndarray, qg: np.ndarray, centers: np.ndarray,
+                   radii: np.ndarray, body_r: np.ndarray, step: float = 0.05) -> bool:
+    """Whether the straight joint-space segment q → q_g keeps every body sphere out of every
+    (current) obstacle: sampled every ``step`` [rad] of the largest joint's travel."""
+    if not len(radii):
+        return True
+    n = int(np.ceil(np.abs(qg - q).max() / step)) + 1
+    for s in np.linspace(0.0, 1.0, n + 1)[1:]:
+        spheres = kin.sphere_centers(q + s * (qg - q))
+        gaps = (np.linalg.norm(spheres[:, None, :] - centers[None], axis=2)
+                - body_r[:, None] - radii[None])
+        if gaps.min() < 0.0:
+            return False
+    return True
 
 
 class ConfigurationMonitor:
@@ -151,6 +174,8 @@ class ConfigurationMonitor:
         self.goal_for = np.full(3, np.nan)
         self.served: float | None = None  # t_armed of the stall pull last engaged for
         self.engaged = False
+        self.best = np.inf  # the least ‖q − q_g‖ while engaged [rad], and when it was reached
+        self.t_best = -np.inf
 
     def _at_limit(self, q: np.ndarray) -> bool:
         band = self.pull.limit_band
@@ -162,7 +187,8 @@ class ConfigurationMonitor:
         module). distance: the hand's distance to the goal [m]; stall: the
         :class:`~tamedpuma.methods._stall.StallMonitor` (its ``t_armed``)."""
         p = self.pull
-        if self.engaged and (distance <= p.release or stall is None or not stall.armed):
+        if self.engaged and (distance <= p.release or stall is None or not stall.armed
+                             or self._stuck(q, obs.t)):
             self.engaged = False
         armed_at = None if stall is None else stall.t_armed
         if (not self.engaged and armed_at is not None and armed_at != self.served
@@ -170,10 +196,12 @@ class ConfigurationMonitor:
             self.served = armed_at
             self._choose(q, obs)
             self.engaged = self.q_goal is not None
+            self.best, self.t_best = np.inf, obs.t
         if not self.engaged:
             return task
         if np.linalg.norm(np.asarray(obs.goal_position) - self.goal_for) > REPLAN_DISTANCE_M:
             self._choose(q, obs)
+            self.best, self.t_best = np.inf, obs.t
             if self.q_goal is None:
                 self.engaged = False
                 return task
@@ -182,6 +210,14 @@ class ConfigurationMonitor:
         acc = p.gain * e / max(float(np.linalg.norm(e)), p.length) \
             - 2.0 * np.sqrt(p.gain / p.length) * qd
         return TaskAcceleration(acc, np.eye(n), np.zeros(n))
+
+    def _stuck(self, q: np.ndarray, t: float) -> bool:
+        """No progress towards q_g: ‖q − q_g‖ has not fallen by ``progress`` [rad] below its
+        least value for ``window`` [s] (the attractor held by a barrier: let go)."""
+        d = float(np.linalg.norm(self.q_goal - q))
+        if d < self.best - self.pull.progress:
+            self.best, self.t_best = d, t
+        return t - self.t_best >= self.pull.window
 
     def _choose(self, q: np.ndarray, obs) -> None:
         self.goal_for = np.array(obs.goal_position, dtype=float)
