@@ -117,6 +117,43 @@ def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go
     assert always.applied(free, qd, 0.5, _stall(3.0, 0.5), obs, task) is not task
 
 
+def test_a_goal_configuration_behind_an_obstacle_on_the_straight_segment_is_not_chosen(
+        kinematics):
+    from tamedpuma.methods._configuration_pull import _segment_clear
+    q = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
+    target = np.array([0.7, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])  # the base turned 1.2 rad
+    p_goal, _ = _pose(kinematics, target)
+    quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
+    free = goal_configuration(kinematics, p_goal, quat, q, np.zeros((0, 3)), np.zeros(0), PULL)
+    assert free is not None
+    # an obstacle where the hand passes half way along that segment, clear of both ends
+    middle = kinematics.sphere_centers(0.5 * (q + free))[-1]
+    centers, radii = middle[None], np.array([0.05])
+    radii_body = np.asarray(kinematics.sphere_radii)
+    assert not _segment_clear(kinematics, q, free, centers, radii, radii_body)
+    chosen = goal_configuration(kinematics, p_goal, quat, q, centers, radii, PULL)
+    if chosen is not None:  # another solution, reached along a clear segment
+        assert _segment_clear(kinematics, q, chosen, centers, radii, radii_body)
+        assert not np.allclose(chosen, free)
+
+
+def test_the_monitor_lets_go_when_the_attractor_makes_no_progress(kinematics):
+    spec = kinematics.spec
+    q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
+    p_goal, _ = _pose(kinematics, q_goal)
+    quat = kinematics.evaluate(q_goal, np.zeros(7)).ee_quaternion
+    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    q = np.array([spec.q_max[0] - 0.05, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])
+    monitor = ConfigurationMonitor(PULL, spec)
+    for t in np.arange(0.0, PULL.window - 0.05, 0.1):  # held where it is: engaged for a window
+        obs = SimpleNamespace(t=t, goal_position=p_goal, goal_quaternion=quat,
+                              obstacle_centers=np.zeros((0, 3)), obstacle_radii=np.zeros(0))
+        assert monitor.applied(q, np.zeros(7), 0.5, _stall(0.0, 0.5), obs, task) is not task
+    obs.t = PULL.window + 0.15  # the window counts from the first step engaged (t = 0.1)
+    assert monitor.applied(q, np.zeros(7), 0.5, _stall(0.0, 0.5), obs, task) is task
+    assert not monitor.engaged
+
+
 @pytest.mark.parametrize("bad", [{"stall_configuration": "sometimes"},
                                  {"stall_configuration_gain": 0.0},
                                  {"stall_configuration_release": -1.0}])
