@@ -54,6 +54,9 @@ energized as before, so dH/dt = −β‖q̇‖² holds unchanged.
 attractor added to PUMA's position rows while the hand has stopped approaching the goal. It is
 part of f_θ^C, whose power along q̇ energization takes away, so dH/dt = −β q̇ᵀMq̇ holds with it as
 without it: the pull steers CPM out of the direction it was pressing into a barrier.
+``forcing.stall_configuration`` (:mod:`tamedpuma.methods._configuration_pull`): the same holds
+for the joint-space attractor that replaces PUMA's rows after such a stall with a joint at a
+limit; it too is part of f_θ^C, so it steers CPM where its energy lets it.
 
 ``eps`` ε [(rad/s)²]: the regulariser of the energization and regulator denominators
 ``q̇ᵀMq̇ + ε``. Below the speed √ε both fade out and the law becomes ``h + f_θ^C − β q̇``, PUMA's

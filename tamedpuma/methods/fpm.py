@@ -69,6 +69,13 @@ Table 1"), and which of the paper's statements still holds with it:
   forcing is PUMA's to the bit, so the statement above holds there;
   while armed the rest set is that of PUMA's forcing plus a convex attractor to the same goal,
   which no longer contains the stall point unless the barriers hold the attractor too.
+- ``forcing.stall_configuration: limits`` (:mod:`tamedpuma.methods._configuration_pull`): when
+  the stall pull arms with a joint within 0.1 rad of a limit, a joint-space attractor to the
+  nearest IK solution of the goal pose (inside the limits, clear, reached along a clear straight
+  segment) replaces PUMA's rows until the hand is within 0.15 m of the goal or the attractor
+  stops making progress. The limit box is convex, so it has no rest point made by the limits;
+  its own rest point is the goal pose, in PUMA's zero set, and elsewhere the forcing is as
+  above, so the statement holds; the path is not PUMA's while it acts.
 - ``energization: bounded`` (α ≥ −alpha_bound) only adds damping; ``control_rate`` filters only
   remove energy (:mod:`tamedpuma.fabrics.discrete`); ``limit_margin`` moves the joint-limit
   barriers inside the real limits.
