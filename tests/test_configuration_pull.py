@@ -31,11 +31,6 @@ from tamedpuma.worlds.scenarios import scenario_from_config
 PULL = ConfigurationPull(mode="limits")
 
 
-def _pose(kinematics, q):
-    p, rot = kinematics.ee_frame(q)
-    return p, rot
-
-
 def test_the_goal_configuration_reaches_the_pose_inside_the_limits_clear_of_everything(
         kinematics):
     spec = kinematics.spec
@@ -43,7 +38,7 @@ def test_the_goal_configuration_reaches_the_pose_inside_the_limits_clear_of_ever
     found = 0
     for _ in range(4):
         target = rng.uniform(spec.q_min + 0.3, spec.q_max - 0.3)
-        p_goal, rot_goal = _pose(kinematics, target)
+        p_goal, rot_goal = kinematics.ee_frame(target)
         if p_goal[2] < 0.25:
             continue
         quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
@@ -53,7 +48,7 @@ def test_the_goal_configuration_reaches_the_pose_inside_the_limits_clear_of_ever
                                 PULL)
         assert qg is not None
         found += 1
-        p, rot = _pose(kinematics, qg)
+        p, rot = kinematics.ee_frame(qg)
         assert np.linalg.norm(p - p_goal) < 1e-3
         assert np.linalg.norm(rotation_error(rot, rot_goal)) < 1e-3
         assert np.all(qg >= spec.q_min + PULL.margin - 1e-12)
@@ -88,7 +83,7 @@ def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go
         kinematics):
     spec = kinematics.spec
     q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
-    p_goal, _ = _pose(kinematics, q_goal)
+    p_goal, _ = kinematics.ee_frame(q_goal)
     quat = kinematics.evaluate(q_goal, np.zeros(7)).ee_quaternion
     obs = SimpleNamespace(t=0.0, goal_position=p_goal, goal_quaternion=quat,
                           obstacle_centers=np.zeros((0, 3)), obstacle_radii=np.zeros(0))
@@ -122,7 +117,7 @@ def test_a_goal_configuration_behind_an_obstacle_on_the_straight_segment_is_not_
     from tamedpuma.methods._configuration_pull import _segment_clear
     q = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
     target = np.array([0.7, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])  # the base turned 1.2 rad
-    p_goal, _ = _pose(kinematics, target)
+    p_goal, _ = kinematics.ee_frame(target)
     quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
     free = goal_configuration(kinematics, p_goal, quat, q, np.zeros((0, 3)), np.zeros(0), PULL)
     assert free is not None
@@ -140,7 +135,7 @@ def test_a_goal_configuration_behind_an_obstacle_on_the_straight_segment_is_not_
 def test_the_monitor_lets_go_when_the_attractor_makes_no_progress(kinematics):
     spec = kinematics.spec
     q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
-    p_goal, _ = _pose(kinematics, q_goal)
+    p_goal, _ = kinematics.ee_frame(q_goal)
     quat = kinematics.evaluate(q_goal, np.zeros(7)).ee_quaternion
     task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
     q = np.array([spec.q_max[0] - 0.05, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])

@@ -51,8 +51,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from tamedpuma.methods._policy import TaskAcceleration
+from tamedpuma.robot.ik import pose_dls
 from tamedpuma.robot.kinematics import Kinematics
-from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
+from tamedpuma.robot.rotations import quat_to_matrix
 
 #: modes of ``method.forcing.stall_configuration``
 MODES = ("off", "limits", "always")
@@ -80,33 +81,6 @@ class ConfigurationPull:
     progress: float = 0.05
 
 
-def _pose_ik(kin: Kinematics, position: np.ndarray, goal_rot: np.ndarray, q: np.ndarray,
-             lo: np.ndarray, hi: np.ndarray, iterations: int = 200, damping: float = 0.05,
-             tolerance: float = 1e-4) -> tuple[np.ndarray, float]:
-    """Damped least squares on the pose error ``e = [p_g − p; log(R_g Rᵀ)]`` from q, clipped to
-    [lo, hi] each iteration, stopped at ‖e‖ < tolerance or once 20 iterations have not
-    reduced ‖e‖ by 1 % (stuck on the limits): (q, ‖e‖ at q)."""
-    zeros = np.zeros_like(q)
-    best, since = np.inf, 0
-    for _ in range(iterations):
-        state = kin.evaluate(q, zeros)
-        err = np.concatenate([position - state.ee_position,
-                              rotation_error(state.ee_rotation, goal_rot)])
-        norm = float(np.linalg.norm(err))
-        if norm < tolerance:
-            return q, norm
-        if norm < 0.99 * best:
-            best, since = norm, 0
-        else:
-            since += 1
-            if since >= 20:
-                return q, norm
-        jac = state.ee_jacobian
-        q = np.clip(q + jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(6), err), lo, hi)
-    p, rot = kin.ee_frame(q)
-    return q, float(np.linalg.norm(np.concatenate([position - p, rotation_error(rot, goal_rot)])))
-
-
 def goal_configuration(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
                        q: np.ndarray, obstacle_centers: np.ndarray, obstacle_radii: np.ndarray,
                        pull: ConfigurationPull, seed: int = 0) -> np.ndarray | None:
@@ -128,8 +102,9 @@ def goal_configuration(kin: Kinematics, position: np.ndarray, quaternion: np.nda
     body_r = np.asarray(kin.sphere_radii, dtype=float)
     best, best_d = None, np.inf
     for start in starts:
-        qg, err = _pose_ik(kin, position, goal_rot, start, lo, hi)
-        if err > 1e-3:
+        qg, err, _ = pose_dls(kin, position, goal_rot, start, lo, hi, damping=0.05,
+                              tolerance=1e-4, max_iterations=200, patience=20)
+        if np.linalg.norm(err) > 1e-3:
             continue
         spheres = kin.sphere_centers(qg)
         if np.any(spheres[:, 2] - body_r < pull.clearance):
@@ -187,10 +162,9 @@ class ConfigurationMonitor:
         module). distance: the hand's distance to the goal [m]; stall: the
         :class:`~tamedpuma.methods._stall.StallMonitor` (its ``t_armed``)."""
         p = self.pull
-        if self.engaged and (distance <= p.release or stall is None or not stall.armed
-                             or self._stuck(q, obs.t)):
+        if self.engaged and (distance <= p.release or not stall.armed or self._stuck(q, obs.t)):
             self.engaged = False
-        armed_at = None if stall is None else stall.t_armed
+        armed_at = stall.t_armed
         if (not self.engaged and armed_at is not None and armed_at != self.served
                 and distance > p.release and (p.mode == "always" or self._at_limit(q))):
             self.served = armed_at

@@ -25,16 +25,31 @@ class PoseIKSolution:
     converged: bool
 
 
-def _dls(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tolerance, max_iterations):
+def pose_dls(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tolerance,
+             max_iterations,
+             patience: int = 0):
+    """Damped least squares on the pose error from q, clipped to [lo, hi] (the module's
+    iteration), until ‖e‖ < tolerance, ``max_iterations``, or, with ``patience`` > 0, once that
+    many iterations have not reduced ‖e‖ by 1 % (stuck on the limits): (q, e, iterations); e is
+    the error at the last q evaluated."""
     zeros = np.zeros(kin.spec.dof)
     err = np.full(6, np.inf)
+    best, since = np.inf, 0
     it = 0
     for it in range(1, max_iterations + 1):  # noqa: B007 (count returned)
         state = kin.evaluate(q, zeros)
         err = np.concatenate([position - state.ee_position,
                               rotation_error(state.ee_rotation, goal_rot)])
-        if np.linalg.norm(err) < tolerance:
+        norm = np.linalg.norm(err)
+        if norm < tolerance:
             break
+        if patience > 0:
+            if norm < 0.99 * best:
+                best, since = norm, 0
+            else:
+                since += 1
+                if since >= patience:
+                    break
         jac = state.ee_jacobian
         step = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(6), err)
         q = np.clip(q + step, lo, hi)
@@ -61,7 +76,7 @@ def solve_pose_ik(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
     best = None
     total = 0
     for start in starts:
-        q, err, it = _dls(kin, position, goal_rot, start, lo, hi, damping, tolerance,
+        q, err, it = pose_dls(kin, position, goal_rot, start, lo, hi, damping, tolerance,
                           max_iterations)
         total += it
         if best is None or np.linalg.norm(err) < np.linalg.norm(best[1]):
