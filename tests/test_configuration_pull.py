@@ -149,6 +149,32 @@ def test_the_monitor_lets_go_when_the_attractor_makes_no_progress(kinematics):
     assert not monitor.engaged
 
 
+def test_the_attractor_potential_is_the_pull_s_own_by_finite_differences(kinematics):
+    """φ = g ρ_ℓ(‖q − q_g‖) (Huber): ∂φ/∂q by central differences on both sides of ℓ, and at
+    rest −∂φ/∂q is the attractor's acceleration; φ is 0 at q_g and continuous at ℓ."""
+    spec = kinematics.spec
+    monitor = ConfigurationMonitor(PULL, spec)
+    monitor.q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
+    rng = np.random.default_rng(5)
+    for scale in (0.05, 0.2, 0.5, 2.0):  # inside and beyond ℓ = 0.3 rad
+        direction = rng.normal(size=7)
+        q = monitor.q_goal + scale * direction / np.linalg.norm(direction)
+        phi, grad = monitor.potential(q)
+        h = 1e-6
+        fd = np.array([(monitor.potential(q + h * e)[0] - monitor.potential(q - h * e)[0])
+                       / (2 * h) for e in np.eye(7)])
+        np.testing.assert_allclose(grad, fd, atol=1e-7)
+        err = monitor.q_goal - q
+        pull = PULL.gain * err / max(np.linalg.norm(err), PULL.length)
+        np.testing.assert_allclose(-grad, pull, atol=1e-12)
+        assert phi > 0.0
+    assert monitor.potential(monitor.q_goal)[0] == 0.0
+    u = np.eye(7)[0]
+    below = monitor.potential(monitor.q_goal + (PULL.length - 1e-9) * u)[0]
+    above = monitor.potential(monitor.q_goal + (PULL.length + 1e-9) * u)[0]
+    assert below == pytest.approx(above, abs=1e-8)
+
+
 @pytest.mark.parametrize("bad", [{"stall_configuration": "sometimes"},
                                  {"stall_configuration_gain": 0.0},
                                  {"stall_configuration_release": -1.0}])
@@ -208,3 +234,52 @@ def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_i
     assert q[:, 0].max() > robot_spec.q_max[0] - 0.05  # the base on its limit
     assert freed.success_whole_body, freed.failure_whole_body
     assert results["limits"].q[:, 0].max() <= robot_spec.q_max[0]
+
+
+@pytest.mark.slow
+def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
+        robot_spec, kinematics, monkeypatch):
+    """CPM in the trap above (q₁ = 2.2 rad) with the configuration pull and
+    ``configuration_potential: attractor``: while the pull acts, the regulator watches the
+    attractor's φ, whose total energy ½‖q̇‖² + φ does not rise (CPM's dH/dt ≤ −β‖q̇‖²
+    with H on φ), and the arm reaches the goal."""
+    monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
+    task = load_group("task", "pouring")
+    cfg = load_group("scenario", "default")
+    cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
+    scenario = scenario_from_config(cfg, robot_spec, task="pouring", **start_options())
+    # 60 s: CPM creeps along the limit for 22 s before the stall pull arms, and the way out is
+    # 8 rad of joint travel at the attractor's cruise speed g/k = 0.34 rad/s
+    scenario = replace(scenario, q0=np.array([2.2, 0.6, 0.0, -1.2, 0.0, 0.6, 0.0]),
+                       obstacles=Obstacles(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))),
+                       max_steps=3000)
+    method = {**load_group("method", "puma"), **load_group("method", "cpm")}
+    method.pop("defaults")
+    method["fabric"] = load_group("fabric", "default")
+    method["forcing"] = {**method["forcing"], "stall_configuration": "limits"}
+    method["configuration_potential"] = "attractor"
+    scalars = _Scalars()
+    with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
+        run = run_episode(scenario, make("cpm", method, kinematics), world, [scalars])
+    assert run.metrics.success_whole_body, run.metrics.failure_whole_body
+    on = np.array([s["potential_attractor"] for s in scalars.rows]) > 0
+    energy = np.array([s["energy_total"] for s in scalars.rows])
+    assert on.sum() > 50  # it acted for at least a second
+    steps = np.flatnonzero(on[1:] & on[:-1]) + 1  # consecutive steps on the same potential
+    assert np.max(energy[steps] - energy[steps - 1]) < 1e-3
+
+
+class _Scalars:
+    """A recorder keeping every step's controller scalars."""
+
+    def __init__(self):
+        self.rows = []
+
+    def open(self, info):
+        pass
+
+    def write(self, rec):
+        self.rows.append(dict(rec.scalars))
+
+    def close(self, complete, summary):
+        pass

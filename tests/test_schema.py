@@ -192,6 +192,11 @@ def test_a_value_out_of_range_is_refused(hydra_conf, override, match):
     ("method.damping=soft", r"method\.damping must be constant or matched or matched_forcing"),
     ("method.fabric.goal_weight=-1", r"fabric\.goal_weight"),
     ("method.fabric.obstacle.energy_gain=0", r"energy_gain must be positive"),
+    ("method.configuration_potential=psi", r"method\.configuration_potential must be puma or "
+                                           r"attractor"),
+    ("method.forcing.stall_configuration_length=0", r"stall_configuration_gain \[rad/s²\] and "
+                                                   r"_length"),
+    ("method.forcing.stall_configuration_clearance=-1", r"_clearance \[m\] ≥ 0"),
 ])
 def test_a_method_value_out_of_range_is_refused(hydra_conf, override, match):
     with pytest.raises(ConfigError, match=match):

@@ -454,9 +454,14 @@ class CpmMethod(FpmMethod):
     tank_clearance: float = math.inf  # [m] the tank pays only while a body sphere is this close
     #                                   to an obstacle (inf: anywhere)
     tank_limit_clearance: float = 0.0  # [rad] ... or a joint this close to its limit
+    configuration_potential: str = "attractor"  # the regulator's potential while the
+    #                               configuration pull acts: attractor (its own φ) | puma (ψ)
 
     def __post_init__(self):
         super().__post_init__()
+        _check(self.configuration_potential in ("puma", "attractor"),
+               "method.configuration_potential", "puma or attractor",
+               self.configuration_potential)
         _check(self.variant in CPM_VARIANTS, "method.variant", " or ".join(CPM_VARIANTS),
                self.variant)
         _check(self.damping in CPM_DAMPINGS, "method.damping", " or ".join(CPM_DAMPINGS),

@@ -40,8 +40,24 @@ limit by it. Away from these stalls the forcing is PUMA's (and the stall pull's)
 FPM's statement (PUMA's zero set, once reached, kept) is unchanged; q_g puts the hand at the goal
 pose, PUMA's own rest point, so the attractor's rest point lies in PUMA's zero set. While it acts
 the hand's path is not PUMA's (the imitation is suspended where it had stopped delivering the
-goal); for CPM the regulator still watches PUMA's ψ, so the attractor steers CPM where its energy
-lets it rather than powering it.
+goal).
+
+CPM. With ``method.configuration_potential: puma`` CPM's regulator still watches PUMA's ψ while the
+attractor acts, and the way out of these stalls climbs ψ (the hand first moves away from the goal):
+the regulator brakes it, and the arm crawls at the speed √ε below which the regulator fades
+(random pouring ``anywhere`` 41023: 0.53 → 0.80 m in 26 s). With ``attractor`` the regulator
+watches the attractor's own potential φ (:meth:`ConfigurationMonitor.potential`) while it acts:
+−∂φ/∂q is the attractor's pull, so φ is compatible with it, and CPM's law on φ gives
+``dH_φ/dt ≤ −β‖q̇‖²`` with ``H_φ = ½‖q̇‖² + φ`` during the engagement (in free space CPM then
+follows the attractor exactly: its own damping k ≥ β dissipates enough). H switches between the
+ψ and φ forms at engagement and release; CPM's convergence argument holds on every interval on
+one potential, and from the last switch on, ψ's: the statement needs finitely many engagements
+(each needs a new arming of the stall pull, i.e. 2 s without progress, and a joint at a limit).
+
+Gains: g and ℓ set the attractor's cruise speed far from q_g, g/k = √(gℓ)/2 [rad/s]; with the
+first values (g = 1.5, ℓ = 0.3: 0.34 rad/s) the 4-8 rad of joint travel some ways out need took
+12-24 s of the 40 s run, and runs engaged after 20 s ran out of time on the way (random tomato
+``anywhere`` 41015, 41025 with CPM; BENCHMARKS.md "Session 27").
 """
 
 from __future__ import annotations
@@ -70,12 +86,12 @@ class ConfigurationPull:
     has not fallen by ``progress`` for ``window``)."""
 
     mode: str = "off"
-    gain: float = 1.5
-    length: float = 0.3
+    gain: float = 4.0
+    length: float = 1.0
     limit_band: float = 0.1
     release: float = 0.15
     margin: float = 0.1
-    clearance: float = 0.02
+    clearance: float = 0.01
     restarts: int = 24
     window: float = 2.0
     progress: float = 0.05
@@ -184,6 +200,21 @@ class ConfigurationMonitor:
         acc = p.gain * e / max(float(np.linalg.norm(e)), p.length) \
             - 2.0 * np.sqrt(p.gain / p.length) * qd
         return TaskAcceleration(acc, np.eye(n), np.zeros(n))
+
+    def potential(self, q: np.ndarray) -> tuple[float, np.ndarray]:
+        """The attractor's own potential while engaged (CPM's regulator, ``method.
+        configuration_potential: attractor``): φ(q) = g ρ_ℓ(‖q − q_g‖) [rad²/s²] with the Huber
+        function ρ_ℓ(d) = d²/(2ℓ) for d ≤ ℓ, d − ℓ/2 beyond, so that
+
+            ∂φ/∂q = g (q − q_g) / max(‖q − q_g‖, ℓ)                            [rad/s²]
+
+        is minus the attractor's pull: q̈_q = −∂φ/∂q − k q̇, and H = ½‖q̇‖² + φ falls at
+        k‖q̇‖² along it (k = 2√(g/ℓ))."""
+        p = self.pull
+        e = np.asarray(q, dtype=float) - self.q_goal
+        d = float(np.linalg.norm(e))
+        phi = d * d / (2.0 * p.length) if d <= p.length else d - 0.5 * p.length
+        return p.gain * phi, p.gain * e / max(d, p.length)
 
     def _stuck(self, q: np.ndarray, t: float) -> bool:
         """No progress towards q_g: ‖q − q_g‖ has not fallen by ``progress`` [rad] below its

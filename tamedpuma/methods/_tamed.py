@@ -553,7 +553,9 @@ class Forcing:
     stall_rotation_weight: float = 1.0
     stall_configuration: str = ConfigurationPull.mode
     stall_configuration_gain: float = ConfigurationPull.gain
+    stall_configuration_length: float = ConfigurationPull.length
     stall_configuration_release: float = ConfigurationPull.release
+    stall_configuration_clearance: float = ConfigurationPull.clearance
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -620,7 +622,9 @@ class Forcing:
             return None
         return ConfigurationMonitor(ConfigurationPull(
             mode=self.stall_configuration, gain=self.stall_configuration_gain,
-            release=self.stall_configuration_release), spec)
+            length=self.stall_configuration_length,
+            release=self.stall_configuration_release,
+            clearance=self.stall_configuration_clearance), spec)
 
     def make_stall_monitor(self) -> StallMonitor | None:
         """A fresh :class:`~tamedpuma.methods._stall.StallMonitor` (None when ``stall_pull``
@@ -646,7 +650,9 @@ class Forcing:
                                      "stall_release", "stall_hold_radius",
                                      "stall_hold_keep", "stall_rotation_weight",
                                      "stall_configuration", "stall_configuration_gain",
-                                     "stall_configuration_release"})
+                                     "stall_configuration_release",
+                                     "stall_configuration_length",
+                                     "stall_configuration_clearance"})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
@@ -680,9 +686,11 @@ class Forcing:
         if f.stall_configuration not in CONFIGURATION_MODES:
             raise ConfigError(f"method.forcing.stall_configuration must be one of "
                               f"{CONFIGURATION_MODES}, got {f.stall_configuration!r}")
-        if not (f.stall_configuration_gain > 0 and f.stall_configuration_release >= 0):
-            raise ConfigError("method.forcing.stall_configuration_gain [rad/s²] must be > 0 and "
-                              "stall_configuration_release [m] ≥ 0")
+        if not (f.stall_configuration_gain > 0 and f.stall_configuration_length > 0
+                and f.stall_configuration_release >= 0 and f.stall_configuration_clearance >= 0):
+            raise ConfigError("method.forcing.stall_configuration_gain [rad/s²] and _length "
+                              "[rad] must be > 0, stall_configuration_release and _clearance "
+                              "[m] ≥ 0")
         if not isinstance(f.stall_hold_keep, bool):
             raise ConfigError(f"method.forcing.stall_hold_keep must be true or false, "
                               f"got {f.stall_hold_keep!r}")

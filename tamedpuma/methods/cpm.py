@@ -54,9 +54,14 @@ energized as before, so dH/dt = −β‖q̇‖² holds unchanged.
 attractor added to PUMA's position rows while the hand has stopped approaching the goal. It is
 part of f_θ^C, whose power along q̇ energization takes away, so dH/dt = −β q̇ᵀMq̇ holds with it as
 without it: the pull steers CPM out of the direction it was pressing into a barrier.
-``forcing.stall_configuration`` (:mod:`tamedpuma.methods._configuration_pull`): the same holds
-for the joint-space attractor that replaces PUMA's rows after such a stall with a joint at a
-limit; it too is part of f_θ^C, so it steers CPM where its energy lets it.
+``forcing.stall_configuration`` (:mod:`tamedpuma.methods._configuration_pull`): the joint-space
+attractor that replaces PUMA's rows after such a stall with a joint at a limit is part of f_θ^C
+too. With ``configuration_potential: puma`` it only steers CPM where ψ's energy lets it (the way
+out climbs ψ: CPM crawls); with ``attractor`` the regulator watches the attractor's own
+potential φ(q) = g ρ_ℓ(‖q − q_g‖) while it acts (−∂φ is its pull: compatible), so
+dH/dt ≤ −β q̇ᵀq̇ holds with H = ½‖q̇‖² + φ then and with ψ elsewhere; the argument holds on
+every interval on one potential and, after the last engagement, ψ's (scalar
+``potential_attractor``: 1 while φ is used).
 
 ``eps`` ε [(rad/s)²]: the regulariser of the energization and regulator denominators
 ``q̇ᵀMq̇ + ε``. Below the speed √ε both fade out and the law becomes ``h + f_θ^C − β q̇``, PUMA's
@@ -118,6 +123,8 @@ from tamedpuma.types import Command, Observation, Scenario
 
 VARIANTS = ("paper", "original")
 DAMPINGS = ("constant", "matched", "matched_forcing")
+#: the potential CPM's regulator watches while the configuration pull acts
+POTENTIALS = ("puma", "attractor")
 
 
 @dataclass(frozen=True)
@@ -187,7 +194,8 @@ class CpmController(TamedController):
                  variant: str, regulator_scale: float, potential_scale: float, damping: str,
                  semi_implicit: bool, alpha_min: float | None = None,
                  rate: ControlRate | None = None, energy: str = "fabric",
-                 forcing: Forcing | None = None, tank: EnergyTank | None = None):
+                 forcing: Forcing | None = None, tank: EnergyTank | None = None,
+                 configuration_potential: str = "attractor"):
         if variant not in VARIANTS:
             raise ConfigError(f"cpm variant must be one of {VARIANTS}, got {variant!r}")
         if variant == "paper" and not beta > 0:
@@ -203,6 +211,10 @@ class CpmController(TamedController):
         self.matched = damping == "matched"
         self.matched_forcing = damping == "matched_forcing"
         self.semi_implicit = semi_implicit
+        if configuration_potential not in POTENTIALS:
+            raise ConfigError(f"cpm configuration_potential must be one of {POTENTIALS}, got "
+                              f"{configuration_potential!r}")
+        self.attractor_potential = configuration_potential == "attractor"
         self.tank = tank or EnergyTank()
         if self.tank.capacity > 0.0 and energy != "execution":
             raise ConfigError("cpm's energy tank needs method.energy: execution")
@@ -217,6 +229,10 @@ class CpmController(TamedController):
         state, av, h, qdd_c, xdd, ground = self.forced(obs)
         psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
         psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
+        attractor = (self.attractor_potential and self.configuration is not None
+                     and self.configuration.engaged)
+        if attractor:  # the configuration pull's own potential while it acts (see the module)
+            psi, dpsi = self.configuration.potential(obs.q)
         h_plus_f = h + qdd_c
         Mqd = energy_times_velocity(av, self.energy, qd)  # M of the energy energized and of γ
         denom = qd @ Mqd + self.eps
@@ -261,6 +277,7 @@ class CpmController(TamedController):
             "dissipation": float(beta * (qd @ Mqd)),
             "energy_total": float(self._kinetic(av, qd, Mqd) + psi), "alpha": float(alpha),
             "beta": float(beta), "tank": float(self.tank_level),
+            "potential_attractor": float(attractor),
             "task_acc_norm": float(np.linalg.norm(xdd))})
 
     def _tank_law(self, obs: Observation, av, h, h_plus_f, Mqd, psi: float, dpsi,
@@ -312,4 +329,5 @@ def make(cfg: Mapping, kinematics) -> CpmController:
                          forcing=Forcing.from_mapping(cfg["forcing"]),
                          tank=EnergyTank(float(cfg["tank"]), float(cfg["tank_refill"]),
                                          float(cfg["tank_clearance"]),
-                                         float(cfg["tank_limit_clearance"])))
+                                         float(cfg["tank_limit_clearance"])),
+                         configuration_potential=str(cfg["configuration_potential"]))
