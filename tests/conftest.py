@@ -1,4 +1,5 @@
-"""Shared fixtures: the default robot, its kinematics and the shared/ data folder."""
+"""Shared fixtures: the default robot, its kinematics, the shared/ data folder and a recorder
+of the controller's scalars."""
 
 from __future__ import annotations
 
@@ -27,3 +28,24 @@ def shared_dir():
     if not SHARED.is_dir():
         pytest.skip("../shared (reference data) is absent on this machine")
     return SHARED
+
+
+class ScalarLog:
+    """A recorder keeping every step's controller scalars (``rows``: one dict per step)."""
+
+    def __init__(self):
+        self.rows = []
+
+    def open(self, info):
+        pass
+
+    def write(self, rec):
+        self.rows.append(dict(rec.scalars))
+
+    def close(self, complete, summary):
+        pass
+
+
+@pytest.fixture
+def scalar_log():
+    return ScalarLog()

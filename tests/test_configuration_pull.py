@@ -238,7 +238,7 @@ def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_i
 
 @pytest.mark.slow
 def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
-        robot_spec, kinematics, monkeypatch):
+        robot_spec, kinematics, monkeypatch, scalar_log):
     """CPM in the trap above (q₁ = 2.2 rad) with the configuration pull and
     ``configuration_potential: attractor``: while the pull acts, the regulator watches the
     attractor's φ, whose total energy ½‖q̇‖² + φ does not rise (CPM's dH/dt ≤ −β‖q̇‖²
@@ -258,7 +258,7 @@ def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
     method["fabric"] = load_group("fabric", "default")
     method["forcing"] = {**method["forcing"], "stall_configuration": "limits"}
     method["configuration_potential"] = "attractor"
-    scalars = _Scalars()
+    scalars = scalar_log
     with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
         run = run_episode(scenario, make("cpm", method, kinematics), world, [scalars])
     assert run.metrics.success_whole_body, run.metrics.failure_whole_body
@@ -268,18 +268,3 @@ def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
     steps = np.flatnonzero(on[1:] & on[:-1]) + 1  # consecutive steps on the same potential
     assert np.max(energy[steps] - energy[steps - 1]) < 1e-3
 
-
-class _Scalars:
-    """A recorder keeping every step's controller scalars."""
-
-    def __init__(self):
-        self.rows = []
-
-    def open(self, info):
-        pass
-
-    def write(self, rec):
-        self.rows.append(dict(rec.scalars))
-
-    def close(self, complete, summary):
-        pass

@@ -87,21 +87,7 @@ def _controller(name: str, tank: float = 0.0):
                          tank=EnergyTank(tank))
 
 
-class _Scalars:
-    def __init__(self):
-        self.rows = []
-
-    def open(self, info):
-        pass
-
-    def write(self, rec):
-        self.rows.append(dict(rec.scalars))
-
-    def close(self, complete, summary):
-        pass
-
-
-def test_with_a_tank_cpm_goes_round_a_wall_where_plain_cpm_stalls():
+def test_with_a_tank_cpm_goes_round_a_wall_where_plain_cpm_stalls(scalar_log):
     """FPM goes round the wall; plain CPM stops in front of it (its regulator brakes every motion
     that climbs ψ); with a tank of κ = 1 (as much energy as ψ holds at the start) CPM goes round
     as FPM does, with W = H + T non-increasing at every step; a tank of κ = 0.2 runs dry first."""
@@ -111,7 +97,7 @@ def test_with_a_tank_cpm_goes_round_a_wall_where_plain_cpm_stalls():
     assert not plain.success_paper and plain.final_position_error_m > 1.5
     small = run_episode(sc, _controller("cpm", 0.2), PointMassWorld(SPEC)).metrics
     assert not small.success_paper
-    log = _Scalars()
+    log = scalar_log
     full = run_episode(sc, _controller("cpm", 1.0), PointMassWorld(SPEC), [log]).metrics
     assert full.success_paper and full.min_clearance_m > 0
     w = np.array([r["energy_total"] + r["tank"] for r in log.rows])
