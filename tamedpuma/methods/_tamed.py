@@ -7,7 +7,7 @@ Methods never import each other; what two of them share lives here.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -640,19 +640,7 @@ class Forcing:
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
         cfg = dict(cfg or {})
-        unknown = sorted(set(cfg) - {"mode", "weight", "null_metric", "circulation",
-                                     "circulation_gain", "circulation_onset", "directional",
-                                     "approach",
-                                     "rotation_weight", "priority", "singular_damping",
-                                     "singular_threshold", "geometry", "reach",
-                                     "stall_pull", "stall_window", "stall_progress",
-                                     "stall_psi_progress", "stall_radius", "stall_ramp",
-                                     "stall_release", "stall_hold_radius",
-                                     "stall_hold_keep", "stall_rotation_weight",
-                                     "stall_configuration", "stall_configuration_gain",
-                                     "stall_configuration_release",
-                                     "stall_configuration_length",
-                                     "stall_configuration_clearance"})
+        unknown = sorted(set(cfg) - {field.name for field in fields(Forcing)})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
@@ -683,25 +671,31 @@ class Forcing:
                 and 0 <= f.circulation_onset < 1):
             raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0, "
                               "circulation_onset in [0, 1)")
-        if f.stall_configuration not in CONFIGURATION_MODES:
-            raise ConfigError(f"method.forcing.stall_configuration must be one of "
-                              f"{CONFIGURATION_MODES}, got {f.stall_configuration!r}")
-        if not (f.stall_configuration_gain > 0 and f.stall_configuration_length > 0
-                and f.stall_configuration_release >= 0 and f.stall_configuration_clearance >= 0):
-            raise ConfigError("method.forcing.stall_configuration_gain [rad/s²] and _length "
-                              "[rad] must be > 0, stall_configuration_release and _clearance "
-                              "[m] ≥ 0")
-        if not isinstance(f.stall_hold_keep, bool):
-            raise ConfigError(f"method.forcing.stall_hold_keep must be true or false, "
-                              f"got {f.stall_hold_keep!r}")
-        if not (f.stall_pull >= 0 and f.stall_window > 0 and f.stall_progress >= 0
-                and f.stall_radius >= 0 and f.stall_ramp >= 0 and 0 <= f.stall_release < 1
-                and 0 <= f.stall_psi_progress < 1 and f.stall_hold_radius >= 0):
-            raise ConfigError("method.forcing.stall_pull [m/s²], stall_progress [m], stall_radius "
-                              "[m], stall_hold_radius [m] and stall_ramp [s] must be ≥ 0, "
-                              "stall_window [s] > 0, "
-                              "stall_psi_progress and stall_release in [0, 1)")
+        _check_stall_settings(f)
         return f
+
+
+def _check_stall_settings(f: Forcing) -> None:
+    """The stall pull's and the configuration pull's settings of ``method.forcing`` (one-line
+    ConfigError on a bad one)."""
+    if f.stall_configuration not in CONFIGURATION_MODES:
+        raise ConfigError(f"method.forcing.stall_configuration must be one of "
+                          f"{CONFIGURATION_MODES}, got {f.stall_configuration!r}")
+    if not (f.stall_configuration_gain > 0 and f.stall_configuration_length > 0
+            and f.stall_configuration_release >= 0 and f.stall_configuration_clearance >= 0):
+        raise ConfigError("method.forcing.stall_configuration_gain [rad/s²] and _length "
+                          "[rad] must be > 0, stall_configuration_release and _clearance "
+                          "[m] ≥ 0")
+    if not isinstance(f.stall_hold_keep, bool):
+        raise ConfigError(f"method.forcing.stall_hold_keep must be true or false, "
+                          f"got {f.stall_hold_keep!r}")
+    if not (f.stall_pull >= 0 and f.stall_window > 0 and f.stall_progress >= 0
+            and f.stall_radius >= 0 and f.stall_ramp >= 0 and 0 <= f.stall_release < 1
+            and 0 <= f.stall_psi_progress < 1 and f.stall_hold_radius >= 0):
+        raise ConfigError("method.forcing.stall_pull [m/s²], stall_progress [m], stall_radius "
+                          "[m], stall_hold_radius [m] and stall_ramp [s] must be ≥ 0, "
+                          "stall_window [s] > 0, "
+                          "stall_psi_progress and stall_release in [0, 1)")
 
 
 #: the energies a TamedPUMA method may energize (``method.energy``)
