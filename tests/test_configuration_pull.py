@@ -156,9 +156,9 @@ def test_the_attractor_potential_is_the_pull_s_own_by_finite_differences(kinemat
     monitor = ConfigurationMonitor(PULL, spec)
     monitor.q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
     rng = np.random.default_rng(5)
-    for scale in (0.05, 0.2, 0.5, 2.0):  # inside and beyond ℓ = 0.3 rad
+    for scale in (0.05, 0.6, 1.5, 4.0):  # × ℓ: inside and beyond it
         direction = rng.normal(size=7)
-        q = monitor.q_goal + scale * direction / np.linalg.norm(direction)
+        q = monitor.q_goal + scale * PULL.length * direction / np.linalg.norm(direction)
         phi, grad = monitor.potential(q)
         h = 1e-6
         fd = np.array([(monitor.potential(q + h * e)[0] - monitor.potential(q - h * e)[0])
@@ -249,7 +249,7 @@ def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
     cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
     scenario = scenario_from_config(cfg, robot_spec, task="pouring", **start_options())
     # 60 s: CPM creeps along the limit for 22 s before the stall pull arms, and the way out is
-    # 8 rad of joint travel at the attractor's cruise speed g/k = 0.34 rad/s
+    # 8 rad of joint travel at the attractor's cruise speed g/k (1 rad/s with the defaults)
     scenario = replace(scenario, q0=np.array([2.2, 0.6, 0.0, -1.2, 0.0, 0.6, 0.0]),
                        obstacles=Obstacles(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))),
                        max_steps=3000)
@@ -258,13 +258,11 @@ def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
     method["fabric"] = load_group("fabric", "default")
     method["forcing"] = {**method["forcing"], "stall_configuration": "limits"}
     method["configuration_potential"] = "attractor"
-    scalars = scalar_log
     with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
-        run = run_episode(scenario, make("cpm", method, kinematics), world, [scalars])
+        run = run_episode(scenario, make("cpm", method, kinematics), world, [scalar_log])
     assert run.metrics.success_whole_body, run.metrics.failure_whole_body
-    on = np.array([s["potential_attractor"] for s in scalars.rows]) > 0
-    energy = np.array([s["energy_total"] for s in scalars.rows])
+    on = np.array([s["potential_attractor"] for s in scalar_log.rows]) > 0
+    energy = np.array([s["energy_total"] for s in scalar_log.rows])
     assert on.sum() > 50  # it acted for at least a second
     steps = np.flatnonzero(on[1:] & on[:-1]) + 1  # consecutive steps on the same potential
     assert np.max(energy[steps] - energy[steps - 1]) < 1e-3
-

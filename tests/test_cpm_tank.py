@@ -97,11 +97,10 @@ def test_with_a_tank_cpm_goes_round_a_wall_where_plain_cpm_stalls(scalar_log):
     assert not plain.success_paper and plain.final_position_error_m > 1.5
     small = run_episode(sc, _controller("cpm", 0.2), PointMassWorld(SPEC)).metrics
     assert not small.success_paper
-    log = scalar_log
-    full = run_episode(sc, _controller("cpm", 1.0), PointMassWorld(SPEC), [log]).metrics
+    full = run_episode(sc, _controller("cpm", 1.0), PointMassWorld(SPEC), [scalar_log]).metrics
     assert full.success_paper and full.min_clearance_m > 0
-    w = np.array([r["energy_total"] + r["tank"] for r in log.rows])
-    tank = np.array([r["tank"] for r in log.rows])
+    w = np.array([r["energy_total"] + r["tank"] for r in scalar_log.rows])
+    tank = np.array([r["tank"] for r in scalar_log.rows])
     assert tank[0] == pytest.approx(9.0)  # κ k_ψ ψ(q₀) = 1 · ‖(3, 0)‖²
     assert tank.min() < 0.5 * tank[0]  # it paid for the detour
     assert np.all(np.diff(w) <= 1e-3 * w[0])

@@ -38,6 +38,7 @@ from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics.gains import FabricGains
 from tamedpuma.methods._tamed import ENERGIES, ControlRate, Forcing
 from tamedpuma.methods.cpm import DAMPINGS as CPM_DAMPINGS
+from tamedpuma.methods.cpm import POTENTIALS as CPM_POTENTIALS
 from tamedpuma.methods.cpm import VARIANTS as CPM_VARIANTS
 from tamedpuma.methods.modulation_ik import ModulationIKParams
 from tamedpuma.puma.settings import EvalConfig, NetConfig, TrainConfig
@@ -459,8 +460,8 @@ class CpmMethod(FpmMethod):
 
     def __post_init__(self):
         super().__post_init__()
-        _check(self.configuration_potential in ("puma", "attractor"),
-               "method.configuration_potential", "puma or attractor",
+        _check(self.configuration_potential in CPM_POTENTIALS,
+               "method.configuration_potential", " or ".join(CPM_POTENTIALS),
                self.configuration_potential)
         _check(self.variant in CPM_VARIANTS, "method.variant", " or ".join(CPM_VARIANTS),
                self.variant)

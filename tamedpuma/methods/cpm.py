@@ -227,12 +227,13 @@ class CpmController(TamedController):
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av, h, qdd_c, xdd, ground = self.forced(obs)
-        psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
-        psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
         attractor = (self.attractor_potential and self.configuration is not None
                      and self.configuration.engaged)
         if attractor:  # the configuration pull's own potential while it acts (see the module)
             psi, dpsi = self.configuration.potential(obs.q)
+        else:
+            psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
+            psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
         h_plus_f = h + qdd_c
         Mqd = energy_times_velocity(av, self.energy, qd)  # M of the energy energized and of γ
         denom = qd @ Mqd + self.eps
