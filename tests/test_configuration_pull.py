@@ -17,12 +17,18 @@ from tamedpuma.episode import run_episode
 from tamedpuma.errors import ConfigError
 from tamedpuma.methods import make
 from tamedpuma.methods._configuration_pull import (
+    VIA_RADIUS,
     ConfigurationMonitor,
     ConfigurationPull,
+    Ground,
+    _segment_clear,
+    goal_candidates,
     goal_configuration,
+    goal_route,
 )
 from tamedpuma.methods._policy import PoseTask, TaskAcceleration
 from tamedpuma.methods._tamed import Forcing
+from tamedpuma.robot.ground import hull_ground_rows, hull_heights, link_hulls
 from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 from tamedpuma.types import Obstacles
 from tamedpuma.worlds.bullet import Disturbance, SimConfig, Simulator
@@ -114,7 +120,6 @@ def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go
 
 def test_a_goal_configuration_behind_an_obstacle_on_the_straight_segment_is_not_chosen(
         kinematics):
-    from tamedpuma.methods._configuration_pull import _segment_clear
     q = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
     target = np.array([0.7, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])  # the base turned 1.2 rad
     p_goal, _ = kinematics.ee_frame(target)
@@ -124,12 +129,118 @@ def test_a_goal_configuration_behind_an_obstacle_on_the_straight_segment_is_not_
     # an obstacle where the hand passes half way along that segment, clear of both ends
     middle = kinematics.sphere_centers(0.5 * (q + free))[-1]
     centers, radii = middle[None], np.array([0.05])
-    radii_body = np.asarray(kinematics.sphere_radii)
-    assert not _segment_clear(kinematics, q, free, centers, radii, radii_body)
+    ground = Ground(PULL.clearance)
+    assert not _segment_clear(kinematics, q, free, centers, radii, ground, 0.0)
     chosen = goal_configuration(kinematics, p_goal, quat, q, centers, radii, PULL)
     if chosen is not None:  # another solution, reached along a clear segment
-        assert _segment_clear(kinematics, q, chosen, centers, radii, radii_body)
+        assert _segment_clear(kinematics, q, chosen, centers, radii, ground, 0.0)
         assert not np.allclose(chosen, free)
+
+
+def test_hull_heights_at_a_configuration_are_the_ground_rows_heights(kinematics):
+    hulls = link_hulls(kinematics)
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        q = rng.uniform(kinematics.spec.q_min, kinematics.spec.q_max)
+        kinematics.evaluate(q, np.zeros(7))
+        rows = hull_ground_rows(kinematics, hulls, np.zeros(7))
+        np.testing.assert_allclose(hull_heights(kinematics, hulls, q), rows.heights,
+                                   atol=1e-12)
+
+
+@pytest.mark.parametrize("geometry", ["mesh", "spheres"])
+def test_a_goal_pose_reaching_below_the_ground_is_raised_just_above_it(kinematics, geometry):
+    """A goal low over the table (the hand pointing down, its flange 2 cm into the ground at
+    the goal pose): the goal configuration holds the goal orientation with the hand raised
+    until every height the controller's ground rows keep is above the plane, by no more than
+    the pull's release distance; with no raise allowed there is none."""
+    ground = Ground(0.01, link_hulls(kinematics) if geometry == "mesh" else None)
+    q_pose = np.array([0.0, 0.9, 0.0, -1.2, 0.0, 1.0, 0.0])  # the hand pointing down
+    p_pose, rot = kinematics.ee_frame(q_pose)
+    quat = kinematics.evaluate(q_pose, np.zeros(7)).ee_quaternion
+    deficit = 0.02 + float(ground.margins(kinematics, q_pose)[-1])  # the hand's (last link's)
+    goal = p_pose - np.array([0.0, 0.0, deficit])  # the hand 2 cm below the plane there
+    q = np.array([0.3, 0.5, 0.0, -1.5, 0.0, 1.0, 0.0])
+    found = goal_candidates(kinematics, goal, quat, q, np.zeros((0, 3)), np.zeros(0), PULL,
+                            ground=ground)
+    assert found
+    for qg in found:
+        p, r = kinematics.ee_frame(qg)
+        assert np.min(ground.margins(kinematics, qg)) >= 0.0
+        np.testing.assert_allclose(p[:2], goal[:2], atol=1e-3)
+        assert 0.02 <= p[2] - goal[2] <= PULL.release
+        assert np.linalg.norm(rotation_error(r, rot)) < 1e-3
+    assert not goal_candidates(kinematics, goal, quat, q, np.zeros((0, 3)), np.zeros(0),
+                               replace(PULL, release=0.01), ground=ground)
+
+
+def test_a_route_through_a_waypoint_where_no_straight_segment_is_clear(kinematics):
+    """The only goal configuration (no restarts) lies behind an obstacle on the straight
+    segment: no straight route; with waypoints, q → w → q_g with both segments clear (checked
+    densely here), w inside the limits and clear, the same route for the same seed."""
+    q = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
+    target = np.array([0.7, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
+    p_goal, _ = kinematics.ee_frame(target)
+    quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
+    none = np.zeros((0, 3)), np.zeros(0)
+    pull = replace(PULL, restarts=0, waypoints=32)
+    (free,) = goal_route(kinematics, p_goal, quat, q, *none, pull)
+    middle = kinematics.sphere_centers(0.5 * (q + free))[-1]
+    centers, radii = middle[None], np.array([0.05])
+    assert goal_route(kinematics, p_goal, quat, q, centers, radii,
+                      replace(pull, waypoints=0)) is None
+    route = goal_route(kinematics, p_goal, quat, q, centers, radii, pull)
+    assert route is not None and len(route) == 2
+    w, qg = route
+    np.testing.assert_allclose(qg, free, atol=1e-9)
+    spec, body_r = kinematics.spec, np.asarray(kinematics.sphere_radii)
+    assert np.all(w >= spec.q_min + PULL.margin) and np.all(w <= spec.q_max - PULL.margin)
+    for a, b in ((q, w), (w, qg)):
+        for s in np.linspace(0.0, 1.0, 400):
+            spheres = kinematics.sphere_centers(a + s * (b - a))
+            assert np.min(np.linalg.norm(spheres - middle, axis=1) - body_r) >= 0.05 - 1e-3
+            assert np.min(spheres[:, 2] - body_r) >= PULL.clearance - 1e-3
+    again = goal_route(kinematics, p_goal, quat, q, centers, radii, pull)
+    np.testing.assert_array_equal(np.concatenate(route), np.concatenate(again))
+
+
+def test_the_monitor_turns_from_the_waypoint_to_the_goal_configuration(kinematics):
+    monitor = ConfigurationMonitor(PULL, kinematics.spec)
+    w = np.array([0.0, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
+    qg = w + np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    monitor.q_goal, monitor.route, monitor.engaged = w, (qg,), True
+    monitor.goal_for = np.zeros(3)
+    obs = SimpleNamespace(t=1.0, goal_position=np.zeros(3))
+    stall = _stall(0.0, 0.5)
+    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    far = w - np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2 * VIA_RADIUS])
+    toward = monitor.applied(far, np.zeros(7), 0.5, stall, obs, task).xdd
+    assert toward[6] > 0 and abs(toward[0]) < 1e-12  # still towards w
+    near = w - np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5 * VIA_RADIUS])
+    turned = monitor.applied(near, np.zeros(7), 0.5, stall, obs, task).xdd
+    assert turned[0] > 0  # towards q_g now
+    np.testing.assert_array_equal(monitor.q_goal, qg)
+    assert monitor.route == ()
+
+
+@pytest.mark.parametrize("name", ["fpm", "cpm"])
+def test_the_controller_s_goal_configurations_keep_its_own_ground(kinematics, monkeypatch,
+                                                                  name):
+    """The configuration pull checks q_g against the ground the barrier step keeps: the link
+    hulls at ``control_rate.ground_height`` with the default ``ground_geometry: mesh``, the
+    spheres with ``spheres``, and the old sphere clearance without ground rows."""
+    monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
+    method = {**load_group("method", "puma"), **load_group("method", name)}
+    method.pop("defaults")
+    method["fabric"] = load_group("fabric", "default")
+    rate = method["control_rate"]
+    ground = make(name, method, kinematics).configuration.ground
+    assert ground.hulls is not None and ground.height == rate["ground_height"]
+    method["control_rate"] = {**rate, "ground_geometry": "spheres"}
+    ground = make(name, method, kinematics).configuration.ground
+    assert ground.hulls is None and ground.height == rate["ground_height"]
+    method["control_rate"] = {**rate, "ground": False}
+    assert make(name, method, kinematics).configuration.ground is None
 
 
 def test_the_monitor_lets_go_when_the_attractor_makes_no_progress(kinematics):
@@ -177,7 +288,10 @@ def test_the_attractor_potential_is_the_pull_s_own_by_finite_differences(kinemat
 
 @pytest.mark.parametrize("bad", [{"stall_configuration": "sometimes"},
                                  {"stall_configuration_gain": 0.0},
-                                 {"stall_configuration_release": -1.0}])
+                                 {"stall_configuration_release": -1.0},
+                                 {"stall_configuration_waypoints": -1},
+                                 {"stall_configuration_waypoints": 2.5},
+                                 {"stall_configuration_waypoints": True}])
 def test_bad_configuration_pull_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="stall_configuration"):
         Forcing.from_mapping(bad)

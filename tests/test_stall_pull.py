@@ -6,6 +6,8 @@ held against an obstacle by a primitive whose potential has its minimum there.""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -61,6 +63,22 @@ def test_steady_progress_or_a_hand_at_the_goal_never_arms_it():
     still = StallMonitor(PULL)
     out = _feed(still, t, np.full(len(t), 0.5), psi=np.full(len(t), 2.0))
     assert [a is None for a in out] == list(t < 2.0)
+
+
+def test_a_creeping_hand_arms_the_pull_only_with_a_progress_fraction():
+    """4 mm/s from 0.5 m (8 mm per window, above the 5 mm of ``progress``; the goal 2 min
+    away) with ψ flat: it never arms on the absolute progress alone; with a fraction of 5 % of
+    the distance (25 mm per window there) it arms after the window. A hand that closes the
+    distance exponentially with a 3 s time constant (49 % per window) never arms it."""
+    t = np.round(np.arange(0.0, 10.0, 0.1), 6)
+    psi = np.full(len(t), 2.0)
+    creep = 0.5 - 0.004 * t
+    assert all(a is None for a in _feed(StallMonitor(PULL), t, creep, psi=psi))
+    fraction = replace(PULL, progress_fraction=0.05)
+    out = _feed(StallMonitor(fraction), t, creep, psi=psi)
+    assert [a is None for a in out] == list(t < 2.0)
+    approach = 0.045 + 0.5 * np.exp(-t / 3.0)
+    assert all(a is None for a in _feed(StallMonitor(fraction), t, approach, psi=psi))
 
 
 def test_the_potential_is_evaluated_at_most_every_sample_period():
@@ -240,7 +258,9 @@ def test_a_run_that_keeps_approaching_is_unchanged_by_the_pull():
                                  {"stall_release": 1.0}, {"stall_ramp": -0.5},
                                  {"stall_hold_radius": -0.1}, {"stall_hold_keep": "maybe"},
                                  {"stall_hold_keep": 1}, {"stall_rotation_weight": 0.0},
-                                 {"stall_rotation_weight": 1.5}])
+                                 {"stall_rotation_weight": 1.5},
+                                 {"stall_progress_fraction": 1.0},
+                                 {"stall_progress_fraction": -0.1}])
 def test_bad_stall_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="stall"):
         Forcing.from_mapping({"mode": "metric", **bad})

@@ -19,9 +19,10 @@ limits. Once the stall pull (:mod:`tamedpuma.methods._stall`) has armed with a j
 ``limit_band`` [rad] of a limit (``mode: limits``; ``always``: at every arming) and the hand
 farther than ``release`` [m] from the goal, a goal configuration q_g is chosen (an IK solution
 of the goal pose inside the limits by ``margin`` [rad], every body sphere clear of the
-obstacles and the ground, the straight joint-space segment from q to it clear of the obstacles
-where they are now, the one nearest to q; :func:`goal_configuration`; none such: nothing
-changes), and PUMA's task rows are replaced by the joint-space spec
+obstacles, above the ground as the controller's barrier step keeps it (:class:`Ground`), the
+straight joint-space segment from q to it clear of the obstacles where they are now and of the
+ground, the one nearest to q; :func:`goal_route`; none such: nothing changes), and PUMA's task
+rows are replaced by the joint-space spec
 
     q̈_q = g (q_g − q) / max(‖q_g − q‖, ℓ) − k q̇,    k = 2√(g/ℓ)                 [rad/s²]
 
@@ -33,6 +34,22 @@ still armed, as before) finishes the motion, or once ‖q − q_g‖ has not fal
 first form, without the segment check, rested 18 s against an obstacle in random pouring
 ``near_table1`` 31039); it engages at most once per arming of the stall
 pull and re-chooses q_g when the goal has moved more than 2 cm.
+
+Goals low over the table. The goal pose itself may put a link below the plane the barrier
+step keeps (random tomato goals lie down to 3.5 cm above the table, with the hand pointing
+down): the controller cannot put the hand exactly there either, and PUMA's success radius is
+what reaches it. Such a q_g is solved again with the target raised by its deficit (at most by
+``release``, where the pull hands back to PUMA anyway). The first form checked the body
+spheres 1 cm above z = 0, which the hand's sphere (7 cm round the task point) fails at every
+goal lower than 8 cm, whatever the arm does: in random tomato ``anywhere`` 2014 (goal 4.9 cm
+up) no q_g was ever found, and the arm, joints 1 and 4 on their limits, stayed 0.27 m short.
+
+Waypoints. Where the arm rests beside an obstacle, the straight segment to every q_g may pass
+through it (2014: one of 13 goal configurations had a clear segment at 24 s, none at 23.3 s
+when the stall pull armed). With ``waypoints`` > 0 the route may then pass through one
+waypoint w, q → w → q_g, both segments clear, the shortest of ``waypoints`` draws about each
+segment's middle (:func:`goal_route`); the attractor pulls to w and turns to q_g within
+:data:`VIA_RADIUS` of it (one switch: one more piece of CPM's piecewise energy argument below).
 
 What holds. Safety never depended on the forcing: the barriers, the energization bound and the
 control-rate barrier step are unchanged, so the arm cannot be carried through an obstacle or a
@@ -62,11 +79,12 @@ first values (g = 1.5, ℓ = 0.3: 0.34 rad/s) the 4-8 rad of joint travel some w
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from tamedpuma.methods._policy import TaskAcceleration
+from tamedpuma.robot.ground import LinkHulls, hull_heights
 from tamedpuma.robot.ik import pose_dls
 from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.robot.rotations import quat_to_matrix
@@ -75,6 +93,17 @@ from tamedpuma.robot.rotations import quat_to_matrix
 MODES = ("off", "limits", "always")
 #: [m] the goal may move this far before q_g is chosen again
 REPLAN_DISTANCE_M = 0.02
+#: [m] a goal configuration below the ground is solved again with its target raised by its
+#: deficit plus this, at most RAISE_ATTEMPTS times
+RAISE_SLACK_M = 0.002
+RAISE_ATTEMPTS = 3
+#: [m] how far below the ground plane (or below q's own margin) the segment to q_g may dip: the
+#: barrier step's rounding, not a real dip
+GROUND_SLACK_M = 0.001
+#: the goal configurations (nearest first) a two-segment route is searched for
+ROUTE_GOALS = 3
+#: [rad] the pull turns from a waypoint to the next target once this near it
+VIA_RADIUS = 0.3
 
 
 @dataclass(frozen=True)
@@ -82,8 +111,9 @@ class ConfigurationPull:
     """Settings (``method.forcing.stall_configuration*``): mode (``off``, ``limits``,
     ``always``), gain g [rad/s²], length ℓ [rad], limit_band [rad], release [m], margin [rad]
     (q_g's distance from the limits), clearance [m] (q_g's body spheres from the obstacles),
-    restarts (random IK starts besides q), window [s] and progress [rad] (let go when ‖q − q_g‖
-    has not fallen by ``progress`` for ``window``)."""
+    restarts (random IK starts besides q), waypoints (per goal configuration, for a
+    two-segment route where no straight one is clear; 0: straight only), window [s] and
+    progress [rad] (let go when ‖q − q_g‖ has not fallen by ``progress`` for ``window``)."""
 
     mode: str = "off"
     gain: float = 4.0
@@ -93,19 +123,65 @@ class ConfigurationPull:
     margin: float = 0.1
     clearance: float = 0.01
     restarts: int = 24
+    waypoints: int = 0
     window: float = 2.0
     progress: float = 0.05
 
 
-def goal_configuration(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
-                       q: np.ndarray, obstacle_centers: np.ndarray, obstacle_radii: np.ndarray,
-                       pull: ConfigurationPull, seed: int = 0) -> np.ndarray | None:
-    """The goal configuration q_g [rad] nearest to q (Euclidean in the joints) among IK
+@dataclass(frozen=True)
+class Ground:
+    """The ground as the controller's barrier step keeps it: the heights of ``hulls`` (each
+    moving link's lowest hull point, :mod:`tamedpuma.robot.ground`; None: the body spheres'
+    bottoms c_z − r) at least ``height`` [m] above z = 0."""
+
+    height: float
+    hulls: LinkHulls | None = None
+
+    def margins(self, kin: Kinematics, q: np.ndarray) -> np.ndarray:
+        """The heights minus ``height`` [m] at q: all ≥ 0 where the ground rows hold."""
+        if self.hulls is not None:
+            return hull_heights(kin, self.hulls, q) - self.height
+        return kin.sphere_centers(q)[:, 2] - np.asarray(kin.sphere_radii) - self.height
+
+
+def _pose_above_ground(kin: Kinematics, position: np.ndarray, rotation: np.ndarray,
+                       start: np.ndarray, lo: np.ndarray, hi: np.ndarray, ground: Ground,
+                       max_raise: float) -> np.ndarray | None:
+    """An IK solution of the pose (position [m], rotation) from ``start`` inside [lo, hi] whose
+    ground margins are ≥ 0; where the solution dips below the plane by δ, the target is raised
+    by δ + :data:`RAISE_SLACK_M` and solved again from it (at most :data:`RAISE_ATTEMPTS`
+    times, by at most ``max_raise`` [m] in all); None when that fails."""
+    target = np.array(position, dtype=float)
+    for _ in range(RAISE_ATTEMPTS + 1):
+        q, err, _ = pose_dls(kin, target, rotation, start, lo, hi, damping=0.05,
+                             tolerance=1e-4, max_iterations=200, patience=20)
+        if np.linalg.norm(err) > 1e-3:
+            return None
+        deficit = -float(np.min(ground.margins(kin, q)))
+        if deficit <= 0.0:
+            return q
+        target[2] += deficit + RAISE_SLACK_M
+        if target[2] - position[2] > max_raise:
+            return None
+        start = q
+    return None
+
+
+def goal_candidates(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
+                    q: np.ndarray, obstacle_centers: np.ndarray, obstacle_radii: np.ndarray,
+                    pull: ConfigurationPull, seed: int = 0,
+                    ground: Ground | None = None) -> list[np.ndarray]:
+    """The goal configurations [rad], nearest to q first (Euclidean in the joints), among IK
     solutions of the goal pose (position [m], quaternion (x, y, z, w)) started from q and from
     ``pull.restarts`` seeded random configurations: inside the limits by ``pull.margin``, the
     pose within 1 mm / 0.01 rad, every body sphere ``pull.clearance`` clear of every obstacle
-    and of the ground (z = 0). None when no start gives one. Deterministic for a seed."""
+    and above the ``ground`` (the controller's ground rows; None: the body spheres
+    ``pull.clearance`` above z = 0). Where the goal pose itself reaches below the ground (a
+    goal low over the table: the controller cannot put the hand there either), the pose raised
+    until it is above, by at most ``pull.release`` (the pull hands back to PUMA there anyway).
+    Deterministic for a seed."""
     spec = kin.spec
+    ground = ground or Ground(pull.clearance)
     lo = np.asarray(spec.q_min, dtype=float) + pull.margin
     hi = np.asarray(spec.q_max, dtype=float) - pull.margin
     goal_rot = quat_to_matrix(np.asarray(quaternion, dtype=float))
@@ -113,41 +189,91 @@ def goal_configuration(kin: Kinematics, position: np.ndarray, quaternion: np.nda
     rng = np.random.default_rng(seed)
     starts = [np.clip(np.asarray(q, dtype=float), lo, hi)]
     starts += [rng.uniform(lo, hi) for _ in range(pull.restarts)]
+    found = []
+    for start in starts:
+        qg = _pose_above_ground(kin, position, goal_rot, start, lo, hi, ground, pull.release)
+        if qg is not None and _obstacle_gap(kin, qg, obstacle_centers,
+                                            obstacle_radii) >= pull.clearance:
+            found.append(qg)
+    return sorted(found, key=lambda qg: float(np.linalg.norm(qg - q)))
+
+
+def goal_configuration(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
+                       q: np.ndarray, obstacle_centers: np.ndarray, obstacle_radii: np.ndarray,
+                       pull: ConfigurationPull, seed: int = 0,
+                       ground: Ground | None = None) -> np.ndarray | None:
+    """The nearest of :func:`goal_candidates` whose straight segment from q is clear of the
+    obstacles and the ground (:func:`_segment_clear`); None when there is none."""
+    route = goal_route(kin, position, quaternion, q, obstacle_centers, obstacle_radii,
+                       replace(pull, waypoints=0), seed, ground)
+    return None if route is None else route[-1]
+
+
+def goal_route(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray, q: np.ndarray,
+               obstacle_centers: np.ndarray, obstacle_radii: np.ndarray,
+               pull: ConfigurationPull, seed: int = 0,
+               ground: Ground | None = None) -> tuple[np.ndarray, ...] | None:
+    """The targets the pull visits in turn: (q_g,), the nearest goal configuration with a clear
+    straight segment from q; where there is none, (w, q_g): the shortest two-segment route
+    q → w → q_g with both segments clear, over ``pull.waypoints`` seeded waypoints per goal
+    configuration (the nearest :data:`ROUTE_GOALS` of them) drawn about the segment's middle,
+    ``w = q + s (q_g − q) + ‖q_g − q‖ u/√n``, s ~ U(0.25, 0.75), u ~ N(0, I), inside the
+    limits by ``pull.margin`` and ``pull.clearance`` clear. None when neither exists.
+    Deterministic for a seed."""
+    ground = ground or Ground(pull.clearance)
     centers = np.asarray(obstacle_centers, dtype=float).reshape(-1, 3)
     radii = np.asarray(obstacle_radii, dtype=float).reshape(-1)
-    body_r = np.asarray(kin.sphere_radii, dtype=float)
-    best, best_d = None, np.inf
-    for start in starts:
-        qg, err, _ = pose_dls(kin, position, goal_rot, start, lo, hi, damping=0.05,
-                              tolerance=1e-4, max_iterations=200, patience=20)
-        if np.linalg.norm(err) > 1e-3:
-            continue
-        spheres = kin.sphere_centers(qg)
-        if np.any(spheres[:, 2] - body_r < pull.clearance):
-            continue
-        if len(radii):
-            gaps = (np.linalg.norm(spheres[:, None, :] - centers[None], axis=2)
-                    - body_r[:, None] - radii[None])
-            if gaps.min() < pull.clearance:
-                continue
-        d = float(np.linalg.norm(qg - q))
-        if d < best_d and _segment_clear(kin, q, qg, centers, radii, body_r):
-            best, best_d = qg, d
+    q = np.asarray(q, dtype=float)
+    goals = goal_candidates(kin, position, quaternion, q, centers, radii, pull, seed, ground)
+    floor = min(0.0, float(np.min(ground.margins(kin, q)))) - GROUND_SLACK_M
+    for qg in goals:
+        if _segment_clear(kin, q, qg, centers, radii, ground, floor):
+            return (qg,)
+    if pull.waypoints <= 0:
+        return None
+    spec = kin.spec
+    lo = np.asarray(spec.q_min, dtype=float) + pull.margin
+    hi = np.asarray(spec.q_max, dtype=float) - pull.margin
+    rng = np.random.default_rng(seed + 1)
+    best, best_length = None, np.inf
+    for qg in goals[:ROUTE_GOALS]:
+        span = float(np.linalg.norm(qg - q))
+        for _ in range(pull.waypoints):
+            w = np.clip(q + rng.uniform(0.25, 0.75) * (qg - q)
+                        + span * rng.standard_normal(len(q)) / np.sqrt(len(q)), lo, hi)
+            length = float(np.linalg.norm(w - q) + np.linalg.norm(qg - w))
+            if (length < best_length and np.min(ground.margins(kin, w)) >= 0.0
+                    and _obstacle_gap(kin, w, centers, radii) >= pull.clearance
+                    and _segment_clear(kin, q, w, centers, radii, ground, floor)
+                    and _segment_clear(kin, w, qg, centers, radii, ground, floor)):
+                best, best_length = (w, qg), length
     return best
 
 
-def _segment_clear(kin: Kinematics, q: np.ndarray, qg: np.ndarray, centers: np.ndarray,
-                   radii: np.ndarray, body_r: np.ndarray, step: float = 0.05) -> bool:
-    """Whether the straight joint-space segment q → q_g keeps every body sphere out of every
-    (current) obstacle: sampled every ``step`` [rad] of the largest joint's travel."""
+def _obstacle_gap(kin: Kinematics, q: np.ndarray, centers: np.ndarray,
+                  radii: np.ndarray) -> float:
+    """The least clearance [m] between a body sphere at q and an obstacle (inf: none)."""
+    radii = np.asarray(radii, dtype=float).reshape(-1)
     if not len(radii):
-        return True
+        return np.inf
+    spheres = kin.sphere_centers(q)
+    return float(np.min(np.linalg.norm(spheres[:, None, :] - np.reshape(centers, (-1, 3))[None],
+                                       axis=2) - np.asarray(kin.sphere_radii)[:, None]
+                        - radii[None]))
+
+
+def _segment_clear(kin: Kinematics, q: np.ndarray, qg: np.ndarray, centers: np.ndarray,
+                   radii: np.ndarray, ground: Ground, floor: float,
+                   step: float = 0.05) -> bool:
+    """Whether the straight joint-space segment q → q_g keeps every body sphere out of every
+    (current) obstacle and the ground margins above ``floor`` [m] (0, or q's own where the
+    barrier step lets it sit a little below): sampled every ``step`` [rad] of the largest
+    joint's travel."""
     n = int(np.ceil(np.abs(qg - q).max() / step)) + 1
     for s in np.linspace(0.0, 1.0, n + 1)[1:]:
-        spheres = kin.sphere_centers(q + s * (qg - q))
-        gaps = (np.linalg.norm(spheres[:, None, :] - centers[None], axis=2)
-                - body_r[:, None] - radii[None])
-        if gaps.min() < 0.0:
+        qs = q + s * (qg - q)
+        if np.min(ground.margins(kin, qs)) < floor or _obstacle_gap(kin, qs, centers,
+                                                                      radii) < 0.0:
             return False
     return True
 
@@ -156,12 +282,13 @@ class ConfigurationMonitor:
     """The per-episode state of one :class:`ConfigurationPull`: q_g, the goal it was chosen
     for, and which arming of the stall pull it serves."""
 
-    def __init__(self, pull: ConfigurationPull, spec):
-        self.pull = pull
+    def __init__(self, pull: ConfigurationPull, spec, ground: Ground | None = None):
+        self.pull, self.ground = pull, ground  # ground: the controller's (None: spheres)
         self.kin = Kinematics(spec)  # its own pinocchio data: the controller's pass is kept
         self.q_min = np.asarray(spec.q_min, dtype=float)
         self.q_max = np.asarray(spec.q_max, dtype=float)
-        self.q_goal: np.ndarray | None = None
+        self.q_goal: np.ndarray | None = None  # the current target: a waypoint, then q_g
+        self.route: tuple[np.ndarray, ...] = ()  # the targets after it
         self.goal_for = np.full(3, np.nan)
         self.served: float | None = None  # t_armed of the stall pull last engaged for
         self.engaged = False
@@ -195,6 +322,9 @@ class ConfigurationMonitor:
             if self.q_goal is None:
                 self.engaged = False
                 return task
+        if self.route and np.linalg.norm(self.q_goal - q) < VIA_RADIUS:
+            self.q_goal, self.route = self.route[0], self.route[1:]
+            self.best, self.t_best = np.inf, obs.t
         e = self.q_goal - q
         n = len(q)
         acc = p.gain * e / max(float(np.linalg.norm(e)), p.length) \
@@ -226,5 +356,7 @@ class ConfigurationMonitor:
 
     def _choose(self, q: np.ndarray, obs) -> None:
         self.goal_for = np.array(obs.goal_position, dtype=float)
-        self.q_goal = goal_configuration(self.kin, obs.goal_position, obs.goal_quaternion, q,
-                                         obs.obstacle_centers, obs.obstacle_radii, self.pull)
+        route = goal_route(self.kin, obs.goal_position, obs.goal_quaternion, q,
+                           obs.obstacle_centers, obs.obstacle_radii, self.pull,
+                           ground=self.ground)
+        self.q_goal, self.route = (None, ()) if route is None else (route[0], route[1:])

@@ -29,6 +29,16 @@ with g = ``stall_pull`` [m/s²], a(t) ramping 0 → 1 over ``ramp`` [s] from the
 (convex, its only minimum the goal; a goal attractor of the kind the Fabrics method forces with),
 pulled through the same metric as PUMA's own rows.
 
+A creep is no progress either (``progress_fraction``, 0: off): the hand's distance counts as
+progress only when it falls by ``max(progress, progress_fraction · d_best)``, a fraction of
+what is left. In the logs of random tomato ``anywhere`` 2014 the arm slid along an obstacle
+1.7-2.7 cm away with joints 1 and 4 on their limits, 0.33 → 0.27 m from the goal in 11 s (3-6
+mm/s: 6-12 mm per window, above the 5 mm of ``progress``, a goal a minute or more away), and
+the pull armed only at 23 s of the 40. With a fraction f the pull arms once the remaining
+distance would take longer than about ``window``/f to close at the current rate (40 s for f =
+0.05), while PUMA's own approach, which closes a fixed fraction of the distance per second,
+counts as progress all the way in.
+
 When it lets go is PUMA's own measure: the pull disarms once PUMA's potential ψ (the latent
 distance to the goal, 0 there) has fallen below (1 − ``release``) times its value when the pull
 armed. Where the stall is a local minimum of ψ on the barriers (the hand held against an
@@ -86,12 +96,13 @@ PSI_SAMPLE_S = 0.1
 @dataclass(frozen=True)
 class StallPull:
     """The stall pull's settings (``method.forcing.stall_*``): gain g [m/s²] (0: off), window
-    [s], progress [m], psi_progress [1], radius [m], ramp [s], release [1], hold_radius [m],
-    hold_keep (see the module)."""
+    [s], progress [m], progress_fraction [1], psi_progress [1], radius [m], ramp [s], release
+    [1], hold_radius [m], hold_keep (see the module)."""
 
     gain: float = 0.0
     window: float = 2.0
     progress: float = 0.005
+    progress_fraction: float = 0.0
     psi_progress: float = 0.1
     radius: float = 0.045
     ramp: float = 1.0
@@ -128,6 +139,13 @@ class StallMonitor:
             self.psi, self.t_psi = float(potential()), t
         return self.psi
 
+    def _needed(self) -> float:
+        """How much nearer [m] than its best so far the hand must come to count as progress:
+        ``max(progress, progress_fraction · best)`` (the first distance always counts)."""
+        if not np.isfinite(self.best):
+            return 0.0
+        return max(self.pull.progress, self.pull.progress_fraction * self.best)
+
     def _released(self, d: float, psi: float) -> bool:
         """Whether an armed pull lets go at distance d [m] and potential ψ: armed near the goal,
         once inside the radius (never with hold_keep); armed elsewhere, once ψ is ``release``
@@ -150,7 +168,7 @@ class StallMonitor:
             self.t_armed = None  # over the ridge: PUMA's again, watched afresh from here
             self.best, self.t_best, self.best_psi, self.t_best_psi = d, t, psi, t
         if self.t_armed is None:
-            if d < self.best - p.progress:
+            if d < self.best - self._needed():
                 self.best, self.t_best = d, t
             if psi < (1.0 - p.psi_progress) * self.best_psi:
                 self.best_psi, self.t_best_psi = psi, t

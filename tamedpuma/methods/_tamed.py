@@ -22,7 +22,7 @@ from tamedpuma.fabrics.discrete import (
 from tamedpuma.fabrics.energy import execution_alpha
 from tamedpuma.methods._circulation import Circulation
 from tamedpuma.methods._configuration_pull import MODES as CONFIGURATION_MODES
-from tamedpuma.methods._configuration_pull import ConfigurationMonitor, ConfigurationPull
+from tamedpuma.methods._configuration_pull import ConfigurationMonitor, ConfigurationPull, Ground
 from tamedpuma.methods._learned import load_task, null_objective
 from tamedpuma.methods._policy import (
     Damping,
@@ -164,17 +164,26 @@ class TamedController:
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.circulation = self.forcing.make_circulation()
         self.stall = self.forcing.make_stall_monitor()
-        self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec)
         self.dt = float("nan")  # the scenario's, from reset
         self.hulls = (link_hulls(self.kinematics) if self.rate.barrier_step and self.rate.ground
                       and self.rate.ground_geometry == "mesh" else None)
+        self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec,
+                                                                     self.ground())
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
         self.circulation = self.forcing.make_circulation()
         self.stall = self.forcing.make_stall_monitor()
-        self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec)
+        self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec,
+                                                                     self.ground())
         self.dt = float(scenario.dt)
+
+    def ground(self) -> Ground | None:
+        """The ground the barrier step keeps (its geometry and plane), for the configuration
+        pull's goal configuration; None when the step has no ground rows."""
+        if not (self.rate.barrier_step and self.rate.ground):
+            return None
+        return Ground(self.rate.ground_height, self.hulls)
 
     def forced(self, obs: Observation):
         """(kinematic state, avoidance fabric, h, q̈_C, ẍ_d, ground rows) at the observation."""
@@ -544,6 +553,7 @@ class Forcing:
     stall_pull: float = StallPull.gain  # the stall pull's defaults are StallPull's
     stall_window: float = StallPull.window
     stall_progress: float = StallPull.progress
+    stall_progress_fraction: float = StallPull.progress_fraction
     stall_psi_progress: float = StallPull.psi_progress
     stall_radius: float = StallPull.radius
     stall_ramp: float = StallPull.ramp
@@ -556,6 +566,7 @@ class Forcing:
     stall_configuration_length: float = ConfigurationPull.length
     stall_configuration_release: float = ConfigurationPull.release
     stall_configuration_clearance: float = ConfigurationPull.clearance
+    stall_configuration_waypoints: int = ConfigurationPull.waypoints
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -615,16 +626,19 @@ class Forcing:
         return Circulation(self.circulation, self.circulation_gain, self.weight,
                            self.circulation_onset)
 
-    def make_configuration_monitor(self, spec) -> ConfigurationMonitor | None:
+    def make_configuration_monitor(self, spec, ground: Ground | None = None
+                                   ) -> ConfigurationMonitor | None:
         """A fresh :class:`~tamedpuma.methods._configuration_pull.ConfigurationMonitor` for the
-        robot ``spec`` (None when ``stall_configuration`` is off or there is no stall pull)."""
+        robot ``spec`` and the controller's ``ground`` (None when ``stall_configuration`` is off
+        or there is no stall pull)."""
         if self.stall_configuration == "off" or self.stall_pull <= 0.0:
             return None
         return ConfigurationMonitor(ConfigurationPull(
             mode=self.stall_configuration, gain=self.stall_configuration_gain,
             length=self.stall_configuration_length,
             release=self.stall_configuration_release,
-            clearance=self.stall_configuration_clearance), spec)
+            clearance=self.stall_configuration_clearance,
+            waypoints=self.stall_configuration_waypoints), spec, ground)
 
     def make_stall_monitor(self) -> StallMonitor | None:
         """A fresh :class:`~tamedpuma.methods._stall.StallMonitor` (None when ``stall_pull``
@@ -633,6 +647,7 @@ class Forcing:
             return None
         return StallMonitor(StallPull(
             gain=self.stall_pull, window=self.stall_window, progress=self.stall_progress,
+            progress_fraction=self.stall_progress_fraction,
             psi_progress=self.stall_psi_progress, radius=self.stall_radius, ramp=self.stall_ramp,
             release=self.stall_release, hold_radius=self.stall_hold_radius,
             hold_keep=self.stall_hold_keep))
@@ -682,20 +697,25 @@ def _check_stall_settings(f: Forcing) -> None:
         raise ConfigError(f"method.forcing.stall_configuration must be one of "
                           f"{CONFIGURATION_MODES}, got {f.stall_configuration!r}")
     if not (f.stall_configuration_gain > 0 and f.stall_configuration_length > 0
-            and f.stall_configuration_release >= 0 and f.stall_configuration_clearance >= 0):
+            and f.stall_configuration_release >= 0 and f.stall_configuration_clearance >= 0
+            and isinstance(f.stall_configuration_waypoints, int)
+            and not isinstance(f.stall_configuration_waypoints, bool)
+            and f.stall_configuration_waypoints >= 0):
         raise ConfigError("method.forcing.stall_configuration_gain [rad/s²] and _length "
                           "[rad] must be > 0, stall_configuration_release and _clearance "
-                          "[m] ≥ 0")
+                          "[m] ≥ 0, stall_configuration_waypoints an integer ≥ 0")
     if not isinstance(f.stall_hold_keep, bool):
         raise ConfigError(f"method.forcing.stall_hold_keep must be true or false, "
                           f"got {f.stall_hold_keep!r}")
     if not (f.stall_pull >= 0 and f.stall_window > 0 and f.stall_progress >= 0
             and f.stall_radius >= 0 and f.stall_ramp >= 0 and 0 <= f.stall_release < 1
-            and 0 <= f.stall_psi_progress < 1 and f.stall_hold_radius >= 0):
+            and 0 <= f.stall_psi_progress < 1 and f.stall_hold_radius >= 0
+            and 0 <= f.stall_progress_fraction < 1):
         raise ConfigError("method.forcing.stall_pull [m/s²], stall_progress [m], stall_radius "
                           "[m], stall_hold_radius [m] and stall_ramp [s] must be ≥ 0, "
                           "stall_window [s] > 0, "
-                          "stall_psi_progress and stall_release in [0, 1)")
+                          "stall_psi_progress, stall_progress_fraction and stall_release in "
+                          "[0, 1)")
 
 
 #: the energies a TamedPUMA method may energize (``method.energy``)

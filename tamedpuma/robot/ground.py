@@ -147,6 +147,16 @@ def hull_ground_rows(kinematics, hulls: LinkHulls, qd: np.ndarray,
     return GroundRows(heights, rows, jdqd)
 
 
+def hull_heights(kinematics, hulls: LinkHulls, q: np.ndarray) -> np.ndarray:
+    """The lowest point [m] of each hull at q (a placement pass of its own on ``kinematics``,
+    whose model the hulls' frame ids index): the heights :func:`hull_ground_rows` reads, at
+    any configuration (a goal configuration's check, not the control step)."""
+    pin.framesForwardKinematics(kinematics.model, kinematics.data, np.asarray(q, dtype=float))
+    oMf = kinematics.data.oMf
+    return np.array([oMf[f].translation[2] + float(np.min(v @ oMf[f].rotation[2]))
+                     for f, v in zip(hulls.frame_ids, hulls.vertices)])
+
+
 def hull_heights_from_poses(hulls: LinkHulls, link_names, positions: np.ndarray,
                             quaternions: np.ndarray) -> np.ndarray:
     """The lowest point [m] of each hull whose link is logged, from the link poses
