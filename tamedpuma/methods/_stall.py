@@ -37,7 +37,10 @@ mm/s: 6-12 mm per window, above the 5 mm of ``progress``, a goal a minute or mor
 the pull armed only at 23 s of the 40. With a fraction f the pull arms once the remaining
 distance would take longer than about ``window``/f to close at the current rate (40 s for f =
 0.05), while PUMA's own approach, which closes a fixed fraction of the distance per second,
-counts as progress all the way in.
+counts as progress all the way in. Off by default: the circulation's way round an obstacle is a
+creep too (Table-1 tomato 02, FPM: 0.57 → 0.53 m in 9 s, then round and in at 20 s), and a
+pull armed there pulled the hand back into the obstacle's shadow and into two joint limits
+(BENCHMARKS.md "Session 28").
 
 When it lets go is PUMA's own measure: the pull disarms once PUMA's potential ψ (the latent
 distance to the goal, 0 there) has fallen below (1 − ``release``) times its value when the pull
