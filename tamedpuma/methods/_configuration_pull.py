@@ -189,11 +189,12 @@ def goal_candidates(kin: Kinematics, position: np.ndarray, quaternion: np.ndarra
     rng = np.random.default_rng(seed)
     starts = [np.clip(np.asarray(q, dtype=float), lo, hi)]
     starts += [rng.uniform(lo, hi) for _ in range(pull.restarts)]
+    centers = np.asarray(obstacle_centers, dtype=float).reshape(-1, 3)
+    radii = np.asarray(obstacle_radii, dtype=float).reshape(-1)
     found = []
     for start in starts:
         qg = _pose_above_ground(kin, position, goal_rot, start, lo, hi, ground, pull.release)
-        if qg is not None and _obstacle_gap(kin, qg, obstacle_centers,
-                                            obstacle_radii) >= pull.clearance:
+        if qg is not None and _obstacle_gap(kin, qg, centers, radii) >= pull.clearance:
             found.append(qg)
     return sorted(found, key=lambda qg: float(np.linalg.norm(qg - q)))
 
@@ -252,14 +253,13 @@ def goal_route(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray, q:
 
 def _obstacle_gap(kin: Kinematics, q: np.ndarray, centers: np.ndarray,
                   radii: np.ndarray) -> float:
-    """The least clearance [m] between a body sphere at q and an obstacle (inf: none)."""
-    radii = np.asarray(radii, dtype=float).reshape(-1)
+    """The least clearance [m] between a body sphere at q and an obstacle (centres (m, 3),
+    radii (m,) [m]; inf: none)."""
     if not len(radii):
         return np.inf
     spheres = kin.sphere_centers(q)
-    return float(np.min(np.linalg.norm(spheres[:, None, :] - np.reshape(centers, (-1, 3))[None],
-                                       axis=2) - np.asarray(kin.sphere_radii)[:, None]
-                        - radii[None]))
+    return float(np.min(np.linalg.norm(spheres[:, None, :] - centers[None], axis=2)
+                        - kin.sphere_radii[:, None] - radii[None]))
 
 
 def _segment_clear(kin: Kinematics, q: np.ndarray, qg: np.ndarray, centers: np.ndarray,
