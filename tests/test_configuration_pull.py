@@ -29,6 +29,7 @@ from tamedpuma.methods._configuration_pull import (
 from tamedpuma.methods._policy import PoseTask, TaskAcceleration
 from tamedpuma.methods._tamed import Forcing
 from tamedpuma.robot.ground import hull_ground_rows, hull_heights, link_hulls
+from tamedpuma.robot.ik import pose_dls
 from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 from tamedpuma.types import Obstacles
 from tamedpuma.worlds.bullet import Disturbance, SimConfig, Simulator
@@ -116,6 +117,84 @@ def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go
     assert monitor.applied(at_limit, qd, 0.5, _stall(9.0, 0.5), obs, task) is not task
     always = ConfigurationMonitor(replace(PULL, mode="always"), spec)
     assert always.applied(free, qd, 0.5, _stall(3.0, 0.5), obs, task) is not task
+
+
+def test_near_the_goal_the_monitor_engages_only_with_a_near_release_and_lets_go_there(
+        kinematics):
+    spec = kinematics.spec
+    q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
+    p_goal, _ = kinematics.ee_frame(q_goal)
+    quat = kinematics.evaluate(q_goal, np.zeros(7)).ee_quaternion
+    obs = SimpleNamespace(t=0.0, goal_position=p_goal, goal_quaternion=quat,
+                          obstacle_centers=np.zeros((0, 3)), obstacle_radii=np.zeros(0))
+    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    q = np.array([spec.q_max[0] - 0.05, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])  # base at its limit
+    qd = np.zeros(7)
+    near = 0.5 * PULL.release  # armed inside the release distance
+    assert ConfigurationMonitor(PULL, spec).applied(q, qd, near, _stall(3.0, near), obs,
+                                                    task) is task  # near_release 0: never
+    pull = replace(PULL, near_release=0.03)
+    monitor = ConfigurationMonitor(pull, spec)
+    assert monitor.applied(q, qd, near, _stall(3.0, near), obs, task) is not task
+    assert monitor.release_at == pull.near_release
+    # still engaged between near_release and release, let go within near_release
+    assert monitor.applied(q, qd, 0.04, _stall(3.0, 0.04), obs, task) is not task
+    assert monitor.applied(q, qd, 0.03, _stall(3.0, 0.03), obs, task) is task
+    # armed within near_release: nothing to do
+    inside = ConfigurationMonitor(pull, spec)
+    assert inside.applied(q, qd, 0.02, _stall(3.0, 0.02), obs, task) is task
+    # armed far away it lets go at the release distance, as before
+    far = ConfigurationMonitor(pull, spec)
+    assert far.applied(q, qd, 0.5, _stall(3.0, 0.5), obs, task) is not task
+    assert far.release_at == pull.release
+    assert far.applied(q, qd, PULL.release, _stall(3.0, PULL.release), obs, task) is task
+
+
+def test_position_only_ik_reaches_the_position_and_leaves_the_orientation_free(kinematics):
+    spec = kinematics.spec
+    target = np.array([0.4, 0.5, 0.2, -1.3, 0.3, 0.9, 0.4])
+    p_goal, rot_goal = kinematics.ee_frame(target)
+    lo, hi = spec.q_min + 0.1, spec.q_max - 0.1
+    start = np.array([-0.3, 0.2, -0.4, -1.0, -0.5, 0.4, -1.0])
+    q, err, _ = pose_dls(kinematics, p_goal, rot_goal, start, lo, hi, damping=0.05,
+                         tolerance=1e-5, max_iterations=300, rotation_weight=0.0)
+    p, rot = kinematics.ee_frame(q)
+    assert np.linalg.norm(p - p_goal) < 1e-4
+    np.testing.assert_array_equal(err[3:], 0.0)
+    assert np.linalg.norm(rotation_error(rot, rot_goal)) > 0.05  # not the goal's orientation
+
+
+def test_where_every_solution_of_the_pose_collides_the_fallback_frees_the_orientation(
+        kinematics):
+    target = np.array([0.2, 0.5, 0.0, -1.3, 0.0, 0.9, 0.3])
+    p_goal, rot_goal = kinematics.ee_frame(target)
+    quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
+    # the body spheres rigid with the hand sit where they are for every solution of the pose:
+    # an obstacle on the one farthest from the task point collides with all of them
+    other = goal_candidates(kinematics, p_goal, quat, np.zeros(7), np.zeros((0, 3)),
+                            np.zeros(0), PULL, seed=5)
+    assert len(other) >= 2
+    centers = [kinematics.sphere_centers(qg) for qg in other]
+    rigid = np.all([np.linalg.norm(c - centers[0], axis=1) < 1e-3 for c in centers], axis=0)
+    reach = np.where(rigid, np.linalg.norm(centers[0] - p_goal, axis=1), -1.0)
+    k = int(np.argmax(reach))
+    assert reach[k] > 0.03
+    r_k = kinematics.sphere_radii[k]
+    out = (centers[0][k] - p_goal) / reach[k]
+    obstacle = (centers[0][k] + out * r_k)[None]
+    radius = np.array([0.8 * r_k])
+    pull = replace(PULL, restarts=8)
+    assert goal_candidates(kinematics, p_goal, quat, np.zeros(7), obstacle, radius,
+                           pull) == []
+    found = goal_candidates(kinematics, p_goal, quat, np.zeros(7), obstacle, radius,
+                            replace(pull, position_fallback=True))
+    assert found
+    for qg in found:
+        p, _ = kinematics.ee_frame(qg)
+        assert np.linalg.norm(p - p_goal) < 1e-3
+        gap = np.min(np.linalg.norm(kinematics.sphere_centers(qg)[:, None] - obstacle[None],
+                                    axis=2) - kinematics.sphere_radii[:, None] - radius)
+        assert gap >= pull.clearance
 
 
 def test_a_goal_configuration_behind_an_obstacle_on_the_straight_segment_is_not_chosen(
@@ -291,7 +370,10 @@ def test_the_attractor_potential_is_the_pull_s_own_by_finite_differences(kinemat
                                  {"stall_configuration_release": -1.0},
                                  {"stall_configuration_waypoints": -1},
                                  {"stall_configuration_waypoints": 2.5},
-                                 {"stall_configuration_waypoints": True}])
+                                 {"stall_configuration_waypoints": True},
+                                 {"stall_configuration_near_release": -0.01},
+                                 {"stall_configuration_near_release": 0.2},  # > release
+                                 {"stall_configuration_position_fallback": "yes"}])
 def test_bad_configuration_pull_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="stall_configuration"):
         Forcing.from_mapping(bad)

@@ -51,6 +51,25 @@ waypoint w, q → w → q_g, both segments clear, the shortest of ``waypoints`` 
 segment's middle (:func:`goal_route`); the attractor pulls to w and turns to q_g within
 :data:`VIA_RADIUS` of it (one switch: one more piece of CPM's piecewise energy argument below).
 
+Near the goal. The first form engaged only farther than ``release`` from the goal. In the
+logged 200-per-task suite (seeds 2000-2099, BENCHMARKS.md "Session 29") most remaining FPM/CPM
+failures rest 5-13 cm from the goal with a joint on its limit; the stall pull armed there,
+within ``release``, and nothing else acted (random tomato ``anywhere`` 2097, FPM: joint 3 at
+2.95 rad, the hand 9-10 cm short and creeping, the stall pull armed at 19.7 s, 7.1 cm short at
+40 s). With ``near_release`` > 0 the pull engages at such an arming too (a joint at a limit,
+the hand farther than ``near_release``) and lets go within ``near_release`` [m] instead of
+``release``. The way out is often a whole reconfiguration (2097: the elbow turned over, q₄
+1.7 → −1.65 rad, the hand 0.53 m out and back in 7 s, at the goal at 26.5 s): the joint-limit
+box is left only that way, and the attractor's rest point is still the goal pose.
+
+Position fallback. A goal pose can be in collision whatever the arm does: the body spheres
+rigid with the hand sit where the pose puts them, for every IK solution (random pouring
+``anywhere`` 2094: a body sphere at least 4 mm inside an obstacle in every solution found from
+25 starts; ``near_table1`` 61013: 3.7 cm). With ``position_fallback`` the candidates are then
+the solutions of the goal position alone (the orientation rows weighted 0 in the IK), clear as
+before: the hand reaches the position (what the success criterion judges) with its orientation
+off the goal's, which the obstacles would not let it take anyway.
+
 What holds. Safety never depended on the forcing: the barriers, the energization bound and the
 control-rate barrier step are unchanged, so the arm cannot be carried through an obstacle or a
 limit by it. Away from these stalls the forcing is PUMA's (and the stall pull's) to the bit, so
@@ -110,8 +129,11 @@ VIA_RADIUS = 0.3
 class ConfigurationPull:
     """Settings (``method.forcing.stall_configuration*``): mode (``off``, ``limits``,
     ``always``), gain g [rad/s²], length ℓ [rad], limit_band [rad], release [m], margin [rad]
-    (q_g's distance from the limits), clearance [m] (q_g's body spheres from the obstacles),
-    restarts (random IK starts besides q), waypoints (per goal configuration, for a
+    (q_g's distance from the limits), near_release [m] (where the stall pull arms within
+    ``release`` of the goal, the pull engages too and lets go within this distance; 0: it
+    never engages within ``release``), clearance [m] (q_g's body spheres from the obstacles),
+    restarts (random IK starts besides q), position_fallback (where no IK solution of the goal
+    pose is clear, q_g solves the goal position alone), waypoints (per goal configuration, for a
     two-segment route where no straight one is clear; 0: straight only), window [s] and
     progress [rad] (let go when ‖q − q_g‖ has not fallen by ``progress`` for ``window``)."""
 
@@ -120,9 +142,11 @@ class ConfigurationPull:
     length: float = 1.0
     limit_band: float = 0.1
     release: float = 0.15
+    near_release: float = 0.0
     margin: float = 0.1
     clearance: float = 0.01
     restarts: int = 24
+    position_fallback: bool = False
     waypoints: int = 0
     window: float = 2.0
     progress: float = 0.05
@@ -146,15 +170,17 @@ class Ground:
 
 def _pose_above_ground(kin: Kinematics, position: np.ndarray, rotation: np.ndarray,
                        start: np.ndarray, lo: np.ndarray, hi: np.ndarray, ground: Ground,
-                       max_raise: float) -> np.ndarray | None:
+                       max_raise: float, rotation_weight: float = 1.0) -> np.ndarray | None:
     """An IK solution of the pose (position [m], rotation) from ``start`` inside [lo, hi] whose
     ground margins are ≥ 0; where the solution dips below the plane by δ, the target is raised
     by δ + :data:`RAISE_SLACK_M` and solved again from it (at most :data:`RAISE_ATTEMPTS`
-    times, by at most ``max_raise`` [m] in all); None when that fails."""
+    times, by at most ``max_raise`` [m] in all); None when that fails. ``rotation_weight``: the
+    orientation rows' weight in the IK (0: the position alone)."""
     target = np.array(position, dtype=float)
     for _ in range(RAISE_ATTEMPTS + 1):
         q, err, _ = pose_dls(kin, target, rotation, start, lo, hi, damping=0.05,
-                             tolerance=1e-4, max_iterations=200, patience=20)
+                             tolerance=1e-4, max_iterations=200, patience=20,
+                             rotation_weight=rotation_weight)
         if np.linalg.norm(err) > 1e-3:
             return None
         deficit = -float(np.min(ground.margins(kin, q)))
@@ -179,7 +205,8 @@ def goal_candidates(kin: Kinematics, position: np.ndarray, quaternion: np.ndarra
     ``pull.clearance`` above z = 0). Where the goal pose itself reaches below the ground (a
     goal low over the table: the controller cannot put the hand there either), the pose raised
     until it is above, by at most ``pull.release`` (the pull hands back to PUMA there anyway).
-    Deterministic for a seed."""
+    Where no solution of the pose is clear and ``pull.position_fallback``: the solutions of the
+    goal position alone (the orientation free; see the module). Deterministic for a seed."""
     spec = kin.spec
     ground = ground or Ground(pull.clearance)
     lo = np.asarray(spec.q_min, dtype=float) + pull.margin
@@ -192,10 +219,14 @@ def goal_candidates(kin: Kinematics, position: np.ndarray, quaternion: np.ndarra
     centers = np.asarray(obstacle_centers, dtype=float).reshape(-1, 3)
     radii = np.asarray(obstacle_radii, dtype=float).reshape(-1)
     found = []
-    for start in starts:
-        qg = _pose_above_ground(kin, position, goal_rot, start, lo, hi, ground, pull.release)
-        if qg is not None and _obstacle_gap(kin, qg, centers, radii) >= pull.clearance:
-            found.append(qg)
+    for rotation_weight in (1.0, 0.0) if pull.position_fallback else (1.0,):
+        for start in starts:
+            qg = _pose_above_ground(kin, position, goal_rot, start, lo, hi, ground, pull.release,
+                                    rotation_weight)
+            if qg is not None and _obstacle_gap(kin, qg, centers, radii) >= pull.clearance:
+                found.append(qg)
+        if found:
+            break
     return sorted(found, key=lambda qg: float(np.linalg.norm(qg - q)))
 
 
@@ -292,6 +323,7 @@ class ConfigurationMonitor:
         self.goal_for = np.full(3, np.nan)
         self.served: float | None = None  # t_armed of the stall pull last engaged for
         self.engaged = False
+        self.release_at = pull.release  # [m] this engagement lets go within it
         self.best = np.inf  # the least ‖q − q_g‖ while engaged [rad], and when it was reached
         self.t_best = -np.inf
 
@@ -305,12 +337,15 @@ class ConfigurationMonitor:
         module). distance: the hand's distance to the goal [m]; stall: the
         :class:`~tamedpuma.methods._stall.StallMonitor` (its ``t_armed``)."""
         p = self.pull
-        if self.engaged and (distance <= p.release or not stall.armed or self._stuck(q, obs.t)):
+        if self.engaged and (distance <= self.release_at or not stall.armed
+                             or self._stuck(q, obs.t)):
             self.engaged = False
         armed_at = stall.t_armed
+        release = p.release if distance > p.release else p.near_release
         if (not self.engaged and armed_at is not None and armed_at != self.served
-                and distance > p.release and (p.mode == "always" or self._at_limit(q))):
-            self.served = armed_at
+                and release > 0.0 and distance > release
+                and (p.mode == "always" or self._at_limit(q))):
+            self.served, self.release_at = armed_at, release
             self._choose(q, obs)
             self.engaged = self.q_goal is not None
             self.best, self.t_best = np.inf, obs.t

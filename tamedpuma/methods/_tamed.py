@@ -534,7 +534,9 @@ class Forcing:
     a joint-space attractor to a goal configuration replaces PUMA's rows after the stall pull
     arms (with a joint within 0.1 rad of a limit, or at every arming), with gain
     stall_configuration_gain [rad/s²], until the hand is within stall_configuration_release [m]
-    of the goal (:mod:`tamedpuma.methods._configuration_pull`)."""
+    of the goal (armed nearer than that: within stall_configuration_near_release [m], 0: it does
+    not engage there; stall_configuration_position_fallback: the goal position alone where no
+    solution of the goal pose is clear) (:mod:`tamedpuma.methods._configuration_pull`)."""
 
     mode: str = "additive"
     weight: float = 100.0
@@ -565,6 +567,8 @@ class Forcing:
     stall_configuration_gain: float = ConfigurationPull.gain
     stall_configuration_length: float = ConfigurationPull.length
     stall_configuration_release: float = ConfigurationPull.release
+    stall_configuration_near_release: float = ConfigurationPull.near_release
+    stall_configuration_position_fallback: bool = ConfigurationPull.position_fallback
     stall_configuration_clearance: float = ConfigurationPull.clearance
     stall_configuration_waypoints: int = ConfigurationPull.waypoints
 
@@ -637,6 +641,8 @@ class Forcing:
             mode=self.stall_configuration, gain=self.stall_configuration_gain,
             length=self.stall_configuration_length,
             release=self.stall_configuration_release,
+            near_release=self.stall_configuration_near_release,
+            position_fallback=self.stall_configuration_position_fallback,
             clearance=self.stall_configuration_clearance,
             waypoints=self.stall_configuration_waypoints), spec, ground)
 
@@ -698,12 +704,18 @@ def _check_stall_settings(f: Forcing) -> None:
                           f"{CONFIGURATION_MODES}, got {f.stall_configuration!r}")
     if not (f.stall_configuration_gain > 0 and f.stall_configuration_length > 0
             and f.stall_configuration_release >= 0 and f.stall_configuration_clearance >= 0
+            and 0 <= f.stall_configuration_near_release <= f.stall_configuration_release
             and isinstance(f.stall_configuration_waypoints, int)
             and not isinstance(f.stall_configuration_waypoints, bool)
             and f.stall_configuration_waypoints >= 0):
         raise ConfigError("method.forcing.stall_configuration_gain [rad/s²] and _length "
                           "[rad] must be > 0, stall_configuration_release and _clearance "
-                          "[m] ≥ 0, stall_configuration_waypoints an integer ≥ 0")
+                          "[m] ≥ 0, stall_configuration_near_release [m] in [0, "
+                          "stall_configuration_release], stall_configuration_waypoints an "
+                          "integer ≥ 0")
+    if not isinstance(f.stall_configuration_position_fallback, bool):
+        raise ConfigError(f"method.forcing.stall_configuration_position_fallback must be true "
+                          f"or false, got {f.stall_configuration_position_fallback!r}")
     if not isinstance(f.stall_hold_keep, bool):
         raise ConfigError(f"method.forcing.stall_hold_keep must be true or false, "
                           f"got {f.stall_hold_keep!r}")

@@ -27,19 +27,21 @@ class PoseIKSolution:
 
 def pose_dls(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tolerance,
              max_iterations,
-             patience: int = 0):
+             patience: int = 0, rotation_weight: float = 1.0):
     """Damped least squares on the pose error from q, clipped to [lo, hi] (the module's
     iteration), until ‖e‖ < tolerance, ``max_iterations``, or, with ``patience`` > 0, once that
     many iterations have not reduced ‖e‖ by 1 % (stuck on the limits): (q, e, iterations); e is
-    the error at the last q evaluated."""
+    the error at the last q evaluated. ``rotation_weight`` scales the orientation rows of e and J
+    (0: the position alone, the orientation free; e's orientation part is then 0)."""
     zeros = np.zeros(kin.spec.dof)
+    rows = np.array([1.0, 1.0, 1.0] + [rotation_weight] * 3)
     err = np.full(6, np.inf)
     best, since = np.inf, 0
     it = 0
     for it in range(1, max_iterations + 1):  # noqa: B007 (count returned)
         state = kin.evaluate(q, zeros)
-        err = np.concatenate([position - state.ee_position,
-                              rotation_error(state.ee_rotation, goal_rot)])
+        err = rows * np.concatenate([position - state.ee_position,
+                                     rotation_error(state.ee_rotation, goal_rot)])
         norm = np.linalg.norm(err)
         if norm < tolerance:
             break
@@ -50,7 +52,7 @@ def pose_dls(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tolerance,
                 since += 1
                 if since >= patience:
                     break
-        jac = state.ee_jacobian
+        jac = rows[:, None] * state.ee_jacobian
         step = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(6), err)
         q = np.clip(q + step, lo, hi)
     return q, err, it
