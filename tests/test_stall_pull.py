@@ -28,11 +28,11 @@ PULL = StallPull(gain=1.5, window=2.0, progress=0.005, psi_progress=0.1, radius=
                  release=0.05)
 
 
-def _feed(monitor, times, distances, psi=lambda: 1.0):
+def _feed(monitor, times, distances, psi=lambda: 1.0, at_limit=False):
     """The monitor's output at each (t, d), the hand on the x axis d [m] short of GOAL; psi: a
-    constant ψ, or a sequence of ψ one per step."""
+    constant ψ, or a sequence of ψ one per step; at_limit: a joint near its limit (all steps)."""
     psis = [psi] * len(times) if callable(psi) else [lambda v=v: v for v in psi]
-    return [monitor.acceleration(t, GOAL - [d, 0.0, 0.0], GOAL, f)
+    return [monitor.acceleration(t, GOAL - [d, 0.0, 0.0], GOAL, f, at_limit)
             for t, d, f in zip(times, distances, psis, strict=True)]
 
 
@@ -79,6 +79,22 @@ def test_a_creeping_hand_arms_the_pull_only_with_a_progress_fraction():
     assert [a is None for a in out] == list(t < 2.0)
     approach = 0.045 + 0.5 * np.exp(-t / 3.0)
     assert all(a is None for a in _feed(StallMonitor(fraction), t, approach, psi=psi))
+
+
+def test_the_limit_progress_fraction_counts_a_creep_only_with_a_joint_near_its_limit():
+    """The creep above: with ``limit_progress_fraction`` it arms after the window only while a
+    joint is near its limit (the caller's flag); away from the limits (the circulation's slow
+    way round an obstacle) the absolute progress alone decides, and it never arms."""
+    t = np.round(np.arange(0.0, 10.0, 0.1), 6)
+    psi = np.full(len(t), 2.0)
+    creep = 0.5 - 0.004 * t
+    gated = replace(PULL, limit_progress_fraction=0.05)
+    assert all(a is None for a in _feed(StallMonitor(gated), t, creep, psi=psi))
+    out = _feed(StallMonitor(gated), t, creep, psi=psi, at_limit=True)
+    assert [a is None for a in out] == list(t < 2.0)
+    approach = 0.045 + 0.5 * np.exp(-t / 3.0)
+    assert all(a is None for a in _feed(StallMonitor(gated), t, approach, psi=psi,
+                                        at_limit=True))
 
 
 def test_the_potential_is_evaluated_at_most_every_sample_period():
@@ -260,7 +276,9 @@ def test_a_run_that_keeps_approaching_is_unchanged_by_the_pull():
                                  {"stall_hold_keep": 1}, {"stall_rotation_weight": 0.0},
                                  {"stall_rotation_weight": 1.5},
                                  {"stall_progress_fraction": 1.0},
-                                 {"stall_progress_fraction": -0.1}])
+                                 {"stall_progress_fraction": -0.1},
+                                 {"stall_limit_progress_fraction": 1.0},
+                                 {"stall_limit_progress_fraction": -0.1}])
 def test_bad_stall_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="stall"):
         Forcing.from_mapping({"mode": "metric", **bad})

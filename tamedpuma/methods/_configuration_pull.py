@@ -327,7 +327,8 @@ class ConfigurationMonitor:
         self.best = np.inf  # the least ‖q − q_g‖ while engaged [rad], and when it was reached
         self.t_best = -np.inf
 
-    def _at_limit(self, q: np.ndarray) -> bool:
+    def at_limit(self, q: np.ndarray) -> bool:
+        """A joint within ``limit_band`` [rad] of a limit."""
         band = self.pull.limit_band
         return bool(np.any(q - self.q_min < band) or np.any(self.q_max - q < band))
 
@@ -344,7 +345,7 @@ class ConfigurationMonitor:
         release = p.release if distance > p.release else p.near_release
         if (not self.engaged and armed_at is not None and armed_at != self.served
                 and release > 0.0 and distance > release
-                and (p.mode == "always" or self._at_limit(q))):
+                and (p.mode == "always" or self.at_limit(q))):
             self.served, self.release_at = armed_at, release
             self._choose(q, obs)
             self.engaged = self.q_goal is not None

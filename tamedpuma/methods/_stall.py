@@ -40,7 +40,11 @@ distance would take longer than about ``window``/f to close at the current rate 
 counts as progress all the way in. Off by default: the circulation's way round an obstacle is a
 creep too (Table-1 tomato 02, FPM: 0.57 → 0.53 m in 9 s, then round and in at 20 s), and a
 pull armed there pulled the hand back into the obstacle's shadow and into two joint limits
-(BENCHMARKS.md "Session 28").
+(BENCHMARKS.md "Session 28"). ``limit_progress_fraction`` asks the fraction only while a joint
+is within the configuration pull's band of its limit (the caller says so), which tells the
+joint-limit creep of 2014 from the circulation's way round (no joint at a limit): Table-1 tomato
+02 is kept, but on fresh seeds it fixed as many runs as it lost (BENCHMARKS.md "Session 29");
+off by default too.
 
 When it lets go is PUMA's own measure: the pull disarms once PUMA's potential ψ (the latent
 distance to the goal, 0 there) has fallen below (1 − ``release``) times its value when the pull
@@ -99,13 +103,14 @@ PSI_SAMPLE_S = 0.1
 @dataclass(frozen=True)
 class StallPull:
     """The stall pull's settings (``method.forcing.stall_*``): gain g [m/s²] (0: off), window
-    [s], progress [m], progress_fraction [1], psi_progress [1], radius [m], ramp [s], release
-    [1], hold_radius [m], hold_keep (see the module)."""
+    [s], progress [m], progress_fraction [1], limit_progress_fraction [1], psi_progress [1],
+    radius [m], ramp [s], release [1], hold_radius [m], hold_keep (see the module)."""
 
     gain: float = 0.0
     window: float = 2.0
     progress: float = 0.005
     progress_fraction: float = 0.0
+    limit_progress_fraction: float = 0.0
     psi_progress: float = 0.1
     radius: float = 0.045
     ramp: float = 1.0
@@ -127,6 +132,7 @@ class StallMonitor:
         self.psi_armed = np.nan
         self.armed_near = False  # armed within hold_radius: see _released
         self.distance = np.inf  # the hand's distance to the goal at the last call [m]
+        self.at_limit = False  # a joint near its limit at the last call (the caller's judgement)
 
     @property
     def armed(self) -> bool:
@@ -144,10 +150,13 @@ class StallMonitor:
 
     def _needed(self) -> float:
         """How much nearer [m] than its best so far the hand must come to count as progress:
-        ``max(progress, progress_fraction · best)`` (the first distance always counts)."""
+        ``max(progress, f · best)``, f = ``progress_fraction``, or ``limit_progress_fraction``
+        where larger while a joint is near its limit (the first distance always counts)."""
         if not np.isfinite(self.best):
             return 0.0
-        return max(self.pull.progress, self.pull.progress_fraction * self.best)
+        p = self.pull
+        f = max(p.progress_fraction, p.limit_progress_fraction if self.at_limit else 0.0)
+        return max(p.progress, f * self.best)
 
     def _released(self, d: float, psi: float) -> bool:
         """Whether an armed pull lets go at distance d [m] and potential ψ: armed near the goal,
@@ -159,10 +168,13 @@ class StallMonitor:
         return psi < (1.0 - p.release) * self.psi_armed
 
     def acceleration(self, t: float, position: np.ndarray, goal: np.ndarray,
-                     potential: Callable[[], float]) -> np.ndarray | None:
+                     potential: Callable[[], float],
+                     at_limit: bool = False) -> np.ndarray | None:
         """The attractor's task acceleration [m/s²] at time t [s] (hand ``position`` and
         ``goal`` [m]; ``potential()``: PUMA's ψ there, called at most every
-        :data:`PSI_SAMPLE_S`), or None while disarmed. Updates the monitor's state."""
+        :data:`PSI_SAMPLE_S`; ``at_limit``: a joint near its limit, see :meth:`_needed`), or
+        None while disarmed. Updates the monitor's state."""
+        self.at_limit = at_limit
         e = np.asarray(goal, dtype=float) - np.asarray(position, dtype=float)
         d = self.distance = float(np.linalg.norm(e))
         p = self.pull
@@ -185,10 +197,10 @@ class StallMonitor:
         return (a * p.gain / max(d, PULL_LENGTH_M)) * e
 
     def applied(self, t: float, position: np.ndarray, goal: np.ndarray, task: TaskAcceleration,
-                potential: Callable[[], float]) -> TaskAcceleration:
+                potential: Callable[[], float], at_limit: bool = False) -> TaskAcceleration:
         """``task`` with the attractor added to its position rows (the first three, or all of
         a planar task's)."""
-        extra = self.acceleration(t, position, goal, potential)
+        extra = self.acceleration(t, position, goal, potential, at_limit)
         if extra is None:
             return task
         xdd = np.array(task.xdd, dtype=float)

@@ -83,7 +83,8 @@ class PumaController:
         task = self.task.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         if stall is not None:
             task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
-                self.task.potential(state, obs.goal_position, obs.goal_quaternion)[0]))
+                self.task.potential(state, obs.goal_position, obs.goal_quaternion)[0]),
+                at_limit=configuration is not None and configuration.at_limit(obs.q))
             if configuration is not None:
                 task = configuration.applied(obs.q, obs.qd, stall.distance, stall, obs, task)
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
@@ -556,6 +557,7 @@ class Forcing:
     stall_window: float = StallPull.window
     stall_progress: float = StallPull.progress
     stall_progress_fraction: float = StallPull.progress_fraction
+    stall_limit_progress_fraction: float = StallPull.limit_progress_fraction
     stall_psi_progress: float = StallPull.psi_progress
     stall_radius: float = StallPull.radius
     stall_ramp: float = StallPull.ramp
@@ -654,6 +656,7 @@ class Forcing:
         return StallMonitor(StallPull(
             gain=self.stall_pull, window=self.stall_window, progress=self.stall_progress,
             progress_fraction=self.stall_progress_fraction,
+            limit_progress_fraction=self.stall_limit_progress_fraction,
             psi_progress=self.stall_psi_progress, radius=self.stall_radius, ramp=self.stall_ramp,
             release=self.stall_release, hold_radius=self.stall_hold_radius,
             hold_keep=self.stall_hold_keep))
@@ -722,11 +725,12 @@ def _check_stall_settings(f: Forcing) -> None:
     if not (f.stall_pull >= 0 and f.stall_window > 0 and f.stall_progress >= 0
             and f.stall_radius >= 0 and f.stall_ramp >= 0 and 0 <= f.stall_release < 1
             and 0 <= f.stall_psi_progress < 1 and f.stall_hold_radius >= 0
-            and 0 <= f.stall_progress_fraction < 1):
+            and 0 <= f.stall_progress_fraction < 1 and 0 <= f.stall_limit_progress_fraction < 1):
         raise ConfigError("method.forcing.stall_pull [m/s²], stall_progress [m], stall_radius "
                           "[m], stall_hold_radius [m] and stall_ramp [s] must be ≥ 0, "
                           "stall_window [s] > 0, "
-                          "stall_psi_progress, stall_progress_fraction and stall_release in "
+                          "stall_psi_progress, stall_progress_fraction, "
+                          "stall_limit_progress_fraction and stall_release in "
                           "[0, 1)")
 
 
