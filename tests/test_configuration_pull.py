@@ -134,7 +134,10 @@ def test_near_the_goal_the_monitor_engages_only_with_a_near_release_and_lets_go_
     assert ConfigurationMonitor(PULL, spec).applied(q, qd, near, _stall(3.0, near), obs,
                                                     task) is task  # near_release 0: never
     pull = replace(PULL, near_release=0.03)
+    late = ConfigurationMonitor(pull, spec)  # near the goal only at the arming step
+    assert late.applied(q, qd, near, _stall(-1.0, near), obs, task) is task
     monitor = ConfigurationMonitor(pull, spec)
+    obs.t = 3.0
     assert monitor.applied(q, qd, near, _stall(3.0, near), obs, task) is not task
     assert monitor.release_at == pull.near_release
     # still engaged between near_release and release, let go within near_release
@@ -144,10 +147,10 @@ def test_near_the_goal_the_monitor_engages_only_with_a_near_release_and_lets_go_
     inside = ConfigurationMonitor(pull, spec)
     assert inside.applied(q, qd, 0.02, _stall(3.0, 0.02), obs, task) is task
     # armed far away it lets go at the release distance, as before
-    far = ConfigurationMonitor(pull, spec)
-    assert far.applied(q, qd, 0.5, _stall(3.0, 0.5), obs, task) is not task
+    far = ConfigurationMonitor(pull, spec)  # farther: any time while armed, as before
+    assert far.applied(q, qd, 0.5, _stall(1.0, 0.5), obs, task) is not task
     assert far.release_at == pull.release
-    assert far.applied(q, qd, PULL.release, _stall(3.0, PULL.release), obs, task) is task
+    assert far.applied(q, qd, PULL.release, _stall(1.0, PULL.release), obs, task) is task
 
 
 def test_position_only_ik_reaches_the_position_and_leaves_the_orientation_free(kinematics):

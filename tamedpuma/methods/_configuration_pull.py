@@ -58,7 +58,11 @@ within ``release``, and nothing else acted (random tomato ``anywhere`` 2097, FPM
 2.95 rad, the hand 9-10 cm short and creeping, the stall pull armed at 19.7 s, 7.1 cm short at
 40 s). With ``near_release`` > 0 the pull engages at such an arming too (a joint at a limit,
 the hand farther than ``near_release``) and lets go within ``near_release`` [m] instead of
-``release``. The way out is often a whole reconfiguration (2097: the elbow turned over, q₄
+``release``, and only at the control step the stall pull arms in: armed near the goal the stall
+pull holds for good (``stall_hold_keep``), and a joint reaching its band later, while the hand
+still comes in, is no stall (random pouring ``anywhere`` 2026, CPM: engaged 7 s after the
+arming, the hand 6.3 cm out and closing, then a 1.4 m reconfiguration that ran out of time).
+The way out is often a whole reconfiguration (2097: the elbow turned over, q₄
 1.7 → −1.65 rad, the hand 0.53 m out and back in 7 s, at the goal at 26.5 s): the joint-limit
 box is left only that way, and the attractor's rest point is still the goal pose.
 
@@ -123,6 +127,9 @@ GROUND_SLACK_M = 0.001
 ROUTE_GOALS = 3
 #: [rad] the pull turns from a waypoint to the next target once this near it
 VIA_RADIUS = 0.3
+#: [s] near the goal the pull engages only at the control step the stall pull arms in (its
+#: t_armed is that step's t; this absorbs nothing but rounding)
+ARMING_TOLERANCE_S = 1e-9
 
 
 @dataclass(frozen=True)
@@ -342,9 +349,11 @@ class ConfigurationMonitor:
                              or self._stuck(q, obs.t)):
             self.engaged = False
         armed_at = stall.t_armed
-        release = p.release if distance > p.release else p.near_release
+        near = distance <= p.release
+        release = p.near_release if near else p.release
         if (not self.engaged and armed_at is not None and armed_at != self.served
                 and release > 0.0 and distance > release
+                and (not near or obs.t - armed_at < ARMING_TOLERANCE_S)
                 and (p.mode == "always" or self.at_limit(q))):
             self.served, self.release_at = armed_at, release
             self._choose(q, obs)
