@@ -52,8 +52,9 @@ segment's middle (:func:`goal_route`); the attractor pulls to w and turns to q_g
 :data:`VIA_RADIUS` of it (one switch: one more piece of CPM's piecewise energy argument below).
 
 Near the goal. The first form engaged only farther than ``release`` from the goal. In the
-logged 200-per-task suite (seeds 2000-2099, BENCHMARKS.md "Session 29") most remaining FPM/CPM
-failures rest 5-13 cm from the goal with a joint on its limit; the stall pull armed there,
+logged 200-per-task suite (seeds 2000-2099, BENCHMARKS.md "Session 29") 11 of FPM's and CPM's
+29 failures with obstacles end 6-15 cm from the goal with a joint on its limit; the stall pull
+armed there,
 within ``release``, and nothing else acted (random tomato ``anywhere`` 2097, FPM: joint 3 at
 2.95 rad, the hand 9-10 cm short and creeping, the stall pull armed at 19.7 s, 7.1 cm short at
 40 s). With ``near_release`` > 0 the pull engages at such an arming too (a joint at a limit,
