@@ -51,21 +51,20 @@ waypoint w, q → w → q_g, both segments clear, the shortest of ``waypoints`` 
 segment's middle (:func:`goal_route`); the attractor pulls to w and turns to q_g within
 :data:`VIA_RADIUS` of it (one switch: one more piece of CPM's piecewise energy argument below).
 
-Near the goal. The first form engaged only farther than ``release`` from the goal. In the
-logged 200-per-task suite (seeds 2000-2099, BENCHMARKS.md "Session 29") 11 of FPM's and CPM's
-29 failures with obstacles end 6-15 cm from the goal with a joint on its limit; the stall pull
-armed there,
-within ``release``, and nothing else acted (random tomato ``anywhere`` 2097, FPM: joint 3 at
-2.95 rad, the hand 9-10 cm short and creeping, the stall pull armed at 19.7 s, 7.1 cm short at
-40 s). With ``near_release`` > 0 the pull engages at such an arming too (a joint at a limit,
-the hand farther than ``near_release``) and lets go within ``near_release`` [m] instead of
-``release``, and only at the control step the stall pull arms in: armed near the goal the stall
-pull holds for good (``stall_hold_keep``), and a joint reaching its band later, while the hand
-still comes in, is no stall (random pouring ``anywhere`` 2026, CPM: engaged 7 s after the
-arming, the hand 6.3 cm out and closing, then a 1.4 m reconfiguration that ran out of time).
-The way out is often a whole reconfiguration (2097: the elbow turned over, q₄
-1.7 → −1.65 rad, the hand 0.53 m out and back in 7 s, at the goal at 26.5 s): the joint-limit
-box is left only that way, and the attractor's rest point is still the goal pose.
+Near the goal. The first form engaged only farther than ``release`` from the goal. In the logged
+200-per-task suite (seeds 2000-2099, BENCHMARKS.md "Session 29") 11 of FPM's and CPM's 29
+failures with obstacles end 6-15 cm from the goal with a joint on its limit; the stall pull
+armed there, within ``release``, and nothing else acted (random tomato ``anywhere`` 2097, FPM:
+joint 3 at 2.95 rad, the hand 9-10 cm short and creeping, the stall pull armed at 19.7 s, 7.1 cm
+short at 40 s). With ``near_release`` > 0 the pull engages at such an arming too (a joint at a
+limit, the hand farther than ``near_release``) and lets go within ``near_release`` [m] instead
+of ``release``, and only at the control step the stall pull arms in: armed near the goal the
+stall pull holds for good (``stall_hold_keep``), and a joint reaching its band later, while the
+hand still comes in, is no stall (random pouring ``anywhere`` 2026, CPM: engaged 7 s after the
+arming, the hand 6.3 cm out and closing, then a 1.4 m reconfiguration that ran out of time). The
+way out is often a whole reconfiguration (2097: the elbow turned over, q₄ 1.7 → −1.65 rad, the
+hand 0.53 m out and back in 7 s, at the goal at 26.5 s): the joint-limit box is left only that
+way, and the attractor's rest point is still the goal pose.
 
 Position fallback. A goal pose can be in collision whatever the arm does: the body spheres
 rigid with the hand sit where the pose puts them, for every IK solution (random pouring
