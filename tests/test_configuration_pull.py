@@ -86,15 +86,21 @@ def _stall(t_armed, distance):
     return SimpleNamespace(t_armed=t_armed, armed=t_armed is not None, distance=distance)
 
 
-def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go_near_the_goal(
-        kinematics):
-    spec = kinematics.spec
+def _goal_without_obstacles(kinematics, t=0.0):
+    """An observation at time t [s] of a reachable goal pose with no obstacles, and a stand-in
+    for PUMA's task rows (what the monitor returns untouched while it does not act)."""
     q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
     p_goal, _ = kinematics.ee_frame(q_goal)
     quat = kinematics.evaluate(q_goal, np.zeros(7)).ee_quaternion
-    obs = SimpleNamespace(t=0.0, goal_position=p_goal, goal_quaternion=quat,
+    obs = SimpleNamespace(t=t, goal_position=p_goal, goal_quaternion=quat,
                           obstacle_centers=np.zeros((0, 3)), obstacle_radii=np.zeros(0))
-    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    return obs, TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+
+
+def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go_near_the_goal(
+        kinematics):
+    spec = kinematics.spec
+    obs, task = _goal_without_obstacles(kinematics)
     monitor = ConfigurationMonitor(PULL, spec)
     free = np.array([1.0, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])  # no joint within 0.1 rad of a limit
     at_limit = free.copy()
@@ -122,12 +128,7 @@ def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go
 def test_near_the_goal_the_monitor_engages_only_with_a_near_release_and_lets_go_there(
         kinematics):
     spec = kinematics.spec
-    q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
-    p_goal, _ = kinematics.ee_frame(q_goal)
-    quat = kinematics.evaluate(q_goal, np.zeros(7)).ee_quaternion
-    obs = SimpleNamespace(t=0.0, goal_position=p_goal, goal_quaternion=quat,
-                          obstacle_centers=np.zeros((0, 3)), obstacle_radii=np.zeros(0))
-    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    obs, task = _goal_without_obstacles(kinematics)
     q = np.array([spec.q_max[0] - 0.05, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])  # base at its limit
     qd = np.zeros(7)
     near = 0.5 * PULL.release  # armed inside the release distance
@@ -327,15 +328,11 @@ def test_the_controller_s_goal_configurations_keep_its_own_ground(kinematics, mo
 
 def test_the_monitor_lets_go_when_the_attractor_makes_no_progress(kinematics):
     spec = kinematics.spec
-    q_goal = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])
-    p_goal, _ = kinematics.ee_frame(q_goal)
-    quat = kinematics.evaluate(q_goal, np.zeros(7)).ee_quaternion
-    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    obs, task = _goal_without_obstacles(kinematics)
     q = np.array([spec.q_max[0] - 0.05, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])
     monitor = ConfigurationMonitor(PULL, spec)
     for t in np.arange(0.0, PULL.window - 0.05, 0.1):  # held where it is: engaged for a window
-        obs = SimpleNamespace(t=t, goal_position=p_goal, goal_quaternion=quat,
-                              obstacle_centers=np.zeros((0, 3)), obstacle_radii=np.zeros(0))
+        obs.t = t
         assert monitor.applied(q, np.zeros(7), 0.5, _stall(0.0, 0.5), obs, task) is not task
     obs.t = PULL.window + 0.15  # the window counts from the first step engaged (t = 0.1)
     assert monitor.applied(q, np.zeros(7), 0.5, _stall(0.0, 0.5), obs, task) is task

@@ -132,7 +132,6 @@ class StallMonitor:
         self.psi_armed = np.nan
         self.armed_near = False  # armed within hold_radius: see _released
         self.distance = np.inf  # the hand's distance to the goal at the last call [m]
-        self.at_limit = False  # a joint near its limit at the last call (the caller's judgement)
 
     @property
     def armed(self) -> bool:
@@ -148,14 +147,15 @@ class StallMonitor:
             self.psi, self.t_psi = float(potential()), t
         return self.psi
 
-    def _needed(self) -> float:
+    def _needed(self, at_limit: bool) -> float:
         """How much nearer [m] than its best so far the hand must come to count as progress:
         ``max(progress, f · best)``, f = ``progress_fraction``, or ``limit_progress_fraction``
-        where larger while a joint is near its limit (the first distance always counts)."""
+        where larger while a joint is near its limit (``at_limit``; the first distance always
+        counts)."""
         if not np.isfinite(self.best):
             return 0.0
         p = self.pull
-        f = max(p.progress_fraction, p.limit_progress_fraction if self.at_limit else 0.0)
+        f = max(p.progress_fraction, p.limit_progress_fraction if at_limit else 0.0)
         return max(p.progress, f * self.best)
 
     def _released(self, d: float, psi: float) -> bool:
@@ -174,7 +174,6 @@ class StallMonitor:
         ``goal`` [m]; ``potential()``: PUMA's ψ there, called at most every
         :data:`PSI_SAMPLE_S`; ``at_limit``: a joint near its limit, see :meth:`_needed`), or
         None while disarmed. Updates the monitor's state."""
-        self.at_limit = at_limit
         e = np.asarray(goal, dtype=float) - np.asarray(position, dtype=float)
         d = self.distance = float(np.linalg.norm(e))
         p = self.pull
@@ -183,7 +182,7 @@ class StallMonitor:
             self.t_armed = None  # over the ridge: PUMA's again, watched afresh from here
             self.best, self.t_best, self.best_psi, self.t_best_psi = d, t, psi, t
         if self.t_armed is None:
-            if d < self.best - self._needed():
+            if d < self.best - self._needed(at_limit):
                 self.best, self.t_best = d, t
             if psi < (1.0 - p.psi_progress) * self.best_psi:
                 self.best_psi, self.t_best_psi = psi, t

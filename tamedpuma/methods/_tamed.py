@@ -84,7 +84,8 @@ class PumaController:
         if stall is not None:
             task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
                 self.task.potential(state, obs.goal_position, obs.goal_quaternion)[0]),
-                at_limit=configuration is not None and configuration.at_limit(obs.q))
+                at_limit=(configuration is not None and stall.pull.limit_progress_fraction > 0.0
+                          and configuration.at_limit(obs.q)))  # only asked where it counts
             if configuration is not None:
                 task = configuration.applied(obs.q, obs.qd, stall.distance, stall, obs, task)
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
