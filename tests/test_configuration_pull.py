@@ -152,6 +152,13 @@ def test_near_the_goal_the_monitor_engages_only_with_a_near_release_and_lets_go_
     assert far.applied(q, qd, 0.5, _stall(1.0, 0.5), obs, task) is not task
     assert far.release_at == pull.release
     assert far.applied(q, qd, PULL.release, _stall(1.0, PULL.release), obs, task) is task
+    # ``always`` asks for no limit far away, but near the goal it does, as ``limits``
+    free = np.array([1.0, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])  # no joint within 0.1 rad of a limit
+    always = replace(pull, mode="always")
+    assert ConfigurationMonitor(always, spec).applied(free, qd, near, _stall(3.0, near), obs,
+                                                      task) is task
+    assert ConfigurationMonitor(always, spec).applied(q, qd, near, _stall(3.0, near), obs,
+                                                      task) is not task
 
 
 def test_position_only_ik_reaches_the_position_and_leaves_the_orientation_free(kinematics):
@@ -433,12 +440,13 @@ def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_i
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("mode", ["limits", "always"])  # always: CPM's default since session 30
 def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
-        robot_spec, kinematics, monkeypatch, scalar_log):
-    """CPM in the trap above (q₁ = 2.2 rad) with the configuration pull and
-    ``configuration_potential: attractor``: while the pull acts, the regulator watches the
-    attractor's φ, whose total energy ½‖q̇‖² + φ does not rise (CPM's dH/dt ≤ −β‖q̇‖²
-    with H on φ), and the arm reaches the goal."""
+        robot_spec, kinematics, monkeypatch, scalar_log, mode):
+    """CPM in the trap above (q₁ = 2.2 rad) with the configuration pull (engaging at a joint
+    limit only, or at every arming) and ``configuration_potential: attractor``: while the pull
+    acts, the regulator watches the attractor's φ, whose total energy ½‖q̇‖² + φ does not rise
+    (CPM's dH/dt ≤ −β‖q̇‖² with H on φ), and the arm reaches the goal."""
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
     task = load_group("task", "pouring")
     cfg = load_group("scenario", "default")
@@ -452,7 +460,7 @@ def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
     method = {**load_group("method", "puma"), **load_group("method", "cpm")}
     method.pop("defaults")
     method["fabric"] = load_group("fabric", "default")
-    method["forcing"] = {**method["forcing"], "stall_configuration": "limits"}
+    method["forcing"] = {**method["forcing"], "stall_configuration": mode}
     method["configuration_potential"] = "attractor"
     with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
         run = run_episode(scenario, make("cpm", method, kinematics), world, [scalar_log])

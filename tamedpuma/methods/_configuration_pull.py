@@ -16,8 +16,9 @@ for: these rest points are made by the joint limits, whatever the forcing in tas
 What. The joint-limit box is convex: the straight segment between two configurations inside
 the limits stays inside them, so an attractor in joint space has no rest point made by the
 limits. Once the stall pull (:mod:`tamedpuma.methods._stall`) has armed with a joint within
-``limit_band`` [rad] of a limit (``mode: limits``; ``always``: at every arming) and the hand
-farther than ``release`` [m] from the goal, a goal configuration q_g is chosen (an IK solution
+``limit_band`` [rad] of a limit (``mode: limits``; ``always``: at every arming farther than
+``release``, see below) and the hand farther than ``release`` [m] from the goal, a goal
+configuration q_g is chosen (an IK solution
 of the goal pose inside the limits by ``margin`` [rad], every body sphere clear of the
 obstacles, above the ground as the controller's barrier step keeps it (:class:`Ground`), the
 straight joint-space segment from q to it clear of the obstacles where they are now and of the
@@ -64,7 +65,18 @@ hand still comes in, is no stall (random pouring ``anywhere`` 2026, CPM: engaged
 arming, the hand 6.3 cm out and closing, then a 1.4 m reconfiguration that ran out of time). The
 way out is often a whole reconfiguration (2097: the elbow turned over, q₄ 1.7 → −1.65 rad, the
 hand 0.53 m out and back in 7 s, at the goal at 26.5 s): the joint-limit box is left only that
-way, and the attractor's rest point is still the goal pose.
+way, and the attractor's rest point is still the goal pose. Near the goal a joint at a limit is
+asked for in both modes: ``always`` (CPM's default, session 30) engages without one only
+farther than ``release``; within it the stall pull alone finishes the approach as before (the
+shipped tomato model overshoots to 0.15 m and comes back in, its stall pull arming at 0.115 m
+in an obstacle-free run, where a reconfiguration has nothing to free).
+
+Far from the goal without a limit (``always``). CPM's regulator brakes every climb of ψ, and
+where the way round climbs ψ with no obstacle within the tank's clearance and no joint near a
+limit, CPM crawls at about √ε (random pouring ``anywhere`` 81004, BENCHMARKS.md "Session 30": ψ
+4.5 -> 8.3 along the hand's way over 40 s; FPM reaches it in 7.9 s); the stall pull arms, but
+``limits`` never engages there. ``always`` hands such an arming to the attractor, and CPM's
+regulator watches the attractor's own φ (:meth:`ConfigurationMonitor.potential`).
 
 Position fallback. A goal pose can be in collision whatever the arm does: the body spheres
 rigid with the hand sit where the pose puts them, for every IK solution (random pouring
@@ -135,8 +147,9 @@ ARMING_TOLERANCE_S = 1e-9
 @dataclass(frozen=True)
 class ConfigurationPull:
     """Settings (``method.forcing.stall_configuration*``): mode (``off``, ``limits``,
-    ``always``), gain g [rad/s²], length ℓ [rad], limit_band [rad], release [m], margin [rad]
-    (q_g's distance from the limits), near_release [m] (where the stall pull arms within
+    ``always``: no joint at a limit needed farther than ``release``), gain g [rad/s²], length
+    ℓ [rad], limit_band [rad], release [m], margin [rad] (q_g's distance from the limits),
+    near_release [m] (where the stall pull arms within
     ``release`` of the goal, the pull engages too and lets go within this distance; 0: it
     never engages within ``release``), clearance [m] (q_g's body spheres from the obstacles),
     restarts (random IK starts besides q), position_fallback (where no IK solution of the goal
@@ -354,7 +367,7 @@ class ConfigurationMonitor:
         if (not self.engaged and armed_at is not None and armed_at != self.served
                 and release > 0.0 and distance > release
                 and (not near or obs.t - armed_at < ARMING_TOLERANCE_S)
-                and (p.mode == "always" or self.at_limit(q))):
+                and ((p.mode == "always" and not near) or self.at_limit(q))):
             self.served, self.release_at = armed_at, release
             self._choose(q, obs)
             self.engaged = self.q_goal is not None
