@@ -55,9 +55,10 @@ attractor added to PUMA's position rows while the hand has stopped approaching t
 part of f_θ^C, whose power along q̇ energization takes away, so dH/dt = −β q̇ᵀMq̇ holds with it as
 without it: the pull steers CPM out of the direction it was pressing into a barrier.
 ``forcing.stall_configuration`` (:mod:`tamedpuma.methods._configuration_pull`): the joint-space
-attractor that replaces PUMA's rows after such a stall with a joint at a limit is part of f_θ^C
-too. With ``configuration_potential: puma`` it only steers CPM where ψ's energy lets it (the way
-out climbs ψ: CPM crawls); with ``attractor`` the regulator watches the attractor's own
+attractor that replaces PUMA's rows after such a stall (CPM's default ``always``: at every
+arming farther than 0.15 m from the goal; ``limits``: only with a joint at a limit) is part of
+f_θ^C too. With ``configuration_potential: puma`` it only steers CPM where ψ's energy lets it
+(the way out climbs ψ: CPM crawls); with ``attractor`` the regulator watches the attractor's own
 potential φ(q) = g ρ_ℓ(‖q − q_g‖) while it acts (−∂φ is its pull: compatible), so
 dH/dt ≤ −β q̇ᵀq̇ holds with H = ½‖q̇‖² + φ then and with ψ elsewhere; the argument holds on
 every interval on one potential and, after the last engagement, ψ's (scalar
