@@ -470,3 +470,59 @@ def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
     assert on.sum() > 50  # it acted for at least a second
     steps = np.flatnonzero(on[1:] & on[:-1]) + 1  # consecutive steps on the same potential
     assert np.max(energy[steps] - energy[steps - 1]) < 1e-3
+
+
+class ClimbingPotential(StablePose):
+    """StablePose's field with a potential that climbs along its straight way: ψ = ½‖e‖²(1 +
+    A·b(p)) + ½‖r‖², b(p) = exp(−‖p − c‖²/(2s²)) a bump about the midpoint c of the start and
+    the goal (ψ ≥ 0, 0 only at the goal). The field is not the gradient of ψ: PUMA's field and
+    its latent potential disagree like this where CPM crawled in random pouring scenarios
+    (ψ rising along the hand's way, BENCHMARKS.md "Session 30")."""
+
+    def __init__(self, centre, height=200.0, width=0.15):
+        self.c, self.height, self.width = np.asarray(centre, dtype=float), height, width
+
+    def potential(self, p, quat, goal_p, goal_quat):
+        e = np.asarray(goal_p) - p
+        r = rotation_error(quat_to_matrix(quat), quat_to_matrix(goal_quat))
+        d = p - self.c
+        b = self.height * np.exp(-(d @ d) / (2.0 * self.width ** 2))
+        grad = -e * (1.0 + b) - 0.5 * (e @ e) * b * d / self.width ** 2
+        return 0.5 * (e @ e) * (1.0 + b) + 0.5 * r @ r, grad, -r
+
+
+@pytest.mark.slow
+def test_cpm_crawling_up_its_potential_arms_the_stall_pull_and_the_attractor_takes_it_in(
+        robot_spec, kinematics, monkeypatch):
+    """Where ψ climbs along the way the forcing takes, CPM's regulator brakes the climb and the
+    arm crawls (the ε leak). Session 29's settings (``limits``, no creep criterion) leave it
+    crawling far from the goal at 40 s: the hand closes too slowly to reach but faster than the
+    stall pull's 5 mm per window. CPM's defaults (the creep criterion, ``always``) arm the
+    stall pull on the crawl and the configuration attractor, on its own potential, takes the
+    arm in."""
+    task = load_group("task", "tomato")
+    cfg = load_group("scenario", "default")
+    cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
+    scenario = scenario_from_config(cfg, robot_spec, task="tomato", **start_options())
+    scenario = replace(scenario, obstacles=Obstacles(np.zeros((0, 3)), np.zeros(0),
+                                                     np.zeros((0, 3))))
+    start = kinematics.ee_pose(scenario.q0)[0]
+    centre = 0.5 * (start + np.asarray(task["goal_position"], dtype=float))
+    monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(ClimbingPotential(centre)))
+    method = {**load_group("method", "puma"), **load_group("method", "cpm")}
+    method.pop("defaults")
+    method["fabric"] = load_group("fabric", "default")
+    assert method["forcing"]["stall_configuration"] == "always"
+    assert method["forcing"]["stall_progress_fraction"] > 0
+    runs = {}
+    for name, forcing in (("session 29", {"stall_configuration": "limits",
+                                          "stall_progress_fraction": 0.0}),
+                          ("default", {})):
+        m = {**method, "forcing": {**method["forcing"], **forcing}}
+        with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
+            runs[name] = run_episode(scenario, make("cpm", m, kinematics), world)
+    crawl = runs["session 29"]
+    assert not crawl.metrics.success_paper and crawl.metrics.final_position_error_m > 0.3
+    speed = np.linalg.norm(np.diff(crawl.ee_position[-500:], axis=0), axis=1) / scenario.dt
+    assert 1e-4 < np.median(speed) < 0.01  # [m/s]: crawling, neither resting nor on its way
+    assert runs["default"].metrics.success_whole_body, runs["default"].metrics.failure_whole_body

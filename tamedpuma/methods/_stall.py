@@ -37,14 +37,18 @@ mm/s: 6-12 mm per window, above the 5 mm of ``progress``, a goal a minute or mor
 the pull armed only at 23 s of the 40. With a fraction f the pull arms once the remaining
 distance would take longer than about ``window``/f to close at the current rate (40 s for f =
 0.05), while PUMA's own approach, which closes a fixed fraction of the distance per second,
-counts as progress all the way in. Off by default: the circulation's way round an obstacle is a
+counts as progress all the way in. Off for FPM: the circulation's way round an obstacle is a
 creep too (Table-1 tomato 02, FPM: 0.57 → 0.53 m in 9 s, then round and in at 20 s), and a
 pull armed there pulled the hand back into the obstacle's shadow and into two joint limits
 (BENCHMARKS.md "Session 28"). ``limit_progress_fraction`` asks the fraction only while a joint
 is within the configuration pull's band of its limit (the caller says so), which tells the
 joint-limit creep of 2014 from the circulation's way round (no joint at a limit): Table-1 tomato
 02 is kept, but on fresh seeds it fixed as many runs as it lost (BENCHMARKS.md "Session 29");
-off by default too.
+off by default too. CPM has ``progress_fraction`` 0.05 since session 30: its regulator brakes
+every climb of ψ, and where ψ climbs along the hand's way CPM crawls at about √ε, the hand
+closing 2-6 mm/s (random pouring ``near_table1`` 81020: 0.42 → 0.34 m in 24 s), which 5 mm per
+window counted as progress; armed, the configuration pull (CPM: ``always``) takes over far from
+the goal (BENCHMARKS.md "Session 30": 783 → 795 of 800 on four fresh sets, none lost).
 
 When it lets go is PUMA's own measure: the pull disarms once PUMA's potential ψ (the latent
 distance to the goal, 0 there) has fallen below (1 − ``release``) times its value when the pull
