@@ -13,17 +13,16 @@ at the goal, presses the arm further into the same limits. The way out leads the
 from the goal first (the base back through −4.6 rad), which no attractor in task space asks
 for: these rest points are made by the joint limits, whatever the forcing in task space.
 
-What. The joint-limit box is convex: the straight segment between two configurations inside
-the limits stays inside them, so an attractor in joint space has no rest point made by the
-limits. Once the stall pull (:mod:`tamedpuma.methods._stall`) has armed with a joint within
+What. The joint-limit box is convex: the straight segment between two configurations inside the
+limits stays inside them, so an attractor in joint space has no rest point made by the limits.
+Once the stall pull (:mod:`tamedpuma.methods._stall`) has armed with a joint within
 ``limit_band`` [rad] of a limit (``mode: limits``; ``always``: at every arming farther than
 ``release``, see below) and the hand farther than ``release`` [m] from the goal, a goal
-configuration q_g is chosen (an IK solution
-of the goal pose inside the limits by ``margin`` [rad], every body sphere clear of the
-obstacles, above the ground as the controller's barrier step keeps it (:class:`Ground`), the
-straight joint-space segment from q to it clear of the obstacles where they are now and of the
-ground, the one nearest to q; :func:`goal_route`; none such: nothing changes), and PUMA's task
-rows are replaced by the joint-space spec
+configuration q_g is chosen (an IK solution of the goal pose inside the limits by ``margin``
+[rad], every body sphere clear of the obstacles, above the ground as the controller's barrier
+step keeps it (:class:`Ground`), the straight joint-space segment from q to it clear of the
+obstacles where they are now and of the ground, the one nearest to q; :func:`goal_route`; none
+such: nothing changes), and PUMA's task rows are replaced by the joint-space spec
 
     q̈_q = g (q_g − q) / max(‖q_g − q‖, ℓ) − k q̇,    k = 2√(g/ℓ)                 [rad/s²]
 
@@ -149,9 +148,9 @@ class ConfigurationPull:
     """Settings (``method.forcing.stall_configuration*``): mode (``off``, ``limits``,
     ``always``: no joint at a limit needed farther than ``release``), gain g [rad/s²], length
     ℓ [rad], limit_band [rad], release [m], margin [rad] (q_g's distance from the limits),
-    near_release [m] (where the stall pull arms within
-    ``release`` of the goal, the pull engages too and lets go within this distance; 0: it
-    never engages within ``release``), clearance [m] (q_g's body spheres from the obstacles),
+    near_release [m] (where the stall pull arms within ``release`` of the goal, the pull
+    engages too and lets go within this distance; 0: it never engages within ``release``),
+    clearance [m] (q_g's body spheres from the obstacles),
     restarts (random IK starts besides q), position_fallback (where no IK solution of the goal
     pose is clear, q_g solves the goal position alone), waypoints (per goal configuration, for a
     two-segment route where no straight one is clear; 0: straight only), window [s] and

@@ -48,7 +48,7 @@ off by default too. CPM has ``progress_fraction`` 0.05 since session 30: its reg
 every climb of ψ, and where ψ climbs along the hand's way CPM crawls at about √ε, the hand
 closing 2-6 mm/s (random pouring ``near_table1`` 81020: 0.42 → 0.34 m in 24 s), which 5 mm per
 window counted as progress; armed, the configuration pull (CPM: ``always``) takes over far from
-the goal (BENCHMARKS.md "Session 30": 783 → 795 of 800 on four fresh sets, none lost).
+the goal (BENCHMARKS.md "Session 30": 783 → 795 of 800 on four seed sets, none lost).
 
 When it lets go is PUMA's own measure: the pull disarms once PUMA's potential ψ (the latent
 distance to the goal, 0 there) has fallen below (1 − ``release``) times its value when the pull
