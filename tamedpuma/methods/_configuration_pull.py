@@ -150,11 +150,11 @@ class ConfigurationPull:
     ℓ [rad], limit_band [rad], release [m], margin [rad] (q_g's distance from the limits),
     near_release [m] (where the stall pull arms within ``release`` of the goal, the pull
     engages too and lets go within this distance; 0: it never engages within ``release``),
-    clearance [m] (q_g's body spheres from the obstacles),
-    restarts (random IK starts besides q), position_fallback (where no IK solution of the goal
-    pose is clear, q_g solves the goal position alone), waypoints (per goal configuration, for a
-    two-segment route where no straight one is clear; 0: straight only), window [s] and
-    progress [rad] (let go when ‖q − q_g‖ has not fallen by ``progress`` for ``window``)."""
+    clearance [m] (q_g's body spheres from the obstacles), restarts (random IK starts besides
+    q), position_fallback (where no IK solution of the goal pose is clear, q_g solves the goal
+    position alone), waypoints (per goal configuration, for a two-segment route where no
+    straight one is clear; 0: straight only), window [s] and progress [rad] (let go when
+    ‖q − q_g‖ has not fallen by ``progress`` for ``window``)."""
 
     mode: str = "off"
     gain: float = 4.0
@@ -360,14 +360,9 @@ class ConfigurationMonitor:
         if self.engaged and (distance <= self.release_at or not stall.armed
                              or self._stuck(q, obs.t)):
             self.engaged = False
-        armed_at = stall.t_armed
-        near = distance <= p.release
-        release = p.near_release if near else p.release
-        if (not self.engaged and armed_at is not None and armed_at != self.served
-                and release > 0.0 and distance > release
-                and (not near or obs.t - armed_at < ARMING_TOLERANCE_S)
-                and ((p.mode == "always" and not near) or self.at_limit(q))):
-            self.served, self.release_at = armed_at, release
+        if not self.engaged and self._engages(q, distance, stall.t_armed, obs.t):
+            self.served = stall.t_armed
+            self.release_at = p.release if distance > p.release else p.near_release
             self._choose(q, obs)
             self.engaged = self.q_goal is not None
             self.best, self.t_best = np.inf, obs.t
@@ -387,6 +382,20 @@ class ConfigurationMonitor:
         acc = p.gain * e / max(float(np.linalg.norm(e)), p.length) \
             - 2.0 * np.sqrt(p.gain / p.length) * qd
         return TaskAcceleration(acc, np.eye(n), np.zeros(n))
+
+    def _engages(self, q: np.ndarray, distance: float, armed_at: float | None,
+                 t: float) -> bool:
+        """Whether the pull engages now: at an arming of the stall pull (t_armed ``armed_at``
+        [s]) not served yet; farther than ``release`` [m] with a joint at a limit (``always``:
+        any), nearer only at the arming step, with a joint at a limit and the hand farther
+        than ``near_release`` [m] (0: never)."""
+        p = self.pull
+        if armed_at is None or armed_at == self.served:
+            return False
+        if distance > p.release:
+            return p.release > 0.0 and (p.mode == "always" or self.at_limit(q))
+        return (distance > p.near_release > 0.0 and t - armed_at < ARMING_TOLERANCE_S
+                and self.at_limit(q))
 
     def potential(self, q: np.ndarray) -> tuple[float, np.ndarray]:
         """The attractor's own potential while engaged (CPM's regulator, ``method.
