@@ -408,6 +408,24 @@ class StablePose:
         return 0.5 * e @ e + 0.5 * r @ r, -e, -r
 
 
+def _obstacle_free_scenario(robot_spec, task_name: str, **changes):
+    """The default scenario with the task's goal pose, no obstacles, and ``changes``."""
+    task = load_group("task", task_name)
+    cfg = load_group("scenario", "default")
+    cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
+    scenario = scenario_from_config(cfg, robot_spec, task=task_name, **start_options())
+    return replace(scenario, obstacles=Obstacles(np.zeros((0, 3)), np.zeros(0),
+                                                 np.zeros((0, 3))), **changes)
+
+
+def _method_config(name: str) -> dict:
+    """``conf/method/<name>.yaml`` over ``puma.yaml``, with the default fabric."""
+    method = {**load_group("method", "puma"), **load_group("method", name)}
+    method.pop("defaults")
+    method["fabric"] = load_group("fabric", "default")
+    return method
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("q1", [2.2, 2.6])
 def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_it(
@@ -416,15 +434,9 @@ def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_i
     (126-149°): the straight task-space way round turns the base into its upper limit
     (2.97 rad), the way out leads the hand away from the goal first."""
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
-    task = load_group("task", "pouring")
-    cfg = load_group("scenario", "default")
-    cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
-    scenario = scenario_from_config(cfg, robot_spec, task="pouring", **start_options())
-    scenario = replace(scenario, q0=np.array([q1, 0.6, 0.0, -1.2, 0.0, 0.6, 0.0]),
-                       obstacles=Obstacles(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))))
-    method = {**load_group("method", "puma"), **load_group("method", "fpm")}
-    method.pop("defaults")
-    method["fabric"] = load_group("fabric", "default")
+    scenario = _obstacle_free_scenario(robot_spec, "pouring",
+                                       q0=np.array([q1, 0.6, 0.0, -1.2, 0.0, 0.6, 0.0]))
+    method = _method_config("fpm")
     results = {}
     for mode in ("off", "limits"):
         method["forcing"] = {**method["forcing"], "stall_configuration": mode}
@@ -448,18 +460,11 @@ def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
     acts, the regulator watches the attractor's φ, whose total energy ½‖q̇‖² + φ does not rise
     (CPM's dH/dt ≤ −β‖q̇‖² with H on φ), and the arm reaches the goal."""
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
-    task = load_group("task", "pouring")
-    cfg = load_group("scenario", "default")
-    cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
-    scenario = scenario_from_config(cfg, robot_spec, task="pouring", **start_options())
     # 60 s: CPM creeps along the limit for 22 s before the stall pull arms, and the way out is
     # 8 rad of joint travel at the attractor's cruise speed g/k (1 rad/s with the defaults)
-    scenario = replace(scenario, q0=np.array([2.2, 0.6, 0.0, -1.2, 0.0, 0.6, 0.0]),
-                       obstacles=Obstacles(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))),
-                       max_steps=3000)
-    method = {**load_group("method", "puma"), **load_group("method", "cpm")}
-    method.pop("defaults")
-    method["fabric"] = load_group("fabric", "default")
+    scenario = _obstacle_free_scenario(robot_spec, "pouring", max_steps=3000,
+                                       q0=np.array([2.2, 0.6, 0.0, -1.2, 0.0, 0.6, 0.0]))
+    method = _method_config("cpm")
     method["forcing"] = {**method["forcing"], "stall_configuration": mode}
     method["configuration_potential"] = "attractor"
     with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
@@ -500,18 +505,10 @@ def test_cpm_crawling_up_its_potential_arms_the_stall_pull_and_the_attractor_tak
     stall pull's 5 mm per window. CPM's defaults (the creep criterion, ``always``) arm the
     stall pull on the crawl and the configuration attractor, on its own potential, takes the
     arm in."""
-    task = load_group("task", "tomato")
-    cfg = load_group("scenario", "default")
-    cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
-    scenario = scenario_from_config(cfg, robot_spec, task="tomato", **start_options())
-    scenario = replace(scenario, obstacles=Obstacles(np.zeros((0, 3)), np.zeros(0),
-                                                     np.zeros((0, 3))))
-    start = kinematics.ee_pose(scenario.q0)[0]
-    centre = 0.5 * (start + np.asarray(task["goal_position"], dtype=float))
+    scenario = _obstacle_free_scenario(robot_spec, "tomato")
+    centre = 0.5 * (kinematics.ee_pose(scenario.q0)[0] + scenario.goal.position)
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(ClimbingPotential(centre)))
-    method = {**load_group("method", "puma"), **load_group("method", "cpm")}
-    method.pop("defaults")
-    method["fabric"] = load_group("fabric", "default")
+    method = _method_config("cpm")
     assert method["forcing"]["stall_configuration"] == "always"
     assert method["forcing"]["stall_progress_fraction"] > 0
     runs = {}
