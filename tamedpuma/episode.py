@@ -5,9 +5,11 @@ Per control step k (period Δt):
 1. read the simulator's truth (joint state, link poses, body spheres, contacts, clearance);
 2. time the whole controller step ``q̈_k = controller.step(obs_k)`` (kinematics included) [ms];
 3. hand a :class:`StepRecord` to every recorder (streams; nothing is held back to the end);
-4. stop ``settle_time`` [s] after the goal is first reached (``stop_on_success``; the settle
-   period lets the orientation be judged after the position has held) or at the step limit
-   (extended to cover the settle period of a reach near the limit), else apply q̈_k.
+4. stop once the hand rests inside the goal ball, at least ``settle_time`` [s] after it first
+   reached it (``stop_on_success``; the settle period lets the orientation be judged after the
+   position has held, the rest test tells a converged run from one passing through the ball:
+   :class:`~tamedpuma.metrics.RestMonitor`), or at the step limit (extended to cover the settle
+   period of a reach near the limit), else apply q̈_k.
 
 The loop knows neither the method nor the file formats. It returns the run's
 :class:`~tamedpuma.metrics.RunMetrics`, computed from the same per-step values that were recorded.
@@ -22,7 +24,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from tamedpuma.metrics import RunMetrics, run_metrics
+from tamedpuma.metrics import ERROR_VECTOR_FIELDS, RestMonitor, RunMetrics, run_metrics
 from tamedpuma.recording.records import Recorder, RunInfo, StepRecord
 from tamedpuma.robot.rotations import orientation_error
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Controller, Scenario
@@ -31,7 +33,8 @@ from tamedpuma.worlds.bullet import Simulator
 
 @dataclass(frozen=True)
 class EpisodeResult:
-    """metrics: the run's scalars; stop_reason: 'goal_reached', 'max_steps' or 'nonfinite_command';
+    """metrics: the run's scalars; stop_reason: 'converged' (at rest in the goal ball),
+    'max_steps' or 'nonfinite_command';
     trajectory: per-step arrays q (T, 7) [rad], ee_position (T, 3) [m], t (T,) [s];
     compute_ms (T,): the controller's wall time per step [ms]."""
 
@@ -43,6 +46,15 @@ class EpisodeResult:
     compute_ms: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class RestTest:
+    """When the hand is at rest: its error vector x_ee − x_g moved less than ``distance`` [m]
+    over the last ``window`` [s] (:func:`tamedpuma.metrics.at_rest`)."""
+
+    window: float = 1.0
+    distance: float = 0.005
+
+
 @dataclass
 class _Trace:
     """The per-step values the run's metrics are computed from (the same ones recorded)."""
@@ -50,6 +62,7 @@ class _Trace:
     t: list = field(default_factory=list)
     q: list = field(default_factory=list)
     ee_position: list = field(default_factory=list)
+    error_vector: list = field(default_factory=list)
     position_error: list = field(default_factory=list)
     orientation_error: list = field(default_factory=list)
     clearance: list = field(default_factory=list)
@@ -62,14 +75,15 @@ class _Trace:
             getattr(self, name).append(value)
 
     def metrics(self, spec, scenario: Scenario, settle_time: float,
-                disturbance_time: float | None) -> RunMetrics | None:
+                disturbance_time: float | None, rest: RestTest) -> RunMetrics | None:
         if not self.t:
             return None
         arrays = {f.name: np.array(getattr(self, f.name)) for f in fields(self)}
         return run_metrics(
             **arrays, q_min=spec.q_min, q_max=spec.q_max, tolerance=scenario.goal_tolerance,
             time_limit=scenario.max_steps * scenario.dt, settle_time=settle_time,
-            disturbance_time=disturbance_time)
+            disturbance_time=disturbance_time, rest_window=rest.window,
+            rest_distance=rest.distance)
 
 
 def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, link_pos, link_quat,
@@ -81,6 +95,7 @@ def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, link_
         "compute_time_ms": compute_ms,
         "clearance_m": clearance if math.isfinite(clearance) else NO_OBSTACLE_CLEARANCE,
         "position_error_m": pos_err,
+        **dict(zip(ERROR_VECTOR_FIELDS, (link_pos[ee_index] - obs.goal_position).tolist())),
         "orientation_error_rad": rot_err,
         "obstacle_contact": float(contacts.obstacle_contact),
         "ground_contact": float(contacts.ground_contact),
@@ -131,10 +146,13 @@ def _close(recorders: Sequence[Recorder], complete: bool, summary: dict) -> None
 
 def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
                 recorders: Sequence[Recorder] = (), info: RunInfo | None = None,
-                stop_on_success: bool = True, settle_time: float = 0.0) -> EpisodeResult:
+                stop_on_success: bool = True, settle_time: float = 0.0,
+                rest: RestTest = RestTest()) -> EpisodeResult:
     """Run one episode of ``scenario`` driven by ``controller`` in ``sim``, streaming to
     ``recorders`` (opened with ``info``, closed with ``complete=False`` if interrupted).
-    ``settle_time`` [s]: how long the run continues after the goal is first reached."""
+    ``settle_time`` [s]: the run continues at least this long after the goal is first reached;
+    with ``stop_on_success`` it ends at the first step after that at rest (``rest``) inside the
+    goal ball, else at the step limit."""
     if not settle_time >= 0:
         raise ValueError(f"settle_time must be >= 0 s, got {settle_time}")
     settle_steps = math.ceil(settle_time / scenario.dt - 1e-9)
@@ -148,6 +166,7 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
     for rec in recorders:
         rec.open(info)
     trace, complete, stop_reason = _Trace(), False, "max_steps"
+    monitor = RestMonitor(rest.window, rest.distance)
     limit, reach_step = scenario.max_steps, None
     # with a discrete disturbance (goal change, push) only a reach at or after its onset counts:
     # the run goes on until then however early it first came near the goal
@@ -164,25 +183,29 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
                                       compute_ms)
                 for rec in recorders:
                     rec.write(record)
-            trace.add(t=obs.t, q=obs.q, ee_position=link_pos[ee_index], position_error=pos_err,
+            error = link_pos[ee_index] - obs.goal_position
+            resting = monitor.update(obs.t, error)
+            trace.add(t=obs.t, q=obs.q, ee_position=link_pos[ee_index], error_vector=error,
+                      position_error=pos_err,
                       orientation_error=rot_err, clearance=contacts.sphere_clearance,
                       obstacle_contact=contacts.obstacle_contact,
                       ground_contact=contacts.ground_contact, compute_ms=compute_ms)
             if not np.isfinite(qdd).all():
                 stop_reason = "nonfinite_command"
                 break
-            if reach_step is None and pos_err <= scenario.goal_tolerance and obs.t >= after_onset:
+            inside = pos_err <= scenario.goal_tolerance
+            if reach_step is None and inside and obs.t >= after_onset:
                 reach_step = k
-                limit = (k + settle_steps + 1 if stop_on_success
-                         else max(limit, k + settle_steps + 1))
-            if stop_on_success and reach_step is not None and k >= reach_step + settle_steps:
-                stop_reason = "goal_reached"
+                limit = max(limit, k + settle_steps + 1)
+            if (stop_on_success and reach_step is not None and k >= reach_step + settle_steps
+                    and inside and resting):
+                stop_reason = "converged"
                 break
             obs = sim.step(qdd)
             k += 1
         complete = True
     finally:
-        metrics = trace.metrics(spec, scenario, settle_time, onset)
+        metrics = trace.metrics(spec, scenario, settle_time, onset, rest)
         _close(recorders, complete, {"stop_reason": stop_reason if complete else "interrupted",
                                      **(metrics.as_dict() if metrics else {})})
     return EpisodeResult(metrics=metrics, stop_reason=stop_reason, t=np.array(trace.t),

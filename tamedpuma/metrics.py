@@ -21,7 +21,17 @@ its onset count, so the run must reach the goal after the disturbance.
   ``sphere_penetration``, ``obstacle_contact``, ``ground_contact``, ``joint_limit``; otherwise
   ``late`` (reached after the time limit), ``stall`` (the end effector moved less than
   ``stall_distance`` [m] over the last ``stall_window`` [s]) or ``time`` (still moving).
-- time to success [s]: t_r (NaN if never reached).
+- **converged** (for either criterion): the hand comes to rest inside the goal ball after the
+  reach. A step k is at rest when, over the ``rest_window`` [s] before it, the position error
+  vector e = x_ee − x_g (the hand relative to the possibly moving goal) moved less than
+  ``rest_distance`` [m] from e_k; k_c is the first step k ≥ k_r at rest with ‖e_k‖ ≤
+  ``tolerance``. Converged: k_c exists, t_c < the time limit and the criterion's collision
+  conditions hold over 0..k_c; with orientation also the orientation error at k_c is ≤
+  ``orientation_tolerance``. A hand that passes through the ball, or hovers in it without
+  resting, has reached but not converged.
+- left after reach: the position error exceeded ``tolerance`` at some step after k_r (the hand
+  entered the ball and went out again); ``max_error_after_reach_m`` is the farthest it went.
+- time to success [s]: t_r (NaN if never reached); rest time [s]: t_c (NaN if none).
 - recovery time [s]: t_r − ``disturbance_time`` when a disturbance began at that time, the goal
   was first reached after it and the run succeeded under the whole-body criterion (else NaN).
 - orientation error [rad]: the rotation angle between end-effector and goal orientation,
@@ -34,9 +44,13 @@ its onset count, so the run must reach the goal after the disturbance.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+#: the logged scalars of the error vector x_ee − x_g [m] (the rest test's input from a log)
+ERROR_VECTOR_FIELDS = ("position_error_x_m", "position_error_y_m", "position_error_z_m")
 
 #: Collision causes in the order they are reported when several occur at the same step.
 CAUSES = ("sphere_penetration", "obstacle_contact", "ground_contact", "joint_limit")
@@ -59,6 +73,13 @@ class RunMetrics:
     time_to_success_s: float
     recovery_time_s: float
     settle_time_s: float
+    converged_paper: bool
+    converged_whole_body: bool
+    orientation_converged_paper: bool
+    orientation_converged_whole_body: bool
+    rest_time_s: float
+    left_after_reach: bool
+    max_error_after_reach_m: float
     final_position_error_m: float
     final_orientation_error_rad: float
     settled_orientation_error_rad: float
@@ -131,6 +152,85 @@ def _reach_and_settle(t: np.ndarray, inside: np.ndarray, settle_time: float,
     return reach, (k_s if k_s < n else None)
 
 
+def at_rest(t: np.ndarray, error_vector: np.ndarray, rest_window: float,
+            rest_distance: float) -> np.ndarray:
+    """Per step (T,): the error vector e (T, 3) [m] stayed within ``rest_distance`` [m] of e_k
+    over the ``rest_window`` [s] before step k (False until a whole window has passed)."""
+    t = np.asarray(t, dtype=float)
+    e = np.asarray(error_vector, dtype=float)
+    start = np.searchsorted(t, t - rest_window + 1e-9)  # first step inside each window
+    out = np.zeros(len(t), dtype=bool)
+    for k in np.nonzero(t - t[0] >= rest_window - 1e-9)[0]:
+        d = e[start[k]:k + 1] - e[k]
+        out[k] = bool(np.einsum("ij,ij->i", d, d).max() <= rest_distance ** 2)
+    return out
+
+
+class RestMonitor:
+    """:func:`at_rest` one step at a time (the episode loop's stop test): ``update(t, e)`` returns
+    whether step k is at rest, with the same window and distance."""
+
+    def __init__(self, rest_window: float, rest_distance: float):
+        self.window, self.distance = rest_window, rest_distance
+        self.t0: float | None = None
+        self.times: deque[float] = deque()
+        self.errors: deque[np.ndarray] = deque()
+
+    def update(self, t: float, error_vector: np.ndarray) -> bool:
+        if self.t0 is None:
+            self.t0 = t
+        self.times.append(t)
+        self.errors.append(np.array(error_vector, dtype=float))
+        while self.times[0] < t - self.window + 1e-9:
+            self.times.popleft()
+            self.errors.popleft()
+        if t - self.t0 < self.window - 1e-9:
+            return False
+        d = np.asarray(self.errors) - self.errors[-1]
+        return bool(np.einsum("ij,ij->i", d, d).max() <= self.distance ** 2)
+
+
+def rest_step(t, error_vector, inside: np.ndarray, reach: int | None, rest_window: float,
+              rest_distance: float) -> int | None:
+    """k_c: the first step at or after ``reach`` at rest (:func:`at_rest`) inside the ball."""
+    if reach is None or error_vector is None:
+        return None
+    rest = at_rest(t, error_vector, rest_window, rest_distance) & inside
+    rest[:reach] = False
+    k = _first(rest)
+    return k if k < len(rest) else None
+
+
+def _rest_outcome(t, error_vector, inside, reach, rot_err, causes, time_limit: float,
+                  orientation_tolerance: float, rest_test: tuple[float, float]) -> dict:
+    """``converged_*``, ``orientation_converged_*`` (both criteria) and ``rest_time_s``; a
+    static goal's error vector may be the hand's position (it moves as e does)."""
+    rest = rest_step(t, error_vector, inside, reach, *rest_test)
+    in_time = rest is not None and t[rest] < time_limit - 1e-9
+    oriented = rest is not None and rot_err[rest] <= orientation_tolerance
+    return {**_converged(causes, rest, in_time, oriented),
+            "rest_time_s": float(t[rest]) if rest is not None else float("nan")}
+
+
+def _converged(causes, rest: int | None, in_time: bool, oriented: bool) -> dict:
+    """``converged_*`` and ``orientation_converged_*`` for both criteria at the rest step."""
+    out = {}
+    for label, names in (("paper", PAPER_CAUSES), ("whole_body", CAUSES)):
+        clean = rest is not None and not any(causes[n][: rest + 1].any() for n in names)
+        out[f"converged_{label}"] = bool(clean and in_time)
+        out[f"orientation_converged_{label}"] = bool(clean and in_time and oriented)
+    return out
+
+
+def _after_reach(pos_err: np.ndarray, tolerance: float, reach: int | None) -> dict:
+    """Whether the hand left the ball after the reach, and the farthest it went [m]."""
+    if reach is None:
+        return {"left_after_reach": False, "max_error_after_reach_m": float("nan")}
+    after = pos_err[reach:]
+    return {"left_after_reach": bool((after > tolerance).any()),
+            "max_error_after_reach_m": float(after.max())}
+
+
 def _stall_or_time(t: np.ndarray, ee_position, stall_window: float,
                    stall_distance: float) -> str:
     """A run that never reached the goal and never failed: ``stall`` if the end effector moved
@@ -164,6 +264,14 @@ def _outcome(label: str, causes, names, reach, settle, in_time: bool, oriented: 
             f"failure_{label}": failure}
 
 
+def _recovery(t, reach: int | None, disturbance_time: float | None, success: bool) -> float:
+    """t_r − onset when a disturbance began, the goal was first reached after it and the run
+    succeeded (whole body); NaN otherwise [s]."""
+    if disturbance_time is None or reach is None or not success or t[reach] < disturbance_time:
+        return float("nan")
+    return float(t[reach] - disturbance_time)
+
+
 def _compute_stats(compute_ms) -> dict[str, float]:
     """Mean, std, median, p99, max and first of the controller's compute times [ms]."""
     ms = np.asarray(compute_ms, dtype=float)
@@ -180,21 +288,24 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
                 limit_tolerance: float = 1e-6, time_limit: float = math.inf,
                 settle_time: float = 0.0, ee_position: np.ndarray | None = None,
                 stall_window: float = 2.0, stall_distance: float = 0.01,
-                disturbance_time: float | None = None) -> RunMetrics:
+                disturbance_time: float | None = None, error_vector: np.ndarray | None = None,
+                rest_window: float = 1.0, rest_distance: float = 0.005) -> RunMetrics:
     """Metrics of one run from per-step arrays (T steps): t (T,) [s], end-effector position
     error to the goal (T,) [m], orientation error (T,) [rad], clearance (T,) [m], contact flags
     (T,), q (T, n) [rad], compute_ms (T,), optional ee_position (T, 3) [m] (for the stall class).
     tolerance [m]: the scenario's goal tolerance (``scenario.goal_tolerance``);
     time_limit [s]: the goal must be reached strictly before it (the episode horizon);
-    settle_time [s]: how long after the reach the orientation is judged.
+    settle_time [s]: how long after the reach the orientation is judged;
+    error_vector (T, 3) [m]: x_ee − x_g per step, for the rest test (default: ee_position − the
+    final goal, exact for a goal that does not move; without either no run converges);
+    rest_window [s], rest_distance [m]: the rest test (:func:`at_rest`).
     Works on live arrays and on arrays read from a log."""
     t = np.asarray(t, dtype=float)
     n = len(t)
     if n == 0:
         raise ValueError("a run with no steps has no metrics")
-    pos_err = np.asarray(position_error, dtype=float)
-    rot_err = np.asarray(orientation_error, dtype=float)
-    clearance = np.asarray(clearance, dtype=float)
+    pos_err, rot_err, clearance = (np.asarray(a, dtype=float)
+                                   for a in (position_error, orientation_error, clearance))
     causes = _failure_causes(clearance, obstacle_contact, ground_contact, q, q_min, q_max,
                              limit_tolerance)
     inside = pos_err <= tolerance
@@ -208,24 +319,22 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
     for label, names in (("paper", PAPER_CAUSES), ("whole_body", CAUSES)):
         result.update(_outcome(label, causes, names, reach, settle, in_time, oriented, stalled))
 
-    recovery = float("nan")
-    if (disturbance_time is not None and reach is not None and result["success_whole_body"]
-            and t[reach] >= disturbance_time):
-        recovery = float(t[reach] - disturbance_time)
-    collided = bool(causes["sphere_penetration"].any() or causes["obstacle_contact"].any())
     return RunMetrics(
         steps=n,
         duration_s=float(t[-1] - t[0]),
         **result,
         time_to_success_s=float(t[reach]) if reach is not None else float("nan"),
-        recovery_time_s=recovery,
+        recovery_time_s=_recovery(t, reach, disturbance_time, result["success_whole_body"]),
         settle_time_s=float(settle_time),
+        **_rest_outcome(t, error_vector if error_vector is not None else ee_position, inside,
+                        reach, rot_err, causes, time_limit, orientation_tolerance,
+                        (rest_window, rest_distance)),
+        **_after_reach(pos_err, tolerance, reach),
         final_position_error_m=float(pos_err[-1]),
         final_orientation_error_rad=float(rot_err[-1]),
-        settled_orientation_error_rad=float(rot_err[settle]) if settle is not None
-        else float("nan"),
+        settled_orientation_error_rad=float(rot_err[settle] if settle is not None else np.nan),
         min_clearance_m=float(clearance.min()),
-        collided=collided,
+        collided=bool(causes["sphere_penetration"].any() or causes["obstacle_contact"].any()),
         sphere_penetration=bool(causes["sphere_penetration"].any()),
         obstacle_contact=bool(causes["obstacle_contact"].any()),
         ground_contact=bool(causes["ground_contact"].any()),

@@ -49,7 +49,7 @@ def recorded(robot_spec, kinematics, tmp_path_factory):
 
 def test_joint_attractor_reaches_the_goal(recorded):
     _, result = recorded
-    assert result.stop_reason == "goal_reached"
+    assert result.stop_reason == "converged"
     assert result.metrics.success and result.metrics.final_position_error_m <= 0.05
     assert result.metrics.joint_limit_violation_steps == 0
 

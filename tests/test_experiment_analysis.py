@@ -71,7 +71,7 @@ def test_scaling_table_and_figure_from_summaries(tmp_path):
     assert (tmp_path / "out" / "scaling.png").stat().st_size > 10_000
     text = (tmp_path / "out" / "scaling.md").read_text()
     assert "| puma |" in text.splitlines()[2] and "1000 obstacles" in text
-    assert "| fpm | 1/2, 4.0 s; stall 1 | 1/2, 4.0 s; stall 1 |" in text  # outcomes table
+    assert "| fpm | 1/2, 4.0 s, converged 1; stall 1 | 1/2, 4.0 s, converged 1; stall 1 |" in text
     assert table.loc[("fpm", 2), "failures"] == "stall 1"
     assert table.loc[("puma", 2), "time_to_success_s"] == pytest.approx(4.0)
 

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from tamedpuma.analysis.tables import step_time_stats, table1
-from tamedpuma.metrics import run_metrics
+from tamedpuma.metrics import RestMonitor, at_rest, run_metrics
 
 DT = 0.02
 TOL = 0.05  # the goal tolerance [m] of the synthetic runs
@@ -168,3 +168,54 @@ def test_with_a_disturbance_only_a_reach_after_its_onset_counts():
     never_back[150:] = 0.3
     assert not run_metrics(**_log(n=300, position_error=never_back),
                            disturbance_time=100 * DT).success_paper
+
+
+def test_the_online_rest_monitor_agrees_with_the_offline_rest_test():
+    rng = np.random.default_rng(3)
+    t = np.arange(300) * 0.02
+    # a random walk that slows down: moving at first, at rest by the end
+    steps = rng.normal(size=(300, 3)) * np.exp(-t / 1.0)[:, None] * 0.01
+    e = np.cumsum(steps, axis=0)
+    offline = at_rest(t, e, 1.0, 0.005)
+    monitor = RestMonitor(1.0, 0.005)
+    online = np.array([monitor.update(ti, ei) for ti, ei in zip(t, e)])
+    np.testing.assert_array_equal(online, offline)
+    assert offline[-1] and not offline[:49].any()  # needs a whole window; rests at the end
+
+
+def _converging(n=400, **kw):
+    """A hand approaching the goal exponentially from 0.5 m (error vector along x)."""
+    args = _log(n)
+    err = 0.5 * np.exp(-args["t"] / 0.8)
+    args.update(position_error=err, error_vector=np.stack([err, 0 * err, 0 * err], axis=1))
+    args.update(kw)
+    return run_metrics(**args)
+
+
+def test_a_collision_between_the_reach_and_the_rest_fails_converged_not_reached():
+    n = 400
+    contact = np.zeros(n, bool)
+    contact[150] = True  # the reach is at 1.84 s (step 93), the rest at 4.4 s (step 221)
+    m = _converging(n, ground_contact=contact)
+    assert m.success_whole_body and not m.converged_whole_body and m.converged_paper
+    assert m.time_to_success_s < 3.0 < m.rest_time_s
+
+
+def test_a_goal_moving_with_the_hand_converges_on_the_error_vector():
+    n = 400
+    t = np.arange(n) * 0.02
+    goal = np.stack([0.01 * t, np.zeros(n), np.zeros(n)], axis=1)  # 1 cm/s
+    e = np.stack([np.zeros(n), 0.5 * np.exp(-t / 0.8), np.zeros(n)], axis=1)  # across it
+    hand = goal + e
+    moving = run_metrics(**dict(_log(n), position_error=e[:, 1], ee_position=hand,
+                                error_vector=e))
+    by_hand = run_metrics(**dict(_log(n), position_error=e[:, 1], ee_position=hand))
+    assert moving.converged_paper and not by_hand.converged_paper
+
+
+def test_a_rest_outside_the_time_limit_or_off_orientation_is_not_converged():
+    late = _converging(time_limit=3.0)
+    assert late.success_paper and not late.converged_paper
+    n = 400
+    off = _converging(n, orientation_error=np.full(n, 0.5))
+    assert off.converged_paper and not off.orientation_converged_paper

@@ -42,7 +42,7 @@ def test_identity_kinematics():
 
 def test_straight_attractor_reaches_the_goal_but_hits_the_obstacle():
     free = run_episode(point_scenario(obstacles=False), _Attractor(), PointMassWorld())
-    assert free.metrics.success and free.stop_reason == "goal_reached"
+    assert free.metrics.success and free.stop_reason == "converged"
     assert np.linalg.norm(free.ee_position[-1, :2] - POINT_GOAL) <= 0.05
     blocked = run_episode(point_scenario(), _Attractor(), PointMassWorld())
     assert blocked.metrics.collided and not blocked.metrics.success
@@ -51,9 +51,59 @@ def test_straight_attractor_reaches_the_goal_but_hits_the_obstacle():
 def test_the_run_continues_for_the_settle_time_after_the_first_reach():
     sc = point_scenario(obstacles=False)
     plain = run_episode(sc, _Attractor(), PointMassWorld())
-    settled = run_episode(sc, _Attractor(), PointMassWorld(), settle_time=1.0)
-    reach = plain.metrics.steps - 1
-    assert settled.metrics.steps == plain.metrics.steps + round(1.0 / sc.dt)
-    assert settled.stop_reason == "goal_reached" and settled.metrics.settle_time_s == 1.0
-    np.testing.assert_array_equal(settled.q[: reach + 1], plain.q)  # same run, only longer
+    settle = 12.0  # longer than the attractor takes to come to rest
+    settled = run_episode(sc, _Attractor(), PointMassWorld(), settle_time=settle)
+    reach = round(plain.metrics.time_to_success_s / sc.dt)
+    assert settled.metrics.steps == reach + round(settle / sc.dt) + 1
+    assert settled.stop_reason == "converged" and settled.metrics.settle_time_s == settle
+    np.testing.assert_array_equal(settled.q[: plain.metrics.steps], plain.q)  # only longer
     assert settled.metrics.time_to_success_s == plain.metrics.time_to_success_s
+
+
+class _PassThrough:
+    """Drives the point at constant speed through the goal and on: it reaches, never rests."""
+
+    def reset(self, scenario):
+        self.direction = None
+
+    def step(self, obs):
+        if self.direction is None:
+            d = obs.goal_position[:2] - obs.q
+            self.direction = d / np.linalg.norm(d)
+        return Command(qdd=(1.0 * self.direction - obs.qd) / 0.02)
+
+
+class _Hover:
+    """Tracks a 1 Hz circle of 2 cm radius round the goal: inside the ball, never at rest."""
+
+    def reset(self, scenario):
+        pass
+
+    def step(self, obs):
+        w = 2 * np.pi
+        target = obs.goal_position[:2] + 0.02 * np.array([np.cos(w * obs.t), np.sin(w * obs.t)])
+        vt = 0.02 * w * np.array([-np.sin(w * obs.t), np.cos(w * obs.t)])
+        return Command(qdd=25.0 * (target - obs.q) + 10.0 * (vt - obs.qd))
+
+
+def test_a_hand_passing_through_the_ball_reached_but_did_not_converge():
+    run = run_episode(point_scenario(obstacles=False), _PassThrough(), PointMassWorld())
+    m = run.metrics
+    assert m.success_paper and m.success_whole_body  # the paper's criterion: reached
+    assert not m.converged_paper and not m.converged_whole_body
+    assert m.left_after_reach and m.max_error_after_reach_m > 1.0
+    assert run.stop_reason == "max_steps" and np.isnan(m.rest_time_s)
+
+
+def test_a_hand_hovering_in_the_ball_does_not_converge_and_a_resting_one_does():
+    sc = point_scenario(obstacles=False)
+    hover = run_episode(sc, _Hover(), PointMassWorld()).metrics
+    assert hover.success_paper and not hover.left_after_reach
+    assert not hover.converged_paper
+    rest = run_episode(sc, _Attractor(), PointMassWorld())
+    m = rest.metrics
+    assert m.converged_paper and m.converged_whole_body and not m.left_after_reach
+    assert m.time_to_success_s < m.rest_time_s <= rest.t[-1]
+    # at rest: the last rest window moved less than the rest distance
+    window = rest.ee_position[rest.t >= rest.t[-1] - 1.0 + 1e-9]
+    assert np.linalg.norm(window - rest.ee_position[-1], axis=1).max() <= 0.005

@@ -4,7 +4,9 @@
 Per task and method label, on the runs with obstacles: success under both criteria
 (``tamedpuma/metrics.py``) and success with orientation under the paper criterion (the goal
 orientation also held after the settle time: the pose the task asks for) with 95 % percentile-
-bootstrap confidence intervals (10 000 resamples of the scenarios, seeded), time to success [s]
+bootstrap confidence intervals (10 000 resamples of the scenarios, seeded), converged (the hand
+comes to rest in the goal ball; with and without the goal orientation) with its interval and the
+runs that left the ball after first reaching it, time to success [s]
 (mean ± std over the paper-criterion successes), the path difference to PUMA [m] (mean ± std over
 the obstacle-free runs of the same scenarios) and the whole-body failures by class
 (sphere_penetration, obstacle_contact, ground_contact, joint_limit, stall, time, late); then the
@@ -21,7 +23,14 @@ import pandas as pd
 
 from tamedpuma.analysis.runs import parse_and_load, runs_parser, write_table
 from tamedpuma.analysis.summaries import bootstrap_ci
-from tamedpuma.analysis.tables import _pm, failure_counts, ordered_labels, path_differences
+from tamedpuma.analysis.tables import (
+    _pm,
+    column_rate,
+    failure_counts,
+    left_count,
+    ordered_labels,
+    path_differences,
+)
 from tamedpuma.worlds.random_scenarios import START_KINDS
 
 
@@ -46,7 +55,11 @@ def _rates(scored: pd.DataFrame) -> dict[str, str]:
             "success (paper) [95% CI]": _rate(scored["success_paper"].astype(float)),
             "success (whole body) [95% CI]": _rate(scored["success_whole_body"].astype(float)),
             "with orientation (paper) [95% CI]":
-                _rate(scored["orientation_success_paper"].astype(float))}
+                _rate(scored["orientation_success_paper"].astype(float)),
+            "converged (paper) [95% CI]": _rate(column_rate(scored, "converged_paper")),
+            "converged with orientation (paper) [95% CI]":
+                _rate(column_rate(scored, "orientation_converged_paper")),
+            "left the ball after reaching": left_count(scored)}
 
 
 def by_start_table(runs: pd.DataFrame) -> pd.DataFrame:

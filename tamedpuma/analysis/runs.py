@@ -16,7 +16,7 @@ import pandas as pd
 import yaml
 
 from tamedpuma.errors import LogError
-from tamedpuma.metrics import run_metrics
+from tamedpuma.metrics import ERROR_VECTOR_FIELDS, run_metrics
 from tamedpuma.recording import read_mcap
 
 log = logging.getLogger(__name__)
@@ -119,7 +119,9 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
         tolerance=float(scenario.get("goal_tolerance", 0.05)),
         time_limit=float(max_steps) * dt if max_steps is not None else float("inf"),
         settle_time=float(cfg.get("settle_time", 0.0)), ee_position=ee,
-        disturbance_time=disturbance_onset(cfg))
+        disturbance_time=disturbance_onset(cfg), error_vector=error_vector(sc),
+        rest_window=float(cfg.get("rest_window", 1.0)),
+        rest_distance=float(cfg.get("rest_distance", 0.005)))
     method = run.info.get("method")
     row = {"path": str(path), "run_id": run.info.get("run_id"), "method": method,
            "method_label": method_label(cfg, method),
@@ -131,6 +133,14 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
            "read_error": run.read_error or "", **metrics.as_dict(),
            **{k: run.info.get(k, "") for k in MODEL_KEYS}}
     return row, ee, sc["compute_time_ms"].to_numpy()
+
+
+def error_vector(scalars: pd.DataFrame) -> np.ndarray | None:
+    """The logged error vector x_ee − x_g (T, 3) [m], or None for a log without it (the rest
+    test then takes the hand's position, exact for a goal that does not move)."""
+    if not set(ERROR_VECTOR_FIELDS) <= set(scalars.columns):
+        return None
+    return scalars[list(ERROR_VECTOR_FIELDS)].to_numpy()
 
 
 def disturbance_onset(cfg: dict) -> float | None:

@@ -20,7 +20,7 @@ import pandas as pd
 
 from tamedpuma.analysis.runs import parse_and_load, runs_or_error, runs_parser
 from tamedpuma.analysis.summaries import pooled_step_times
-from tamedpuma.analysis.tables import ordered_labels
+from tamedpuma.analysis.tables import column_rate, ordered_labels
 
 
 def scaling_table(runs: pd.DataFrame, times: dict) -> pd.DataFrame:
@@ -45,6 +45,7 @@ def scaling_table(runs: pd.DataFrame, times: dict) -> pd.DataFrame:
                          "success_paper": c["success_paper"].mean() if len(c) else nan,
                          "success_whole_body": (c["success_whole_body"].mean() if len(c)
                                                 else nan),
+                         "converged_paper": column_rate(c, "converged_paper").mean(),
                          "time_to_success_s": (float(ok["time_to_success_s"].median())
                                                if len(ok) else nan),
                          "failures": failure_counts(c["failure_whole_body"]),
@@ -81,6 +82,8 @@ def _outcome_cell(r) -> str:
     cell = f"{wins}/{r.runs}"
     if wins:
         cell += f", {r.time_to_success_s:.1f} s"
+    if r.converged_paper == r.converged_paper:  # not NaN: the summaries record it
+        cell += f", converged {round(r.converged_paper * r.runs)}"
     if r.failures:
         cell += f"; {r.failures}"
     return cell
@@ -95,7 +98,8 @@ def _timing_cell(r) -> str:
 
 
 def outcome_markdown(table: pd.DataFrame) -> str:
-    """Methods as rows, counts as columns: 'successes/runs, median time to success; failures'."""
+    """Methods as rows, counts as columns: 'successes/runs, median time to success, converged
+    runs; failures'."""
     return _grid(table, _outcome_cell)
 
 

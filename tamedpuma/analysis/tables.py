@@ -8,6 +8,8 @@ obstacles:
   of the goal within the horizon, no body sphere penetrating an obstacle sphere) and **whole
   body** (also no PyBullet robot–obstacle or robot–ground contact, no joint-limit violation);
   each also with orientation (≤ 0.2 rad after the settle time);
+- converged under both criteria (the hand comes to rest inside the goal ball after the reach),
+  converged with the goal orientation, and the runs that left the ball after first reaching it;
 - time to success [s] (mean ± std over the paper-criterion successes);
 - controller time [ms] over *every step of every run*: mean ± std, median, p99; the first step of
   each run (the warm-up) is included and also shown on its own (mean / max over runs);
@@ -73,6 +75,37 @@ def step_time_stats(step_times: list[np.ndarray]) -> dict:
             "first_max": first.max(), "steps": len(every)}
 
 
+def column_rate(runs: pd.DataFrame, column: str) -> pd.Series:
+    """Per run, a boolean outcome as 0/1 (NaN where the column is missing: a summary written
+    before that outcome was recorded)."""
+    if column not in runs:
+        return pd.Series(np.nan, index=runs.index)
+    return runs[column].astype(float)
+
+
+def left_count(runs: pd.DataFrame) -> str:
+    """'k of n': the runs that left the goal ball after first reaching it ('—' if unknown)."""
+    if "left_after_reach" not in runs or runs["left_after_reach"].isna().all():
+        return "—"
+    return f"{int(runs['left_after_reach'].fillna(False).astype(bool).sum())} of {len(runs)}"
+
+
+def _mean_or_dash(values: pd.Series) -> str:
+    values = pd.Series(values).dropna()
+    return f"{values.mean():.2f}" if len(values) else "—"
+
+
+def converged_cells(runs: pd.DataFrame) -> dict[str, str]:
+    """The converged columns of every table: converged under both criteria, converged with
+    the goal orientation (paper criterion) and the runs that left the ball after reaching."""
+    paper = _mean_or_dash(column_rate(runs, "converged_paper"))
+    body = _mean_or_dash(column_rate(runs, "converged_whole_body"))
+    return {"converged (paper / whole body)": f"{paper} / {body}",
+            "converged with orientation (paper)":
+                _mean_or_dash(column_rate(runs, "orientation_converged_paper")),
+            "left the ball after reaching": left_count(runs)}
+
+
 def failure_counts(failures: pd.Series) -> str:
     """'stall 2, ground_contact 1' (most frequent first), '—' when none."""
     counts = Counter(f for f in failures if isinstance(f, str) and f)
@@ -109,6 +142,7 @@ def table1(runs: pd.DataFrame, step_times: dict | None = None) -> pd.DataFrame:
             "with orientation (paper / whole body)":
                 f"{scored['orientation_success_paper'].mean():.2f} / "
                 f"{scored['orientation_success_whole_body'].mean():.2f}",
+            **converged_cells(scored),
             "time-to-success [s]": _pm(ok["time_to_success_s"]),
             "computation [ms] mean ± std (all steps)":
                 f"{st['mean']:.2f} ± {st['std']:.2f}" if st else "—",

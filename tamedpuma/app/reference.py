@@ -62,7 +62,7 @@ def reference_config(cfg: DictConfig) -> DictConfig:
 def reference_motion(cfg: DictConfig, build: Callable) -> np.ndarray:
     """The joint path (T, dof) [rad] of the reference run for ``cfg`` (see the module
     docstring); ``build``: the sweep's config -> ``Built`` function."""
-    from tamedpuma.episode import run_episode
+    from tamedpuma.episode import RestTest, run_episode
     from tamedpuma.worlds.bullet import Simulator
 
     if not isinstance(cfg, DictConfig):
@@ -76,7 +76,8 @@ def reference_motion(cfg: DictConfig, build: Callable) -> np.ndarray:
     with Simulator(built.spec, built.sim_config, built.disturbance) as sim:
         result = run_episode(built.scenario, built.controller, sim,
                              stop_on_success=built.run.stop_on_success,
-                             settle_time=built.run.settle_time)
+                             settle_time=built.run.settle_time,
+                             rest=RestTest(built.run.rest_window, built.run.rest_distance))
     m = result.metrics
     if not m.success_whole_body:
         raise ScenarioError(

@@ -515,14 +515,18 @@ class RunConfig:
     disturbance: Disturbance = field(default_factory=Disturbance)
     seed: int = 0
     output_root: str = "runs"        # every run writes into a new folder below this
-    stop_on_success: bool = True     # end the episode settle_time after the first reach
-    settle_time: float = 2.0         # [s] the run continues this long after the first reach
+    stop_on_success: bool = True     # end the episode once the hand rests in the goal ball
+    settle_time: float = 2.0         # [s] the run goes on at least this long after the reach
+    rest_window: float = 1.0         # [s] at rest: the hand moved less than rest_distance
+    rest_distance: float = 0.005     # [m] relative to the goal over the last rest_window
     without_obstacles: bool = False  # drop the scenario's obstacles (path-difference runs)
     clutter: ClutterSchema = field(default_factory=ClutterSchema)
 
     def __post_init__(self):
         _check(self.seed >= 0, "seed", "an integer >= 0", self.seed)
         _nonneg("settle_time", self.settle_time)
+        _positive("rest_window", self.rest_window)
+        _positive("rest_distance", self.rest_distance)
         sim = self.sim
         _check(_finite(sim.substep) and 0 < sim.substep <= 0.1, "sim.substep", "in (0, 0.1] s",
                sim.substep)

@@ -127,7 +127,7 @@ def write_summary(run_dir: Path, summary: dict) -> Path:
 
 def run_one(cfg: DictConfig, run_dir: Path) -> dict:
     """Config -> scenario -> controller -> simulator -> recorders -> files. Returns the summary."""
-    from tamedpuma.episode import run_episode
+    from tamedpuma.episode import RestTest, run_episode
     from tamedpuma.recording import make_recorders, recorder_files
     from tamedpuma.recording.records import RunInfo
     from tamedpuma.worlds.bullet import Simulator
@@ -148,7 +148,8 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                    model=built.model.metadata() if built.model else {})
     with Simulator(spec, built.sim_config, built.disturbance) as sim:
         result = run_episode(scenario, built.controller, sim, recorders, info,
-                             stop_on_success=run.stop_on_success, settle_time=run.settle_time)
+                             stop_on_success=run.stop_on_success, settle_time=run.settle_time,
+                             rest=RestTest(run.rest_window, run.rest_distance))
     t_episode = time.perf_counter()
     summary = {"status": "complete", "run_dir": str(run_dir), "method": run.method.name,
                "method_label": run.method.label or run.method.name, "task": run.task.name,
