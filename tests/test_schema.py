@@ -40,13 +40,13 @@ def _run_overrides(group: str, option: str) -> list[str]:
         return [f"scenario={option}", f"task={option.split('/')[0]}"]
     if group == "fabric":
         return ["method=fabrics", f"fabric@method.fabric={option}"]
-    if group in ("experiment", "case"):
+    if group in ("experiment", "case", "ablation"):
         return [f"+{group}={option}"]
     return [f"{group}={option}"]
 
 
 RUN_GROUPS = ("robot", "task", "scenario", "method", "recorder", "sim", "fabric", "experiment",
-              "case", "disturbance")
+              "case", "disturbance", "ablation")
 RUN_CASES = [(g, o) for g in RUN_GROUPS for o in _options(g) if (g, o) != ("task", "lasa")]
 TRAIN_CASES = [(g, o) for g in ("task", "puma") for o in _options(g)]
 

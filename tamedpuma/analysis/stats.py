@@ -7,6 +7,7 @@ interval (α = 1 − level). Seeded, so a report is reproducible.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -44,3 +45,16 @@ def bootstrap_ci(values, statistic: Callable[[np.ndarray], float] = np.mean,
     alpha = 1.0 - level
     low, high = np.quantile(stats, [alpha / 2, 1 - alpha / 2])
     return Interval(float(statistic(x)), float(low), float(high), n)
+
+
+def mcnemar_exact(lost: int, gained: int) -> float:
+    """Two-sided exact McNemar test of paired 0/1 outcomes on the same scenarios: the
+    probability, if either change were as likely as the other, of discordant pairs at least as
+    uneven as ``lost`` (1 → 0) against ``gained`` (0 → 1),
+    ``p = min(1, 2 Σ_{k ≤ min(b, c)} C(b + c, k) / 2^(b + c))``; 1 when there is none."""
+    n = lost + gained
+    if n == 0:
+        return 1.0
+    k = min(lost, gained)
+    tail = sum(math.comb(n, i) for i in range(k + 1)) / 2.0 ** n
+    return float(min(1.0, 2.0 * tail))
