@@ -144,6 +144,33 @@ def _close(recorders: Sequence[Recorder], complete: bool, summary: dict) -> None
         raise errors[0]
 
 
+class _StopRule:
+    """When the loop stops: at the first step at least ``settle_time`` [s] after the first reach
+    at which the hand rests inside the goal ball (with ``stop_on_success``), else at the step
+    limit, which a reach near it extends to cover the settle period. With a discrete
+    disturbance (goal change, push; onset [s]) only a reach at or after its onset counts: the run
+    goes on until then however early it first came near the goal."""
+
+    def __init__(self, scenario: Scenario, settle_time: float, rest: RestTest,
+                 onset: float | None, stop_on_success: bool):
+        if not settle_time >= 0:
+            raise ValueError(f"settle_time must be >= 0 s, got {settle_time}")
+        self.settle_steps = math.ceil(settle_time / scenario.dt - 1e-9)
+        self.tolerance, self.enabled = scenario.goal_tolerance, stop_on_success
+        self.after_onset = -math.inf if onset is None else onset - 1e-9
+        self.monitor = RestMonitor(rest.window, rest.distance)
+        self.limit, self.reach_step = scenario.max_steps, None
+
+    def converged(self, k: int, t: float, error: np.ndarray, distance: float) -> bool:
+        resting = self.monitor.update(t, error)
+        inside = distance <= self.tolerance
+        if self.reach_step is None and inside and t >= self.after_onset:
+            self.reach_step = k
+            self.limit = max(self.limit, k + self.settle_steps + 1)
+        return (self.enabled and self.reach_step is not None
+                and k >= self.reach_step + self.settle_steps and inside and resting)
+
+
 def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
                 recorders: Sequence[Recorder] = (), info: RunInfo | None = None,
                 stop_on_success: bool = True, settle_time: float = 0.0,
@@ -153,9 +180,6 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
     ``settle_time`` [s]: the run continues at least this long after the goal is first reached;
     with ``stop_on_success`` it ends at the first step after that at rest (``rest``) inside the
     goal ball, else at the step limit."""
-    if not settle_time >= 0:
-        raise ValueError(f"settle_time must be >= 0 s, got {settle_time}")
-    settle_steps = math.ceil(settle_time / scenario.dt - 1e-9)
     spec = sim.spec
     # the recorders log the true obstacle positions (the controller may see noisy ones)
     truth = ((lambda _obs: sim.obstacle_centers()) if hasattr(sim, "obstacle_centers")
@@ -166,15 +190,11 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
     for rec in recorders:
         rec.open(info)
     trace, complete, stop_reason = _Trace(), False, "max_steps"
-    monitor = RestMonitor(rest.window, rest.distance)
-    limit, reach_step = scenario.max_steps, None
-    # with a discrete disturbance (goal change, push) only a reach at or after its onset counts:
-    # the run goes on until then however early it first came near the goal
     onset = getattr(sim, "disturbance_time", None)
-    after_onset = -math.inf if onset is None else onset - 1e-9
+    stop = _StopRule(scenario, settle_time, rest, onset, stop_on_success)
     try:
         k = 0
-        while k < limit:
+        while k < stop.limit:
             link_pos, link_quat, centers, contacts, pos_err, rot_err = _observe(sim, obs, ee_index)
             command, qdd, compute_ms = _timed_step(controller, obs, spec.dof)
             if recorders:  # (no record is built for none: recorder=none costs nothing)
@@ -184,7 +204,6 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
                 for rec in recorders:
                     rec.write(record)
             error = link_pos[ee_index] - obs.goal_position
-            resting = monitor.update(obs.t, error)
             trace.add(t=obs.t, q=obs.q, ee_position=link_pos[ee_index], error_vector=error,
                       position_error=pos_err,
                       orientation_error=rot_err, clearance=contacts.sphere_clearance,
@@ -193,12 +212,7 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
             if not np.isfinite(qdd).all():
                 stop_reason = "nonfinite_command"
                 break
-            inside = pos_err <= scenario.goal_tolerance
-            if reach_step is None and inside and obs.t >= after_onset:
-                reach_step = k
-                limit = max(limit, k + settle_steps + 1)
-            if (stop_on_success and reach_step is not None and k >= reach_step + settle_steps
-                    and inside and resting):
+            if stop.converged(k, obs.t, error, pos_err):
                 stop_reason = "converged"
                 break
             obs = sim.step(qdd)

@@ -362,45 +362,6 @@ def test_the_geometry_braking_past_the_alpha_bound_is_taken_implicitly():
     assert a3 is h and c3 == c
 
 
-def test_forcing_reach_leaves_out_only_the_obstacle_pairs_farther_than_it(kinematics):
-    """``approached_metric(av, q̈_P, x_r)`` = M minus the receding rows (as without reach) and
-    minus every obstacle pair farther than x_r from contact; joint-limit rows stay whatever
-    their distance (x in rad); x_r = inf is the plain directional metric."""
-    from tamedpuma.methods._tamed import approached_metric
-
-    fab = Fabric(FabricGains(), kinematics.spec.q_min, kinematics.spec.q_max)
-    q, qd = Q0.copy(), np.zeros(7)
-    state = kinematics.evaluate(q, qd)
-    av = fab.avoidance(state, q, qd, *OBSTACLES)
-    rows, x, m = av.barrier_rows, av.barrier_x, av.barrier_metric
-    n_pairs = av.n_pair_rows  # the layout: pairs, then 2n joint-limit rows, then ground rows
-    assert n_pairs == rows.shape[0] - 14 - av.n_ground_rows == 10  # 5 spheres × 2 obstacles
-    assert np.any(m[:n_pairs] > 0)
-    rng = np.random.default_rng(0)
-    for _ in range(5):
-        free = rng.normal(size=7)
-        reach = float(np.median(x[:n_pairs][m[:n_pairs] > 0]))
-        drop = (rows @ free > 0) & (m > 0)
-        drop[:n_pairs] |= (x[:n_pairs] > reach) & (m[:n_pairs] > 0)
-        expected = av.M - (rows[drop].T * m[drop]) @ rows[drop]
-        got = approached_metric(av, free, reach)
-        assert np.allclose(got, expected, rtol=0, atol=1e-12)
-        assert np.array_equal(approached_metric(av, free, np.inf), approached_metric(av, free))
-        tiny = approached_metric(av, free, 1e-9)  # no pair counts: the joint limits remain
-        keep = ~((rows @ free > 0) & (m > 0))
-        keep[:n_pairs] = False
-        assert np.allclose(tiny, fab.gains.base_metric * np.eye(7)
-                           + (rows[keep].T * m[keep]) @ rows[keep], rtol=0, atol=1e-12)
-
-
-@pytest.mark.parametrize("reach", [0.0, -1.0])
-def test_forcing_reach_must_be_positive(reach):
-    from tamedpuma.methods._tamed import Forcing
-
-    with pytest.raises(ConfigError, match="reach"):
-        Forcing.from_mapping({"mode": "metric", "directional": True, "reach": reach})
-
-
 def _approach_cases(kinematics, n=200, seed=3):
     """Random iiwa states with joints near their limits (limit rows on) and random PUMA task
     accelerations: (av, task, q̈_P) per case."""
@@ -422,13 +383,13 @@ def _approach_cases(kinematics, n=200, seed=3):
         yield av, task, pull_to_joints(task, 0.01)
 
 
-def test_forcing_approach_solution_leaves_out_no_barrier_the_forcing_approaches(kinematics):
-    """``forcing.approach: solution``: rows left out because PUMA's free pull q̈_P recedes from
-    them are put back wherever the weighted solution q̈_C approaches them. Over random states
-    near the joint limits: q̈_C approaches no row still left out, the rows left out are a subset
-    of the receding ones, and q̈_C is the weighted solve through M without exactly those rows;
-    where q̈_C from q̈_P's rows approaches none of them the two modes agree to the bit. And the
-    defect exists: with ``pull`` q̈_C approaches a left-out row in some of the cases."""
+def test_the_directional_metric_leaves_out_no_barrier_the_forcing_approaches(kinematics):
+    """Rows left out because PUMA's free pull q̈_P recedes from them are put back wherever the
+    weighted solution q̈_C approaches them. Over random states near the joint limits: q̈_C
+    approaches no row still left out, the rows left out are a subset of the receding ones, and
+    q̈_C is the weighted solve through M without exactly those rows; where the first solve
+    approaches none of them it is kept to the bit. And the restore is needed: the first solve
+    (decided on q̈_P alone) approaches a left-out row in some of the cases."""
     from tamedpuma.methods._tamed import metric_without, receding_rows, restore_approached
 
     pulled_into, changed = 0, 0
@@ -450,34 +411,6 @@ def test_forcing_approach_solution_leaves_out_no_barrier_the_forcing_approaches(
         else:
             assert np.array_equal(got, by_pull)
     assert pulled_into >= 5 and changed == pulled_into
-
-
-def test_forcing_approach_must_be_pull_or_solution():
-    with pytest.raises(ConfigError, match="approach"):
-        Forcing.from_mapping({"mode": "metric", "directional": True, "approach": "free"})
-    assert Forcing.from_mapping({"approach": "solution"}).approach == "solution"
-
-
-def test_forcing_approach_solution_keeps_the_pairs_beyond_reach_out(kinematics):
-    """With a finite ``forcing.reach`` the obstacle pairs farther than x_r from contact stay
-    out of the metric whatever q̈_C does; only rows left out for receding come back."""
-    from tamedpuma.methods._tamed import metric_without, receding_rows, restore_approached
-
-    reach, seen = 0.3, 0
-    for av, task, free in _approach_cases(kinematics, n=60, seed=5):
-        def solve(W, task=task):
-            return pull_through_metric(task, W, 100.0, 0.05)
-
-        receding = receding_rows(av, free, reach)
-        got, out = restore_approached(av, receding, metric_without(av, receding),
-                                      solve(metric_without(av, receding)), solve, reach)
-        far = np.zeros_like(out)
-        far[:av.n_pair_rows] = (av.barrier_x[:av.n_pair_rows] > reach) & (
-            av.barrier_metric[:av.n_pair_rows] > 0)
-        assert np.all(out[far])
-        seen += int(far.any())
-        assert not np.any(out & ~far & (av.barrier_rows @ got < 0.0))
-    assert seen > 10
 
 
 def _secondary_problem(rng, n=7, k=3, m2=3):

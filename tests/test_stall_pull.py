@@ -28,11 +28,11 @@ PULL = StallPull(gain=1.5, window=2.0, progress=0.005, psi_progress=0.1, radius=
                  release=0.05)
 
 
-def _feed(monitor, times, distances, psi=lambda: 1.0, at_limit=False):
+def _feed(monitor, times, distances, psi=lambda: 1.0):
     """The monitor's output at each (t, d), the hand on the x axis d [m] short of GOAL; psi: a
-    constant ψ, or a sequence of ψ one per step; at_limit: a joint near its limit (all steps)."""
+    constant ψ, or a sequence of ψ one per step."""
     psis = [psi] * len(times) if callable(psi) else [lambda v=v: v for v in psi]
-    return [monitor.acceleration(t, GOAL - [d, 0.0, 0.0], GOAL, f, at_limit)
+    return [monitor.acceleration(t, GOAL - [d, 0.0, 0.0], GOAL, f)
             for t, d, f in zip(times, distances, psis, strict=True)]
 
 
@@ -81,22 +81,6 @@ def test_a_creeping_hand_arms_the_pull_only_with_a_progress_fraction():
     assert all(a is None for a in _feed(StallMonitor(fraction), t, approach, psi=psi))
 
 
-def test_the_limit_progress_fraction_counts_a_creep_only_with_a_joint_near_its_limit():
-    """The creep above: with ``limit_progress_fraction`` it arms after the window only while a
-    joint is near its limit (the caller's flag); away from the limits (the circulation's slow
-    way round an obstacle) the absolute progress alone decides, and it never arms."""
-    t = np.round(np.arange(0.0, 10.0, 0.1), 6)
-    psi = np.full(len(t), 2.0)
-    creep = 0.5 - 0.004 * t
-    gated = replace(PULL, limit_progress_fraction=0.05)
-    assert all(a is None for a in _feed(StallMonitor(gated), t, creep, psi=psi))
-    out = _feed(StallMonitor(gated), t, creep, psi=psi, at_limit=True)
-    assert [a is None for a in out] == list(t < 2.0)
-    approach = 0.045 + 0.5 * np.exp(-t / 3.0)
-    assert all(a is None for a in _feed(StallMonitor(gated), t, approach, psi=psi,
-                                        at_limit=True))
-
-
 def test_the_potential_is_evaluated_at_most_every_sample_period():
     calls = []
 
@@ -131,9 +115,9 @@ def test_it_lets_go_on_puma_potential_not_on_distance_and_watches_afresh():
     assert m.acceleration(7.0, GOAL - [0.3, 0.0, 0.0], GOAL, lambda: 0.94) is not None
 
 
-def test_near_the_goal_only_distance_is_progress_and_the_pull_holds_until_the_goal():
+def test_near_the_goal_only_distance_is_progress_and_the_pull_holds():
     """Within hold_radius a falling ψ (the orientation converging) does not count as progress,
-    and the pull armed there is not let go on ψ, only once the hand is inside the radius."""
+    and the pull armed there is not let go on ψ, nor inside the radius."""
     near = StallPull(gain=1.5, window=2.0, progress=0.005, psi_progress=0.1, radius=0.045,
                      ramp=1.0, release=0.05, hold_radius=0.15)
     t = np.round(np.arange(0.0, 6.0, 0.1), 6)
@@ -149,19 +133,18 @@ def test_near_the_goal_only_distance_is_progress_and_the_pull_holds_until_the_go
     d = np.where(t < 4.0, 0.08, 0.06)
     out = _feed(m, t, d, psi=psi)
     assert all(a is not None for a, ti in zip(out, t, strict=True) if ti >= 2.0)
-    # ... until the hand is within the radius
-    assert m.acceleration(6.0, GOAL - [0.04, 0, 0], GOAL, lambda: 0.1) is None
-    assert not m.armed
+    # ... and inside the radius too (the attractor vanishes at the goal)
+    assert m.acceleration(6.0, GOAL - [0.04, 0, 0], GOAL, lambda: 0.1) is not None
+    assert m.armed
     # farther than hold_radius the rules are unchanged: progress on ψ keeps it disarmed
     far = _feed(StallMonitor(near), t, np.full(len(t), 0.3), psi=falling)
     assert all(a is None for a in far)
 
 
-def test_hold_keep_never_lets_go_and_the_pull_vanishes_at_the_goal():
-    """With hold_keep a pull armed within hold_radius stays armed inside the goal radius (where
-    the plain hold lets go), and its acceleration falls to zero at the goal (a rest point)."""
-    keep = StallPull(gain=1.5, window=2.0, radius=0.045, ramp=0.0, hold_radius=0.15,
-                     hold_keep=True)
+def test_a_pull_armed_near_the_goal_never_lets_go_and_vanishes_at_the_goal():
+    """A pull armed within hold_radius stays armed inside the goal radius, and its acceleration
+    falls to zero at the goal (a rest point)."""
+    keep = StallPull(gain=1.5, window=2.0, radius=0.045, ramp=0.0, hold_radius=0.15)
     m = StallMonitor(keep)
     t = np.round(np.arange(0.0, 2.6, 0.1), 6)
     out = _feed(m, t, np.full(len(t), 0.08), psi=np.exp(-0.5 * t))
@@ -177,35 +160,6 @@ def test_hold_keep_never_lets_go_and_the_pull_vanishes_at_the_goal():
     _feed(far, t, np.full(len(t), 0.3), psi=np.ones(len(t)))
     assert far.armed
     assert far.acceleration(3.0, GOAL - [0.3, 0, 0], GOAL, lambda: 0.5) is None
-
-
-def test_the_orientation_rows_yield_only_while_a_near_pull_presses_outside_the_radius():
-    """pressing_near: armed within hold_radius and the hand still outside the radius. Then, and
-    only then, the orientation rows weigh ρ·s (stall_rotation_weight); a pull armed far from the
-    goal, a disarmed monitor and a hand inside the radius keep ρ."""
-    keep = StallPull(gain=1.5, window=2.0, radius=0.045, ramp=0.0, hold_radius=0.15,
-                     hold_keep=True)
-    forcing = Forcing(mode="metric", weight=100.0, rotation_weight=0.5,
-                      stall_rotation_weight=0.01)
-    full, reduced = [100.0] * 3 + [50.0] * 3, [100.0] * 3 + [0.5] * 3
-    t = np.round(np.arange(0.0, 2.6, 0.1), 6)
-    m = StallMonitor(keep)
-    states = []
-    for ti, di in zip(t, np.full(len(t), 0.08), strict=True):
-        m.acceleration(ti, GOAL - [di, 0, 0], GOAL, lambda: 1.0)
-        states.append(m.pressing_near)
-    assert states == list(t >= 2.0)  # from arming on
-    np.testing.assert_allclose(forcing.task_weights(6, stalled_near=m.pressing_near), reduced)
-    m.acceleration(3.0, GOAL - [0.03, 0, 0], GOAL, lambda: 1.0)  # inside the radius: ρ again
-    assert m.armed and not m.pressing_near
-    np.testing.assert_allclose(forcing.task_weights(6, stalled_near=m.pressing_near), full)
-    m.acceleration(3.1, GOAL - [0.06, 0, 0], GOAL, lambda: 1.0)  # back out: yields again
-    assert m.pressing_near
-    far = StallMonitor(keep)
-    _feed(far, t, np.full(len(t), 0.3))
-    assert far.armed and not far.pressing_near
-    assert Forcing(weight=100.0).task_weights(6, stalled_near=True) == 100.0  # s = 1: off
-    assert forcing.task_weights(3, stalled_near=True) == 100.0  # no orientation rows
 
 
 def test_applied_adds_to_the_position_rows_only():
@@ -272,13 +226,9 @@ def test_a_run_that_keeps_approaching_is_unchanged_by_the_pull():
 
 @pytest.mark.parametrize("bad", [{"stall_pull": -1.0}, {"stall_window": 0.0},
                                  {"stall_release": 1.0}, {"stall_ramp": -0.5},
-                                 {"stall_hold_radius": -0.1}, {"stall_hold_keep": "maybe"},
-                                 {"stall_hold_keep": 1}, {"stall_rotation_weight": 0.0},
-                                 {"stall_rotation_weight": 1.5},
+                                 {"stall_hold_radius": -0.1},
                                  {"stall_progress_fraction": 1.0},
-                                 {"stall_progress_fraction": -0.1},
-                                 {"stall_limit_progress_fraction": 1.0},
-                                 {"stall_limit_progress_fraction": -0.1}])
+                                 {"stall_progress_fraction": -0.1}])
 def test_bad_stall_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="stall"):
         Forcing.from_mapping({"mode": "metric", **bad})

@@ -31,7 +31,8 @@ import pandas as pd
 from tamedpuma.analysis.path_difference import path_difference
 from tamedpuma.analysis.runs import parse_and_load, runs_parser
 
-METHOD_ORDER = ["puma", "modulation_ik", "fabrics", "fpm", "cpm", "cpm_literal", "cpm_original"]
+METHOD_ORDER = ["puma", "modulation_ik", "fabrics", "fpm", "cpm", "fpm_literal", "cpm_literal",
+                "cpm_original"]
 
 
 def _labels(runs: pd.DataFrame) -> pd.Series:

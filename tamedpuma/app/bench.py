@@ -194,9 +194,9 @@ def _tamed_parts(ctrl, state, obs, av, accel, null) -> dict:
         parts["circulation specs"] = lambda: circulation.specs(
             state, obs.qd, free, obs.obstacle_centers, obs.obstacle_radii, None,
             av.min_clearance)
-    W = approached_metric(av, free, forcing.reach) if forcing.directional else av.M
+    W = approached_metric(av, free) if forcing.directional else av.M
     if forcing.directional:
-        parts["directional metric"] = lambda: approached_metric(av, free, forcing.reach)
+        parts["directional metric"] = lambda: approached_metric(av, free)
     weights = forcing.task_weights(len(accel.xdd))
     priority = forcing.priority_rows(len(accel.xdd))  # as the step solves it
     secondary = forcing.secondary_damping()  # the orientation rows' damping, as the step

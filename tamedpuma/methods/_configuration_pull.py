@@ -59,7 +59,7 @@ joint 3 at 2.95 rad, the hand 9-10 cm short and creeping, the stall pull armed a
 short at 40 s). With ``near_release`` > 0 the pull engages at such an arming too (a joint at a
 limit, the hand farther than ``near_release``) and lets go within ``near_release`` [m] instead
 of ``release``, and only at the control step the stall pull arms in: armed near the goal the
-stall pull holds for good (``stall_hold_keep``), and a joint reaching its band later, while the
+stall pull holds for good, and a joint reaching its band later, while the
 hand still comes in, is no stall (random pouring ``anywhere`` 2026, CPM: engaged 7 s after the
 arming, the hand 6.3 cm out and closing, then a 1.4 m reconfiguration that ran out of time). The
 way out is often a whole reconfiguration (2097: the elbow turned over, q₄ 1.7 → −1.65 rad, the

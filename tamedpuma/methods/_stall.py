@@ -40,11 +40,7 @@ distance would take longer than about ``window``/f to close at the current rate 
 counts as progress all the way in. Off for FPM: the circulation's way round an obstacle is a
 creep too (Table-1 tomato 02, FPM: 0.57 → 0.53 m in 9 s, then round and in at 20 s), and a
 pull armed there pulled the hand back into the obstacle's shadow and into two joint limits
-(BENCHMARKS.md "Session 28"). ``limit_progress_fraction`` asks the fraction only while a joint
-is within the configuration pull's band of its limit (the caller says so), which tells the
-joint-limit creep of 2014 from the circulation's way round (no joint at a limit): Table-1 tomato
-02 is kept, but on fresh seeds it fixed as many runs as it lost (BENCHMARKS.md "Session 29");
-off by default too. CPM has ``progress_fraction`` 0.05 since session 30: its regulator brakes
+(BENCHMARKS.md "Session 28"). CPM has ``progress_fraction`` 0.05: its regulator brakes
 every climb of ψ, and where ψ climbs along the hand's way CPM crawls at about √ε, the hand
 closing 2-6 mm/s (random pouring ``near_table1`` 81020: 0.42 → 0.34 m in 24 s), which 5 mm per
 window counted as progress; armed, the configuration pull (CPM: ``always``) takes over far from
@@ -68,7 +64,7 @@ crept 8 → 7 cm in 20 s (``anywhere`` 2065, FPM): each fall counted as progress
 go again. Within ``hold_radius`` therefore only d ≤ best − ``progress`` is progress, and a pull
 armed there is let go only once the hand is inside ``radius``, not on ψ: there the convex
 attractor's only minimum is the goal a few centimetres away, and there is no demonstrated path
-left for it to cut across. With ``hold_keep`` a pull armed there is never let go: at the goal it
+left for it to cut across. A pull armed there is never let go: at the goal it
 vanishes (g·(p_g − p)/ℓ → 0), so the goal stays a rest point of the forced system and PUMA's
 zero set is kept, while a PUMA field that still orients the hand can no longer carry it back out
 unopposed (let go at the radius, it did: the default tomato FPM run, 3 → 10 cm, session 20).
@@ -107,20 +103,18 @@ PSI_SAMPLE_S = 0.1
 @dataclass(frozen=True)
 class StallPull:
     """The stall pull's settings (``method.forcing.stall_*``): gain g [m/s²] (0: off), window
-    [s], progress [m], progress_fraction [1], limit_progress_fraction [1], psi_progress [1],
-    radius [m], ramp [s], release [1], hold_radius [m], hold_keep (see the module)."""
+    [s], progress [m], progress_fraction [1], psi_progress [1], radius [m], ramp [s], release
+    [1], hold_radius [m] (see the module)."""
 
     gain: float = 0.0
     window: float = 2.0
     progress: float = 0.005
     progress_fraction: float = 0.0
-    limit_progress_fraction: float = 0.0
     psi_progress: float = 0.1
     radius: float = 0.045
     ramp: float = 1.0
     release: float = 0.05
     hold_radius: float = 0.0
-    hold_keep: bool = False
 
 
 class StallMonitor:
@@ -141,52 +135,38 @@ class StallMonitor:
     def armed(self) -> bool:
         return self.t_armed is not None
 
-    @property
-    def pressing_near(self) -> bool:
-        """A pull armed within hold_radius is on and the hand is still outside the radius."""
-        return self.armed_near and self.t_armed is not None and self.distance > self.pull.radius
-
     def _potential(self, t: float, potential: Callable[[], float]) -> float:
         if not t - self.t_psi < PSI_SAMPLE_S - 1e-9:  # (rounding of t)
             self.psi, self.t_psi = float(potential()), t
         return self.psi
 
-    def _needed(self, at_limit: bool) -> float:
+    def _needed(self) -> float:
         """How much nearer [m] than its best so far the hand must come to count as progress:
-        ``max(progress, f · best)``, f = ``progress_fraction``, or ``limit_progress_fraction``
-        where larger while a joint is near its limit (``at_limit``; the first distance always
+        ``max(progress, f · best)``, f = ``progress_fraction`` (the first distance always
         counts)."""
         if not np.isfinite(self.best):
             return 0.0
-        p = self.pull
-        f = max(p.progress_fraction, p.limit_progress_fraction if at_limit else 0.0)
-        return max(p.progress, f * self.best)
+        return max(self.pull.progress, self.pull.progress_fraction * self.best)
 
-    def _released(self, d: float, psi: float) -> bool:
-        """Whether an armed pull lets go at distance d [m] and potential ψ: armed near the goal,
-        once inside the radius (never with hold_keep); armed elsewhere, once ψ is ``release``
-        below its value at arming."""
-        p = self.pull
-        if self.armed_near:
-            return not p.hold_keep and d <= p.radius
-        return psi < (1.0 - p.release) * self.psi_armed
+    def _released(self, psi: float) -> bool:
+        """Whether an armed pull lets go at potential ψ: armed near the goal, never; armed
+        elsewhere, once ψ is ``release`` below its value at arming."""
+        return not self.armed_near and psi < (1.0 - self.pull.release) * self.psi_armed
 
     def acceleration(self, t: float, position: np.ndarray, goal: np.ndarray,
-                     potential: Callable[[], float],
-                     at_limit: bool = False) -> np.ndarray | None:
+                     potential: Callable[[], float]) -> np.ndarray | None:
         """The attractor's task acceleration [m/s²] at time t [s] (hand ``position`` and
         ``goal`` [m]; ``potential()``: PUMA's ψ there, called at most every
-        :data:`PSI_SAMPLE_S`; ``at_limit``: a joint near its limit, see :meth:`_needed`), or
-        None while disarmed. Updates the monitor's state."""
+        :data:`PSI_SAMPLE_S`), or None while disarmed. Updates the monitor's state."""
         e = np.asarray(goal, dtype=float) - np.asarray(position, dtype=float)
         d = self.distance = float(np.linalg.norm(e))
         p = self.pull
         psi = self._potential(t, potential)
-        if self.t_armed is not None and self._released(d, psi):
+        if self.t_armed is not None and self._released(psi):
             self.t_armed = None  # over the ridge: PUMA's again, watched afresh from here
             self.best, self.t_best, self.best_psi, self.t_best_psi = d, t, psi, t
         if self.t_armed is None:
-            if d < self.best - self._needed(at_limit):
+            if d < self.best - self._needed():
                 self.best, self.t_best = d, t
             if psi < (1.0 - p.psi_progress) * self.best_psi:
                 self.best_psi, self.t_best_psi = psi, t
@@ -200,10 +180,10 @@ class StallMonitor:
         return (a * p.gain / max(d, PULL_LENGTH_M)) * e
 
     def applied(self, t: float, position: np.ndarray, goal: np.ndarray, task: TaskAcceleration,
-                potential: Callable[[], float], at_limit: bool = False) -> TaskAcceleration:
+                potential: Callable[[], float]) -> TaskAcceleration:
         """``task`` with the attractor added to its position rows (the first three, or all of
         a planar task's)."""
-        extra = self.acceleration(t, position, goal, potential, at_limit)
+        extra = self.acceleration(t, position, goal, potential)
         if extra is None:
             return task
         xdd = np.array(task.xdd, dtype=float)

@@ -15,7 +15,6 @@ from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains, solve_acceleration
 from tamedpuma.fabrics.discrete import (
     barrier_step,
-    geometry_damping,
     limit_speed,
     linearly_implicit_step,
 )
@@ -83,9 +82,7 @@ class PumaController:
         task = self.task.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         if stall is not None:
             task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
-                self.task.potential(state, obs.goal_position, obs.goal_quaternion)[0]),
-                at_limit=(configuration is not None and stall.pull.limit_progress_fraction > 0.0
-                          and configuration.at_limit(obs.q)))  # only asked where it counts
+                self.task.potential(state, obs.goal_position, obs.goal_quaternion)[0]))
             if configuration is not None:
                 task = configuration.applied(obs.q, obs.qd, stall.distance, stall, obs, task)
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
@@ -121,8 +118,7 @@ class PumaController:
                                           obs.obstacle_radii,
                                           lambda: self.pull_at_rest(state, obs),
                                           av.min_clearance)
-            weights = forcing.task_weights(
-                len(task.xdd), stalled_near=stall is not None and stall.pressing_near)
+            weights = forcing.task_weights(len(task.xdd))
             secondary = forcing.secondary_damping()
 
             def solve(W: np.ndarray) -> np.ndarray:
@@ -130,12 +126,9 @@ class PumaController:
                                            forcing.priority_rows(len(task.xdd)), secondary)
 
             if forcing.directional:
-                receding = receding_rows(av, qdd_free, forcing.reach)
+                receding = receding_rows(av, qdd_free)
                 W = metric_without(av, receding)
-                qdd_c = solve(W)
-                if forcing.approach == "solution":
-                    qdd_c, _ = restore_approached(av, receding, W, qdd_c, solve,
-                                                  forcing.reach)
+                qdd_c, _ = restore_approached(av, receding, W, solve(W), solve)
             else:
                 qdd_c = solve(W)
             if forcing.geometry == "task_metric":
@@ -232,51 +225,29 @@ def geometry_with_task_metric(av, J: np.ndarray, weights: float | np.ndarray) ->
     return solve_acceleration(av.M + J.T @ weighted_rows(weights, J), av.f)
 
 
-def approached_metric(av, qdd_free: np.ndarray, reach: float = np.inf) -> np.ndarray:
+def approached_metric(av, qdd_free: np.ndarray) -> np.ndarray:
     """The avoidance metric without the barrier rows PUMA's free acceleration q̈_P recedes from
     (``forcing.directional``): ``M − Σ_{r: a_r·q̈_P > 0} m_r a_r a_rᵀ`` (n, n), a fresh array.
 
     M = m_b I + Σ_r m_r a_r a_rᵀ over the barrier rows (pairs, joint limits, ground) of ``av``.
     A directional barrier's metric is on while its distance shrinks (s(ẋ) = [ẋ < 0]); at rest
     that is decided by the motors' noise, and a joint resting at its limit barrier (metric
-    2k/x² with x clamped to 10⁻³: 10⁵) then held PUMA's pull *away* from the limit as firmly
-    as a push into it: the arm stayed where it was for good (random scenarios: joints 3 and 7
+    2k/x² with x clamped to 10⁻³: 10⁵) then holds PUMA's pull *away* from the limit as firmly
+    as a push into it: the arm stays where it is for good (random scenarios: joints 3 and 7
     at their limits, 0.55 m from the goal, obstacles 0.5 m away). Here s is evaluated on the
     direction the forcing moves each barrier, ``a_r·q̈_P``: the forcing is resisted only along
-    the barriers it approaches. The fabric (h, its metric, energization) is unchanged.
-
-    ``reach`` x_r [1, the obstacle leaf's x units, radius sums]: an obstacle pair counts only
-    within x_r of contact (``forcing.reach``); beyond it PUMA's pull is realised as in free
-    space, and only the fabric's geometry and the barrier step act on that pair. Why: goals may
-    lie 10 cm from an obstacle, where every wrist pair is inside the leaf's activation (x < 2)
-    with metric 2k w(x)/x = 10-15 at x ≈ 0.4 (k = 3); PUMA's weak pull near the goal
-    (0.03 m/s²) then reached the hand at a third, and CPM stalled 5.4 cm short (random pouring
-    ``near_table1`` 7028; BENCHMARKS.md "Session 14"). Joint-limit and ground rows are not
-    affected."""
-    return metric_without(av, receding_rows(av, qdd_free, reach))
+    the barriers it approaches. The fabric (h, its metric, energization) is unchanged."""
+    return metric_without(av, receding_rows(av, qdd_free))
 
 
-def receding_rows(av, qdd: np.ndarray, reach: float = np.inf) -> np.ndarray | None:
+def receding_rows(av, qdd: np.ndarray) -> np.ndarray | None:
     """The barrier rows of ``av`` the joint acceleration ``qdd`` [rad/s²] recedes from
-    (``a_r·q̈ > 0``, metric on), plus with a finite ``reach`` the obstacle pairs farther than
-    x_r from contact: a boolean mask over ``av.barrier_rows`` (None without rows). These are
-    the rows :func:`approached_metric` leaves out."""
+    (``a_r·q̈ > 0``, metric on): a boolean mask over ``av.barrier_rows`` (None without rows).
+    These are the rows :func:`approached_metric` leaves out."""
     rows, m = av.barrier_rows, av.barrier_metric
     if rows is None or m is None or rows.shape[0] == 0:
         return None
-    recede = (rows @ qdd > 0.0) & (m > 0.0)
-    if np.isfinite(reach):
-        recede |= beyond_reach(av, reach) & (m > 0.0)
-    return recede
-
-
-def beyond_reach(av, reach: float) -> np.ndarray:
-    """Mask over ``av.barrier_rows``: the obstacle pairs (the first rows) farther than
-    ``reach`` x_r [radius sums] from contact; joint-limit and ground rows never."""
-    far = np.zeros(av.barrier_rows.shape[0], dtype=bool)
-    pairs = slice(0, av.n_pair_rows)
-    far[pairs] = av.barrier_x[pairs] > reach
-    return far
+    return (rows @ qdd > 0.0) & (m > 0.0)
 
 
 def metric_without(av, rows_out: np.ndarray | None) -> np.ndarray:
@@ -289,9 +260,9 @@ def metric_without(av, rows_out: np.ndarray | None) -> np.ndarray:
 
 
 def restore_approached(av, receding: np.ndarray | None, W: np.ndarray, qdd_c: np.ndarray,
-                       solve, reach: float = np.inf) -> tuple[np.ndarray, np.ndarray | None]:
+                       solve) -> tuple[np.ndarray, np.ndarray | None]:
     """(q̈_C [rad/s²], the rows still left out): PUMA's forcing with the directional metric
-    settled on q̈_C itself (``forcing.approach: solution``).
+    settled on q̈_C itself.
 
     :func:`approached_metric` decides which barriers resist the forcing from PUMA's *free* pull
     q̈_P (the damped pseudo-inverse). The weighted solution ``q̈_C = solve(W)`` is not q̈_P:
@@ -300,7 +271,7 @@ def restore_approached(av, receding: np.ndarray | None, W: np.ndarray, qdd_c: np
     leaves out. Nothing then weighs that joint against PUMA, and q̈_C accelerates it into its
     limit (Table-1 pouring 05 without obstacles: joint 2 driven into its lower limit at
     0.5 rad/s by 0.6-17 rad/s² of self-motion while ‖ẍ_d‖ ≈ 0.1 m/s², the hand then 1.2 m from
-    the goal; BENCHMARKS.md "Session 18"). Here every left-out row that q̈_C approaches
+    the goal). Here every left-out row that q̈_C approaches
     (``a_r·q̈_C < 0``) is put back with its metric and q̈_C solved again, until no left-out row
     is approached: an active set that only grows, so at most as many solves as rows left out.
     The result is the same weighted pseudo-inverse of PUMA's spec through a metric between
@@ -308,15 +279,13 @@ def restore_approached(av, receding: np.ndarray | None, W: np.ndarray, qdd_c: np
     :class:`Forcing` are unchanged.
 
     receding: the mask of :func:`receding_rows` (None: nothing left out); W: the metric without
-    them; qdd_c: ``solve(W)``; solve: W ↦ q̈_C; reach: ``forcing.reach``, the obstacle pairs
-    farther than it from contact stay out whatever q̈_C does."""
+    them; qdd_c: ``solve(W)``; solve: W ↦ q̈_C."""
     if receding is None:
         return qdd_c, None
     out = receding.copy()
     rows, m = av.barrier_rows, av.barrier_metric
-    eligible = ~beyond_reach(av, reach)
     while out.any():
-        back = out & eligible & (rows @ qdd_c < 0.0)
+        back = out & (rows @ qdd_c < 0.0)
         if not back.any():
             break
         r = rows[back]
@@ -424,15 +393,13 @@ class ControlRate:
     ground: bool = False
     ground_height: float = 0.0
     ground_geometry: str = "spheres"
-    implicit_geometry: bool = False
     speed_headroom: float = 0.0
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> ControlRate:
         cfg = dict(cfg or {})
         keys = {"barrier_step", "kappa", "speed_limit", "semi_implicit", "braking_split",
-                "standoff", "ground", "ground_height", "ground_geometry", "implicit_geometry",
-                "speed_headroom"}
+                "standoff", "ground", "ground_height", "ground_geometry", "speed_headroom"}
         unknown = sorted(set(cfg) - keys)
         if unknown:
             raise ConfigError(f"unknown method.control_rate keys {unknown}")
@@ -452,15 +419,9 @@ class ControlRate:
 
     def velocity_step(self, qd: np.ndarray, a: np.ndarray, c: float, dt: float, av,
                       gains) -> np.ndarray:
-        """q̇⁺ of ``q̈ = a + c q̇`` with ``c q̇`` implicit when c < 0 and, with
-        ``implicit_geometry``, the barrier geometries' braking too
+        """q̇⁺ of ``q̈ = a + c q̇`` with ``c q̇`` implicit when c < 0
         (:func:`~tamedpuma.fabrics.discrete.linearly_implicit_step`)."""
-        D_M = None
-        if self.implicit_geometry:
-            D_M = geometry_damping(av.barrier_rows, av.barrier_x, av.barrier_xd,
-                                   av.barrier_metric, len(qd), gains.obstacle,
-                                   gains.joint_limit, gains.barrier_margin, av.n_ground_rows)
-        return linearly_implicit_step(qd, a, c, dt, av.M, D_M)
+        return linearly_implicit_step(qd, a, c, dt, av.M, None)
 
     def next_velocity(self, qd_next, av, dt: float, qd_max, ground: GroundRows | None = None,
                       qd=None) -> tuple[np.ndarray, dict]:
@@ -508,10 +469,9 @@ class Forcing:
     turned around it (0: off; ``metric`` only; :mod:`tamedpuma.methods._circulation`);
     circulation_gain: g [1], the fraction of that push given back along the tangent;
     circulation_onset: c₀ [1], the cosine of the largest angle from head-on that counts;
-    directional: leave out of the metric the barrier rows PUMA's push recedes from
-    (:func:`approached_metric`; ``metric`` only); approach: which push decides that,
-    ``pull`` PUMA's free pull q̈_P, ``solution`` q̈_C itself (rows q̈_C approaches are put back
-    and q̈_C solved again: :func:`restore_approached`; ``directional`` only);
+    directional: leave out of the metric the barrier rows the forcing recedes from
+    (:func:`approached_metric`, settled on q̈_C itself: rows q̈_C approaches are put back and
+    q̈_C solved again, :func:`restore_approached`; ``metric`` only);
     rotation_weight: ρ [1], the orientation rows' share of the task metric (:meth:`task_weights`;
     ``metric`` only); priority: ``position`` applies the orientation rows' force only in the
     dynamically consistent null space of the position rows
@@ -521,18 +481,14 @@ class Forcing:
     first stage's metric) below which it acts
     (:class:`~tamedpuma.methods._policy.SecondaryDamping`);
     geometry: ``fabric`` h = −M⁻¹f, ``task_metric`` h = −(M + Jᵀ diag(w) J)⁻¹f
-    (:func:`geometry_with_task_metric`; ``metric`` only); reach: x_r [1], the obstacle pairs
-    that resist the push are those within x_r of contact (:func:`approached_metric`; inf: every
-    pair within the leaf's activation; ``directional`` only); stall_pull: g [m/s²] of the goal
+    (:func:`geometry_with_task_metric`; ``metric`` only); stall_pull: g [m/s²] of the goal
     attractor added to PUMA's position rows once the hand stalls (0: off), armed after
     stall_window [s] in which neither the hand's distance improved by stall_progress [m] nor
     PUMA's potential by the fraction stall_psi_progress, while farther than stall_radius [m]
     from the goal, ramped in over stall_ramp [s], released once PUMA's potential is
     stall_release [1] below its value at arming; within stall_hold_radius [m] of the goal only
-    the distance is progress and the pull holds until stall_radius (stall_hold_keep: for good)
-    (:mod:`tamedpuma.methods._stall`); stall_rotation_weight: s [1], the factor on ρ while such a
-    pull, armed within stall_hold_radius, is on and the hand is outside stall_radius
-    (:meth:`task_weights`; 1: off); stall_configuration: ``off``, ``limits`` or ``always``, when
+    the distance is progress and a pull armed there holds for good
+    (:mod:`tamedpuma.methods._stall`); stall_configuration: ``off``, ``limits`` or ``always``, when
     a joint-space attractor to a goal configuration replaces PUMA's rows after the stall pull
     arms (with a joint within 0.1 rad of a limit, or at every arming), with gain
     stall_configuration_gain [rad/s²], until the hand is within stall_configuration_release [m]
@@ -547,25 +503,20 @@ class Forcing:
     circulation_gain: float = 1.0
     circulation_onset: float = 0.0
     directional: bool = False
-    approach: str = "pull"
     rotation_weight: float = 1.0
     priority: str = "none"
     singular_damping: float = 0.0
     singular_threshold: float = 3.0
     geometry: str = "fabric"
-    reach: float = np.inf
     stall_pull: float = StallPull.gain  # the stall pull's defaults are StallPull's
     stall_window: float = StallPull.window
     stall_progress: float = StallPull.progress
     stall_progress_fraction: float = StallPull.progress_fraction
-    stall_limit_progress_fraction: float = StallPull.limit_progress_fraction
     stall_psi_progress: float = StallPull.psi_progress
     stall_radius: float = StallPull.radius
     stall_ramp: float = StallPull.ramp
     stall_release: float = StallPull.release
     stall_hold_radius: float = StallPull.hold_radius
-    stall_hold_keep: bool = StallPull.hold_keep
-    stall_rotation_weight: float = 1.0
     stall_configuration: str = ConfigurationPull.mode
     stall_configuration_gain: float = ConfigurationPull.gain
     stall_configuration_length: float = ConfigurationPull.length
@@ -588,7 +539,7 @@ class Forcing:
             return None
         return SecondaryDamping(self.singular_damping, self.singular_threshold)
 
-    def task_weights(self, m: int, stalled_near: bool = False) -> float | np.ndarray:
+    def task_weights(self, m: int) -> float | np.ndarray:
         """The task metric's diagonal [1]: w on every row of a position task; for a pose task
         (m = 6, rows [v; ω]) w on the position rows and ρw on the orientation rows, an (m,)
         array (the scalar w when ρ = 1: no array per control step).
@@ -600,25 +551,8 @@ class Forcing:
         rests short of the goal (an online goal change: 7.6 cm, joints 2 and 5 at their
         limits). ρ < 1 gives the position rows priority there, as the goal is judged on
         position. ẍ_d = 0 still gives q̈_C = the damped elbow objective, so PUMA's zero set
-        (FPM) and CPM's energy statement are unchanged.
-
-        ``stalled_near``: a stall pull armed within the hold radius is on and the hand is still
-        outside the stall radius (:attr:`~tamedpuma.methods._stall.StallMonitor.pressing_near`);
-        the orientation rows then weigh ρ·s (s = ``stall_rotation_weight``). Why: in the random
-        tomato ``anywhere`` failures the hand rests 5-10 cm short with a joint on its limit and
-        the forearm's sphere at an obstacle; from the branch the arm is in, no pose with the
-        goal's orientation (within 0.1 rad) and every sphere 1 cm clear comes within 5 cm
-        (random 2097: 6.5 cm; 4.9 cm with the orientation free to 0.5 rad), so the orientation
-        rows, realised in the position rows' null space, keep the arm where the pull cannot
-        bring the hand in. Only there, only while the pull presses, the position comes first;
-        inside the stall radius the full ρ returns and the orientation converges in the position
-        rows' null space where it can. What holds is what holds for ρ: the weights scale the
-        forcing's metric only (the barriers, the zero set and CPM's energy statement do not
-        depend on them). Off by default (s = 1): measured in session 24 it reaches some of those
-        runs and loses others (with s = 0.01 random tomato 2022: the wrist, no longer held,
-        turned 2 rad and PUMA's position field, evaluated at that orientation, carried the hand
-        0.10 → 0.21 m out), net within the churn (BENCHMARKS.md "Session 24")."""
-        rho = self.rotation_weight * (self.stall_rotation_weight if stalled_near else 1.0)
+        (FPM) and CPM's energy statement are unchanged."""
+        rho = self.rotation_weight
         if m != 6 or rho == 1.0:
             return self.weight
         w = np.full(m, self.weight)
@@ -657,10 +591,8 @@ class Forcing:
         return StallMonitor(StallPull(
             gain=self.stall_pull, window=self.stall_window, progress=self.stall_progress,
             progress_fraction=self.stall_progress_fraction,
-            limit_progress_fraction=self.stall_limit_progress_fraction,
             psi_progress=self.stall_psi_progress, radius=self.stall_radius, ramp=self.stall_ramp,
-            release=self.stall_release, hold_radius=self.stall_hold_radius,
-            hold_keep=self.stall_hold_keep))
+            release=self.stall_release, hold_radius=self.stall_hold_radius))
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
@@ -677,21 +609,15 @@ class Forcing:
         if f.geometry == "task_metric" and f.mode != "metric":
             raise ConfigError("method.forcing.geometry=task_metric needs method.forcing.mode="
                               "metric; with mode=additive set method.forcing.geometry=fabric")
-        if not f.reach > 0:
-            raise ConfigError(f"method.forcing.reach must be > 0 (.inf: every pair), got {f.reach}")
-        if f.approach not in ("pull", "solution"):
-            raise ConfigError(f"method.forcing.approach must be 'pull' or 'solution', "
-                              f"got {f.approach!r}")
         if f.priority not in ("none", "position"):
             raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
                               f"got {f.priority!r}")
         if not (f.singular_damping >= 0 and f.singular_threshold > 0):
             raise ConfigError("method.forcing.singular_damping must be ≥ 0 and "
                               "singular_threshold > 0")
-        if not (f.weight > 0 and f.null_metric >= 0 and 0 < f.rotation_weight <= 1
-                and 0 < f.stall_rotation_weight <= 1):
+        if not (f.weight > 0 and f.null_metric >= 0 and 0 < f.rotation_weight <= 1):
             raise ConfigError("method.forcing.weight must be > 0, null_metric ≥ 0, "
-                              "rotation_weight and stall_rotation_weight in (0, 1]")
+                              "rotation_weight in (0, 1]")
         if not (f.circulation >= 0 and f.circulation_gain >= 0
                 and 0 <= f.circulation_onset < 1):
             raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0, "
@@ -720,18 +646,14 @@ def _check_stall_settings(f: Forcing) -> None:
     if not isinstance(f.stall_configuration_position_fallback, bool):
         raise ConfigError(f"method.forcing.stall_configuration_position_fallback must be true "
                           f"or false, got {f.stall_configuration_position_fallback!r}")
-    if not isinstance(f.stall_hold_keep, bool):
-        raise ConfigError(f"method.forcing.stall_hold_keep must be true or false, "
-                          f"got {f.stall_hold_keep!r}")
     if not (f.stall_pull >= 0 and f.stall_window > 0 and f.stall_progress >= 0
             and f.stall_radius >= 0 and f.stall_ramp >= 0 and 0 <= f.stall_release < 1
             and 0 <= f.stall_psi_progress < 1 and f.stall_hold_radius >= 0
-            and 0 <= f.stall_progress_fraction < 1 and 0 <= f.stall_limit_progress_fraction < 1):
+            and 0 <= f.stall_progress_fraction < 1):
         raise ConfigError("method.forcing.stall_pull [m/s²], stall_progress [m], stall_radius "
                           "[m], stall_hold_radius [m] and stall_ramp [s] must be ≥ 0, "
                           "stall_window [s] > 0, "
-                          "stall_psi_progress, stall_progress_fraction, "
-                          "stall_limit_progress_fraction and stall_release in "
+                          "stall_psi_progress, stall_progress_fraction and stall_release in "
                           "[0, 1)")
 
 

@@ -258,7 +258,7 @@ class CpmController(TamedController):
                 c, alpha_raw, alpha = self._tank_law(obs, av, h, h_plus_f, Mqd, psi, dpsi,
                                                      c, alpha_raw, alpha)
             a, c_split = braking_split(h_plus_f, c, qd, alpha_raw, alpha)
-            if self.semi_implicit and (c_split < 0.0 or self.rate.implicit_geometry):
+            if self.semi_implicit and c_split < 0.0:
                 # the velocity-proportional part (with the geometry's own braking along q̇
                 # where the α bound acts: braking_split) taken implicitly over the control
                 # period: q̇⁺ = (q̇ + Δt a) / (1 − Δt c): it damps, never reverses q̇
