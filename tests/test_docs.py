@@ -13,6 +13,7 @@ arguments) with test-size overrides. A command added to the README without an en
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -278,3 +279,59 @@ def test_no_session_or_issue_numbers():
              for i, line in enumerate(p.read_text(errors="replace").splitlines(), start=1)
              if HISTORY.search(line)]
     assert not found, "history belongs to git and CHANGELOG.md:\n" + "\n".join(found)
+
+
+# ----------------------------------------------------------------------------- the results page
+
+
+def _fake_runs(tmp_path: Path) -> Path:
+    """Two runs' summaries (one with a model) and the analysis's table1.md."""
+    runs = tmp_path / "runs"
+    for i, model in enumerate(({"model_name": "tomato", "model_sha256": "ab" * 32,
+                                "model_origin": "cache"}, None)):
+        (runs / f"run{i}").mkdir(parents=True)
+        (runs / f"run{i}" / "summary.json").write_text(json.dumps({"model": model}))
+    (runs / "table1.md").write_text("| method | success |\n|---|---|\n| fpm | 0.97 |\n")
+    return runs
+
+
+def test_the_results_page_block_is_rewritten_from_the_analysis_with_its_provenance(tmp_path):
+    from tamedpuma.app import results_page
+
+    page = tmp_path / "results.md"
+    page.write_text("# Results\n\n<!-- result: table1 -->\nold 1.00\n<!-- /result -->\n\n"
+                    "<!-- result: scaling -->\nkept\n<!-- /result -->\n")
+    assert results_page.main(["table1", str(_fake_runs(tmp_path)), "--page", str(page)]) == 0
+    text = page.read_text()
+    table1 = text[text.index("<!-- result: table1 -->"):text.index("<!-- result: scaling")]
+    assert "old 1.00" not in table1 and "| fpm | 0.97 |" in table1
+    assert "python -m tamedpuma.sweep +experiment=table1" in table1
+    assert "(2 runs)" in table1 and f"tomato `{'ab' * 6}` (cache)" in table1
+    assert re.search(r"- date: \d{4}-\d\d-\d\d", table1)
+    assert re.search(r"- code: `[0-9a-f]{7,}(-dirty)?`", table1)
+    assert "- machine: " in table1 and " cores, Python " in table1
+    assert "<!-- result: scaling -->\nkept\n<!-- /result -->" in text
+    assert text.count("<!-- /result -->") == 2
+
+
+def test_the_results_page_refuses_a_folder_without_the_analysis_in_one_line(tmp_path, capsys):
+    from tamedpuma.app import results_page
+
+    runs = _fake_runs(tmp_path)
+    page = tmp_path / "results.md"
+    page.write_text("# Results\n")
+    assert results_page.main(["disturbance", str(runs), "--page", str(page)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "disturbance.md not found" in err and "\n" not in err
+    assert page.read_text() == "# Results\n"
+    assert results_page.main(["table1", str(tmp_path / "nope"), "--page", str(page)]) == 2
+
+
+def test_every_results_block_names_its_provenance():
+    text = (DOCS / "results.md").read_text()
+    blocks = re.findall(r"<!-- result: ([a-z0-9]+) -->(.*?)<!-- /result -->", text, re.S)
+    assert {name for name, _ in blocks} >= {"table1", "scaling", "random", "disturbance",
+                                            "figures"}
+    for name, body in blocks:
+        for field in ("- command: ", "- date: ", "- machine: ", "- code: ", "- models"):
+            assert field in body, f"results.md block {name}: no {field.strip()}"
