@@ -1,4 +1,5 @@
-"""The dependency rules of README's "Layout and data flow", enforced on the source with ast."""
+"""The dependency rules of the layout (docs/extending.md, "Layout and data flow"), enforced on
+the source with ast."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """FPM and CPM on the default scenarios with trained models:
 always with the shipped models (trained on the seeded synthetic demonstrations), and with the
 real-data models where they are at hand (built by `python -m tamedpuma.models build` or trained
-into runs/puma/, see README); skipped with a reason when there is none."""
+into runs/puma/, docs/data.md); skipped with a reason when there is none."""
 
 from __future__ import annotations
 
