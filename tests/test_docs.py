@@ -169,6 +169,16 @@ def test_the_other_method_on_the_other_task_runs(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "cpm on pouring/default" in proc.stdout
     assert len(list(tmp_path.glob("*/summary.json"))) == 1
+    # the first run's output shown in the README has the lines a run prints
+    shown = re.search(r"```text\n(.*?)```", README.read_text(), re.S).group(1).splitlines()
+    printed = proc.stdout.splitlines()
+    outcome = re.compile(r"^\w+ on [\w/]+: ")  # "<method> on <task>/<scenario>: ..."
+    assert outcome.match(shown[0]) and any(outcome.match(p) for p in printed)
+    for words in ("final position error", "min clearance", "controller"):
+        assert words in shown[0] and any(words in p for p in printed if outcome.match(p))
+    for line in shown[1:]:
+        head = line.split(":")[0] + ":"
+        assert any(p.startswith(head) for p in printed), f"a run prints no {head!r} line"
 
 
 def test_the_models_list_names_every_task():
