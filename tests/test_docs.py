@@ -259,6 +259,16 @@ def test_configuration_page_has_every_method_and_group():
         assert f"| `{key}` |" in text, key
 
 
+def test_the_configuration_page_describes_every_config_group():
+    from tamedpuma.app import config_page
+    from tamedpuma.paths import CONF_DIR
+
+    groups = {p.name for p in CONF_DIR.iterdir() if p.is_dir()} - {"hydra"}
+    assert groups | {"hydra/launcher"} == set(config_page.GROUPS), "a new group needs its line"
+    assert config_page.collapsed(["a", "t/00", "t/01", "t/02", "t/04", "x1"]) == (
+        "`a`, `t/00` … `t/02`, `t/04`, `x1`")
+
+
 def test_the_benchmark_sections_its_command_rewrites_are_there():
     text = (ROOT / "BENCHMARKS.md").read_text()
     for title in ("Controller step", "Fabrics"):

@@ -31,6 +31,7 @@ from pathlib import Path
 from omegaconf import MISSING, OmegaConf
 
 from tamedpuma.app import schema
+from tamedpuma.app.config import group_options
 from tamedpuma.paths import CONF_DIR
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -433,8 +434,65 @@ def other_sections() -> list[str]:
     return lines
 
 
+#: what each config group sets (its options are read from conf/)
+GROUPS = {
+    "robot": "URDF, joints and their limits, end effector, home pose, elbow-up target, body "
+             "spheres (the paper's check) and guard spheres (the controllers only)",
+    "task": "goal pose, demonstrations, workspace (`from_demos`: all derived from the data)",
+    "scenario": "start, obstacles, goal motion, Δt, step limit (`random`: generated from "
+                "`scenario.random_seed`; `from_demos`: from the task's demonstrations)",
+    "method": "the controller and its options (the sections below)",
+    "fabric": "the fabric gains of `fabrics`, `fpm`, `cpm` (`fabric@method.fabric=reference`)",
+    "recorder": "what is written per step (MCAP, Rerun, both, none)",
+    "sim": "PyBullet window or not, substep, motor force, velocity or impedance control",
+    "disturbance": "what perturbs the run (goal change, push, noisy sensing, impedance control)",
+    "case": "a (task, scenario) pair, so one sweep covers both tasks (`+case=`)",
+    "experiment": "a whole experiment's sweep (`+experiment=`, docs/experiments.md)",
+    "puma": "the PUMA network and its training (`python -m tamedpuma.train`)",
+    "hydra/launcher": "how a sweep's jobs run: `cores` (all cores, joblib), and the installed "
+                      "Hydra launcher plugins' `submitit_slurm`, `submitit_local`, `ray`",
+}
+
+
+def collapsed(options: list[str]) -> str:
+    """Options as a list, numbered runs shortened: `tomato/00` … `tomato/14`."""
+    out, run = [], []
+
+    def flush():
+        if len(run) > 2:
+            out.append(f"`{run[0]}` … `{run[-1]}`")
+        else:
+            out.extend(f"`{o}`" for o in run)
+        run.clear()
+
+    for option in options:
+        match = re.fullmatch(r"(.*?)(\d+)", option)
+        prev = re.fullmatch(r"(.*?)(\d+)", run[-1]) if run else None
+        if match and prev and prev.group(1) == match.group(1) and (
+                int(match.group(2)) == int(prev.group(2)) + 1):
+            run.append(option)
+            continue
+        flush()
+        if match:
+            run.append(option)
+        else:
+            out.append(f"`{option}`")
+    flush()
+    return ", ".join(out)
+
+
+def group_section() -> list[str]:
+    lines = ["## Config groups", "", "Choose an option with `group=option` (`python -m "
+             "tamedpuma.sweep task=pouring method=cpm`); the keys each sets are below.", "",
+             "| group | options | what it sets |", "|---|---|---|"]
+    for group, what in GROUPS.items():
+        lines.append(f"| `{group}` | {collapsed(group_options(group))} | {what} |")
+    return lines + [""]
+
+
 def sections() -> list[str]:
-    return HEAD.splitlines() + [""] + run_sections() + method_sections() + other_sections()
+    return (HEAD.splitlines() + [""] + group_section() + run_sections() + method_sections()
+            + other_sections())
 
 
 def render() -> str:
