@@ -1,4 +1,5 @@
-"""Run methods on a suite of random scenarios (issue 12) and classify every outcome.
+"""Run methods on a suite of random scenarios and classify every outcome (the failure classes
+and the safety signals that tell a flailing, stalled or unsafe run apart).
 
     python -m analysis.random_suite --tasks tomato pouring --kinds near_table1 anywhere \\
         --seeds 1000-1049 --methods puma fpm cpm --models /work/models --jobs 2 \\
@@ -14,7 +15,7 @@ composed by Hydra and run in-process (no files per run); one CSV row per run:
   robot-obstacle contact, no ground contact and no joint-limit violation before success;
 - ``failure``: for a run failing the paper criterion, the first that applies of ``contact`` (a body
   sphere penetrated an obstacle), ``ground`` (robot-ground contact or a link's collision mesh
-  below the ground; before session 22 a body sphere below it, which the spheres' inflation makes
+  below the ground; not a body sphere below it, which the spheres' inflation would make
   stricter than the contact: the hand's 7 cm sphere dips below while the flange is clear),
   ``joint_limit``, ``stall`` (at rest, ‖q̇‖ < 0.05 rad/s over the last second, short of
   the goal), ``time`` (still moving at the end); for a paper success failing the whole-body
@@ -194,7 +195,7 @@ def split_by_puma_limits(df: pd.DataFrame, puma_free: pd.DataFrame) -> pd.DataFr
     without obstacles, drove a joint past its limit (``puma_free``: this script's CSV of
     ``--methods puma --free``; its ``limit_steps`` > 0). Where PUMA's own motion needs a joint
     past its limit, a method that keeps the limits can only reach the goal by another route:
-    the split says how much of a method's failure rate is that (session 14)."""
+    the split says how much of a method's failure rate is that."""
     puma = puma_free[puma_free.method == "puma"]
     past = puma.assign(puma_past_limit=puma.limit_steps > 0)[
         ["task", "kind", "seed", "puma_past_limit"]]

@@ -1,6 +1,6 @@
 """TamedPUMA: safe and stable imitation learning with geometric fabrics (Bakker et al., L4DC 2025).
 
-Reference implementation and experiment harness. See README.md for the layout and data flow:
+Reference implementation and experiment harness. The layout and data flow (docs/extending.md):
 config -> scenario -> controller step -> simulator -> recorder -> files -> analysis.
 """
 

@@ -1,4 +1,5 @@
-"""The dependency rules of README's "Layout and data flow", enforced on the source with ast."""
+"""The dependency rules of the layout (docs/extending.md, "Layout and data flow"), enforced on
+the source with ast."""
 
 from __future__ import annotations
 
@@ -132,12 +133,12 @@ def test_the_import_scan_sees_every_form():
 
 
 #: the control loop (episode and its metrics, the methods' steps), the fabric assembly and the
-#: training loop (the issue-10 rule), and every other module but the benchmark driver: no
+#: training loop, and every other module but the benchmark driver: no
 #: function over 60 lines
 LOOPS = ["episode.py", "metrics.py", "puma/training.py", "puma/losses.py",
          *(p.relative_to(PKG).as_posix() for p in (PKG / "fabrics").glob("*.py")),
          *(p.relative_to(PKG).as_posix() for p in (PKG / "methods").glob("*.py"))]
-#: app/bench.py: the benchmark's driver and report writer (issue 16), not yet split
+#: app/bench.py: the benchmark's driver and report writer, not yet split into smaller functions
 LONG_ALLOWED = {"app/bench.py"}
 SHORT = sorted(p.relative_to(PKG).as_posix() for p in _modules()
                if p.relative_to(PKG).as_posix() not in LONG_ALLOWED)

@@ -1,4 +1,4 @@
-"""The disturbance experiment's behaviours in PyBullet (issue 15): an online goal change, an
+"""The disturbance experiment's behaviours in PyBullet: an online goal change, an
 external push, noisy 30 Hz obstacle sensing and a 1 kHz joint impedance controller, each driven
 by FPM.
 
@@ -105,7 +105,7 @@ def test_fpm_reaches_the_default_goal_under_joint_impedance_control(robot_spec, 
     assert m.min_clearance_m > 0
 
 
-PUSH_SOURCES = _sources()  # the real model: recovered with the session-7 defaults
+PUSH_SOURCES = _sources()  # the analytic stand-in and, where it is at hand, the real model
 
 
 @pytest.mark.parametrize("source", PUSH_SOURCES)
@@ -123,8 +123,8 @@ def test_a_push_moves_the_arm_10_cm_off_its_path_and_fpm_still_reaches_the_goal(
     assert m.recovery_time_s == pytest.approx(m.time_to_success_s - dist.onset)
 
 
-# the real model: reached since forcing.priority=position (before, FPM stopped 7.6 cm short with
-# joints 2 and 5 at their limit barriers: 5 joints for PUMA's 6 task rows; README, issue 12)
+# the real model reaches the moved goal with forcing.priority=position (without it FPM stops
+# 7.6 cm short with joints 2 and 5 at their limit barriers: 5 joints for PUMA's 6 task rows)
 GOAL_CHANGE_SOURCES = _sources()
 
 

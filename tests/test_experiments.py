@@ -1,5 +1,5 @@
-"""The issue-15 experiment configs compose and run through the sweep (one short job each) and
-their analyses read the result."""
+"""The experiment configs beyond Table 1 (scaling, disturbances, the randomized suite) compose
+and run through the sweep (one short job each) and their analyses read the result."""
 
 from __future__ import annotations
 

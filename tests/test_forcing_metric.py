@@ -481,7 +481,7 @@ def test_secondary_damping_acts_only_on_near_singular_directions_left_to_the_ori
 
 def test_secondary_damping_calms_the_orientation_rows_at_the_wrist_singularity(kinematics):
     """On the iiwa with the wrist at q₆ ≈ 0 and the shoulder joints held by barrier metrics
-    (the default tomato scenario's swing, BENCHMARKS.md "Session 19"), PUMA's orientation pull
+    (where the default tomato scenario's hand swung away), PUMA's orientation pull
     drives the remaining joints hard; with the damping the joint acceleration falls in most
     such states (median ≤ 0.9 of it), while with the wrist away from the singularity and no
     barrier metric it is unchanged in most states."""

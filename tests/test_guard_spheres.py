@@ -1,5 +1,6 @@
 """Guard spheres (``robot.guard_spheres``): the controllers avoid with them, the paper's collision
-check keeps the robot's ``spheres`` (issue 12, the ``mesh`` class)."""
+check keeps the robot's ``spheres`` (a link mesh touching an obstacle while the paper's
+spheres are clear: the ``mesh`` failure class)."""
 
 from __future__ import annotations
 

@@ -57,7 +57,7 @@ def test_shipped_model_has_a_manifest_that_matches_it(name):
 #: sha256 of the seeded synthetic tomato demonstrations rounded to 1e-8 (signed zeros folded):
 #: the same data on any CPU, where the exact bytes are not (numpy's SIMD sin/cos/exp differ in
 #: the last bit between CPUs: the manifest's exact hash was taken on an AMD EPYC and does not
-#: match on an Intel Xeon with AVX-512, session 7)
+#: match on an Intel Xeon with AVX-512)
 SYNTHETIC_TOMATO_ROUNDED = "85ef937d6912bd7f12eae7f235cbeed225055be7352b789c8dc416750274cc51"
 
 

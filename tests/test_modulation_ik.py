@@ -147,7 +147,7 @@ def test_a_sub_millimetre_step_is_taken(kinematics, backend):
     """Modulation-IK's final approach asks for steps of ~0.2 mm (9 mm/s × 0.02 s). The solver
     must take them: unscaled, such a step's objective gain (~10⁻⁸) was below SNOPT's optimality
     tolerance, SNOPT returned the start and the arm stood 5.6 cm from the goal (Table-1 pouring
-    0, session 23). With the weights Modulation-IK uses, the answer is ≥ 90 % of the way."""
+    0). With the weights Modulation-IK uses, the answer is ≥ 90 % of the way."""
     rng = np.random.default_rng(4)
     p, _ = kinematics.ee_pose(Q0)
     far = p + np.array([0.0, 0.0, 1.0])  # an obstacle nowhere near

@@ -1,4 +1,4 @@
-"""The training's fast paths (issue 16): each fused or batched piece equals the plain one it
+"""The training's fast paths: each fused or batched piece equals the plain one it
 replaces, early stopping ends the run on the validator's word, the weights' moving average is
 kept, resumed and returned."""
 

@@ -1,6 +1,6 @@
-"""Fault injection and bad input (issue 14): each test is a row of README's "Faults and bad input"
-table. A sweep survives its worst run; killed runs and trainings leave what they wrote and
-resume; analysis counts what it could not score."""
+"""Fault injection and bad input: each test is a row of the table in docs/faults.md. A sweep
+survives its worst run; killed runs and trainings leave what they wrote and resume; analysis
+counts what it could not score."""
 
 from __future__ import annotations
 
@@ -250,8 +250,8 @@ print("worker still alive")
 @pytest.mark.parametrize("run_open", [False, True], ids=["setting-up", "mid-run"])
 def test_a_sigterm_anywhere_in_a_workers_job_ends_the_worker(run_open):
     """SIGTERM reached a loky worker while its job was still setting up: the SystemExit went to
-    the worker loop, which sent it back as a result and waited for work for ever (CI, session
-    14: a SIGKILLed sweep's worker left behind). With no run open the worker now leaves at
+    the worker loop, which sent it back as a result and waited for work for ever (seen in CI: a
+    SIGKILLed sweep's worker left behind). With no run open the worker now leaves at
     once; mid-run, SystemExit unwinds the run (its logs close) and the worker leaves after."""
     where = ("sweep._RUN_OPEN.append(True); " if run_open else "") + \
         "os.kill(os.getpid(), signal.SIGTERM)"

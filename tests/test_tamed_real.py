@@ -1,7 +1,7 @@
-"""FPM and CPM on the default scenarios with trained models (issue: "TamedPUMA FPM and CPM"):
+"""FPM and CPM on the default scenarios with trained models:
 always with the shipped models (trained on the seeded synthetic demonstrations), and with the
 real-data models where they are at hand (built by `python -m tamedpuma.models build` or trained
-into runs/puma/, see README); skipped with a reason when there is none."""
+into runs/puma/, docs/data.md); skipped with a reason when there is none."""
 
 from __future__ import annotations
 
@@ -64,11 +64,11 @@ def _scenario(spec, task, obstacles):
 
 
 CASES = [("tomato", "shipped"),
-         ("tomato", "real"),  # with fabric.obstacle_activation (session 8); before: FPM rested
-                              # 0.49 m short behind the obstacle (model 2cb8ca976ad6)
+         ("tomato", "real"),  # needs fabric.obstacle_activation: without it FPM rests 0.49 m
+                              # short behind the obstacle (model 2cb8ca976ad6)
          ("pouring", "real"),
-         ("pouring", "shipped")]  # with FPM's braking_split (session 8); before: FPM swept
-                                  # its joints through their range and ended 0.9 m short
+         ("pouring", "shipped")]  # needs FPM's braking_split: without it FPM sweeps its
+                                  # joints through their range and ends 0.9 m short
 
 
 
@@ -96,8 +96,8 @@ def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, model,
         paths[name] = free.ee_position
         if name == "puma":
             # PUMA alone has no joint-limit or ground avoidance: where its own path runs into a
-            # limit or the table (the shipped tomato model of session 11 ends its approach 3.5
-            # cm lower than the goal, its links on the table) FPM and CPM must still reach the
+            # limit or the table (the shipped tomato model can end its approach 3.5 cm lower
+            # than the goal, its links on the table) FPM and CPM must still reach the
             # goal, on another path, and there is no PUMA path to follow
             puma_feasible = free.metrics.success_whole_body
             assert free.metrics.success_paper or (model == "shipped"
@@ -107,11 +107,11 @@ def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, model,
         if name == "cpm":  # without obstacles ψ (almost) never rises
             psi = np.asarray(controller.psi)
             assert np.all(np.isfinite(psi)) and psi[-1] < 0.5 * psi[0]  # stopped 5 cm out
-            # 1e-3 ψ₀: the joint-limit barriers (energy ×30 since session 11) bend the path where
-            # PUMA's runs close to a limit, and ψ may climb there (3e-4 ψ₀ on the shipped tomato
-            # model); before the path loss ψ climbed by 3e-3 ψ₀ on the pouring default run
+            # 1e-3 ψ₀: the joint-limit barriers (their energy ×30 for FPM and CPM) bend the path
+            # where PUMA's runs close to a limit, and ψ may climb there (3e-4 ψ₀ on the shipped
+            # tomato model); without the path loss ψ climbs by 3e-3 ψ₀ on the pouring default run
             assert np.max(np.diff(psi)) <= 1e-3 * psi[0]
-        if puma_feasible:  # the issue's bound on the path difference to PUMA (jl ×30: 0.03 m on
+        if puma_feasible:  # the bound on the path difference to PUMA (jl ×30: 0.03 m on
             # the shipped pouring model, whose path passes close to joint 4's limit)
             assert path_difference(free.ee_position, paths["puma"]) <= 0.04
         with Simulator(robot_spec) as sim:
@@ -124,9 +124,9 @@ def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, model,
 
 def test_fpm_follows_puma_on_table1_pouring_05_without_obstacles():
     """Table-1 pouring 05 without obstacles, real-data model: FPM's path stays within 0.1 m of
-    PUMA's (mean over the path). Before ``forcing.approach: solution`` (session 18) the forcing's
-    weighted solve drove joint 2 into a limit whose row it had left out, the hand went 1.2 m
-    from the goal and back, and the path difference was 0.44 m."""
+    PUMA's (mean over the path). Without ``forcing.approach: solution`` the forcing's
+    weighted solve drives joint 2 into a limit whose row it left out, the hand goes 1.2 m
+    from the goal and back, and the path difference is 0.44 m."""
     from omegaconf import OmegaConf
 
     from tamedpuma.app.sweep import build

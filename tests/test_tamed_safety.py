@@ -1,4 +1,4 @@
-"""FPM and CPM stay safe at the control rate on a random scenario (issue 12), with a tiny trained
+"""FPM and CPM stay safe at the control rate on a random scenario, with a tiny trained
 model: every commanded joint speed within its limit less the speed headroom and every measured
 one within the limit, the energization coefficient within its
 bound, no body sphere inside an obstacle, nothing below the ground (the link meshes or the body
@@ -26,7 +26,8 @@ def tiny_checkpoint(tmp_path_factory):
     return out / "puma.pt"
 
 
-# the issue-12 options measured in BENCHMARKS.md ("Safety beyond Table 1"; off by default)
+# the control-rate safety options, each switched on here (FPM and CPM's configs set their
+# defaults; the schema's are off)
 SAFE = ["method.energization=bounded", "method.control_rate.speed_limit=true",
         "method.control_rate.barrier_step=true", "method.control_rate.semi_implicit=true",
         "method.control_rate.ground=true", "method.pinv_damping_max=0.1",
@@ -53,8 +54,9 @@ def test_fpm_and_cpm_respect_speed_limits_and_barriers_on_a_random_scenario(
         tiny_checkpoint, kinematics, method):
     from tamedpuma.app.sweep import build
 
-    # tomato, near a Table-1 start, seed 5: the real model's FPM flailed here before issue 12
-    # (α to −9e4, commands 28× the velocity limits, through q₄ = 0, 0.95 m from the goal)
+    # tomato, near a Table-1 start, seed 5: the real model's FPM flails here without the
+    # control-rate safety and the execution energy (α to −9e4, commands 28× the velocity limits,
+    # through q₄ = 0, 0.95 m from the goal)
     cfg = OmegaConf.create(train.compose("sweep", [
         "task=tomato", "scenario=random", "scenario.random_seed=5", f"method={method}",
         f"method.checkpoint={tiny_checkpoint}", "recorder=none", "scenario.max_steps=400",

@@ -1,5 +1,5 @@
 """The fabric at the control rate: what a continuous-time law needs to stay safe when it is applied
-as one velocity target per control period Δt (issue 12).
+as one velocity target per control period Δt.
 
 The simulator (and a real velocity-controlled arm) turns q̈ into the next joint velocity
 ``q̇⁺ = q̇ + Δt q̈``, held for Δt. Three discrete-time facts break the continuous guarantees:

@@ -19,11 +19,10 @@ contacts), and the spheres are far bulkier there: the hand's sphere (7 cm round 
 origin, the task point) keeps the task point 8 cm above the ground with the barrier's 1 cm
 margin, while the flange's own mesh (a 5.2 cm cylinder reaching 4.5 cm past the origin) lets it
 come down to 5.5 cm when it points down. Random tomato goals shifted down by up to 8 cm
-(z ≥ 3.5 cm) were then out of the hand's reach by up to 4.5 cm, inside the 5 cm goal tolerance
-by millimetres only, and FPM and CPM stalled against the ground rows there (BENCHMARKS.md
-"Session 22"). The support point is exact for the hull (no inflation) and continuous in q; its
-row jumps where the lowest vertex changes, which the barrier step, a projection of one
-period's velocity, does not mind.
+(z ≥ 3.5 cm) are then out of the hand's reach by up to 4.5 cm, inside the 5 cm goal tolerance
+by millimetres only, and FPM and CPM stall against the ground rows there. The support point is
+exact for the hull (no inflation) and continuous in q; its row jumps where the lowest vertex
+changes, which the barrier step, a projection of one period's velocity, does not mind.
 """
 
 from __future__ import annotations

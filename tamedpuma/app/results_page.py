@@ -1,0 +1,202 @@
+"""``python -m tamedpuma.app.results_page NAME RUNS``: one experiment's block of ``docs/results.md``
+rewritten from what its analysis wrote, with its provenance.
+
+The block between ``<!-- result: NAME -->`` and ``<!-- /result -->`` is replaced as a unit: a
+heading, the provenance (the command that ran the experiment, the dates of its runs, the machine,
+the code revision, the models' sha256 read from the runs' ``summary.json``), the analysis's own
+Markdown tables (``table1.md`` of ``analysis.tables``, ``scaling.md``, ``random_suite.md``,
+``disturbance.md``) and its figures, copied into ``docs/img/``. Nothing in the block is typed
+by hand, so a table on the page is always the one its command wrote, and the other blocks are
+left as they are.
+
+    python -m analysis.tables runs/table1 && python -m tamedpuma.app.results_page table1 runs/table1
+    python -m analysis.scaling runs/scaling --timing-only runs/mik_timing
+    python -m tamedpuma.app.results_page scaling runs/scaling
+    python -m analysis.report runs/look && python -m tamedpuma.app.results_page figures runs/look
+
+The machine and the code revision are those of the host that writes the page (the run logs do
+not record them): write it where the experiment ran, from the revision that ran it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import re
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+
+from tamedpuma.paths import CHECKOUT_ROOT
+
+PAGE = CHECKOUT_ROOT / "docs" / "results.md"
+
+
+@dataclass(frozen=True)
+class Experiment:
+    title: str
+    command: str                 # how the runs were made (the default; --command overrides)
+    tables: tuple[str, ...]      # the analysis's Markdown files in RUNS
+    figures: tuple[str, ...] = ()  # its figures in RUNS (copied into docs/img/)
+
+
+EXPERIMENTS = {
+    "table1": Experiment("Table 1", "python -m tamedpuma.sweep +experiment=table1",
+                         ("table1.md",)),
+    "scaling": Experiment("Obstacle-count scaling",
+                          "python -m tamedpuma.sweep -m +experiment=scaling recorder=none "
+                          "(docs/experiments.md: four commands)", ("scaling.md",),
+                          ("scaling.png",)),
+    "random": Experiment("Randomized suite",
+                         "python -m tamedpuma.sweep -m +experiment=random hydra/launcher=cores",
+                         ("random_suite.md", "random_suite_by_start.md")),
+    "disturbance": Experiment("Disturbances",
+                              "python -m tamedpuma.sweep -m +experiment=disturbance "
+                              "recorder=none", ("disturbance.md",)),
+    "figures": Experiment("Paths, clearance and ψ, success and timing",
+                          "python -m tamedpuma.sweep -m method=puma,fpm,cpm "
+                          "scenario=tomato/00,tomato/03,tomato/07 without_obstacles=false,true "
+                          "recorder=mcap output_root=runs/look", (),
+                          ("figures/paths_tomato.png", "figures/clearance_psi_tomato.png",
+                           "figures/success_timing.png")),
+}
+MARKERS = ("<!-- result: {} -->", "<!-- /result -->")
+
+
+class PageError(Exception):
+    """A user mistake: one line, status 2."""
+
+
+# ----------------------------------------------------------------------------- provenance
+
+
+def summaries(runs: Path) -> list[dict]:
+    """Every readable ``summary.json`` below ``runs`` (a resumed sweep's set-aside attempts
+    excluded)."""
+    found = []
+    for path in sorted(runs.rglob("summary.json")):
+        if "previous_attempt" in path.parts:
+            continue
+        try:
+            found.append({**json.loads(path.read_text()), "_mtime": path.stat().st_mtime})
+        except (OSError, ValueError):
+            continue
+    return found
+
+
+def run_dates(found: list[dict]) -> str:
+    days = sorted({dt.datetime.fromtimestamp(s["_mtime"], dt.timezone.utc).date().isoformat()
+                   for s in found})
+    if not days:
+        return "unknown (no summary.json)"
+    return days[0] if len(days) == 1 else f"{days[0]} to {days[-1]}"
+
+
+def models(found: list[dict]) -> str:
+    """The models the runs used: name, sha256 prefix, origin (from each run's summary)."""
+    seen = {}
+    for s in found:
+        model = s.get("model") or {}
+        if model.get("model_sha256"):
+            seen[(model.get("model_name") or "?", model["model_sha256"][:12])] = (
+                model.get("model_origin") or "?")
+    if not seen:
+        return "none (methods without a learned model)"
+    return ", ".join(f"{name} `{sha}` ({origin})" for (name, sha), origin in sorted(seen.items()))
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+        cpu = re.search(r"^model name\s*:\s*(.+)$", text, re.M).group(1).strip()
+    except (OSError, AttributeError):
+        pass
+    try:
+        torch = f", torch {metadata.version('torch')}"
+    except metadata.PackageNotFoundError:
+        torch = ""
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}{torch}"
+
+
+def revision() -> str:
+    """The checkout's short revision (``-dirty`` with uncommitted changes), else the version."""
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=CHECKOUT_ROOT,
+                             capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=CHECKOUT_ROOT, capture_output=True, text=True).stdout.strip()
+        return rev + ("-dirty" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return f"tamedpuma {metadata.version('tamedpuma')} (no git checkout)"
+
+
+# ----------------------------------------------------------------------------- the block
+
+
+def block(name: str, runs: Path, command: str | None, img: Path) -> str:
+    """The result block of experiment ``name`` from the analysis outputs in ``runs``."""
+    exp = EXPERIMENTS[name]
+    found = summaries(runs)
+    lines = [MARKERS[0].format(name), f"## {exp.title}", "",
+             f"- command: `{command or exp.command}`, analysed from `{runs}`",
+             f"- date: {run_dates(found)} ({len(found)} runs)",
+             f"- machine: {machine()}", f"- code: `{revision()}`",
+             f"- models (sha256): {models(found)}", ""]
+    for table in exp.tables:
+        path = runs / table
+        if not path.is_file():
+            raise PageError(f"{path} not found: run the experiment's analysis on {runs} first "
+                            "(docs/experiments.md)")
+        lines += [path.read_text().strip(), ""]
+    for figure in exp.figures:
+        path = runs / figure
+        if not path.is_file():
+            raise PageError(f"{path} not found: run the experiment's analysis on {runs} first")
+        img.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, img / path.name)
+        lines += [f"![{Path(figure).stem.replace('_', ' ')}](img/{path.name})", ""]
+    return "\n".join(lines).rstrip("\n") + "\n" + MARKERS[1]
+
+
+def replace_block(text: str, name: str, new: str) -> str:
+    """``text`` with the block of ``name`` replaced (appended when the page has none yet)."""
+    start, end = MARKERS[0].format(name), MARKERS[1]
+    i = text.find(start)
+    if i < 0:
+        return text.rstrip("\n") + "\n\n" + new + "\n"
+    j = text.find(end, i)
+    if j < 0:
+        raise PageError(f"the page's block {start} has no closing {end}")
+    return text[:i] + new + text[j + len(end):]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("name", choices=sorted(EXPERIMENTS), help="the experiment's block")
+    parser.add_argument("runs", type=Path, help="the folder its analysis wrote into")
+    parser.add_argument("--command", default=None, help="how the runs were made (default: the "
+                        "experiment's command)")
+    parser.add_argument("--page", type=Path, default=PAGE, help=f"default: {PAGE}")
+    args = parser.parse_args(argv)
+    try:
+        if not args.runs.is_dir():
+            raise PageError(f"{args.runs} is not a folder of runs")
+        new = block(args.name, args.runs, args.command, args.page.parent / "img")
+        text = args.page.read_text() if args.page.is_file() else "# Results\n"
+        args.page.write_text(replace_block(text, args.name, new))
+    except PageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"rewrote the {args.name} block of {args.page}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
