@@ -447,6 +447,7 @@ GROUPS = {
     "sim": "PyBullet window or not, substep, motor force, velocity or impedance control",
     "disturbance": "what perturbs the run (goal change, push, noisy sensing, impedance control)",
     "case": "a (task, scenario) pair, so one sweep covers both tasks (`+case=`)",
+    "ablation": "FPM or CPM without one addition each (`+experiment=ablation`, docs/method.md)",
     "experiment": "a whole experiment's sweep (`+experiment=`, docs/experiments.md)",
     "puma": "the PUMA network and its training (`python -m tamedpuma.train`)",
     "hydra/launcher": "how a sweep's jobs run: `cores` (all cores, joblib), and the installed "

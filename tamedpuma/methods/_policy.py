@@ -330,8 +330,7 @@ class SecondaryDamping:
     Why: the default tomato scenario (shipped models), FPM: at 6.5-7.0 s the orientation rows
     asked 1.4-4 rad/s² with σ̂_min 0.2-1 (the wrist through q₆ ≈ 0, joints 1-3 held by obstacle
     metrics of 130-480), q̈_C reached 14 rad/s², joints 5 and 7 spun at 2.2 rad/s in opposite
-    directions, joint 7 ran into its limit and the hand swung out to 0.85 m from the goal
-    (BENCHMARKS.md "Session 19")."""
+    directions, joint 7 ran into its limit and the hand swung out to 0.85 m from the goal"""
 
     gain: float = 0.0
     threshold: float = 3.0

@@ -4,7 +4,7 @@ progress (``method.forcing.stall_pull``; FPM and CPM only, never PUMA alone).
 Why. In the logs of the random scenarios most FPM/CPM failures are local minima of the forced
 fabric, not unsafe motion: the arm comes to rest (or circles slowly) short of the goal where PUMA's
 forcing, pulled through the avoidance metric, is balanced by a barrier. Two classes were read in
-the logs (BENCHMARKS.md "Session 15"): joints held at their limit barriers where PUMA's field, a
+the logs: joints held at their limit barriers where PUMA's field, a
 task-space field pulled to the joints, asks for motion past them (random tomato ``anywhere`` 7014:
 joints 3 and 5 on their lower limits from 16 s on); and near-goal stalls where a nearby
 obstacle's metric eats PUMA's weak pull (random pouring 7028, 5.4 cm short). A forced fabric only
@@ -40,11 +40,11 @@ distance would take longer than about ``window``/f to close at the current rate 
 counts as progress all the way in. Off for FPM: the circulation's way round an obstacle is a
 creep too (Table-1 tomato 02, FPM: 0.57 → 0.53 m in 9 s, then round and in at 20 s), and a
 pull armed there pulled the hand back into the obstacle's shadow and into two joint limits
-(BENCHMARKS.md "Session 28"). CPM has ``progress_fraction`` 0.05: its regulator brakes
+CPM has ``progress_fraction`` 0.05: its regulator brakes
 every climb of ψ, and where ψ climbs along the hand's way CPM crawls at about √ε, the hand
 closing 2-6 mm/s (random pouring ``near_table1`` 81020: 0.42 → 0.34 m in 24 s), which 5 mm per
 window counted as progress; armed, the configuration pull (CPM: ``always``) takes over far from
-the goal (BENCHMARKS.md "Session 30": 783 → 795 of 800 on four seed sets, none lost).
+the goal (783 → 795 of 800 on four random seed sets, none lost).
 
 When it lets go is PUMA's own measure: the pull disarms once PUMA's potential ψ (the latent
 distance to the goal, 0 there) has fallen below (1 − ``release``) times its value when the pull
@@ -67,7 +67,7 @@ attractor's only minimum is the goal a few centimetres away, and there is no dem
 left for it to cut across. A pull armed there is never let go: at the goal it
 vanishes (g·(p_g − p)/ℓ → 0), so the goal stays a rest point of the forced system and PUMA's
 zero set is kept, while a PUMA field that still orients the hand can no longer carry it back out
-unopposed (let go at the radius, it did: the default tomato FPM run, 3 → 10 cm, session 20).
+unopposed (let go at the radius, it did: the default tomato FPM run, 3 → 10 cm).
 
 What holds. Safety never depended on the forcing: the barriers' metric and geometry, the
 energization bound and the control-rate barrier step are unchanged, so the pull cannot carry the

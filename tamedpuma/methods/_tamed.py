@@ -379,8 +379,8 @@ class ControlRate:
     collision-hull point: the geometry the whole-body criterion judges, without the spheres'
     inflation); speed_headroom h [1]: with ``speed_limit``, the uniform scaling aims at
     ``(1 − h) q̇_max`` instead of q̇_max, a margin for the joint velocity loop's tracking error
-    (PyBullet's velocity motors, given a target at the limit, ran up to 1.0009× it in session
-    22's random suites; BENCHMARKS.md "Session 23").
+    (PyBullet's velocity motors, given a target at the limit, ran up to 1.0009× it in the
+    random suites).
     All of them only remove energy (see the module), so the paper's energy arguments still hold.
     """
 

@@ -20,7 +20,7 @@ arm brakes along q̇ otherwise. dH/dt = −β(q, q̇) q̇ᵀMq̇ ≤ −β q̇�
 argument; the speed along the path is then PUMA's own wherever the potential is strong enough
 (k_ψ large), so CPM follows PUMA's paths. ``damping: constant`` is the paper's literal β.
 
-``damping: matched_forcing`` (option, issue 12) matches the damping to the forcing only: with
+``damping: matched_forcing`` (an option) matches the damping to the forcing only: with
 ``α = α_h + α_f``, ``α_h = q̇ᵀ(M h + f_e)/(q̇ᵀMq̇ + ε)`` (the avoidance geometry's energization,
 bounded below as FPM's) and ``α_f = q̇ᵀM f_θ^C/(q̇ᵀMq̇ + ε)``, it takes β = max(β_min, r − α_f).
 Then ``q̈ = energize[h] + f_θ^C + min(r − α_f − β_min, 0) q̇``: in free space (h = 0) exactly the
@@ -44,7 +44,7 @@ suppressed and the regulator's energy goes into sliding along it. f_θ^C keeps i
 stays compatible with it wherever ``P = wJA⁻¹Jᵀ ≈ I`` (free space: −∂ψᵀf_θ^C = −∂ψ_xᵀ P ẍ_d);
 near an obstacle P bends f_θ^C away from PUMA's direction and compatibility is no longer
 guaranteed there, where the barrier already keeps ψ from decreasing along PUMA's path.
-With ``forcing.geometry: task_metric`` (CPM's default since session 13; FPM keeps ``fabric``)
+With ``forcing.geometry: task_metric`` (CPM's default; FPM keeps ``fabric``)
 h = −(M + JᵀwJ)⁻¹f: PUMA's task metric is one more leaf of the fabric (ẍ = 0, metric w), so
 the geometry no longer drives the hand against PUMA near barriers
 (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`); the sum is still a fabric,

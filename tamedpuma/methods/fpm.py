@@ -26,14 +26,12 @@ Table 1"), and which of the paper's statements still holds with it:
   an obstacle PUMA's push along the barrier's normal is suppressed and the arm slides along it,
   as a forced fabric does. h is the paper's, and the zero set of f_θ^C is unchanged (q̇ = 0,
   ẍ_d = 0 gives q̈ = 0 up to the damped elbow objective), so the same statement holds.
-- ``forcing.directional`` with ``forcing.approach: solution`` (FPM's and CPM's default since
-  session 18): the metric resists PUMA only along the barriers the forcing q̈_C itself
-  approaches (:func:`~tamedpuma.methods._tamed.restore_approached`). With ``pull`` (before)
-  that was decided on PUMA's free pull q̈_P, and the weighted solution could drive a joint
-  into a limit whose row q̈_P recedes from and W therefore lacked: on Table-1 pouring 05
-  without obstacles 0.6-17 rad/s² of self-motion while ‖ẍ_d‖ ≈ 0.1 m/s², joint 2 into its
-  limit, the hand 1.2 m from the goal. The forcing is still a weighted pseudo-inverse of
-  PUMA's spec through a PSD metric, so its zero set and the statement below are unchanged.
+- ``forcing.directional``: the metric resists PUMA only along the barriers the forcing q̈_C
+  itself approaches (:func:`~tamedpuma.methods._tamed.restore_approached`). Decided on PUMA's
+  free pull q̈_P alone, the weighted solution could drive a joint into a limit whose row q̈_P
+  recedes from (Table-1 pouring 05 without obstacles: joint 2 into its limit, the hand 1.2 m
+  from the goal). The forcing is still a weighted pseudo-inverse of PUMA's spec through a PSD
+  metric, so its zero set and the statement below are unchanged.
 - ``forcing.geometry: task_metric`` computes the geometry with PUMA's task metric as one more
   leaf, ``h = −(M + JᵀwJ)⁻¹f`` (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`),
   instead of ``h = −M⁻¹f``. The leaf is ``ẍ = 0`` in PUMA's task space with the constant metric
@@ -44,7 +42,7 @@ Table 1"), and which of the paper's statements still holds with it:
   PUMA's forcing added after it; in a logged failure (random tomato ``near_table1`` 7001)
   it moved the hand away from the goal at 0.3-0.6 m/s² against PUMA's 0.1-0.2 m/s².
   CPM's default; FPM keeps ``fabric`` (on 600 random scenarios 507 → 513 successes, within
-  the churn, and Table-1 pouring 06 then fails; BENCHMARKS.md "Session 13").
+  the churn, and Table-1 pouring 06 then fails).
 - ``forcing.priority: position`` solves PUMA's position rows first and adds the orientation
   rows without changing the hand's acceleration (``prioritized_solve`` in
   :mod:`tamedpuma.methods._policy`): where a goal orientation needs a joint past its limit from
