@@ -973,6 +973,24 @@ def render(root: Path) -> int:
     return 0
 
 
+def _steps(args) -> int:
+    """``--steps``: the in-episode section alone (:mod:`tamedpuma.app.bench_steps`)."""
+    from tamedpuma.app import bench_steps
+
+    if not 0 <= args.steps_table1 <= 15:
+        print("error: --steps-table1 must be between 0 and 15", file=sys.stderr)
+        return 2
+    methods = [m for m in args.methods if "+" not in m]
+    report = bench_steps.run(methods, args.steps_table1, args.steps_seeds,
+                             args.reference_python, args.overrides,
+                             log=lambda line: print(line, file=sys.stderr))
+    report["command"] = "python -m tamedpuma.bench " + " ".join(sys.argv[1:])
+    print("\n".join(bench_steps.lines(report)))
+    if not args.no_write:
+        print(f"wrote {bench_steps.write(report, args.root)}", file=sys.stderr)
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--methods", nargs="+", default=list(METHODS))
@@ -1008,12 +1026,22 @@ def main(argv=None) -> int:
     parser.add_argument("--render", action="store_true",
                         help="measure nothing: rewrite BENCHMARKS.md's sections and the README "
                         "line from benchmarks/bench.json and benchmarks/fabrics.json")
+    parser.add_argument("--steps", action="store_true",
+                        help="only the step inside whole episodes (Table-1 scenarios and the "
+                        "randomized suite), written to benchmarks/steps.json "
+                        "(tamedpuma/app/bench_steps.py)")
+    parser.add_argument("--steps-table1", type=int, default=3, metavar="N",
+                        help="with --steps: the first N Table-1 scenarios of each task")
+    parser.add_argument("--steps-seeds", type=int, nargs="*", default=[2000], metavar="SEED",
+                        help="with --steps: randomized-suite seeds (both tasks, both starts)")
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root to write into")
     parser.add_argument("overrides", nargs="*", help="config overrides for every build")
     args = parser.parse_args(argv)
     if args.render:
         return render(args.root)
+    if args.steps:
+        return _steps(args)
     if any(n < 0 for n in args.counts) or args.calls < 1 or args.budget <= 0:
         print("error: counts must be ≥ 0, calls ≥ 1 and budget > 0", file=sys.stderr)
         return 2
