@@ -150,11 +150,11 @@ def test_parts_of_a_step_and_the_reference_network():
         "cpu_model": "c", "cores": 2, "python": "3", "numpy": "2"}})
     assert "| fpm | 2 | network: acceleration |" in section
     assert {"directional metric", "pullback through the metric", "control-rate filters"} <= set(
-        by)  # FPM's forcing since session 5, part by part
+        by)  # FPM's forcing, part by part
 
 
 def test_targets_are_met_or_explained_by_the_profile():
-    """Each target of issue 16 in the report: "met", or its figure and the largest parts of
+    """Each speed target in the report: "met", or its figure and the largest parts of
     that step at that obstacle count; the episode's real-time target with its physics bound."""
     controller = [
         {"method": "fpm", "n_obstacles": 2, "median_ms": 0.19, "p10_ms": 0.18, "speedup": 1.3},

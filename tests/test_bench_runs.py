@@ -1,5 +1,5 @@
 """The bench's whole-command figures (training, Table 1) are read from what the commands wrote,
-and judged against issue 16's targets: synthetic reports and summaries, no training or sweep."""
+and judged against their targets: synthetic reports and summaries, no training or sweep."""
 
 import json
 import sys

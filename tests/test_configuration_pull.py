@@ -468,7 +468,7 @@ def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_i
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("mode", ["limits", "always"])  # always: CPM's default since session 30
+@pytest.mark.parametrize("mode", ["limits", "always"])  # always: CPM's default
 def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
         robot_spec, kinematics, monkeypatch, scalar_log, mode):
     """CPM in the trap above (q₁ = 2.2 rad) with the configuration pull (engaging at a joint
@@ -498,7 +498,7 @@ class ClimbingPotential(StablePose):
     A·b(p)) + ½‖r‖², b(p) = exp(−‖p − c‖²/(2s²)) a bump about the midpoint c of the start and
     the goal (ψ ≥ 0, 0 only at the goal). The field is not the gradient of ψ: PUMA's field and
     its latent potential disagree like this where CPM crawled in random pouring scenarios
-    (ψ rising along the hand's way, BENCHMARKS.md "Session 30")."""
+    (ψ rising along the hand's way, BENCHMARKS.md)."""
 
     def __init__(self, centre, height=200.0, width=0.15):
         self.c, self.height, self.width = np.asarray(centre, dtype=float), height, width
@@ -516,7 +516,7 @@ class ClimbingPotential(StablePose):
 def test_cpm_crawling_up_its_potential_arms_the_stall_pull_and_the_attractor_takes_it_in(
         robot_spec, kinematics, monkeypatch):
     """Where ψ climbs along the way the forcing takes, CPM's regulator brakes the climb and the
-    arm crawls (the ε leak). Session 29's settings (``limits``, no creep criterion) leave it
+    arm crawls (the ε leak). The settings ``limits`` without the creep criterion leave it
     crawling far from the goal at 40 s: the hand closes too slowly to reach but faster than the
     stall pull's 5 mm per window. CPM's defaults (the creep criterion, ``always``) arm the
     stall pull on the crawl and the configuration attractor, on its own potential, takes the
@@ -528,13 +528,13 @@ def test_cpm_crawling_up_its_potential_arms_the_stall_pull_and_the_attractor_tak
     assert method["forcing"]["stall_configuration"] == "always"
     assert method["forcing"]["stall_progress_fraction"] > 0
     runs = {}
-    for name, forcing in (("session 29", {"stall_configuration": "limits",
+    for name, forcing in (("limits", {"stall_configuration": "limits",
                                           "stall_progress_fraction": 0.0}),
                           ("default", {})):
         m = {**method, "forcing": {**method["forcing"], **forcing}}
         with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
             runs[name] = run_episode(scenario, make("cpm", m, kinematics), world)
-    crawl = runs["session 29"]
+    crawl = runs["limits"]
     assert not crawl.metrics.success_paper and crawl.metrics.final_position_error_m > 0.3
     speed = np.linalg.norm(np.diff(crawl.ee_position[-500:], axis=0), axis=1) / scenario.dt
     assert 1e-4 < np.median(speed) < 0.01  # [m/s]: crawling, neither resting nor on its way

@@ -2,7 +2,7 @@
 attractor to a goal configuration takes the forcing over (``method.forcing.stall_configuration``;
 FPM and CPM only, off by default).
 
-Why. In the logs of the random scenarios (BENCHMARKS.md "Session 26") every FPM failure on
+Why. In the logs of the random scenarios (BENCHMARKS.md) every FPM failure on
 seeds 31000-31049 ends with one to four joints on their limit barriers and the hand 0.2-0.5 m
 from the goal, turned 1.1-2.5 rad off the goal orientation. Random pouring ``anywhere`` 31007:
 the goal lies at an azimuth of −97°, the base starts at q₁ = 1.08 rad; PUMA's field, a
@@ -52,7 +52,7 @@ segment's middle (:func:`goal_route`); the attractor pulls to w and turns to q_g
 :data:`VIA_RADIUS` of it (one switch: one more piece of CPM's piecewise energy argument below).
 
 Near the goal. The first form engaged only farther than ``release`` from the goal. In the logged
-200-per-task suite (seeds 2000-2099, BENCHMARKS.md "Session 29") 11 of FPM's and CPM's 29
+200-per-task suite (seeds 2000-2099, BENCHMARKS.md) 11 of FPM's and CPM's 29
 failures with obstacles end 6-15 cm from the goal with a joint on its limit; the stall pull
 armed there, within ``release``, and nothing else acted (random tomato ``anywhere`` 2097, FPM:
 joint 3 at 2.95 rad, the hand 9-10 cm short and creeping, the stall pull armed at 19.7 s, 7.1 cm
@@ -65,17 +65,32 @@ arming, the hand 6.3 cm out and closing, then a 1.4 m reconfiguration that ran o
 way out is often a whole reconfiguration (2097: the elbow turned over, q₄ 1.7 → −1.65 rad, the
 hand 0.53 m out and back in 7 s, at the goal at 26.5 s): the joint-limit box is left only that
 way, and the attractor's rest point is still the goal pose. Near the goal a joint at a limit is
-asked for in both modes: ``always`` (CPM's default, session 30) engages without one only
+asked for in both modes: ``always`` (CPM's default) engages without one only
 farther than ``release``; within it the stall pull alone finishes the approach as before (the
 shipped tomato model overshoots to 0.15 m and comes back in, its stall pull arming at 0.115 m
 in an obstacle-free run, where a reconfiguration has nothing to free).
 
 Far from the goal without a limit (``always``). CPM's regulator brakes every climb of ψ, and
 where the way round climbs ψ with no obstacle within the tank's clearance and no joint near a
-limit, CPM crawls at about √ε (random pouring ``anywhere`` 81004, BENCHMARKS.md "Session 30": ψ
+limit, CPM crawls at about √ε (random pouring ``anywhere`` 81004, BENCHMARKS.md: ψ
 4.5 -> 8.3 along the hand's way over 40 s; FPM reaches it in 7.9 s); the stall pull arms, but
 ``limits`` never engages there. ``always`` hands such an arming to the attractor, and CPM's
 regulator watches the attractor's own φ (:meth:`ConfigurationMonitor.potential`).
+
+When it is computed. Nothing slow runs inside a control step. The goal pose's IK solutions
+(25 starts, up to 200 damped least-squares iterations each, 0.1-0.7 s in all) do not depend on
+the obstacles or on q: they are solved in the controller's reset, before the first step, from
+the start q₀ and the seeded random starts (:meth:`ConfigurationMonitor.prepare`, kept per
+process for the scenario's other runs). At an engagement, only the route is searched among them
+(each solution's clearance from the obstacles where they are now, the nearest first, the
+segment checks and the waypoints), a generator run at most ``budget`` kinematic passes
+(:data:`SEARCH_BUDGET`, one forward pass of the arm each) per control step, so a step's extra
+cost is bounded by construction; the pull engages at the step the search ends, from the q and
+obstacles of the step it began. A goal that moves more than 2 cm is solved again the same way,
+the last q_g pulling until the new one is ready. What this changes against solving everything
+inside the engaging step: the IK's first start is q₀ instead of the q at the engagement, and a
+search longer than one step's budget engages that many steps later (where the simulator waited
+for the whole search before, as no robot would).
 
 Position fallback. A goal pose can be in collision whatever the arm does: the body spheres
 rigid with the hand sit where the pose puts them, for every IK solution (random pouring
@@ -108,7 +123,7 @@ one potential, and from the last switch on, ψ's: the statement needs finitely m
 Gains: g and ℓ set the attractor's cruise speed far from q_g, g/k = √(gℓ)/2 [rad/s]; with the
 first values (g = 1.5, ℓ = 0.3: 0.34 rad/s) the 4-8 rad of joint travel some ways out need took
 12-24 s of the 40 s run, and runs engaged after 20 s ran out of time on the way (random tomato
-``anywhere`` 41015, 41025 with CPM; BENCHMARKS.md "Session 27").
+``anywhere`` 41015, 41025 with CPM; BENCHMARKS.md).
 """
 
 from __future__ import annotations
