@@ -28,6 +28,7 @@ period's velocity, does not mind.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,10 +79,35 @@ def point_speed_bound(kinematics, frame_ids, vertices) -> float:
     return float(sum(qd_max[i] * (sum(lengths[i + 1:]) + tip) for i in range(len(qd_max))))
 
 
+#: link hulls a process keeps (every controller of a sweep worker's runs builds them), by the
+#: URDF file (path, size, modification time) and the model's frames
+_HULLS: dict = {}
+
+
 def link_hulls(kinematics) -> LinkHulls:
     """The convex-hull vertices of every URDF link with collision geometry that moves with a
     joint (the fixed base never comes nearer the ground; a gripper's fingers, locked in the
-    model, move with the last joint and are included)."""
+    model, move with the last joint and are included). Built once per process and model (the
+    vertices read-only)."""
+    path = kinematics.spec.urdf_path
+    try:
+        stat = os.stat(path)
+        key = (os.path.realpath(path), stat.st_size, stat.st_mtime_ns,
+               tuple((f.name, f.parentJoint) for f in kinematics.model.frames),
+               tuple(kinematics.spec.qd_max))
+    except OSError:
+        key = None
+    if key is not None and key in _HULLS:
+        return _HULLS[key]
+    hulls = _build_link_hulls(kinematics)
+    for v in hulls.vertices:
+        v.setflags(write=False)
+    if key is not None:
+        _HULLS[key] = hulls
+    return hulls
+
+
+def _build_link_hulls(kinematics) -> LinkHulls:
     from scipy.spatial import ConvexHull
 
     geometry = urdf_collision_geometry(kinematics.spec.urdf_path)
