@@ -29,7 +29,12 @@ from tamedpuma.methods._configuration_pull import (
 )
 from tamedpuma.methods._policy import PoseTask, TaskAcceleration
 from tamedpuma.methods._tamed import Forcing
-from tamedpuma.robot.ground import hull_ground_rows, hull_heights, link_hulls
+from tamedpuma.robot.ground import (
+    hull_ground_rows,
+    hull_heights,
+    hull_heights_and_spheres,
+    link_hulls,
+)
 from tamedpuma.robot.ik import pose_dls, run_to_end
 from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 from tamedpuma.types import Obstacles
@@ -600,3 +605,17 @@ def test_a_prepared_monitor_solves_no_ik_at_engagement_and_spends_its_budget_per
         assert monitor.passes - before <= budget
     p, _ = kinematics.ee_frame(monitor.q_goal)
     assert np.linalg.norm(p - moved.goal_position) < 1e-3
+
+
+def test_one_placement_pass_gives_the_heights_and_spheres_of_two(kinematics):
+    """The route search's sample (one forward pass) reads the same numbers as the hull heights
+    and the sphere centres each from a pass of their own."""
+    hulls = link_hulls(kinematics)
+    q = np.array([0.4, -0.7, 0.3, -1.9, 0.2, 1.1, -0.5])
+    heights, spheres = hull_heights_and_spheres(kinematics, hulls, q)
+    np.testing.assert_array_equal(heights, hull_heights(kinematics, hulls, q))
+    np.testing.assert_array_equal(spheres, kinematics.sphere_centers(q))
+    for ground in (Ground(0.01, hulls), Ground(0.01)):
+        margins, at = ground.margins_and_spheres(kinematics, q)
+        np.testing.assert_array_equal(margins, ground.margins(kinematics, q))
+        np.testing.assert_array_equal(at, spheres)

@@ -133,7 +133,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from tamedpuma.methods._policy import TaskAcceleration
-from tamedpuma.robot.ground import LinkHulls, hull_heights
+from tamedpuma.robot.ground import LinkHulls, hull_heights, hull_heights_and_spheres
 from tamedpuma.robot.ik import pose_dls_steps, run_to_end
 from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.robot.rotations import quat_to_matrix
@@ -208,6 +208,14 @@ class Ground:
         if self.hulls is not None:
             return hull_heights(kin, self.hulls, q) - self.height
         return kin.sphere_centers(q)[:, 2] - np.asarray(kin.sphere_radii) - self.height
+
+    def margins_and_spheres(self, kin: Kinematics, q: np.ndarray):
+        """:meth:`margins` and the body-sphere centres (k, 3) [m] at q, one placement pass."""
+        if self.hulls is not None:
+            heights, spheres = hull_heights_and_spheres(kin, self.hulls, q)
+            return heights - self.height, spheres
+        spheres = kin.sphere_centers(q)
+        return spheres[:, 2] - np.asarray(kin.sphere_radii) - self.height, spheres
 
 
 def _pose_above_ground(kin: Kinematics, position: np.ndarray, rotation: np.ndarray,
@@ -384,8 +392,8 @@ def route_steps(kin: Kinematics, solutions: PoseSolutions, q: np.ndarray,
             if length >= best_length:
                 continue
             yield
-            if (np.min(ground.margins(kin, w)) >= 0.0
-                    and _obstacle_gap(kin, w, centers, radii) >= pull.clearance
+            margins, spheres = ground.margins_and_spheres(kin, w)
+            if (np.min(margins) >= 0.0 and _gap(kin, spheres, centers, radii) >= pull.clearance
                     and (yield from _segment_clear(kin, q, w, centers, radii, ground, floor))
                     and (yield from _segment_clear(kin, w, qg, centers, radii, ground,
                                                    floor))):
@@ -399,7 +407,14 @@ def _obstacle_gap(kin: Kinematics, q: np.ndarray, centers: np.ndarray,
     radii (m,) [m]; inf: none)."""
     if not len(radii):
         return np.inf
-    spheres = kin.sphere_centers(q)
+    return _gap(kin, kin.sphere_centers(q), centers, radii)
+
+
+def _gap(kin: Kinematics, spheres: np.ndarray, centers: np.ndarray,
+         radii: np.ndarray) -> float:
+    """:func:`_obstacle_gap` from the body-sphere centres (k, 3) [m]."""
+    if not len(radii):
+        return np.inf
     return float(np.min(np.linalg.norm(spheres[:, None, :] - centers[None], axis=2)
                         - kin.sphere_radii[:, None] - radii[None]))
 
@@ -413,9 +428,8 @@ def _segment_clear(kin: Kinematics, q: np.ndarray, qg: np.ndarray, centers: np.n
     n = int(np.ceil(np.abs(qg - q).max() / step)) + 1
     for s in np.linspace(0.0, 1.0, n + 1)[1:]:
         yield
-        qs = q + s * (qg - q)
-        if np.min(ground.margins(kin, qs)) < floor or _obstacle_gap(kin, qs, centers,
-                                                                      radii) < 0.0:
+        margins, spheres = ground.margins_and_spheres(kin, q + s * (qg - q))
+        if np.min(margins) < floor or _gap(kin, spheres, centers, radii) < 0.0:
             return False
     return True
 

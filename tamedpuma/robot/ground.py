@@ -177,10 +177,18 @@ def hull_heights(kinematics, hulls: LinkHulls, q: np.ndarray) -> np.ndarray:
     """The lowest point [m] of each hull at q (a placement pass of its own on ``kinematics``,
     whose model the hulls' frame ids index): the heights :func:`hull_ground_rows` reads, at
     any configuration (a goal configuration's check, not the control step)."""
+    return hull_heights_and_spheres(kinematics, hulls, q)[0]
+
+
+def hull_heights_and_spheres(kinematics, hulls: LinkHulls, q: np.ndarray):
+    """:func:`hull_heights` and the body-sphere centres (k, 3) [m] at q from the one placement
+    pass (the same numbers as ``kinematics.sphere_centers(q)``)."""
     pin.framesForwardKinematics(kinematics.model, kinematics.data, np.asarray(q, dtype=float))
     oMf = kinematics.data.oMf
-    return np.array([oMf[f].translation[2] + float(np.min(v @ oMf[f].rotation[2]))
-                     for f, v in zip(hulls.frame_ids, hulls.vertices)])
+    heights = np.array([oMf[f].translation[2] + float(np.min(v @ oMf[f].rotation[2]))
+                        for f, v in zip(hulls.frame_ids, hulls.vertices)])
+    spheres = np.array([oMf[i].translation for i in kinematics.sphere_ids]).reshape(-1, 3)
+    return heights, spheres
 
 
 def hull_heights_from_poses(hulls: LinkHulls, link_names, positions: np.ndarray,
