@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import tamedpuma.methods._configuration_pull as cpull
 import tamedpuma.methods._tamed as tamed
 from tamedpuma.app.config import load_group, start_options
 from tamedpuma.episode import run_episode
@@ -28,14 +29,19 @@ from tamedpuma.methods._configuration_pull import (
 )
 from tamedpuma.methods._policy import PoseTask, TaskAcceleration
 from tamedpuma.methods._tamed import Forcing
-from tamedpuma.robot.ground import hull_ground_rows, hull_heights, link_hulls
-from tamedpuma.robot.ik import pose_dls
+from tamedpuma.robot.ground import (
+    hull_ground_rows,
+    hull_heights,
+    hull_heights_and_spheres,
+    link_hulls,
+)
+from tamedpuma.robot.ik import pose_dls, run_to_end
 from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 from tamedpuma.types import Obstacles
 from tamedpuma.worlds.bullet import Disturbance, SimConfig, Simulator
 from tamedpuma.worlds.scenarios import scenario_from_config
 
-PULL = ConfigurationPull(mode="limits")
+PULL = ConfigurationPull(mode="limits", budget=0)  # the whole search in one step
 
 
 def test_the_goal_configuration_reaches_the_pose_inside_the_limits_clear_of_everything(
@@ -220,10 +226,10 @@ def test_a_goal_configuration_behind_an_obstacle_on_the_straight_segment_is_not_
     middle = kinematics.sphere_centers(0.5 * (q + free))[-1]
     centers, radii = middle[None], np.array([0.05])
     ground = Ground(PULL.clearance)
-    assert not _segment_clear(kinematics, q, free, centers, radii, ground, 0.0)
+    assert not run_to_end(_segment_clear(kinematics, q, free, centers, radii, ground, 0.0))
     chosen = goal_configuration(kinematics, p_goal, quat, q, centers, radii, PULL)
     if chosen is not None:  # another solution, reached along a clear segment
-        assert _segment_clear(kinematics, q, chosen, centers, radii, ground, 0.0)
+        assert run_to_end(_segment_clear(kinematics, q, chosen, centers, radii, ground, 0.0))
         assert not np.allclose(chosen, free)
 
 
@@ -429,20 +435,35 @@ def _method_config(name: str) -> dict:
 @pytest.mark.slow
 @pytest.mark.parametrize("q1", [2.2, 2.6])
 def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_it(
-        robot_spec, kinematics, monkeypatch, q1):
+        robot_spec, kinematics, monkeypatch, scalar_log, q1):
     """The pouring goal lies at an azimuth of −97°; the arm starts reaching out at q₁ = q1
     (126-149°): the straight task-space way round turns the base into its upper limit
-    (2.97 rad), the way out leads the hand away from the goal first."""
+    (2.97 rad), the way out leads the hand away from the goal first. The goal's IK is solved
+    before the first step: no control step starts an IK solve."""
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
     scenario = _obstacle_free_scenario(robot_spec, "pouring",
                                        q0=np.array([q1, 0.6, 0.0, -1.2, 0.0, 0.6, 0.0]))
     method = _method_config("fpm")
-    results = {}
+    ik = _CountingIK(monkeypatch)
+    results, in_steps = {}, []
     for mode in ("off", "limits"):
         method["forcing"] = {**method["forcing"], "stall_configuration": mode}
+        controller = make("fpm", method, kinematics)
+        step = controller.step
+
+        def counted_step(obs, step=step):
+            before = ik.calls
+            command = step(obs)
+            in_steps.append(ik.calls - before)
+            return command
+
+        controller.step = counted_step
         with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
-            run = run_episode(scenario, make("fpm", method, kinematics), world)
+            run = run_episode(scenario, controller, world, [scalar_log] if mode == "limits"
+                              else [])
         results[mode] = run
+    assert len(in_steps) > 100 and ik.calls > 0 and sum(in_steps) == 0  # in reset only
+    assert any(s.get("configuration_pull", 0.0) > 0 for s in scalar_log.rows)  # it engaged
     trapped, freed = results["off"].metrics, results["limits"].metrics
     assert not trapped.success_paper and trapped.final_position_error_m > 0.3
     q = results["off"].q
@@ -523,3 +544,78 @@ def test_cpm_crawling_up_its_potential_arms_the_stall_pull_and_the_attractor_tak
     speed = np.linalg.norm(np.diff(crawl.ee_position[-500:], axis=0), axis=1) / scenario.dt
     assert 1e-4 < np.median(speed) < 0.01  # [m/s]: crawling, neither resting nor on its way
     assert runs["default"].metrics.success_whole_body, runs["default"].metrics.failure_whole_body
+
+
+class _CountingIK:
+    """Counts the goal-configuration IK solves started (``pose_dls_steps`` calls)."""
+
+    def __init__(self, monkeypatch):
+        self.calls = 0
+        inner = cpull.pose_dls_steps
+
+        def counted(*args, **kwargs):
+            self.calls += 1
+            return inner(*args, **kwargs)
+
+        monkeypatch.setattr(cpull, "pose_dls_steps", counted)
+
+
+def test_a_prepared_monitor_solves_no_ik_at_engagement_and_spends_its_budget_per_step(
+        kinematics, monkeypatch):
+    """Solved before the first step, the engagement searches the route only, at most
+    ``budget`` kinematic passes per step, and ends on the same route as the whole search in one
+    step; a goal moved away is solved again within the same budget, the last q_g kept."""
+    spec = kinematics.spec
+    obs, task = _goal_without_obstacles(kinematics)
+    q0 = np.array([0.3, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])
+    q = np.array([spec.q_max[0] - 0.05, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])
+    whole = ConfigurationMonitor(PULL, spec)
+    whole.prepare(obs.goal_position, obs.goal_quaternion, q0)
+    assert whole.applied(q, np.zeros(7), 0.5, _stall(3.0, 0.5), obs, task) is not task
+    budget = 4
+    monitor = ConfigurationMonitor(replace(PULL, budget=budget), spec)
+    ik = _CountingIK(monkeypatch)
+    monitor.prepare(obs.goal_position, obs.goal_quaternion, q0)
+    assert ik.calls == 0 and monitor.solutions is whole.solutions  # kept by the process
+    fresh = run_to_end(cpull.pose_solutions(kinematics, obs.goal_position,
+                                            obs.goal_quaternion, q0, PULL))
+    for kept, new in zip(whole.solutions.pose, fresh.pose, strict=True):
+        np.testing.assert_array_equal(kept, new)
+    ik.calls = 0
+    steps = 0
+    while not monitor.engaged:
+        before = monitor.passes
+        assert monitor.applied(q, np.zeros(7), 0.5, _stall(3.0, 0.5), obs, task) is task \
+            or monitor.engaged
+        assert monitor.passes - before <= budget
+        steps += 1
+        assert steps < 1000
+    assert steps > 1 and ik.calls == 0
+    np.testing.assert_array_equal(monitor.q_goal, whole.q_goal)
+    # the goal moves 5 cm: solved again a budget at a time, the last q_g pulling meanwhile
+    moved = SimpleNamespace(**{**vars(obs), "goal_position": obs.goal_position
+                               + np.array([0.0, 0.0, 0.05])})
+    last = monitor.q_goal.copy()
+    monitor.applied(q, np.zeros(7), 0.5, _stall(3.0, 0.5), moved, task)
+    assert monitor.search is not None and ik.calls >= 1 and monitor.engaged
+    np.testing.assert_array_equal(monitor.q_goal, last)
+    while monitor.search is not None:
+        before = monitor.passes
+        monitor.applied(q, np.zeros(7), 0.5, _stall(3.0, 0.5), moved, task)
+        assert monitor.passes - before <= budget
+    p, _ = kinematics.ee_frame(monitor.q_goal)
+    assert np.linalg.norm(p - moved.goal_position) < 1e-3
+
+
+def test_one_placement_pass_gives_the_heights_and_spheres_of_two(kinematics):
+    """The route search's sample (one forward pass) reads the same numbers as the hull heights
+    and the sphere centres each from a pass of their own."""
+    hulls = link_hulls(kinematics)
+    q = np.array([0.4, -0.7, 0.3, -1.9, 0.2, 1.1, -0.5])
+    heights, spheres = hull_heights_and_spheres(kinematics, hulls, q)
+    np.testing.assert_array_equal(heights, hull_heights(kinematics, hulls, q))
+    np.testing.assert_array_equal(spheres, kinematics.sphere_centers(q))
+    for ground in (Ground(0.01, hulls), Ground(0.01)):
+        margins, at = ground.margins_and_spheres(kinematics, q)
+        np.testing.assert_array_equal(margins, ground.margins(kinematics, q))
+        np.testing.assert_array_equal(at, spheres)

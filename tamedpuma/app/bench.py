@@ -21,7 +21,7 @@ Sections (each regenerated, never typed in):
    (:mod:`tamedpuma.app.bench_fabrics`; ``--skip-fabrics`` leaves the section as it is).
 4. **PUMA training** and the **Table-1 sweep**: measured only on request (``--training``,
    ``--training-seeds``, ``--table1``: minutes each; :mod:`tamedpuma.app.bench_runs`), each judged
-   against issue 16's targets, with the profile of the sweep's time from its runs' summaries;
+   against the speed targets, with the profile of the sweep's time from its runs' summaries;
    otherwise the last dated training figures found in ``benchmarks/`` are cited as such.
 
     python -m tamedpuma.bench                       # sections 1-3, writes the files below
@@ -58,7 +58,7 @@ METHODS = ("puma", "fabrics", "fabrics+numba", "fpm", "fpm+numba", "cpm", "modul
 #: run is timed without them: the variant's previous default)
 VARIANTS = {"numba": ["method.fabric.kernel=numba"]}
 SECTION = "Controller step"
-#: Issue 16's targets: median [ms] per (method, obstacle count).
+#: The speed targets: median [ms] per (method, obstacle count).
 TARGET_MS = {("fpm", 2): 0.2, ("cpm", 2): 0.3, ("fpm", 1000): 0.6, ("cpm", 1000): 0.8,
              ("fabrics", 2): 0.05, ("fabrics", 1000): 0.2, ("modulation_ik", 2): 1.0,
              ("fabrics+numba", 2): 0.05, ("fabrics+numba", 1000): 0.2,
@@ -715,8 +715,8 @@ _WHY = {
                "`fused.LayoutBuffers._gathered_pair_rows`; the others have metric 0). "
                "`fabrics+numba` compiles that pass, the kernel and the products.",
     "fpm": "Kinematics, fabric and network are the vanilla costs above; the rest is FPM's "
-           "forcing since session 5 (PUMA's obstacle-free pull, the directional metric, the "
-           "weighted pullback, since session 7 with the position priority: three LAPACK "
+           "forcing (PUMA's obstacle-free pull, the directional metric, the "
+           "weighted pullback with the position priority: three LAPACK "
            "solves instead of one, the control-rate barrier step over the barrier rows "
            "within the activation distance, the far pairs bounded by `discrete.FarRows`), "
            "each a few small-array numpy calls; at 1000 obstacles the fabric's pass over the "
@@ -738,7 +738,7 @@ _WHY = {
 
 
 def target_lines(report: dict) -> list[str]:
-    """Issue 16's targets, each: met, or its figure and the profile that explains it."""
+    """The speed targets, each: met, or its figure and the profile that explains it."""
     by = {(r["method"], r["n_obstacles"]): r for r in report.get("controller", [])}
     out = []
     for (method, n), target in TARGET_MS.items():
@@ -793,7 +793,7 @@ def target_lines(report: dict) -> list[str]:
     out += bench_runs.table1_lines(report.get("table1"))[1:2]  # its verdict with the profile
     if not out:
         return []
-    return ["", "Targets of issue 16 (medians of this run; the machine is shared, so the p10 "
+    return ["", "Speed targets (medians of this run; the machine is shared, so the p10 "
             "is given too):", "", *out]
 
 
@@ -973,6 +973,24 @@ def render(root: Path) -> int:
     return 0
 
 
+def _steps(args) -> int:
+    """``--steps``: the in-episode section alone (:mod:`tamedpuma.app.bench_steps`)."""
+    from tamedpuma.app import bench_steps
+
+    if not 0 <= args.steps_table1 <= 15:
+        print("error: --steps-table1 must be between 0 and 15", file=sys.stderr)
+        return 2
+    methods = [m for m in args.methods if "+" not in m]
+    report = bench_steps.run(methods, args.steps_table1, args.steps_seeds,
+                             args.reference_python, args.overrides,
+                             log=lambda line: print(line, file=sys.stderr))
+    report["command"] = "python -m tamedpuma.bench " + " ".join(sys.argv[1:])
+    print("\n".join(bench_steps.lines(report)))
+    if not args.no_write:
+        print(f"wrote {bench_steps.write(report, args.root)}", file=sys.stderr)
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--methods", nargs="+", default=list(METHODS))
@@ -1008,12 +1026,22 @@ def main(argv=None) -> int:
     parser.add_argument("--render", action="store_true",
                         help="measure nothing: rewrite BENCHMARKS.md's sections and the README "
                         "line from benchmarks/bench.json and benchmarks/fabrics.json")
+    parser.add_argument("--steps", action="store_true",
+                        help="only the step inside whole episodes (Table-1 scenarios and the "
+                        "randomized suite), written to benchmarks/steps.json "
+                        "(tamedpuma/app/bench_steps.py)")
+    parser.add_argument("--steps-table1", type=int, default=3, metavar="N",
+                        help="with --steps: the first N Table-1 scenarios of each task")
+    parser.add_argument("--steps-seeds", type=int, nargs="*", default=[2000], metavar="SEED",
+                        help="with --steps: randomized-suite seeds (both tasks, both starts)")
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root to write into")
     parser.add_argument("overrides", nargs="*", help="config overrides for every build")
     args = parser.parse_args(argv)
     if args.render:
         return render(args.root)
+    if args.steps:
+        return _steps(args)
     if any(n < 0 for n in args.counts) or args.calls < 1 or args.budget <= 0:
         print("error: counts must be ≥ 0, calls ≥ 1 and budget > 0", file=sys.stderr)
         return 2

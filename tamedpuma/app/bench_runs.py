@@ -5,7 +5,7 @@ what those commands wrote (the training's ``report.json``; every run's ``summary
 figures and the profile that explains them come from the same run:
 
 - **training**: ``python -m tamedpuma.train task=<task> seed=<seed> out_dir=<tmp>`` per task and
-  seed: process wall time, the pipeline's CPU time, iterations, and issue 16's accuracy and
+  seed: process wall time, the pipeline's CPU time, iterations, and the training's accuracy and
   stability targets read from the evaluation (100 % of the random starts converged, mean DTW per
   point ≤ 2 cm, ψ-compatible ≥ 99 %), each judged, with the time target (≤ 3 min on one core);
 - **Table 1**: ``python -m tamedpuma.sweep +experiment=table1 output_root=<tmp>``: wall time, and
@@ -24,11 +24,11 @@ import sys
 import time
 from pathlib import Path
 
-#: Issue 16's training targets: every random start converged, mean DTW per point [m],
+#: The training targets: every random start converged, mean DTW per point [m],
 #: ψ-compatible fraction, and the wall time per task [s].
 TRAINING_TARGETS = {"converged_fraction": 1.0, "dtw_m": 0.02, "compatible_fraction": 0.99,
                     "wall_s": 180.0}
-#: Issue 16's Table-1 target [s of wall time on the 2-core machine].
+#: The Table-1 target [s of wall time on the 2-core machine].
 TABLE1_TARGET_S = 300.0
 
 
@@ -51,7 +51,7 @@ def timed_command(argv: list[str], timeout: float | None = None) -> dict:
 
 
 def training_figures(report: dict) -> dict:
-    """Issue 16's training figures from a training ``report.json`` (missing ones: None)."""
+    """The training figures from a training ``report.json`` (missing ones: None)."""
     ev = report.get("evaluation") or {}
     conv, imit, comp = (ev.get(k) or {} for k in ("convergence", "imitation", "compatibility"))
     return {"iterations": report.get("iterations_run") or report.get("iterations"),
@@ -126,7 +126,7 @@ def _cm(x) -> str:
 
 
 def training_lines(rows: list[dict], measured_by: str | None = None) -> list[str]:
-    """Markdown: the training table and issue 16's verdict (``measured_by``: the bench command
+    """Markdown: the training table and its verdict (``measured_by``: the bench command
     and date that measured it, when another run than the rest of the report's)."""
     if not rows:
         return []
@@ -162,7 +162,7 @@ def _per_iteration(row: dict) -> str:
 
 
 def training_target_line(rows: list[dict]) -> str:
-    """One line of issue 16's targets for training."""
+    """One line of the training targets."""
     if not rows:
         return ""
     bad = [(r, training_verdict(r)) for r in rows if training_verdict(r)]
@@ -180,7 +180,7 @@ def training_target_line(rows: list[dict]) -> str:
     return (f"- PUMA training ≤ 3 min per task on one core with every accuracy and stability "
             f"target ({runs}): **not met**: {why} (all: {walls}). The time is the iterations "
             f"the early stop needs × the CPU time of one (ms, validations and evaluation "
-            f"included): {cost}; what an iteration spends is in \"Issue 16: training speed\" "
+            f"included): {cost}; what an iteration spends is in the \"training speed\" section "
             f"below (backward pass, rollouts' forward pass, per-operation overhead of small "
             f"tensors).")
 
@@ -261,7 +261,7 @@ def time_table1(cores: int, timeout: float = 7200.0) -> dict:
 
 def table1_lines(item: dict | None) -> list[str]:
     """Markdown: ``["", verdict line with the profile in words, "", caption, "", table...]``
-    (the verdict joins issue 16's target list, the rest follows the training table)."""
+    (the verdict joins the target list, the rest follows the training table)."""
     if not item:
         return []
     wall, cores = item["wall_s"], item.get("cores") or 1

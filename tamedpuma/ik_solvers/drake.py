@@ -15,7 +15,7 @@ leave a pair below d_min. The objective is scaled by ``1/s²`` (s = ``options.sc
 in the SLSQP backend; the minimiser is the same. Unscaled, a step of a fraction of a millimetre
 (Modulation-IK's slow final approach, 9 mm/s × 0.02 s) improves the objective by ~10⁻⁸, below
 SNOPT's optimality tolerance: SNOPT returned the start and the arm stood 5.6 cm from the goal
-for 30 s (Table-1 pouring 0; session 23). SNOPT reports no iteration count through Drake:
+for 30 s (Table-1 pouring 0). SNOPT reports no iteration count through Drake:
 ``iterations`` is the number of objective evaluations (counted by a visualization callback).
 """
 

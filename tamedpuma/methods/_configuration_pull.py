@@ -2,7 +2,7 @@
 attractor to a goal configuration takes the forcing over (``method.forcing.stall_configuration``;
 FPM and CPM only, off by default).
 
-Why. In the logs of the random scenarios (BENCHMARKS.md "Session 26") every FPM failure on
+Why. In the logs of the random scenarios (BENCHMARKS.md) every FPM failure on
 seeds 31000-31049 ends with one to four joints on their limit barriers and the hand 0.2-0.5 m
 from the goal, turned 1.1-2.5 rad off the goal orientation. Random pouring ``anywhere`` 31007:
 the goal lies at an azimuth of −97°, the base starts at q₁ = 1.08 rad; PUMA's field, a
@@ -52,7 +52,7 @@ segment's middle (:func:`goal_route`); the attractor pulls to w and turns to q_g
 :data:`VIA_RADIUS` of it (one switch: one more piece of CPM's piecewise energy argument below).
 
 Near the goal. The first form engaged only farther than ``release`` from the goal. In the logged
-200-per-task suite (seeds 2000-2099, BENCHMARKS.md "Session 29") 11 of FPM's and CPM's 29
+200-per-task suite (seeds 2000-2099, BENCHMARKS.md) 11 of FPM's and CPM's 29
 failures with obstacles end 6-15 cm from the goal with a joint on its limit; the stall pull
 armed there, within ``release``, and nothing else acted (random tomato ``anywhere`` 2097, FPM:
 joint 3 at 2.95 rad, the hand 9-10 cm short and creeping, the stall pull armed at 19.7 s, 7.1 cm
@@ -65,17 +65,32 @@ arming, the hand 6.3 cm out and closing, then a 1.4 m reconfiguration that ran o
 way out is often a whole reconfiguration (2097: the elbow turned over, q₄ 1.7 → −1.65 rad, the
 hand 0.53 m out and back in 7 s, at the goal at 26.5 s): the joint-limit box is left only that
 way, and the attractor's rest point is still the goal pose. Near the goal a joint at a limit is
-asked for in both modes: ``always`` (CPM's default, session 30) engages without one only
+asked for in both modes: ``always`` (CPM's default) engages without one only
 farther than ``release``; within it the stall pull alone finishes the approach as before (the
 shipped tomato model overshoots to 0.15 m and comes back in, its stall pull arming at 0.115 m
 in an obstacle-free run, where a reconfiguration has nothing to free).
 
 Far from the goal without a limit (``always``). CPM's regulator brakes every climb of ψ, and
 where the way round climbs ψ with no obstacle within the tank's clearance and no joint near a
-limit, CPM crawls at about √ε (random pouring ``anywhere`` 81004, BENCHMARKS.md "Session 30": ψ
+limit, CPM crawls at about √ε (random pouring ``anywhere`` 81004, BENCHMARKS.md: ψ
 4.5 -> 8.3 along the hand's way over 40 s; FPM reaches it in 7.9 s); the stall pull arms, but
 ``limits`` never engages there. ``always`` hands such an arming to the attractor, and CPM's
 regulator watches the attractor's own φ (:meth:`ConfigurationMonitor.potential`).
+
+When it is computed. Nothing slow runs inside a control step. The goal pose's IK solutions
+(25 starts, up to 200 damped least-squares iterations each, 0.1-0.7 s in all) do not depend on
+the obstacles or on q: they are solved in the controller's reset, before the first step, from
+the start q₀ and the seeded random starts (:meth:`ConfigurationMonitor.prepare`, kept per
+process for the scenario's other runs). At an engagement, only the route is searched among them
+(each solution's clearance from the obstacles where they are now, the nearest first, the
+segment checks and the waypoints), a generator run at most ``budget`` kinematic passes
+(:data:`SEARCH_BUDGET`, one forward pass of the arm each) per control step, so a step's extra
+cost is bounded by construction; the pull engages at the step the search ends, from the q and
+obstacles of the step it began. A goal that moves more than 2 cm is solved again the same way,
+the last q_g pulling until the new one is ready. What this changes against solving everything
+inside the engaging step: the IK's first start is q₀ instead of the q at the engagement, and a
+search longer than one step's budget engages that many steps later (where the simulator waited
+for the whole search before, as no robot would).
 
 Position fallback. A goal pose can be in collision whatever the arm does: the body spheres
 rigid with the hand sit where the pose puts them, for every IK solution (random pouring
@@ -108,7 +123,7 @@ one potential, and from the last switch on, ψ's: the statement needs finitely m
 Gains: g and ℓ set the attractor's cruise speed far from q_g, g/k = √(gℓ)/2 [rad/s]; with the
 first values (g = 1.5, ℓ = 0.3: 0.34 rad/s) the 4-8 rad of joint travel some ways out need took
 12-24 s of the 40 s run, and runs engaged after 20 s ran out of time on the way (random tomato
-``anywhere`` 41015, 41025 with CPM; BENCHMARKS.md "Session 27").
+``anywhere`` 41015, 41025 with CPM; BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -118,8 +133,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from tamedpuma.methods._policy import TaskAcceleration
-from tamedpuma.robot.ground import LinkHulls, hull_heights
-from tamedpuma.robot.ik import pose_dls
+from tamedpuma.robot.ground import LinkHulls, hull_heights, hull_heights_and_spheres
+from tamedpuma.robot.ik import pose_dls_steps, run_to_end
 from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.robot.rotations import quat_to_matrix
 
@@ -141,6 +156,12 @@ VIA_RADIUS = 0.3
 #: [s] near the goal the pull engages only at the control step the stall pull arms in (its
 #: t_armed is that step's t; this absorbs nothing but rounding)
 ARMING_TOLERANCE_S = 1e-9
+#: kinematic passes (one forward pass of the arm each, 0.05-0.3 ms) the goal-configuration
+#: search may spend in one control step
+SEARCH_BUDGET = 16
+#: goal poses whose IK solutions a process keeps (:meth:`ConfigurationMonitor.prepare`)
+PREPARED_KEPT = 64
+_PREPARED: dict = {}
 
 
 @dataclass(frozen=True)
@@ -154,7 +175,8 @@ class ConfigurationPull:
     q), position_fallback (where no IK solution of the goal pose is clear, q_g solves the goal
     position alone), waypoints (per goal configuration, for a two-segment route where no
     straight one is clear; 0: straight only), window [s] and progress [rad] (let go when
-    ‖q − q_g‖ has not fallen by ``progress`` for ``window``)."""
+    ‖q − q_g‖ has not fallen by ``progress`` for ``window``), budget (the kinematic passes
+    its search may spend per control step; 0: no bound, the whole search in one step)."""
 
     mode: str = "off"
     gain: float = 4.0
@@ -169,6 +191,7 @@ class ConfigurationPull:
     waypoints: int = 0
     window: float = 2.0
     progress: float = 0.05
+    budget: int = SEARCH_BUDGET
 
 
 @dataclass(frozen=True)
@@ -186,22 +209,33 @@ class Ground:
             return hull_heights(kin, self.hulls, q) - self.height
         return kin.sphere_centers(q)[:, 2] - np.asarray(kin.sphere_radii) - self.height
 
+    def margins_and_spheres(self, kin: Kinematics, q: np.ndarray):
+        """:meth:`margins` and the body-sphere centres (k, 3) [m] at q, one placement pass."""
+        if self.hulls is not None:
+            heights, spheres = hull_heights_and_spheres(kin, self.hulls, q)
+            return heights - self.height, spheres
+        spheres = kin.sphere_centers(q)
+        return spheres[:, 2] - np.asarray(kin.sphere_radii) - self.height, spheres
+
 
 def _pose_above_ground(kin: Kinematics, position: np.ndarray, rotation: np.ndarray,
                        start: np.ndarray, lo: np.ndarray, hi: np.ndarray, ground: Ground,
-                       max_raise: float, rotation_weight: float = 1.0) -> np.ndarray | None:
+                       max_raise: float, rotation_weight: float = 1.0):
     """An IK solution of the pose (position [m], rotation) from ``start`` inside [lo, hi] whose
     ground margins are ≥ 0; where the solution dips below the plane by δ, the target is raised
     by δ + :data:`RAISE_SLACK_M` and solved again from it (at most :data:`RAISE_ATTEMPTS`
     times, by at most ``max_raise`` [m] in all); None when that fails. ``rotation_weight``: the
-    orientation rows' weight in the IK (0: the position alone)."""
+    orientation rows' weight in the IK (0: the position alone). A generator yielding before
+    each kinematic pass (:func:`~tamedpuma.robot.ik.pose_dls_steps`), returning the solution."""
     target = np.array(position, dtype=float)
     for _ in range(RAISE_ATTEMPTS + 1):
-        q, err, _ = pose_dls(kin, target, rotation, start, lo, hi, damping=0.05,
-                             tolerance=1e-4, max_iterations=200, patience=20,
-                             rotation_weight=rotation_weight)
+        q, err, _ = yield from pose_dls_steps(kin, target, rotation, start, lo, hi,
+                                              damping=0.05, tolerance=1e-4,
+                                              max_iterations=200, patience=20,
+                                              rotation_weight=rotation_weight)
         if np.linalg.norm(err) > 1e-3:
             return None
+        yield
         deficit = -float(np.min(ground.margins(kin, q)))
         if deficit <= 0.0:
             return q
@@ -210,6 +244,74 @@ def _pose_above_ground(kin: Kinematics, position: np.ndarray, rotation: np.ndarr
             return None
         start = q
     return None
+
+
+@dataclass(frozen=True)
+class PoseSolutions:
+    """The IK solutions of one goal pose (position [m], quaternion (x, y, z, w)) inside the
+    limits by the pull's margin and above the ground, in the order of their starts, before any
+    obstacle is looked at: ``pose`` (the full pose) and ``position`` (the position alone, the
+    orientation free; empty without ``position_fallback``)."""
+
+    position_m: np.ndarray
+    quaternion: np.ndarray
+    pose: tuple[np.ndarray, ...]
+    position: tuple[np.ndarray, ...]
+
+    def serves(self, position: np.ndarray, quaternion: np.ndarray) -> bool:
+        """Whether these are the solutions for that goal: within :data:`REPLAN_DISTANCE_M`, the
+        same orientation."""
+        return (float(np.linalg.norm(np.asarray(position) - self.position_m))
+                <= REPLAN_DISTANCE_M and np.array_equal(np.asarray(quaternion, dtype=float),
+                                                        self.quaternion))
+
+
+def _limits(kin: Kinematics, pull: ConfigurationPull) -> tuple[np.ndarray, np.ndarray]:
+    spec = kin.spec
+    return (np.asarray(spec.q_min, dtype=float) + pull.margin,
+            np.asarray(spec.q_max, dtype=float) - pull.margin)
+
+
+def pose_solutions(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
+                   q: np.ndarray, pull: ConfigurationPull, seed: int = 0,
+                   ground: Ground | None = None):
+    """The :class:`PoseSolutions` of the goal pose from q and from ``pull.restarts`` seeded
+    random starts (the raised pose where it reaches below the ground, see
+    :func:`goal_candidates`). A generator yielding before each kinematic pass (run it with
+    :func:`~tamedpuma.robot.ik.run_to_end`, or a step budget at a time)."""
+    ground = ground or Ground(pull.clearance)
+    lo, hi = _limits(kin, pull)
+    goal_rot = quat_to_matrix(np.asarray(quaternion, dtype=float))
+    position = np.asarray(position, dtype=float)
+    rng = np.random.default_rng(seed)
+    starts = [np.clip(np.asarray(q, dtype=float), lo, hi)]
+    starts += [rng.uniform(lo, hi) for _ in range(pull.restarts)]
+    found: dict[float, list[np.ndarray]] = {}
+    for rotation_weight in (1.0, 0.0) if pull.position_fallback else (1.0,):
+        found[rotation_weight] = []
+        for start in starts:
+            qg = yield from _pose_above_ground(kin, position, goal_rot, start, lo, hi, ground,
+                                               pull.release, rotation_weight)
+            if qg is not None:
+                found[rotation_weight].append(qg)
+    return PoseSolutions(position.copy(), np.asarray(quaternion, dtype=float).copy(),
+                         tuple(found[1.0]), tuple(found.get(0.0, ())))
+
+
+def _clear_of_obstacles(kin: Kinematics, solutions: PoseSolutions, q: np.ndarray,
+                        centers: np.ndarray, radii: np.ndarray, pull: ConfigurationPull):
+    """The solutions ``pull.clearance`` clear of the obstacles, nearest to q first: the full
+    pose's, or where none is clear, the position's (``position_fallback``). A generator
+    yielding before each kinematic pass."""
+    found = []
+    for group in (solutions.pose, solutions.position):
+        for qg in group:
+            yield
+            if _obstacle_gap(kin, qg, centers, radii) >= pull.clearance:
+                found.append(qg)
+        if found:
+            break
+    return sorted(found, key=lambda qg: float(np.linalg.norm(qg - q)))
 
 
 def goal_candidates(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
@@ -226,27 +328,11 @@ def goal_candidates(kin: Kinematics, position: np.ndarray, quaternion: np.ndarra
     until it is above, by at most ``pull.release`` (the pull hands back to PUMA there anyway).
     Where no solution of the pose is clear and ``pull.position_fallback``: the solutions of the
     goal position alone (the orientation free; see the module). Deterministic for a seed."""
-    spec = kin.spec
-    ground = ground or Ground(pull.clearance)
-    lo = np.asarray(spec.q_min, dtype=float) + pull.margin
-    hi = np.asarray(spec.q_max, dtype=float) - pull.margin
-    goal_rot = quat_to_matrix(np.asarray(quaternion, dtype=float))
-    position = np.asarray(position, dtype=float)
-    rng = np.random.default_rng(seed)
-    starts = [np.clip(np.asarray(q, dtype=float), lo, hi)]
-    starts += [rng.uniform(lo, hi) for _ in range(pull.restarts)]
+    solutions = run_to_end(pose_solutions(kin, position, quaternion, q, pull, seed, ground))
     centers = np.asarray(obstacle_centers, dtype=float).reshape(-1, 3)
     radii = np.asarray(obstacle_radii, dtype=float).reshape(-1)
-    found = []
-    for rotation_weight in (1.0, 0.0) if pull.position_fallback else (1.0,):
-        for start in starts:
-            qg = _pose_above_ground(kin, position, goal_rot, start, lo, hi, ground, pull.release,
-                                    rotation_weight)
-            if qg is not None and _obstacle_gap(kin, qg, centers, radii) >= pull.clearance:
-                found.append(qg)
-        if found:
-            break
-    return sorted(found, key=lambda qg: float(np.linalg.norm(qg - q)))
+    return run_to_end(_clear_of_obstacles(kin, solutions, np.asarray(q, dtype=float), centers,
+                                          radii, pull))
 
 
 def goal_configuration(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
@@ -271,20 +357,30 @@ def goal_route(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray, q:
     ``w = q + s (q_g − q) + ‖q_g − q‖ u/√n``, s ~ U(0.25, 0.75), u ~ N(0, I), inside the
     limits by ``pull.margin`` and ``pull.clearance`` clear. None when neither exists.
     Deterministic for a seed."""
+    solutions = run_to_end(pose_solutions(kin, position, quaternion, q, pull, seed, ground))
+    return run_to_end(route_steps(kin, solutions, q, obstacle_centers, obstacle_radii, pull,
+                                  seed, ground))
+
+
+def route_steps(kin: Kinematics, solutions: PoseSolutions, q: np.ndarray,
+                obstacle_centers: np.ndarray, obstacle_radii: np.ndarray,
+                pull: ConfigurationPull, seed: int = 0, ground: Ground | None = None):
+    """:func:`goal_route` from the goal pose's ``solutions`` (:func:`pose_solutions`), with
+    the obstacles where they are now: a generator yielding before each kinematic pass,
+    returning the route (or None)."""
     ground = ground or Ground(pull.clearance)
     centers = np.asarray(obstacle_centers, dtype=float).reshape(-1, 3)
     radii = np.asarray(obstacle_radii, dtype=float).reshape(-1)
     q = np.asarray(q, dtype=float)
-    goals = goal_candidates(kin, position, quaternion, q, centers, radii, pull, seed, ground)
+    goals = yield from _clear_of_obstacles(kin, solutions, q, centers, radii, pull)
+    yield
     floor = min(0.0, float(np.min(ground.margins(kin, q)))) - GROUND_SLACK_M
     for qg in goals:
-        if _segment_clear(kin, q, qg, centers, radii, ground, floor):
+        if (yield from _segment_clear(kin, q, qg, centers, radii, ground, floor)):
             return (qg,)
     if pull.waypoints <= 0:
         return None
-    spec = kin.spec
-    lo = np.asarray(spec.q_min, dtype=float) + pull.margin
-    hi = np.asarray(spec.q_max, dtype=float) - pull.margin
+    lo, hi = _limits(kin, pull)
     rng = np.random.default_rng(seed + 1)
     best, best_length = None, np.inf
     for qg in goals[:ROUTE_GOALS]:
@@ -293,10 +389,14 @@ def goal_route(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray, q:
             w = np.clip(q + rng.uniform(0.25, 0.75) * (qg - q)
                         + span * rng.standard_normal(len(q)) / np.sqrt(len(q)), lo, hi)
             length = float(np.linalg.norm(w - q) + np.linalg.norm(qg - w))
-            if (length < best_length and np.min(ground.margins(kin, w)) >= 0.0
-                    and _obstacle_gap(kin, w, centers, radii) >= pull.clearance
-                    and _segment_clear(kin, q, w, centers, radii, ground, floor)
-                    and _segment_clear(kin, w, qg, centers, radii, ground, floor)):
+            if length >= best_length:
+                continue
+            yield
+            margins, spheres = ground.margins_and_spheres(kin, w)
+            if (np.min(margins) >= 0.0 and _gap(kin, spheres, centers, radii) >= pull.clearance
+                    and (yield from _segment_clear(kin, q, w, centers, radii, ground, floor))
+                    and (yield from _segment_clear(kin, w, qg, centers, radii, ground,
+                                                   floor))):
                 best, best_length = (w, qg), length
     return best
 
@@ -307,30 +407,38 @@ def _obstacle_gap(kin: Kinematics, q: np.ndarray, centers: np.ndarray,
     radii (m,) [m]; inf: none)."""
     if not len(radii):
         return np.inf
-    spheres = kin.sphere_centers(q)
+    return _gap(kin, kin.sphere_centers(q), centers, radii)
+
+
+def _gap(kin: Kinematics, spheres: np.ndarray, centers: np.ndarray,
+         radii: np.ndarray) -> float:
+    """:func:`_obstacle_gap` from the body-sphere centres (k, 3) [m]."""
+    if not len(radii):
+        return np.inf
     return float(np.min(np.linalg.norm(spheres[:, None, :] - centers[None], axis=2)
                         - kin.sphere_radii[:, None] - radii[None]))
 
 
 def _segment_clear(kin: Kinematics, q: np.ndarray, qg: np.ndarray, centers: np.ndarray,
-                   radii: np.ndarray, ground: Ground, floor: float,
-                   step: float = 0.05) -> bool:
+                   radii: np.ndarray, ground: Ground, floor: float, step: float = 0.05):
     """Whether the straight joint-space segment q → q_g keeps every body sphere out of every
     (current) obstacle and the ground margins above ``floor`` [m] (0, or q's own where the
     barrier step lets it sit a little below): sampled every ``step`` [rad] of the largest
-    joint's travel."""
+    joint's travel. A generator yielding before each sample, returning the answer."""
     n = int(np.ceil(np.abs(qg - q).max() / step)) + 1
     for s in np.linspace(0.0, 1.0, n + 1)[1:]:
-        qs = q + s * (qg - q)
-        if np.min(ground.margins(kin, qs)) < floor or _obstacle_gap(kin, qs, centers,
-                                                                      radii) < 0.0:
+        yield
+        margins, spheres = ground.margins_and_spheres(kin, q + s * (qg - q))
+        if np.min(margins) < floor or _gap(kin, spheres, centers, radii) < 0.0:
             return False
     return True
 
 
 class ConfigurationMonitor:
-    """The per-episode state of one :class:`ConfigurationPull`: q_g, the goal it was chosen
-    for, and which arming of the stall pull it serves."""
+    """The per-episode state of one :class:`ConfigurationPull`: the goal pose's IK solutions
+    (solved before the first step, :meth:`prepare`), q_g, the goal it was chosen for, which
+    arming of the stall pull it serves, and the search under way (at most ``pull.budget``
+    kinematic passes per control step, see the module)."""
 
     def __init__(self, pull: ConfigurationPull, spec, ground: Ground | None = None):
         self.pull, self.ground = pull, ground  # ground: the controller's (None: spheres)
@@ -345,6 +453,29 @@ class ConfigurationMonitor:
         self.release_at = pull.release  # [m] this engagement lets go within it
         self.best = np.inf  # the least ‖q − q_g‖ while engaged [rad], and when it was reached
         self.t_best = -np.inf
+        self.solutions: PoseSolutions | None = None  # the goal pose's IK solutions
+        self.search = None  # the search under way: a generator of route_steps' kind
+        self.search_goal = np.full(3, np.nan)  # the goal it searches for
+        self.passes = 0  # kinematic passes of the searches so far (all steps)
+
+    def prepare(self, position: np.ndarray, quaternion: np.ndarray, q0: np.ndarray) -> None:
+        """Solve the goal pose (position [m], quaternion (x, y, z, w)) from q0 and the seeded
+        random starts, before the first control step (the scenario's goal is known then): an
+        engagement then searches only the route among these solutions. The solutions do not
+        depend on the obstacles: the runs of one scenario (every method, with and without its
+        obstacles) in one process share them (:data:`_PREPARED`, the same numbers)."""
+        ground = self.ground or Ground(self.pull.clearance)
+        key = (repr(self.kin.spec), np.asarray(position, dtype=float).tobytes(),
+               np.asarray(quaternion, dtype=float).tobytes(),
+               np.asarray(q0, dtype=float).tobytes(), self.pull.margin, self.pull.release,
+               self.pull.restarts, self.pull.position_fallback, ground.height,
+               None if ground.hulls is None else ground.hulls.links)
+        if key not in _PREPARED:
+            if len(_PREPARED) >= PREPARED_KEPT:
+                _PREPARED.pop(next(iter(_PREPARED)))
+            _PREPARED[key] = run_to_end(pose_solutions(self.kin, position, quaternion, q0,
+                                                       self.pull, ground=self.ground))
+        self.solutions = _PREPARED[key]
 
     def at_limit(self, q: np.ndarray) -> bool:
         """A joint within ``limit_band`` [rad] of a limit."""
@@ -359,21 +490,22 @@ class ConfigurationMonitor:
         p = self.pull
         if self.engaged and (distance <= self.release_at or not stall.armed
                              or self._stuck(q, obs.t)):
-            self.engaged = False
-        if not self.engaged and self._engages(q, distance, stall.t_armed, obs.t):
+            self.engaged, self.search = False, None
+        if not self.engaged and self.search is not None and (
+                distance <= self.release_at or not stall.armed):
+            self.search = None  # the engagement searched for is over before it began
+        if not self.engaged and self.search is None and self._engages(q, distance,
+                                                                      stall.t_armed, obs.t):
             self.served = stall.t_armed
             self.release_at = p.release if distance > p.release else p.near_release
-            self._choose(q, obs)
-            self.engaged = self.q_goal is not None
-            self.best, self.t_best = np.inf, obs.t
+            self._start(q, obs)
+        if self.engaged and self.search is None and np.linalg.norm(
+                np.asarray(obs.goal_position) - self.goal_for) > REPLAN_DISTANCE_M:
+            self._start(q, obs)  # the goal moved: the last q_g serves until the new one
+        if self.search is not None:
+            self._advance(obs.t)
         if not self.engaged:
             return task
-        if np.linalg.norm(np.asarray(obs.goal_position) - self.goal_for) > REPLAN_DISTANCE_M:
-            self._choose(q, obs)
-            self.best, self.t_best = np.inf, obs.t
-            if self.q_goal is None:
-                self.engaged = False
-                return task
         if self.route and np.linalg.norm(self.q_goal - q) < VIA_RADIUS:
             self.q_goal, self.route = self.route[0], self.route[1:]
             self.best, self.t_best = np.inf, obs.t
@@ -382,6 +514,46 @@ class ConfigurationMonitor:
         acc = p.gain * e / max(float(np.linalg.norm(e)), p.length) \
             - 2.0 * np.sqrt(p.gain / p.length) * qd
         return TaskAcceleration(acc, np.eye(n), np.zeros(n))
+
+    def _start(self, q: np.ndarray, obs) -> None:
+        """Begin the search for a route from q to the goal of ``obs`` (its obstacles where they
+        are now); the goal pose is solved again first where :meth:`prepare` solved another."""
+        self.search_goal = np.array(obs.goal_position, dtype=float)
+        self.search = self._search(np.array(q, dtype=float), self.search_goal,
+                                   np.array(obs.goal_quaternion, dtype=float),
+                                   np.array(obs.obstacle_centers, dtype=float),
+                                   np.array(obs.obstacle_radii, dtype=float))
+
+    def _search(self, q, position, quaternion, centers, radii):
+        if self.solutions is None or not self.solutions.serves(position, quaternion):
+            self.solutions = yield from pose_solutions(self.kin, position, quaternion, q,
+                                                       self.pull, ground=self.ground)
+        return (yield from route_steps(self.kin, self.solutions, q, centers, radii, self.pull,
+                                       ground=self.ground))
+
+    def _advance(self, t: float) -> bool:
+        """Run the search for at most ``pull.budget`` kinematic passes (0: to its end); once
+        it ends, take its route (engage, or re-target) or, with none, let go. Whether it
+        ended."""
+        budget = self.pull.budget
+        for _ in range(budget if budget > 0 else 2**62):
+            try:
+                next(self.search)
+                self.passes += 1
+            except StopIteration as done:
+                route = done.value
+                break
+        else:
+            return False
+        self.search = None
+        self.goal_for = self.search_goal
+        self.engaged = route is not None
+        if route is not None:
+            self.q_goal, self.route = route[0], route[1:]
+        else:
+            self.q_goal, self.route = None, ()
+        self.best, self.t_best = np.inf, t
+        return True
 
     def _engages(self, q: np.ndarray, distance: float, armed_at: float | None,
                  t: float) -> bool:
@@ -419,10 +591,3 @@ class ConfigurationMonitor:
         if d < self.best - self.pull.progress:
             self.best, self.t_best = d, t
         return t - self.t_best >= self.pull.window
-
-    def _choose(self, q: np.ndarray, obs) -> None:
-        self.goal_for = np.array(obs.goal_position, dtype=float)
-        route = goal_route(self.kin, obs.goal_position, obs.goal_quaternion, q,
-                           obs.obstacle_centers, obs.obstacle_radii, self.pull,
-                           ground=self.ground)
-        self.q_goal, self.route = (None, ()) if route is None else (route[0], route[1:])

@@ -171,6 +171,9 @@ class TamedController:
         self.stall = self.forcing.make_stall_monitor()
         self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec,
                                                                      self.ground())
+        if self.configuration is not None:  # the goal's IK before the first step
+            self.configuration.prepare(scenario.goal.position, scenario.goal.quaternion,
+                                       scenario.q0)
         self.dt = float(scenario.dt)
 
     def ground(self) -> Ground | None:

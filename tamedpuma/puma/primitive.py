@@ -16,6 +16,7 @@ happens at all on this path.
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -157,11 +158,28 @@ def wrap(net: PumaNet, meta: Meta) -> PosePrimitive | VectorPrimitive:
     return VectorPrimitive(net, meta)
 
 
+#: checkpoints a process keeps loaded (a sweep worker's runs share them), by path and sha256
+LOADED_KEPT = 8
+_LOADED: dict = {}
+
+
 def load_primitive(path: str | Path, threads: int | None = 1) -> PosePrimitive | VectorPrimitive:
-    """Load a checkpoint strictly (see ``checkpoint.load``) and wrap it for inference.
+    """Load a checkpoint strictly (see ``checkpoint.load``) and wrap it for inference: a fresh
+    wrapper (its own buffers and caches) around the network, which is loaded once per process
+    and file content (the key is the resolved path and the file's sha256: a file rewritten in
+    place is loaded again).
 
     ``threads``: torch intra-op threads for inference (1 is fastest for one state); None keeps it.
     """
     if threads is not None:
         torch.set_num_threads(threads)
-    return wrap(*checkpoint.load(path))
+    path = Path(path)
+    try:
+        key = (str(path.resolve()), hashlib.sha256(path.read_bytes()).hexdigest())
+    except OSError:  # missing or unreadable: checkpoint.load says so in its words
+        return wrap(*checkpoint.load(path))
+    if key not in _LOADED:
+        if len(_LOADED) >= LOADED_KEPT:
+            _LOADED.pop(next(iter(_LOADED)))
+        _LOADED[key] = checkpoint.load(path)
+    return wrap(*_LOADED[key])

@@ -27,6 +27,7 @@ changes, which the barrier step, a projection of one period's velocity, does not
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,10 +78,35 @@ def point_speed_bound(kinematics, frame_ids, vertices) -> float:
     return float(sum(qd_max[i] * (sum(lengths[i + 1:]) + tip) for i in range(len(qd_max))))
 
 
+#: link hulls a process keeps (every controller of a sweep worker's runs builds them), by the
+#: URDF file (path, size, modification time) and the model's frames
+_HULLS: dict = {}
+
+
 def link_hulls(kinematics) -> LinkHulls:
     """The convex-hull vertices of every URDF link with collision geometry that moves with a
     joint (the fixed base never comes nearer the ground; a gripper's fingers, locked in the
-    model, move with the last joint and are included)."""
+    model, move with the last joint and are included). Built once per process and model (the
+    vertices read-only)."""
+    path = kinematics.spec.urdf_path
+    try:
+        stat = os.stat(path)
+        key = (os.path.realpath(path), stat.st_size, stat.st_mtime_ns,
+               tuple((f.name, f.parentJoint) for f in kinematics.model.frames),
+               tuple(kinematics.spec.qd_max))
+    except OSError:
+        key = None
+    if key is not None and key in _HULLS:
+        return _HULLS[key]
+    hulls = _build_link_hulls(kinematics)
+    for v in hulls.vertices:
+        v.setflags(write=False)
+    if key is not None:
+        _HULLS[key] = hulls
+    return hulls
+
+
+def _build_link_hulls(kinematics) -> LinkHulls:
     from scipy.spatial import ConvexHull
 
     geometry = urdf_collision_geometry(kinematics.spec.urdf_path)
@@ -150,10 +176,18 @@ def hull_heights(kinematics, hulls: LinkHulls, q: np.ndarray) -> np.ndarray:
     """The lowest point [m] of each hull at q (a placement pass of its own on ``kinematics``,
     whose model the hulls' frame ids index): the heights :func:`hull_ground_rows` reads, at
     any configuration (a goal configuration's check, not the control step)."""
+    return hull_heights_and_spheres(kinematics, hulls, q)[0]
+
+
+def hull_heights_and_spheres(kinematics, hulls: LinkHulls, q: np.ndarray):
+    """:func:`hull_heights` and the body-sphere centres (k, 3) [m] at q from the one placement
+    pass (the same numbers as ``kinematics.sphere_centers(q)``)."""
     pin.framesForwardKinematics(kinematics.model, kinematics.data, np.asarray(q, dtype=float))
     oMf = kinematics.data.oMf
-    return np.array([oMf[f].translation[2] + float(np.min(v @ oMf[f].rotation[2]))
-                     for f, v in zip(hulls.frame_ids, hulls.vertices)])
+    heights = np.array([oMf[f].translation[2] + float(np.min(v @ oMf[f].rotation[2]))
+                        for f, v in zip(hulls.frame_ids, hulls.vertices)])
+    spheres = np.array([oMf[i].translation for i in kinematics.sphere_ids]).reshape(-1, 3)
+    return heights, spheres
 
 
 def hull_heights_from_poses(hulls: LinkHulls, link_names, positions: np.ndarray,

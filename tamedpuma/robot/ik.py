@@ -33,12 +33,31 @@ def pose_dls(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tolerance,
     many iterations have not reduced ‖e‖ by 1 % (stuck on the limits): (q, e, iterations); e is
     the error at the last q evaluated. ``rotation_weight`` scales the orientation rows of e and J
     (0: the position alone, the orientation free; e's orientation part is then 0)."""
+    return run_to_end(pose_dls_steps(kin, position, goal_rot, q, lo, hi, damping, tolerance,
+                                     max_iterations, patience, rotation_weight))
+
+
+def run_to_end(steps):
+    """The return value of a generator run to its end (its yields discarded)."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+
+
+def pose_dls_steps(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tolerance,
+                   max_iterations, patience: int = 0, rotation_weight: float = 1.0):
+    """:func:`pose_dls` one iteration at a time: a generator that yields before each kinematic
+    pass and returns (q, e, iterations), so that a caller can spread the solve over control
+    steps (an anytime computation with a bounded cost per step)."""
     zeros = np.zeros(kin.spec.dof)
     rows = np.array([1.0, 1.0, 1.0] + [rotation_weight] * 3)
     err = np.full(6, np.inf)
     best, since = np.inf, 0
     it = 0
     for it in range(1, max_iterations + 1):  # noqa: B007 (count returned)
+        yield  # before the pass: its state is used before the next yield
         state = kin.evaluate(q, zeros)
         err = rows * np.concatenate([position - state.ee_position,
                                      rotation_error(state.ee_rotation, goal_rot)])

@@ -1,0 +1,52 @@
+"""The in-episode step benchmark's statistics and scenario lists
+(:mod:`tamedpuma.app.bench_steps`); one short episode checks that its figures are the summary's."""
+
+import numpy as np
+import pytest
+
+from tamedpuma.app import bench_steps
+
+
+def test_step_statistics_count_the_steps_over_the_period_and_the_bound():
+    ms = np.r_[np.full(997, 1.0), 12.0, 25.0, 400.0]
+    s = bench_steps.step_stats(ms)
+    assert s["steps"] == 1000 and s["median_ms"] == 1.0 and s["max_ms"] == 400.0
+    assert s["over_period"] == 2 and s["over_bound"] == 3
+    assert s["p99_ms"] == pytest.approx(1.0) and 25.0 < s["p99_9_ms"] < 400.0
+    assert bench_steps.step_stats([]) == {"steps": 0}
+
+
+def test_the_pooled_figures_hold_every_step_of_every_run():
+    runs = [{"method": "fpm", "ms": [1.0, 2.0, 30.0], "over_period": 1, "over_bound": 1,
+             "success": True, "summary_mismatch": 0.0},
+            {"method": "fpm", "ms": [1.0, 1.0], "over_period": 0, "over_bound": 0,
+             "success": False, "summary_mismatch": 1e-6}]
+    out = bench_steps.pooled(runs)["fpm"]
+    assert out["runs"] == 2 and out["steps"] == 5 and out["max_ms"] == 30.0
+    assert out["runs_over_period"] == 1 and out["successes"] == 1
+    assert out["summary_mismatch"] == 1e-6
+
+
+def test_a_mismatch_with_the_summary_is_reported():
+    stats = bench_steps.step_stats([1.0, 2.0, 3.0])
+    same = {"compute_ms_median": 2.0, "compute_ms_p99": stats["p99_ms"], "compute_ms_max": 3.0}
+    assert bench_steps.summary_mismatch(same, stats) == 0.0
+    assert bench_steps.summary_mismatch({**same, "compute_ms_max": 6.0}, stats) == 0.5
+    assert bench_steps.summary_mismatch({}, stats) == np.inf
+
+
+def test_the_cases_are_the_experiments_own():
+    table1 = bench_steps.table1_cases(2)
+    assert [c for c, _ in table1] == ["table1/tomato_00", "table1/tomato_01",
+                                      "table1/pouring_00", "table1/pouring_01"]
+    assert "+experiment=table1" in table1[0][1] and "without_obstacles=false" in table1[0][1]
+    rand = bench_steps.random_cases([2000])
+    assert len(rand) == 4 and "scenario.random_seed=2000" in rand[0][1]
+
+
+@pytest.mark.slow
+def test_an_episode_s_step_figures_are_its_summary_s():
+    row = bench_steps.run_case("fabrics", ["+experiment=table1", "case=tomato_00",
+                                           "without_obstacles=false"])
+    assert row["steps"] == len(row["ms"]) == row["cpu"]["steps"] > 10
+    assert row["summary_mismatch"] < 1e-3
