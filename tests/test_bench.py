@@ -121,7 +121,8 @@ def test_readme_summary_between_markers(tmp_path):
     assert not bench.update_readme(tmp_path / "missing.md", "x")
 
 
-def test_baseline_revision_is_timed_by_its_own_code(capsys):
+def test_baseline_revision_is_timed_by_its_own_code(capsys, monkeypatch):
+    monkeypatch.delenv("TAMEDPUMA_REFERENCE_PYTHON", raising=False)  # our code only: no reference
     code = bench.main(["--methods", "fabrics", "--counts", "2", "--calls", "10", "--budget",
                        "0.3", "--episodes", "0", "--parts", "--baseline", "HEAD", "--no-write"])
     assert code == 0
