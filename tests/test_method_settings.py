@@ -12,7 +12,7 @@ import pytest
 from tamedpuma.app import schema
 
 #: the current counts; docs/method.md lists each addition behind them
-BUDGET = {"FpmMethod": 43, "CpmMethod": 55}
+BUDGET = {"FpmMethod": 43, "CpmMethod": 54}
 
 
 def leaves(cls, prefix: str = "") -> list[str]:

@@ -448,7 +448,6 @@ class CpmMethod(FpmMethod):
     potential_scale: float = 0.3     # k_ψ > 0 on ψ in the regulator
     semi_implicit: bool = True       # take the q̇-proportional terms implicitly over Δt
     eps: float = 1.0e-6              # ε [(rad/s)²] of the regulator's denominator
-    regulator_scale: float = 1.0     # factor on the ψ term (the paper: 1)
     tank: float = 0.0                # energy tank capacity [rad²/s²] (0: off; methods/cpm.py
     #                                  EnergyTank): FPM's law where the tank pays for it
     tank_refill: float = 0.0         # σ ∈ [0, 1]: the share of surplus dissipation refilling it
@@ -470,7 +469,6 @@ class CpmMethod(FpmMethod):
         _nonneg("method.beta", self.beta)
         _positive("method.potential_scale", self.potential_scale)
         _positive("method.eps", self.eps)
-        _nonneg("method.regulator_scale", self.regulator_scale)
         _nonneg("method.tank", self.tank)
         _check(0.0 <= self.tank_refill <= 1.0, "method.tank_refill", "in [0, 1]",
                self.tank_refill)

@@ -323,9 +323,7 @@ def make(cfg: Mapping, kinematics) -> CpmController:
                              regulator_scale=0.05, potential_scale=1.0, damping="constant",
                              semi_implicit=bool(cfg["semi_implicit"]), rate=rate)
     return CpmController(puma, fabric, beta=float(cfg["beta"]), eps=float(cfg["eps"]),
-                         variant=str(cfg["variant"]),
-                         regulator_scale=float(cfg["regulator_scale"]),
-                         potential_scale=float(cfg["potential_scale"]),
+                         variant=str(cfg["variant"]), potential_scale=float(cfg["potential_scale"]),
                          damping=str(cfg["damping"]), semi_implicit=bool(cfg["semi_implicit"]),
                          alpha_min=alpha_floor(cfg), rate=rate, energy=str(cfg["energy"]),
                          forcing=Forcing.from_mapping(cfg["forcing"]),
