@@ -53,6 +53,7 @@ class SweepOutcomes(Callback):
         sweep._OUTCOMES.clear()
         self._path = Path(str(config.hydra.sweep.dir)) / sweep.OUTCOMES_FILE
         self._offset = self._path.stat().st_size if self._path.is_file() else 0
+        sweep._OUTCOMES_SOURCE[:] = [self._path, self._offset]
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         from tamedpuma.app import sweep

@@ -43,7 +43,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from tamedpuma.app.cli import fail, precheck_overrides
 from tamedpuma.app.config import CONF_DIR
-from tamedpuma.errors import ConfigError, TamedPumaError
+from tamedpuma.errors import ConfigError, DiskFullError, TamedPumaError
+from tamedpuma.paths import free_bytes, no_space, write_atomic
 
 log = logging.getLogger("tamedpuma.sweep")
 _VALIDATE_EVERY_JOB = Sweeper.validate_batch_is_legal  # Hydra's (see representative_jobs)
@@ -117,12 +118,10 @@ def _finite_json(value):
 
 
 def write_summary(run_dir: Path, summary: dict) -> Path:
-    """``run_dir/summary.json``: strict JSON (non-finite numbers as null), written atomically."""
-    path = run_dir / "summary.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(_finite_json(summary), indent=2, allow_nan=False) + "\n")
-    tmp.replace(path)
-    return path
+    """``run_dir/summary.json``: strict JSON (non-finite numbers as null), written atomically
+    (a full disk leaves no partial file and raises :class:`DiskFullError`)."""
+    text = json.dumps(_finite_json(summary), indent=2, allow_nan=False) + "\n"
+    return write_atomic(run_dir / "summary.json", text.encode())
 
 
 def run_one(cfg: DictConfig, run_dir: Path) -> dict:
@@ -147,8 +146,12 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                    velocity_limits=spec.qd_max,
                    model=built.model.metadata() if built.model else {})
     with Simulator(spec, built.sim_config, built.disturbance) as sim:
-        result = run_episode(scenario, built.controller, sim, recorders, info,
-                             stop_on_success=run.stop_on_success, settle_time=run.settle_time)
+        try:
+            result = run_episode(scenario, built.controller, sim, recorders, info,
+                                 stop_on_success=run.stop_on_success,
+                                 settle_time=run.settle_time)
+        except DiskFullError as exc:  # the bytes a whole log needs at the rate written so far
+            raise exc.for_steps(scenario.max_steps) from exc
     t_episode = time.perf_counter()
     summary = {"status": "complete", "run_dir": str(run_dir), "method": run.method.name,
                "method_label": run.method.label or run.method.name, "task": run.task.name,
@@ -218,13 +221,16 @@ def record_failure(cfg: DictConfig, run_dir: Path, exc: BaseException) -> dict:
                "task": OmegaConf.select(cfg, "task.name", default=None),
                "scenario": OmegaConf.select(cfg, "scenario.name", default=None),
                "seed": OmegaConf.select(cfg, "seed", default=None)}
+    summary["recorded"] = True
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "failure.txt").write_text(
-            "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)))
+        write_atomic(run_dir / "failure.txt", "".join(
+            traceback.format_exception(type(exc), exc, exc.__traceback__)).encode())
         write_summary(run_dir, summary)
-    except OSError as write_error:  # the failure itself could not be recorded: say so
-        print(f"error: cannot record the failure in {run_dir}: {write_error}", file=sys.stderr)
+    except (OSError, TamedPumaError) as write_error:  # the failure could not be recorded
+        summary["recorded"] = False
+        print(f"error: cannot record the failure in {run_dir}: "
+              f"{' '.join(str(write_error).split())}", file=sys.stderr)
     return summary
 
 
@@ -232,6 +238,9 @@ def record_failure(cfg: DictConfig, run_dir: Path, exc: BaseException) -> dict:
 #: by the main process at the end of the sweep from the sweep folder's OUTCOMES_FILE (the jobs may
 #: run in other processes: Hydra's joblib launcher)
 _OUTCOMES: list[tuple[str, str, str]] = []
+#: (outcomes file, offset) of the running multirun, set by the callback at its start: the
+#: outcomes of a sweep stopped before its end are read from there
+_OUTCOMES_SOURCE: list = []
 #: one JSON line per job ({"run_dir", "outcome", "why"}), appended by the job (O_APPEND: lines of
 #: concurrent jobs do not mix)
 OUTCOMES_FILE = "sweep_outcomes.jsonl"
@@ -294,10 +303,13 @@ def _report(summary: dict) -> None:
 
 
 def _partial_log_line(run_dir: Path) -> str:
+    """Where an interrupted run's partial logs are, or that it had not opened any yet."""
     files = sorted(str(p) for p in run_dir.glob("episode.*") if p.is_file())
-    where = ", ".join(files) if files else f"nothing was written in {run_dir}"
-    return (f"interrupted: partial log (incomplete) in {where}; "
-            "recover an .mcap.active with tamedpuma.recording.recover_mcap")
+    if not files:
+        return f"interrupted before the run's logs were opened: nothing recorded in {run_dir}"
+    hint = ("; recover an .mcap.active with tamedpuma.recording.recover_mcap"
+            if any(f.endswith(".mcap.active") for f in files) else "")
+    return f"interrupted: partial log (incomplete) in {', '.join(files)}{hint}"
 
 
 def _die_with_launcher() -> None:
@@ -333,10 +345,24 @@ def _terminated(*_) -> None:
     """SIGTERM in a launcher worker. During a run: unwind it (its logs close as incomplete),
     then exit. Anywhere else in the job (before the run opens its logs, after they closed):
     leave at once, there is nothing to close."""
+    if _TERMINATED and _RUN_OPEN:  # a second SIGTERM while the run closes its logs: the
+        return  # first one is unwinding it (cut short, the Rerun log stayed .active)
     _TERMINATED.append(True)
     if not _RUN_OPEN:
         _leave_worker()
     sys.exit(143)
+
+
+def _terminated_main(*_) -> None:
+    """SIGTERM in the main process: unwind (a run's logs close as incomplete, exit 143); a
+    repeated SIGTERM while that unwinding closes the logs is ignored."""
+    if _MAIN_TERMINATED:
+        return
+    _MAIN_TERMINATED.append(True)
+    sys.exit(143)
+
+
+_MAIN_TERMINATED = []  # set in the main process by its first SIGTERM
 
 
 def _leave_worker() -> None:
@@ -359,6 +385,8 @@ def _exit_if_terminated() -> None:
 def _hydra_main(cfg: DictConfig) -> None:
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
+    # Hydra logs INFO to the console: torch's exit-time cache statistics are not the run's
+    logging.getLogger("torch").setLevel(logging.WARNING)
     if hydra_cfg.mode != RunMode.MULTIRUN:
         _job(cfg, run_dir, multirun=False)
         return
@@ -395,10 +423,14 @@ def _job(cfg: DictConfig, run_dir: Path, multirun: bool) -> None:
             if isinstance(exc, TamedPumaError):
                 fail(str(exc))
             raise
+        if no_space(exc, run_dir):  # every later run would fail alike: the sweep stops
+            raise SweepStopped(" ".join(str(exc).split()), str(run_dir)) from exc
         failure = record_failure(cfg, run_dir, exc)
         _record_outcome(run_dir, "failed", failure["reason"])
-        print(f"error: run failed ({failure['failure']}): {failure['reason']} "
-              f"[recorded in {run_dir / 'summary.json'}]", file=sys.stderr)
+        where = (f"recorded in {run_dir / 'summary.json'}" if failure["recorded"]
+                 else "not recorded")
+        print(f"error: run failed ({failure['failure']}): {failure['reason']} [{where}]",
+              file=sys.stderr)
         return
     finally:
         _RUN_OPEN.clear()
@@ -433,6 +465,28 @@ def _validate_representatives(sweeper, batch) -> None:
     _VALIDATE_EVERY_JOB(sweeper, representative_jobs(batch))
 
 
+class SweepStopped(BaseException):
+    """Ends a sweep at once, through Hydra's launcher (which reports an Exception with a
+    traceback): a full disk, on which every later run would fail alike. ``main`` prints the
+    counts so far and the message, and exits with status 2."""
+
+
+_HYDRA_SAVE_CONFIG = hydra.core.utils._save_config
+
+
+def _save_config_or_stop(cfg, filename: str, output_dir: Path) -> None:
+    """Hydra's ``_save_config`` (a job's ``.hydra/*.yaml``, the sweep's ``multirun.yaml``); a
+    full disk removes the partial file and stops the sweep with one line."""
+    try:
+        _HYDRA_SAVE_CONFIG(cfg, filename, output_dir)
+    except OSError as exc:
+        path = Path(output_dir) / filename
+        if not no_space(exc, path):
+            raise
+        path.unlink(missing_ok=True)
+        raise SweepStopped(str(DiskFullError(path, free_bytes(path)))) from exc
+
+
 def _sweep_report() -> int:
     """Print the multirun's counts and failed runs; 1 if any run failed, else 0."""
     counts = {k: sum(1 for o in _OUTCOMES if o[1] == k) for k in ("complete", "skipped", "failed")}
@@ -444,20 +498,51 @@ def _sweep_report() -> int:
     return 1 if counts["failed"] else 0
 
 
+#: Rerun's own log filter: its file sink's errors (a full disk) are reported by the recorder
+#: as one line instead, see :meth:`tamedpuma.recording.RerunRecorder.close`
+_RERUN_LOG = "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off"
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
+    os.environ.setdefault("RUST_LOG", _RERUN_LOG)  # read when rerun is first imported
     # a killed run (SIGTERM) unwinds normally, so recorders close their files as incomplete
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    signal.signal(signal.SIGTERM, _terminated_main)
+    # loky's resource tracker of a launcher killed with SIGKILL removes the semaphores it left
+    # and warns about each: noise after the workers closed their logs (see _die_with_launcher)
+    os.environ["PYTHONWARNINGS"] = ",".join(filter(None, [
+        os.environ.get("PYTHONWARNINGS"),
+        "ignore::UserWarning:joblib.externals.loky.backend.resource_tracker"]))
     os.environ[_LAUNCHER_PID] = str(os.getpid())  # inherited by the joblib launcher's workers
-    error = precheck_overrides("sweep", argv)
+    try:
+        error = precheck_overrides("sweep", argv)
+    except KeyboardInterrupt:
+        print("interrupted (Ctrl-C) while checking the configuration: nothing was run",
+              file=sys.stderr)
+        sys.exit(130)
+    except SystemExit as exc:
+        if exc.code == 143:
+            print("interrupted (SIGTERM) while checking the configuration: nothing was run",
+                  file=sys.stderr)
+        raise
     if error:
         fail(error)
     _OUTCOMES.clear()
     Sweeper.validate_batch_is_legal = _validate_representatives
+    hydra.core.utils._save_config = _save_config_or_stop
     try:
         _hydra_main()
     except KeyboardInterrupt:
         sys.exit(130)  # the job printed where its partial log is
+    except SweepStopped as stop:
+        if _OUTCOMES_SOURCE:  # the callback's end-of-sweep collection did not run
+            _OUTCOMES[:] = outcomes_since(*_OUTCOMES_SOURCE)
+            message, run_dir = (list(stop.args) + [""])[:2]
+            if run_dir:
+                _OUTCOMES.append((run_dir, "failed", "disk full"))
+            print("sweep stopped: the disk is full")
+            _sweep_report()
+        fail(str(stop.args[0]))
     if _OUTCOMES:
         sys.exit(_sweep_report())
 
