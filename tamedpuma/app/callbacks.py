@@ -54,6 +54,11 @@ class SweepOutcomes(Callback):
         self._path = Path(str(config.hydra.sweep.dir)) / sweep.OUTCOMES_FILE
         self._offset = self._path.stat().st_size if self._path.is_file() else 0
         sweep._OUTCOMES_SOURCE[:] = [self._path, self._offset]
+        refusal, warnings = sweep.resume_check(self._path.parent)
+        for line in warnings:
+            print(line, file=sys.stderr)
+        if refusal:
+            raise sweep.SweepStopped(refusal)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         from tamedpuma.app import sweep

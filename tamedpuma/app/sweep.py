@@ -22,6 +22,7 @@ ones (an interrupted attempt's files are kept in ``previous_attempt/``).
 from __future__ import annotations
 
 import ctypes
+import functools
 import json
 import logging
 import math
@@ -162,6 +163,7 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                "stop_reason": result.stop_reason, **result.metrics.as_dict(),
                "files": {k: str(v) for k, v in files.items()},
                "model": built.model.metadata() if built.model else None,
+               "code_revision": code_revision(),
                # every step's controller time [ms] (pooled statistics across runs)
                "step_compute_ms": [round(float(v), 5) for v in result.compute_ms],
                # where this process's time went [s, wall]: building config, model, scenario and
@@ -171,6 +173,62 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                           "episode": round(t_episode - t_built, 4)}}
     write_summary(run_dir, summary)
     return summary
+
+
+@functools.cache
+def code_revision() -> str:
+    """The code revision this process runs (``git describe``, else the package version)."""
+    from tamedpuma.app.models import code_revision as describe
+
+    return describe()
+
+
+def _kept_model(run_dir: Path, models: dict):
+    """The model the kept run ``run_dir``'s config picks now (None: no model, or a config
+    the current schema no longer reads); ``models`` caches it by the method config."""
+    from tamedpuma.app.schema import as_dict, run_config
+    from tamedpuma.puma import store
+
+    try:
+        cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
+        key = json.dumps(OmegaConf.to_container(cfg.method, resolve=True), sort_keys=True,
+                         default=str)
+        if key not in models:
+            models[key] = store.resolve_for_method(as_dict(run_config(cfg))["method"])
+        return models[key]
+    except Exception:  # noqa: BLE001 - unreadable or no longer valid: not comparable
+        return None
+
+
+def resume_check(sweep_dir: Path) -> tuple[str | None, list[str]]:
+    """Before a sweep runs into ``sweep_dir``, compare the complete runs it will keep with
+    what the same configs use now: ``(refusal, warnings)``. A kept run whose method would
+    now load another trained model (a ``models build`` finished in between) refuses the
+    resume, naming both sha256: its table row would pool two models. Runs of another code
+    revision are a warning (the revision of every run is in its ``summary.json``)."""
+    models, revisions, kept = {}, {}, 0
+    for path in sorted(Path(sweep_dir).glob("*/summary.json")):
+        try:
+            summary = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if not isinstance(summary, dict) or summary.get("status", "complete") != "complete":
+            continue
+        kept += 1
+        old = (summary.get("model") or {}).get("model_sha256")
+        new = _kept_model(path.parent, models) if old else None
+        if new is not None and new.sha256 != old:
+            return (f"resume refused: {path.parent} kept a run of model sha256 {old[:12]}, "
+                    f"its config now picks sha256 {new.sha256[:12]} ({new.path}); one sweep "
+                    "mixes no models: resume into a new folder (hydra.sweep.dir=...) or move "
+                    "the kept runs away", [])
+        rev = summary.get("code_revision")
+        if rev:
+            revisions[rev] = revisions.get(rev, 0) + 1
+    now = code_revision()
+    warnings = [f"warning: {n} of the {kept} kept complete runs were made at code revision "
+                f"{rev}, this is {now}" for rev, n in revisions.items() if rev != now]
+    return None, warnings
 
 
 def method_label(method_cfg) -> str:
@@ -424,7 +482,10 @@ def _job(cfg: DictConfig, run_dir: Path, multirun: bool) -> None:
                 fail(str(exc))
             raise
         if no_space(exc, run_dir):  # every later run would fail alike: the sweep stops
-            raise SweepStopped(" ".join(str(exc).split()), str(run_dir)) from exc
+            if not isinstance(exc, DiskFullError):
+                exc = DiskFullError(getattr(exc, "filename", None) or run_dir,
+                                    free_bytes(run_dir))
+            raise SweepStopped(str(exc), str(run_dir)) from exc
         failure = record_failure(cfg, run_dir, exc)
         _record_outcome(run_dir, "failed", failure["reason"])
         where = (f"recorded in {run_dir / 'summary.json'}" if failure["recorded"]
@@ -535,14 +596,14 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:
         sys.exit(130)  # the job printed where its partial log is
     except SweepStopped as stop:
+        message, run_dir = (list(stop.args) + [""])[:2]
         if _OUTCOMES_SOURCE:  # the callback's end-of-sweep collection did not run
             _OUTCOMES[:] = outcomes_since(*_OUTCOMES_SOURCE)
-            message, run_dir = (list(stop.args) + [""])[:2]
             if run_dir:
-                _OUTCOMES.append((run_dir, "failed", "disk full"))
-            print("sweep stopped: the disk is full")
-            _sweep_report()
-        fail(str(stop.args[0]))
+                _OUTCOMES.append((run_dir, "failed", message))
+            if _OUTCOMES:
+                _sweep_report()
+        fail(message)
     if _OUTCOMES:
         sys.exit(_sweep_report())
 
