@@ -42,7 +42,7 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from tamedpuma.app.cli import fail, precheck_overrides
+from tamedpuma.app.cli import fail, precheck_overrides, shell_completion
 from tamedpuma.app.config import CONF_DIR
 from tamedpuma.errors import ConfigError, DiskFullError, TamedPumaError
 from tamedpuma.paths import free_bytes, no_space, write_atomic
@@ -575,6 +575,7 @@ def main(argv: list[str] | None = None) -> None:
         os.environ.get("PYTHONWARNINGS"),
         "ignore::UserWarning:joblib.externals.loky.backend.resource_tracker"]))
     os.environ[_LAUNCHER_PID] = str(os.getpid())  # inherited by the joblib launcher's workers
+    shell_completion(argv, "tamedpuma.sweep")
     try:
         error = precheck_overrides("sweep", argv)
     except KeyboardInterrupt:
