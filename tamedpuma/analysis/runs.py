@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import sys
 from pathlib import Path
 
@@ -28,7 +29,12 @@ MODEL_KEYS = ("model_name", "model_origin", "model_data", "model_data_source", "
 def runs_parser(doc: str | None, out_help: str = "output folder (default: RUNS)"
                 ) -> argparse.ArgumentParser:
     """The analysis commands' shared arguments: RUNS (a folder of run folders) and ``--out``."""
-    parser = argparse.ArgumentParser(description=(doc or "").splitlines()[0] if doc else None)
+    first = (doc or "").splitlines()[0] if doc else None
+    if first:  # the checkout's ``analysis/`` shims are not installed: name the package's module
+        first = first.replace("python -m analysis.", "python -m tamedpuma.analysis.")
+    module = re.search(r"python -m (tamedpuma\.analysis\.\w+)", first or "")
+    parser = argparse.ArgumentParser(prog=f"python -m {module.group(1)}" if module else None,
+                                     description=first)
     parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
     parser.add_argument("--out", type=Path, default=None, help=out_help)
     return parser

@@ -97,11 +97,33 @@ def build(cfg: DictConfig) -> Built:
             plain["method"]["checkpoint"] = str(model.path)
         controller = methods.make(run.method.name, plain["method"], kinematics)
         sim_config, disturbance = run.sim, run.disturbance
+        for line in run_warnings(plain, scenario, kinematics, model):
+            print(f"warning: {line}", file=sys.stderr)
     except TamedPumaError:
         raise
     except (ValueError, TypeError, KeyError) as exc:
         raise ConfigError(f"invalid configuration: {type(exc).__name__}: {exc}") from exc
     return Built(run, spec, scenario, controller, sim_config, disturbance, model)
+
+
+def run_warnings(plain: dict, scenario, kinematics, model) -> list[str]:
+    """What makes a run pointless although its config is valid: a goal beyond the arm's reach
+    (:func:`tamedpuma.worlds.scenarios.reach_problem`), a model trained on another task than
+    the run's (its folder's manifest or report names the task)."""
+    from tamedpuma.puma import store
+    from tamedpuma.worlds.scenarios import reach_problem
+
+    out = [p for p in [reach_problem(scenario, kinematics)] if p]
+    if model is not None:
+        manifest = store.read_manifest(Path(model.path).parent) or {}
+        trained = manifest.get("task")
+        if not isinstance(trained, str):
+            trained = ((manifest.get("config") or {}).get("task") or {}).get("name")
+        task = plain["task"]["name"]
+        if isinstance(trained, str) and trained != task:
+            out.append(f"the model {model.path} was trained on task {trained}, this run is "
+                       f"task {task}")
+    return out
 
 
 EPISODE_FILES = ("episode.mcap", "episode.rrd", "summary.json", "failure.txt")
@@ -342,8 +364,12 @@ def _report(summary: dict) -> None:
         outcome = f"success under the paper criterion only [{m['failure_whole_body']}]"
     else:
         outcome = f"no success [{m['failure_whole_body']}]"
-    print(f"{m['method_label']} on {m['task']}/{m['scenario']}: {outcome} after {m['steps']} steps "
-          f"({m['duration_s']:.2f} s), final position error {m['final_position_error_m']:.4f} m, "
+    tts = m.get("time_to_success_s")
+    episode = f"episode {m['steps']} steps, {m['duration_s']:.2f} s"
+    if isinstance(tts, (int, float)) and math.isfinite(tts):  # the settle time comes after
+        episode = f"goal reached at {tts:.2f} s; {episode} with the settle time"
+    print(f"{m['method_label']} on {m['task']}/{m['scenario']}: {outcome} ({episode}), "
+          f"final position error {m['final_position_error_m']:.4f} m, "
           f"min clearance {m['min_clearance_m']:.3f} m, "
           f"controller {m['compute_ms_median']:.3f} ms (median)")
     if m.get("model"):
