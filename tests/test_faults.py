@@ -171,7 +171,7 @@ def test_a_full_disk_while_hydra_saves_a_jobs_config_stops_the_sweep(tmp_path, m
     code = _sweep(tmp_path, monkeypatch, "seed=0,1,2")
     out, err = capsys.readouterr()
     assert code == 2
-    assert "sweep: 1 runs: 1 executed and complete" in out
+    assert "sweep: 1 run: 1 executed and complete" in out
     assert err.strip().splitlines()[-1].startswith(
         f"error: disk full: cannot write {tmp_path}/sweep/1/.hydra/config.yaml")
     assert "Traceback" not in err
@@ -282,7 +282,7 @@ def test_the_analyses_refuse_to_pool_two_models_in_one_row_unless_asked():
     assert mixed_models(one) == [] and models_problem(one) is None
     lines = mixed_models(two)
     assert lines == [f"fpm on tomato: runs of 2 models: sha256 {'b' * 12} (2 runs), "
-                     f"sha256 {'a' * 12} (1 runs)"]
+                     f"sha256 {'a' * 12} (1 run)"]
     assert "--mixed-models" in models_problem(two)
     assert models_problem(two, allow_mixed=True) is None
     other_task = two.assign(task=["tomato", "pouring", "pouring"])
@@ -316,7 +316,7 @@ def test_one_rule_excludes_incomplete_runs_from_every_analysis(tmp_path, monkeyp
 
     assert report.main([str(runs), "--no-figures"]) == 0
     text = (runs / "report.md").read_text()
-    assert "1 incomplete runs (killed, interrupted or truncated: listed above) are not scored" \
+    assert "1 incomplete run (killed, interrupted or truncated: listed above) is not scored" \
         in text
     failing = text.split("## Failing runs", 1)[1]
     assert "1_killed" not in failing  # not a failure of class "time"

@@ -96,6 +96,11 @@ def completeness(root: Path, runs: pd.DataFrame) -> list[dict]:
     return out
 
 
+def _count(n: int, noun: str) -> str:
+    """``1 run``, ``2 runs``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def _rel(path: Path | str, base: Path) -> str:
     try:
         return str(Path(path).resolve().relative_to(base.resolve()))
@@ -180,13 +185,15 @@ def render(root: Path, runs: pd.DataFrame, paths: dict, times: dict, out: Path,
     (:func:`~tamedpuma.analysis.runs.split_incomplete`, the rule of every analysis)."""
     lines = [f"# Report: `{root}`", ""]
     skipped = runs.attrs.get("skipped", [])
-    lines += [f"{len(runs)} runs read from their MCAP logs; {len(skipped)} logs unreadable.", ""]
+    lines += [f"{_count(len(runs), 'run')} read from their MCAP logs; "
+              f"{_count(len(skipped), 'log')} unreadable.", ""]
     lines += _completeness_lines(root, runs)
     scored, incomplete = split_incomplete(runs, include_incomplete)
     if len(incomplete):
         how = "scored as they are" if include_incomplete else "not scored"
-        lines += [f"{len(incomplete)} incomplete runs (killed, interrupted or truncated: "
-                  f"listed above) are {how}.", ""]
+        lines += [f"{_count(len(incomplete), 'incomplete run')} (killed, interrupted or "
+                  f"truncated: listed above) {'is' if len(incomplete) == 1 else 'are'} {how}.",
+                  ""]
     if scored.empty:
         lines += ["No complete readable run: nothing to tabulate.", ""]
         return "\n".join(lines)

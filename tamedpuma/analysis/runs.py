@@ -109,7 +109,8 @@ def mixed_models(runs: pd.DataFrame) -> list[str]:
     for (name, task), group in used.groupby(["_label", "task"], dropna=False):
         counts = group["_sha"].value_counts()
         if len(counts) > 1:
-            models = ", ".join(f"sha256 {sha[:12]} ({n} runs)" for sha, n in counts.items())
+            models = ", ".join(f"sha256 {sha[:12]} ({n} run{'' if n == 1 else 's'})"
+                               for sha, n in counts.items())
             lines.append(f"{name} on {task}: runs of {len(counts)} models: {models}")
     return lines
 

@@ -577,7 +577,8 @@ def _save_config_or_stop(cfg, filename: str, output_dir: Path) -> None:
 def _sweep_report() -> int:
     """Print the multirun's counts and failed runs; 1 if any run failed, else 0."""
     counts = {k: sum(1 for o in _OUTCOMES if o[1] == k) for k in ("complete", "skipped", "failed")}
-    print(f"sweep: {len(_OUTCOMES)} runs: {counts['complete']} executed and complete, "
+    n = len(_OUTCOMES)
+    print(f"sweep: {n} run{'' if n == 1 else 's'}: {counts['complete']} executed and complete, "
           f"{counts['skipped']} skipped (already complete), {counts['failed']} failed")
     for run_dir, outcome, why in _OUTCOMES:
         if outcome == "failed":

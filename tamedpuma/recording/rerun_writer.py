@@ -72,7 +72,8 @@ PLOT_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("contacts", ("obstacle_contact", "ground_contact")),
 )
 INTERNALS = "method internals"
-MAX_LEGEND = 3  # plots with more series show no legend (hover shows the names)
+MAX_LEGEND = 8  # plots with more series show no legend (hover shows the names): the
+#: joint plots (7 joints, the speed limit) keep theirs
 #: Vertical field of view of Rerun's 3-D eye [rad] (measured: a point 1 m off-axis at 3 m
 #: projects 0.32 image heights from the centre, i.e. 55°).
 RERUN_FOV_Y = np.deg2rad(55.0)
@@ -216,7 +217,9 @@ def replay_blueprint(scalar_names: Iterable[str] = (), joint_names: Iterable[str
                                          plot_legend=legend(len(names))))
     return rrb.Blueprint(
         rrb.Horizontal(scene, rrb.Grid(*plots, grid_columns=2), column_shares=[3, 2]),
-        collapse_panels=True)
+        # the plots' x-axis in simulated seconds (the "step" timeline labels it #0, #1, ...)
+        rrb.TimePanel(state="collapsed", timeline="time"),
+        rrb.SelectionPanel(state="collapsed"), rrb.BlueprintPanel(state="collapsed"))
 
 
 def default_blueprint() -> rrb.Blueprint:
