@@ -72,12 +72,13 @@ def _sweep(tmp_path, monkeypatch, *overrides, multirun=True) -> int:
     monkeypatch.setattr(sweep, "_MAIN_TERMINATED", [])
     handler = signal.getsignal(signal.SIGTERM)
     try:
-        with pytest.raises(SystemExit) as exit_:
-            sweep.main(argv)
+        sweep.main(argv)
+    except SystemExit as exit_:
+        return exit_.code
     finally:
         signal.signal(signal.SIGTERM, handler)
         GlobalHydra.instance().clear()
-    return exit_.value.code
+    return 0
 
 
 # ------------------------------------------------------------------------------ 1. full disk
@@ -407,3 +408,178 @@ def test_a_task_from_demonstrations_without_demos_names_task_demos(tmp_path):
     assert proc.stderr.strip().splitlines()[-1].startswith(
         "error: missing config key task.demos (")
     assert not out.exists()  # a failed training leaves no empty folder
+
+
+# -------------------------------------------------------------------------------- rough edges
+
+
+@pytest.fixture(scope="module")
+def small_sweep(tmp_path_factory):
+    """Two complete runs (MCAP only) and a killed copy of the second one."""
+    import shutil
+
+    root = tmp_path_factory.mktemp("edges")
+    proc = subprocess.run(
+        [sys.executable, "-m", "tamedpuma.sweep", "-m", "method=joint_attractor",
+         "scenario=default", "scenario.max_steps=40", "stop_on_success=false", "recorder=mcap",
+         "recorder.flush_every=10", "seed=0,1", f"output_root={root}",
+         f"hydra.sweep.dir={root}/sweep", "hydra.sweep.subdir=${seed}"],
+        cwd=root, env=ENV, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    sweep = root / "sweep"
+    shutil.copytree(sweep / "1", sweep / "1_killed")
+    log = sweep / "1_killed/episode.mcap"
+    data = log.read_bytes()
+    log.unlink()
+    (sweep / "1_killed/episode.mcap.active").write_bytes(data[: len(data) // 2])
+    return sweep, proc.stdout
+
+
+def test_a_plain_sweep_prints_done_of_total_and_the_time_the_goal_was_reached(small_sweep):
+    _, out = small_sweep
+    import re
+
+    progress = [m.group(0) for ln in out.splitlines() if (m := re.match(r"\[\d+/\d+\]", ln))]
+    assert progress == ["[1/2]", "[2/2]"], out
+    assert "sweep: 2 runs: 2 executed and complete" in out
+    line = next(ln for ln in out.splitlines() if ln.startswith("joint_attractor on "))
+    assert "no success [time] (episode 40 steps, " in line  # no reach: no settle time
+
+
+def _replay(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "tamedpuma.replay", *map(str, args)],
+                          env=ENV, capture_output=True, text=True, timeout=120)
+
+
+def test_replay_names_the_runs_of_a_folder_and_an_incomplete_log(small_sweep):
+    sweep, _ = small_sweep
+    proc = _replay(sweep, "--build")
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (
+        f"error: {sweep} is a folder of 3 runs, not one run: replay one of them (0, 1, "
+        f"1_killed), e.g. python -m tamedpuma.replay {sweep / '0'}")
+    proc = _replay(sweep / "1_killed", "--build")
+    assert proc.returncode == 0, proc.stderr
+    assert f"incomplete run: {sweep / '1_killed/episode.mcap.active'} ends at step " \
+        in proc.stdout
+    assert "incomplete" not in _replay(sweep / "0", "--build").stdout
+
+
+def test_replay_checks_the_reference_method_and_says_when_none_is_found(small_sweep):
+    sweep, _ = small_sweep
+    proc = _replay(sweep / "0", "--build", "--reference", "nosuch")
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("error: --reference nosuch: no such method; choose one of ")
+    assert "fpm" in proc.stderr and "\n" not in proc.stderr.strip()
+    proc = _replay(sweep / "0", "--build", "--reference", "fabrics")
+    assert proc.returncode == 0
+    assert "reference path: none (no obstacle-free fabrics run" in proc.stdout
+
+
+def test_replay_web_binds_the_viewer_to_host(tmp_path, monkeypatch):
+    from tamedpuma.app import replay
+
+    started = []
+
+    class Viewer:
+        def __init__(self, cmd, **_):
+            started.append(cmd)
+            self.returncode = None
+
+        def wait(self):
+            if self.returncode is None:
+                self.returncode = -15
+                raise KeyboardInterrupt
+            return self.returncode
+
+        def terminate(self):
+            pass
+    rrd = tmp_path / "episode.rrd"
+    rrd.write_bytes(b"")
+    monkeypatch.setattr(replay.subprocess, "Popen", Viewer)
+    files = replay.Replay(rrd=rrd, mcap=None, overlay=None, rebuilt=False, reference_run=None)
+    assert replay.serve_web(files, "127.0.0.1", 9090, 0) == 0
+    cmd = started[0]
+    assert cmd[cmd.index("--bind") + 1] == "127.0.0.1"
+    assert cmd[cmd.index("--web-viewer-port") + 1] == "9090"
+    assert cmd[-1].startswith("http://127.0.0.1:") and cmd[-1].endswith("/episode.rrd")
+
+
+def test_shell_completion_completes_method_options_for_python_m(capsys, monkeypatch):
+    from tamedpuma.app.cli import shell_completion
+
+    with pytest.raises(SystemExit) as exit_:
+        shell_completion(["--shell-completion"], "tamedpuma.sweep")
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --shell-completion needs one of install=SHELL") \
+        and err.count("\n") == 1
+    env = {**ENV, "COMP_LINE": "python -m tamedpuma.sweep method=f", "COMP_POINT": "34"}
+    proc = subprocess.run([sys.executable, "-m", "tamedpuma.sweep", "-sc", "query=bash"],
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert proc.stdout.split() == ["method=fabrics", "method=fpm"], proc.stderr[-2000:]
+    script = subprocess.run([sys.executable, "-m", "tamedpuma.sweep", "-sc", "install=bash"],
+                            env=ENV, capture_output=True, text=True, timeout=120).stdout
+    if not Path("/bin/bash").exists():
+        return
+    test = (script + '\nCOMP_LINE="python -m tamedpuma.sweep method=f"\n'
+            "COMP_WORDS=(python -m tamedpuma.sweep method=f); COMP_CWORD=3\n"
+            '_tamedpuma_sweep_completion; printf "%s\\n" "${COMPREPLY[@]}"\n')
+    proc = subprocess.run(["/bin/bash", "-c", test], env=ENV, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.stdout.split() == ["method=fabrics", "method=fpm"], proc.stderr[-2000:]
+
+
+def test_runs_of_a_far_goal_or_a_model_of_another_task_are_warned(tmp_path, monkeypatch,
+                                                                  capsys):
+    code = _sweep(tmp_path, monkeypatch, "scenario.goal.position=[50,0,0.5]", multirun=False)
+    out, err = capsys.readouterr()
+    assert code == 0
+    assert "[0/?]" not in out  # a single run prints no sweep progress
+    assert "warning: the goal (50.00, 0.00, 0.50) m is 50.00 m from the robot's base, beyond " \
+           "the arm's reach" in err
+    pouring = ROOT / "tamedpuma/puma/shipped/pouring/puma.pt"
+    code = _sweep(tmp_path / "b", monkeypatch, "method=fpm", f"method.checkpoint={pouring}",
+                  "scenario=default", multirun=False)
+    err = capsys.readouterr().err
+    assert f"warning: the model {pouring} was trained on task pouring, this run is task " \
+           "tomato" in err
+    assert "beyond the arm's reach" not in err
+
+
+def test_the_analyses_help_names_the_installed_module():
+    from tamedpuma.analysis import report, tables
+    from tamedpuma.analysis.runs import runs_parser
+
+    for module in (tables, report):
+        name = module.__name__
+        parser = runs_parser(module.__doc__)
+        assert parser.prog == f"python -m {name}"
+        assert "python -m analysis." not in parser.format_help()
+
+
+def test_the_replay_layout_plots_against_time_and_names_joint_speeds():
+    from tamedpuma.recording.rerun_writer import MAX_LEGEND, replay_blueprint
+
+    blueprint = replay_blueprint(["clearance_m"], [f"j{i}" for i in range(7)])
+    assert str(blueprint.time_panel.timeline) == "time"
+    assert MAX_LEGEND >= 8  # seven joints and the speed limit keep their legend
+    layout = json.loads((ROOT / "docs/foxglove_layout.json").read_text())
+    speed = layout["configById"]["Plot!speed"]["paths"]
+    assert [p["label"] for p in speed] == [f"joint {i}" for i in range(1, 8)]
+
+
+def test_a_paths_figure_without_a_puma_run_does_not_name_one(small_sweep, tmp_path,
+                                                             monkeypatch):
+    from matplotlib.figure import Figure
+
+    from tamedpuma.analysis import report
+
+    titles = []
+    real = Figure.suptitle
+    monkeypatch.setattr(Figure, "suptitle",
+                        lambda self, t, **kw: titles.append(t) or real(self, t, **kw))
+    sweep, _ = small_sweep
+    assert report.main([str(sweep), "--out", str(tmp_path)]) == 0
+    paths_titles = [t for t in titles if "end-effector paths" in t]
+    assert paths_titles and not any("PUMA" in t for t in paths_titles)

@@ -64,7 +64,8 @@ class SweepOutcomes(Callback):
         """One progress line ``[done/total] run: outcome`` (the Table-1 callback, when
         configured, prints its own)."""
         callbacks = OmegaConf.select(config, "hydra.callbacks", default=None) or {}
-        if "table1" not in callbacks:
+        multirun = str(OmegaConf.select(config, "hydra.mode", default="")).endswith("MULTIRUN")
+        if multirun and "table1" not in callbacks:
             print(progress_line(config, job_return), flush=True)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
