@@ -1,4 +1,4 @@
-"""The random scenario generator (issue 12): deterministic per seed, every scenario valid, and
+"""The random scenario generator: deterministic per seed, every scenario valid, and
 reachable from the sweep's config (``scenario=random``)."""
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Fault injection and bad input: each test is a row of README's "Faults and bad input" table. A sweep survives its worst run; killed runs and trainings leave what they wrote and
+"""Fault injection and bad input: each test is a row of README's "Faults and bad input"
+table. A sweep survives its worst run; killed runs and trainings leave what they wrote and
 resume; analysis counts what it could not score."""
 
 from __future__ import annotations

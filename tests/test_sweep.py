@@ -35,7 +35,7 @@ def test_one_episode_writes_its_files_and_says_where(tmp_path):
     log = read_mcap(run_dir / "episode.mcap")
     assert log.complete and log.n_steps == summary["steps"]
     # the default run is TamedPUMA (FPM) with the best model at hand, said on the console, and
-    # it reaches the goal without collision (issue 11: the README's first command)
+    # it reaches the goal without collision (the README's first command)
     assert "method:" in log.config_yaml and "name: fpm" in log.config_yaml
     assert "model: " in proc.stdout and summary["model"]["model_sha256"][:12] in proc.stdout
     assert summary["success_whole_body"] and summary["min_clearance_m"] > 0

@@ -457,10 +457,10 @@ def _leave_worker() -> None:
 
 def _exit_if_terminated() -> None:
     """After a SIGTERMed job has closed its logs, leave the worker process for good: raised
-    into the launcher's worker loop, the SystemExit was caught and sent back as a task result,
-    and the loky worker, its launcher gone, waited for more work for ever (seen in session 7:
-    workers of a SIGKILLed sweep left asleep, re-parented to init; in session 14 the same for
-    a SIGTERM that reached a worker while its job was still setting up, before the run)."""
+    into the launcher's worker loop, the SystemExit would be caught and sent back as a task
+    result, and the loky worker, its launcher gone, would wait for more work for ever
+    (re-parented to init), also when the SIGTERM reached it while its job was still setting
+    up, before the run."""
     if _TERMINATED:
         _leave_worker()
 
