@@ -50,7 +50,10 @@ def writable_problem(folder: str | os.PathLike) -> str | None:
             os.fsync(fh.fileno())
         probe.unlink()
     except OSError as exc:
-        probe.unlink(missing_ok=True)
+        try:
+            probe.unlink(missing_ok=True)
+        except OSError:  # the folder itself is not there (a file in its path)
+            pass
         if no_space(exc, path):
             return str(DiskFullError(path, free_bytes(path), PROBE_BYTES))
         return f"output folder {folder} is not writable: {exc.strerror or exc}"
