@@ -195,7 +195,9 @@ def render(root: Path, runs: pd.DataFrame, paths: dict, times: dict, out: Path,
                   f"truncated: listed above) {'is' if len(incomplete) == 1 else 'are'} {how}.",
                   ""]
     if scored.empty:
-        lines += ["No complete readable run: nothing to tabulate.", ""]
+        lines += ["No readable run: nothing to tabulate." if runs.empty else
+                  "No complete run: nothing to tabulate (`--include-incomplete` scores the "
+                  "incomplete ones).", ""]
         return "\n".join(lines)
 
     runs = scored.copy()
