@@ -16,7 +16,13 @@ controller returning NaN/inf ends its episode with ``stop_reason: nonfinite_comm
 the sweep prints how many runs completed, were skipped or failed, and exits with status 1 if any
 failed. Re-running a sweep into existing folders (fixed ``hydra.sweep.subdir``, e.g. Table 1)
 skips every run whose ``summary.json`` says complete and reruns the missing, incomplete and failed
-ones (an interrupted attempt's files are kept in ``previous_attempt/``).
+ones (an interrupted attempt's files are kept in ``previous_attempt/``); it refuses to start when
+a kept run's config now picks another trained model (both sha256 named: one sweep mixes no
+models) and warns about kept runs of another code revision (:func:`resume_check`).
+
+A full disk is not one run's failure: every later run would fail alike, so the sweep stops with
+its counts so far and one line naming the file, the bytes free and the bytes needed (status 2);
+the logs written so far keep their ``.active`` names (readable, incomplete).
 """
 
 from __future__ import annotations
