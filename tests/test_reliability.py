@@ -109,8 +109,8 @@ def test_a_20_run_sweep_with_3_injected_failures_completes_the_other_17(tmp_path
     assert (tmp_path / "sweep/7/previous_attempt/failure.txt").is_file()
 
 
-def test_a_pybullet_disconnect_and_a_full_disk_are_that_runs_failure(tmp_path, monkeypatch,
-                                                                      capsys):
+def test_a_pybullet_disconnect_is_that_runs_failure_and_a_full_disk_stops_the_sweep(
+        tmp_path, monkeypatch, capsys):
     import pybullet as pb
 
     from tamedpuma.recording.mcap_writer import McapRecorder
@@ -133,11 +133,12 @@ def test_a_pybullet_disconnect_and_a_full_disk_are_that_runs_failure(tmp_path, m
         patch.setattr(McapRecorder, "write", write)
         code = _multirun(tmp_path, patch, "seed=0,1,2")
     out = capsys.readouterr()
-    assert code == 1
-    assert "1 executed and complete, 0 skipped (already complete), 2 failed" in out.out
+    assert code == 2  # every later run would fail alike on a full disk: the sweep stops there
+    assert "2 runs: 0 executed and complete, 0 skipped (already complete), 2 failed" in out.out
     assert "physics server" in _strict_json(tmp_path / "sweep/0/summary.json")["reason"].lower()
-    assert "No space left" in _strict_json(tmp_path / "sweep/1/summary.json")["reason"]
-    assert _strict_json(tmp_path / "sweep/2/summary.json")["status"] == "complete"
+    assert out.err.strip().splitlines()[-1].startswith("error: disk full: cannot write ")
+    assert not (tmp_path / "sweep/1/summary.json").exists()  # incomplete: a resume reruns it
+    assert not (tmp_path / "sweep/2").exists()
 
 
 def _wait_for(path: Path, proc: subprocess.Popen, timeout: float) -> None:
@@ -214,19 +215,28 @@ def _workers_of(sweep_dir: Path) -> list[int]:
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and prctl: Linux")
 def test_a_sigkilled_parallel_sweep_leaves_no_worker_behind(tmp_path):
     """SIGKILL of the main process of a joblib sweep: its loky workers get SIGTERM from the
-    kernel (parent-death signal), close their runs as incomplete and exit."""
-    proc = _start_sweep(tmp_path, "hydra/launcher=cores", "hydra.launcher.n_jobs=2")
+    kernel (parent-death signal), close every log (MCAP and Rerun) as incomplete and exit; the
+    semaphores loky's resource tracker removes after it are not reported one by one."""
+    proc = _start_sweep(tmp_path, "hydra/launcher=cores", "hydra.launcher.n_jobs=2",
+                        "recorder=default")
     assert _workers_of(tmp_path / "sweep"), "the sweep runs in loky workers"
+    _wait_for(tmp_path / "sweep/1/episode.mcap.active", proc, 60)
+    time.sleep(0.5)
     proc.send_signal(signal.SIGKILL)
-    proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=60)
     deadline = time.monotonic() + 30
     while _workers_of(tmp_path / "sweep") and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not _workers_of(tmp_path / "sweep")
     from tamedpuma.recording import read_mcap
 
-    partial = read_mcap(next((tmp_path / "sweep/0").glob("episode.mcap*")))
-    assert not partial.complete and len(partial.scalars) > 0
+    for run in ("0", "1"):
+        folder = tmp_path / "sweep" / run
+        assert not list(folder.glob("*.active")), sorted(p.name for p in folder.iterdir())
+        partial = read_mcap(folder / "episode.mcap")
+        assert not partial.complete and len(partial.scalars) > 0
+        assert (folder / "episode.rrd").is_file()
+    assert "leaked" not in err, err[-2000:]
 
 
 _WORKER_SIGTERM = """
@@ -249,10 +259,10 @@ print("worker still alive")
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="launcher workers: Linux")
 @pytest.mark.parametrize("run_open", [False, True], ids=["setting-up", "mid-run"])
 def test_a_sigterm_anywhere_in_a_workers_job_ends_the_worker(run_open):
-    """SIGTERM reached a loky worker while its job was still setting up: the SystemExit went to
-    the worker loop, which sent it back as a result and waited for work for ever (seen in CI: a
-    SIGKILLed sweep's worker left behind). With no run open the worker now leaves at
-    once; mid-run, SystemExit unwinds the run (its logs close) and the worker leaves after."""
+    """SIGTERM reaching a loky worker while its job is still setting up: raised into the worker
+    loop, the SystemExit would be sent back as a result and the worker would wait for work for
+    ever. With no run open the worker leaves at once; mid-run, SystemExit unwinds the run (its
+    logs close) and the worker leaves after."""
     where = ("sweep._RUN_OPEN.append(True); " if run_open else "") + \
         "os.kill(os.getpid(), signal.SIGTERM)"
     proc = subprocess.run([sys.executable, "-c", _WORKER_SIGTERM.format(where=where)],

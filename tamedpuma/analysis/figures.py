@@ -136,8 +136,9 @@ def paths_figure(runs: pd.DataFrame, paths: dict, task: str, out: Path,
             handles.setdefault(lab, h)
     fig.legend(handles.values(), handles.keys(), loc="upper center", ncol=len(handles),
                bbox_to_anchor=(0.5, 1.0 + 0.02 / rows))
-    fig.suptitle(f"{task}: end-effector paths with obstacles against PUMA's obstacle-free path",
-                 y=1.0 + 0.06 / rows)
+    against = (" against PUMA's obstacle-free path"
+               if ((labels[r.index] == REFERENCE) & (r["n_obstacles"] == 0)).any() else "")
+    fig.suptitle(f"{task}: end-effector paths with obstacles{against}", y=1.0 + 0.06 / rows)
     fig.tight_layout()
     return _save(fig, out, f"paths_{task}")
 

@@ -21,7 +21,7 @@ import sys
 
 import pandas as pd
 
-from tamedpuma.analysis.runs import parse_and_load, runs_parser, write_table
+from tamedpuma.analysis.runs import parse_and_load, runs_parser, split_incomplete, write_table
 from tamedpuma.analysis.summaries import bootstrap_ci
 from tamedpuma.analysis.tables import (
     _pm,
@@ -96,10 +96,18 @@ def random_table(runs: pd.DataFrame) -> pd.DataFrame:
 
 def main(argv: list[str] | None = None) -> int:
     parser = runs_parser(__doc__, "output folder (default: RUNS)")
+    parser.add_argument("--include-incomplete", action="store_true",
+                        help="score killed/truncated runs too (default: listed and excluded)")
     got = parse_and_load(parser, argv)
     if got is None:
         return 2
-    args, (runs, paths, _) = got
+    args, (every, paths, _) = got
+    # incomplete runs are not scored: the rule of every analysis
+    runs, incomplete = split_incomplete(every, args.include_incomplete)
+    if runs.empty:
+        print(f"error: no complete run below {args.runs} ({len(incomplete)} incomplete; "
+              "--include-incomplete scores them)", file=sys.stderr)
+        return 2
     runs["path_difference_m"] = path_differences(runs, paths)
     table = random_table(runs)
     out = args.out or args.runs
@@ -108,7 +116,11 @@ def main(argv: list[str] | None = None) -> int:
                                                       "random_suite_by_start")
     runs.to_csv(out / "runs.csv", index=False)
     print(text)
-    print(f"{len(runs)} runs read, {len(runs.attrs.get('skipped', []))} skipped; tables in {out}")
+    how = "scored" if args.include_incomplete else "not scored"
+    print(f"{len(every)} runs read ({len(incomplete)} incomplete, {how}), "
+          f"{len(every.attrs.get('skipped', []))} unreadable; tables in {out}")
+    for path in incomplete["path"]:
+        print(f"  incomplete: {path}")
     return 0
 
 

@@ -18,7 +18,13 @@ import pandas as pd
 import yaml
 
 from tamedpuma.analysis.figures import make_figures, method_summary
-from tamedpuma.analysis.runs import parse_and_load, runs_parser
+from tamedpuma.analysis.runs import (
+    add_scoring_flags,
+    parse_and_load,
+    runs_parser,
+    scored_runs,
+    split_incomplete,
+)
 from tamedpuma.analysis.tables import _labels, path_differences, table1
 
 
@@ -88,6 +94,11 @@ def completeness(root: Path, runs: pd.DataFrame) -> list[dict]:
                     "missing": missing, "no_log": no_log, "truncated": truncated,
                     "interrupted": interrupted})
     return out
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 run``, ``2 runs``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 def _rel(path: Path | str, base: Path) -> str:
@@ -168,17 +179,28 @@ def _failing_lines(runs: pd.DataFrame) -> list[str]:
 
 
 def render(root: Path, runs: pd.DataFrame, paths: dict, times: dict, out: Path,
-           figures: bool = True) -> str:
-    """The report's Markdown (figures written to ``out/figures``)."""
+           figures: bool = True, include_incomplete: bool = False) -> str:
+    """The report's Markdown (figures written to ``out/figures``). Incomplete runs are listed
+    under "Completeness" and scored only with ``include_incomplete``
+    (:func:`~tamedpuma.analysis.runs.split_incomplete`, the rule of every analysis)."""
     lines = [f"# Report: `{root}`", ""]
     skipped = runs.attrs.get("skipped", [])
-    lines += [f"{len(runs)} runs read from their MCAP logs; {len(skipped)} logs unreadable.", ""]
+    lines += [f"{_count(len(runs), 'run')} read from their MCAP logs; "
+              f"{_count(len(skipped), 'log')} unreadable.", ""]
     lines += _completeness_lines(root, runs)
-    if runs.empty:
-        lines += ["No readable run: nothing to tabulate.", ""]
+    scored, incomplete = split_incomplete(runs, include_incomplete)
+    if len(incomplete):
+        how = "scored as they are" if include_incomplete else "not scored"
+        lines += [f"{_count(len(incomplete), 'incomplete run')} (killed, interrupted or "
+                  f"truncated: listed above) {'is' if len(incomplete) == 1 else 'are'} {how}.",
+                  ""]
+    if scored.empty:
+        lines += ["No readable run: nothing to tabulate." if runs.empty else
+                  "No complete run: nothing to tabulate (`--include-incomplete` scores the "
+                  "incomplete ones).", ""]
         return "\n".join(lines)
 
-    runs = runs.copy()
+    runs = scored.copy()
     runs["path_difference_m"] = path_differences(runs, paths)
     lines += ["## Table 1", "", table1(runs, times).to_markdown(index=False,
                                                                  disable_numparse=True), ""]
@@ -194,15 +216,18 @@ def render(root: Path, runs: pd.DataFrame, paths: dict, times: dict, out: Path,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = runs_parser(__doc__, "output folder (default: RUNS)")
+    parser = add_scoring_flags(runs_parser(__doc__, "output folder (default: RUNS)"))
     parser.add_argument("--no-figures", action="store_true", help="tables only")
     got = parse_and_load(parser, argv, allow_empty=True)
     if got is None:
         return 2
     args, (runs, paths, times) = got
+    if scored_runs(runs, args) is None:  # runs of different models in one row
+        return 2
     out = args.out or args.runs
     out.mkdir(parents=True, exist_ok=True)
-    text = render(args.runs, runs, paths, times, out, figures=not args.no_figures)
+    text = render(args.runs, runs, paths, times, out, figures=not args.no_figures,
+                  include_incomplete=args.include_incomplete)
     (out / "report.md").write_text(text + "\n")
     print(out / "report.md")
     return 0

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import sys
 from pathlib import Path
 
@@ -28,7 +29,12 @@ MODEL_KEYS = ("model_name", "model_origin", "model_data", "model_data_source", "
 def runs_parser(doc: str | None, out_help: str = "output folder (default: RUNS)"
                 ) -> argparse.ArgumentParser:
     """The analysis commands' shared arguments: RUNS (a folder of run folders) and ``--out``."""
-    parser = argparse.ArgumentParser(description=(doc or "").splitlines()[0] if doc else None)
+    first = (doc or "").splitlines()[0] if doc else None
+    if first:  # the checkout's ``analysis/`` shims are not installed: name the package's module
+        first = first.replace("python -m analysis.", "python -m tamedpuma.analysis.")
+    module = re.search(r"python -m (tamedpuma\.analysis\.\w+)", first or "")
+    parser = argparse.ArgumentParser(prog=f"python -m {module.group(1)}" if module else None,
+                                     description=first)
     parser.add_argument("runs", type=Path, help="folder holding run folders (searched recursively)")
     parser.add_argument("--out", type=Path, default=None, help=out_help)
     return parser
@@ -61,6 +67,75 @@ def parse_and_load(parser: argparse.ArgumentParser, argv: list[str] | None, **lo
     args = parser.parse_args(argv)
     loaded = runs_or_error(args.runs, **load)
     return None if loaded is None else (args, loaded)
+
+
+def add_scoring_flags(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The flags of the two scoring rules every analysis applies (:func:`scored_runs`):
+    ``--include-incomplete`` and ``--mixed-models``."""
+    parser.add_argument("--include-incomplete", action="store_true",
+                        help="score killed/truncated runs too (default: listed and excluded)")
+    parser.add_argument("--mixed-models", action="store_true",
+                        help="pool runs of one method made with different trained models "
+                             "(default: refused, naming the models)")
+    return parser
+
+
+def split_incomplete(runs: pd.DataFrame, include: bool = False
+                     ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The one rule for runs that did not finish, used by every analysis: a run whose log was
+    not closed as complete (killed, interrupted, truncated, a full disk) is not scored; it is
+    listed. Returns ``(scored, incomplete)``; with ``include`` the scored runs hold the
+    incomplete ones too. The frame's ``attrs`` (skipped and failed runs) are kept."""
+    if runs.empty or "complete" not in runs:
+        return runs, runs.iloc[0:0]
+    done = runs["complete"].fillna(False).astype(bool)
+    incomplete = runs[~done].copy()
+    scored = runs.copy() if include else runs[done].copy()
+    scored.attrs.update(runs.attrs)
+    return scored, incomplete
+
+
+def mixed_models(runs: pd.DataFrame) -> list[str]:
+    """One line per method label and task whose runs used more than one trained model (a
+    sweep resumed after the model changed): the models' sha256 with their run counts. Empty
+    when every row of a table comes from one model."""
+    if runs.empty or "model_sha256" not in runs:
+        return []
+    label = runs["method_label"].fillna(runs["method"]) if "method_label" in runs else (
+        runs["method"])
+    used = runs.assign(_label=label, _sha=runs["model_sha256"].fillna(""))
+    used = used[used["_sha"] != ""]
+    lines = []
+    for (name, task), group in used.groupby(["_label", "task"], dropna=False):
+        counts = group["_sha"].value_counts()
+        if len(counts) > 1:
+            models = ", ".join(f"sha256 {sha[:12]} ({n} run{'' if n == 1 else 's'})"
+                               for sha, n in counts.items())
+            lines.append(f"{name} on {task}: runs of {len(counts)} models: {models}")
+    return lines
+
+
+def models_problem(runs: pd.DataFrame, allow_mixed: bool = False) -> str | None:
+    """Why ``runs`` cannot be pooled into one row per method (:func:`mixed_models`), or None
+    (also when ``allow_mixed``, the ``--mixed-models`` flag)."""
+    lines = [] if allow_mixed else mixed_models(runs)
+    if not lines:
+        return None
+    return (f"{'; '.join(lines)}: a row pools one model's runs only (rerun the runs of the "
+            "other model, or pass --mixed-models to pool them)")
+
+
+def scored_runs(runs: pd.DataFrame, args: argparse.Namespace
+                ) -> tuple[pd.DataFrame, pd.DataFrame] | None:
+    """The runs an analysis scores under its :func:`add_scoring_flags`: ``(scored,
+    incomplete)`` by :func:`split_incomplete`, or None after a one-line error on stderr when
+    the runs pool different models (:func:`models_problem`; the command exits with 2)."""
+    scored, incomplete = split_incomplete(runs, getattr(args, "include_incomplete", False))
+    problem = models_problem(scored, getattr(args, "mixed_models", False))
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return None
+    return scored, incomplete
 
 
 def write_table(table: pd.DataFrame, out: Path, stem: str) -> str:

@@ -5,7 +5,7 @@ Before the sweep (main process): build the real-data models that are missing fro
 (:func:`tamedpuma.app.models.ensure_real_models`), or say that the shipped synthetic models are
 used when the authors' demonstrations are not on this machine. After each run (in the worker):
 one progress line ``[done/total] ...``. After the sweep (main process): the analysis of the whole
-sweep folder, exactly ``python -m analysis.tables <sweep dir>`` (prints Table 1, writes
+sweep folder, exactly ``python -m tamedpuma.analysis.tables <sweep dir>`` (prints Table 1, writes
 ``table1.md``, ``table1.tex``, ``runs.csv``).
 """
 
@@ -53,12 +53,56 @@ class SweepOutcomes(Callback):
         sweep._OUTCOMES.clear()
         self._path = Path(str(config.hydra.sweep.dir)) / sweep.OUTCOMES_FILE
         self._offset = self._path.stat().st_size if self._path.is_file() else 0
+        sweep._OUTCOMES_SOURCE[:] = [self._path, self._offset]
+        refusal, warnings = sweep.resume_check(self._path.parent)
+        for line in warnings:
+            print(line, file=sys.stderr)
+        if refusal:
+            raise sweep.SweepStopped(refusal)
+
+    def on_job_end(self, config: DictConfig, job_return: Any, **kwargs: Any) -> None:
+        """One progress line ``[done/total] run: outcome`` (the Table-1 callback, when
+        configured, prints its own)."""
+        callbacks = OmegaConf.select(config, "hydra.callbacks", default=None) or {}
+        multirun = str(OmegaConf.select(config, "hydra.mode", default="")).endswith("MULTIRUN")
+        if multirun and "table1" not in callbacks:
+            print(progress_line(config, job_return), flush=True)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         from tamedpuma.app import sweep
 
         if self._path is not None:
             sweep._OUTCOMES[:] = sweep.outcomes_since(self._path, self._offset)
+
+
+def progress_line(config: DictConfig, job_return: Any) -> str:
+    """``[done/total] <run folder>: <outcome>`` after a job: done counts the run folders of
+    the sweep with a ``summary.json``, total the sweep's jobs (``multirun.yaml``)."""
+    root = Path(str(config.hydra.sweep.dir))
+    done = sum(1 for _ in root.rglob("summary.json"))
+    try:
+        total = sweep_size(OmegaConf.load(root / "multirun.yaml")) or "?"
+    except Exception:  # noqa: BLE001 - an unreadable manifest: progress without a total
+        total = "?"
+    run_dir = Path(str(config.hydra.runtime.output_dir))
+    outcome = "?"
+    summary = run_dir / "summary.json"
+    if summary.is_file():
+        try:
+            s = json.loads(summary.read_text())
+        except (OSError, ValueError):
+            s = {}
+        outcome = ("failed" if s.get("status") == "failed" else
+                   "success" if s.get("success_whole_body") else
+                   "success (paper criterion only)" if s.get("success_paper") else
+                   f"no success ({s.get('failure_whole_body') or s.get('stop_reason')})")
+    elif getattr(job_return, "status", None) is not None:
+        outcome = str(job_return.status.name).lower()
+    try:  # the job's output_dir is absolute, the sweep dir as configured (often relative)
+        shown = run_dir.resolve().relative_to(root.resolve())
+    except ValueError:
+        shown = run_dir
+    return f"[{done}/{total}] {shown}: {outcome}"
 
 
 class Table1(Callback):
@@ -69,7 +113,6 @@ class Table1(Callback):
     def __init__(self, build_models: bool = True, data: str | None = None,
                  jobs: int | None = None) -> None:
         self.build_models, self.data, self.jobs = bool(build_models), data, jobs
-        self._total: int | str | None = None
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         total = sweep_size(config)
@@ -93,33 +136,12 @@ class Table1(Callback):
             sys.exit(2)
 
     def on_job_end(self, config: DictConfig, job_return: Any, **kwargs: Any) -> None:
-        root = Path(str(config.hydra.sweep.dir))
-        done = sum(1 for _ in root.rglob("summary.json"))
-        if self._total is None:  # the sweep's own config (a job's config names one value each)
-            try:
-                self._total = sweep_size(OmegaConf.load(root / "multirun.yaml")) or "?"
-            except Exception:
-                self._total = "?"
-        total = self._total
-        run_dir = Path(str(config.hydra.runtime.output_dir))
-        outcome = "?"
-        summary = run_dir / "summary.json"
-        if summary.is_file():
-            s = json.loads(summary.read_text())
-            outcome = ("success" if s.get("success_whole_body") else
-                       "success (paper criterion only)" if s.get("success_paper") else
-                       f"no success ({s.get('failure_whole_body') or s.get('stop_reason')})")
-        elif getattr(job_return, "status", None) is not None:
-            outcome = str(job_return.status.name).lower()
-        try:  # the job's output_dir is absolute, the sweep dir as configured (often relative)
-            shown = run_dir.resolve().relative_to(root.resolve())
-        except ValueError:
-            shown = run_dir
-        print(f"[{done}/{total}] {shown}: {outcome}", flush=True)
+        print(progress_line(config, job_return), flush=True)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         from tamedpuma.analysis.tables import main as tables
 
         root = str(config.hydra.sweep.dir)
-        print(f"table1: analysis of {root} (= python -m analysis.tables {root})", flush=True)
+        print(f"table1: analysis of {root} (= python -m tamedpuma.analysis.tables {root})",
+              flush=True)
         tables([root])

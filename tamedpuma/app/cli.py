@@ -110,6 +110,51 @@ _NO_CHECK = ("--help", "-h", "--hydra-help", "--info", "-i", "--cfg", "-c", "--r
              "--shell-completion", "-sc", "--experimental-rerun")
 
 
+_BASH_COMPLETION = """\
+# bash completion of python -m {module}: eval "$(python -m {module} -sc install=bash)"
+_{name}_completion()
+{{
+    local words=($COMP_LINE)
+    if [[ "${{words[1]}}" != "-m" || "${{words[2]}}" != "{module}" ]]; then
+        return 0
+    fi
+    local choices=$(COMP_POINT=$COMP_POINT COMP_LINE="$COMP_LINE" \\
+        "${{words[0]}}" -m {module} -sc query=bash 2>/dev/null)
+    COMPREPLY=($(compgen -o nospace -o default -W "$choices" -- "${{COMP_WORDS[COMP_CWORD]}}"))
+}}
+COMP_WORDBREAKS=${{COMP_WORDBREAKS//=}}
+complete -o nospace -o default -F _{name}_completion python python3
+"""
+_SHELL_ACTIONS = ("install", "uninstall", "query")
+
+
+def shell_completion(argv: list[str], module: str) -> list[str]:
+    """Hydra's ``--shell-completion`` (``-sc``) for ``python -m module`` (Hydra's own scripts
+    complete ``python script.py`` only): ``install=bash`` prints a bash script for ``python -m
+    module``; ``query=SHELL`` reads the line the shell passes (``COMP_LINE``) with ``python -m
+    module`` as the program's name. A bare flag or an unknown action is a one-line error.
+    Returns ``argv`` for Hydra (unchanged without the flag); exits after printing a script."""
+    _, _, flags = split_argv(argv)
+    value = flags.get("--shell-completion", flags.get("-sc"))
+    if value is None:
+        return argv
+    action, _, shell = value.partition("=")
+    if action not in _SHELL_ACTIONS or not shell:
+        fail(f"--shell-completion needs one of install=SHELL, uninstall=SHELL or query=SHELL "
+             f"(SHELL: bash, zsh or fish), e.g. eval \"$(python -m {module} -sc install=bash)\"")
+    if action == "install" and shell == "bash":
+        print(_BASH_COMPLETION.format(module=module, name=module.replace(".", "_")))
+        sys.exit(0)
+    if action == "query":
+        import os
+
+        line = os.environ.get("COMP_LINE", "")
+        head = re.match(rf"^\s*\S*python[0-9.]*\s+-m\s+{re.escape(module)}(\s|$)", line)
+        if head:  # the program's name as one word, as Hydra expects it
+            os.environ["COMP_LINE"] = module + line[head.end() - len(head.group(1)):]
+    return argv
+
+
 def split_argv(argv: list[str]) -> tuple[list[str], list[str], dict[str, str]]:
     """Hydra's command line → (overrides, extra config search paths, flags with their values).
 

@@ -65,7 +65,7 @@ def locate(run: Path) -> tuple[Path | None, Path]:
                     None)
         rrd = run / RRD_NAME
         if mcap is None and not rrd.is_file():
-            raise TamedPumaError(f"{run} holds no {MCAP_NAME} or {RRD_NAME}")
+            raise TamedPumaError(_no_run_here(run))
         return mcap, rrd
     if not run.exists():
         raise TamedPumaError(f"{run} not found")
@@ -76,6 +76,48 @@ def locate(run: Path) -> tuple[Path | None, Path]:
     if name.endswith(".rrd"):
         return None, run
     raise TamedPumaError(f"{run} is not a run folder, .mcap or .rrd file")
+
+
+def _no_run_here(folder: Path, shown: int = 5) -> str:
+    """Why ``folder`` cannot be replayed: a folder of runs (named, the first ``shown``), or a
+    folder holding no log at all."""
+    from tamedpuma.analysis.runs import find_logs
+
+    runs = sorted({p.parent for p in find_logs(folder)})
+    if not runs:
+        return f"{folder} holds no {MCAP_NAME} or {RRD_NAME}, nor run folders below it"
+    names = ", ".join(str(r.relative_to(folder)) for r in runs[:shown])
+    more = f" and {len(runs) - shown} more" if len(runs) > shown else ""
+    return (f"{folder} is a folder of {len(runs)} runs, not one run: replay one of them "
+            f"({names}{more}), e.g. python -m tamedpuma.replay {runs[0]}")
+
+
+def incomplete_note(mcap: Path | None) -> str | None:
+    """One line when the run's log is incomplete (killed, interrupted or truncated), else
+    None: a replay then shows the run up to where its log ends."""
+    from tamedpuma.recording import read_mcap
+
+    if mcap is None:
+        return None
+    try:
+        log = read_mcap(mcap)
+    except TamedPumaError:
+        return None
+    if log.complete:
+        return None
+    why = f": {log.read_error}" if log.read_error else ""
+    return (f"incomplete run: {mcap} ends at step {log.n_steps} (the run was killed, "
+            f"interrupted or its log truncated{why})")
+
+
+def check_reference(method: str) -> None:
+    """A ``--reference`` that names no method config (``conf/method``) is a mistake."""
+    from tamedpuma.app.config import group_options
+
+    known = group_options("method")
+    if method not in known:
+        raise TamedPumaError(f"--reference {method}: no such method; choose one of "
+                             f"{', '.join(known)} or none")
 
 
 def _summary(run_dir: Path) -> dict:
@@ -192,23 +234,39 @@ def web_url(host: str, web_port: int, file_port: int, files: list[Path], folder:
     return f"http://{host}:{web_port}/?{urls}"
 
 
-def serve_web(replay: Replay, host: str, web_port: int, file_port: int) -> int:
-    """Host the web viewer and the files until Ctrl-C."""
-    import rerun as rr
+def viewer_command(host: str, web_port: int, urls: list[str]) -> list[str]:
+    """The Rerun CLI hosting only the web viewer's own files on ``host:web_port`` (``--bind``:
+    the Python SDK's ``serve_web_viewer`` has no address and listens on every interface); the
+    viewer loads the recordings from ``urls`` (nothing is computed while nobody looks)."""
+    from tamedpuma.recording.render import rerun_executable
 
+    return [rerun_executable(), "--serve-web", "--bind", host, "--web-viewer-port",
+            str(web_port), *urls]
+
+
+def serve_web(replay: Replay, host: str, web_port: int, file_port: int) -> int:
+    """Host the web viewer and the files on ``host`` until Ctrl-C."""
     folder = replay.rrd.parent
     files = [f for f in replay.files if f.parent == folder]
     server = serve_files(folder, host, file_port)
-    rr.serve_web_viewer(web_port=web_port, open_browser=False)
-    print(f"open {web_url(host, web_port, server.server_address[1], files, folder)}")
+    link = web_url(host, web_port, server.server_address[1], files, folder)
+    urls = [part.removeprefix("url=") for part in link.split("?", 1)[1].split("&")]
+    from urllib.parse import unquote
+
+    viewer = subprocess.Popen(viewer_command(host, web_port, [unquote(u) for u in urls]),
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    print(f"open {link}")
     print("(Ctrl-C stops serving)")
     try:
-        threading.Event().wait()
+        code = viewer.wait()
     except KeyboardInterrupt:
-        pass
+        return 0
     finally:
+        viewer.terminate()
+        viewer.wait()
         server.shutdown()
-    return 0
+    raise TamedPumaError(f"the Rerun web viewer stopped (exit status {code}); is port "
+                         f"{web_port} in use? (--port)")
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -243,6 +301,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         reference = None if args.reference.lower() == "none" else args.reference
+        if reference is not None:
+            check_reference(reference)
         replay = prepare(args.run, rebuild=args.rebuild, reference=reference)
         if replay.rebuilt:
             print(f"rebuilt {replay.rrd} from {replay.mcap}"
@@ -250,6 +310,12 @@ def main(argv: list[str] | None = None) -> int:
         if replay.reference_run is not None:
             print(f"reference path: {replay.reference_run.parent.name} ({reference}, "
                   "no obstacles)")
+        elif reference is not None and args.reference != REFERENCE_METHOD:
+            print(f"reference path: none (no obstacle-free {reference} run of this task and "
+                  "scenario beside this run)")
+        note = incomplete_note(replay.mcap)
+        if note:
+            print(note)
         if args.build:
             print("\n".join(map(str, replay.files)))
             return 0

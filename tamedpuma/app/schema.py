@@ -531,6 +531,8 @@ class RunConfig:
         _check(_finite(sim.gravity), "sim.gravity", "finite", sim.gravity)
         _positive("sim.max_joint_force", sim.max_joint_force)
         ratio = self.scenario.dt / sim.substep
+        _check(round(ratio) >= 1, "scenario.dt", f"at least sim.substep = {sim.substep:g} s "
+               "(one physics step per control period)", self.scenario.dt)
         _check(abs(ratio - round(ratio)) <= 1e-6 * max(1.0, ratio), "scenario.dt",
                f"a multiple of sim.substep = {sim.substep:g} s", self.scenario.dt)
         _check(round(ratio) <= MAX_SUBSTEPS_PER_STEP, "scenario.dt / sim.substep",

@@ -16,12 +16,19 @@ controller returning NaN/inf ends its episode with ``stop_reason: nonfinite_comm
 the sweep prints how many runs completed, were skipped or failed, and exits with status 1 if any
 failed. Re-running a sweep into existing folders (fixed ``hydra.sweep.subdir``, e.g. Table 1)
 skips every run whose ``summary.json`` says complete and reruns the missing, incomplete and failed
-ones (an interrupted attempt's files are kept in ``previous_attempt/``).
+ones (an interrupted attempt's files are kept in ``previous_attempt/``); it refuses to start when
+a kept run's config now picks another trained model (both sha256 named: one sweep mixes no
+models) and warns about kept runs of another code revision (:func:`resume_check`).
+
+A full disk is not one run's failure: every later run would fail alike, so the sweep stops with
+its counts so far and one line naming the file, the bytes free and the bytes needed (status 2);
+the logs written so far keep their ``.active`` names (readable, incomplete).
 """
 
 from __future__ import annotations
 
 import ctypes
+import functools
 import json
 import logging
 import math
@@ -41,9 +48,10 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from tamedpuma.app.cli import fail, precheck_overrides
+from tamedpuma.app.cli import fail, precheck_overrides, shell_completion
 from tamedpuma.app.config import CONF_DIR
-from tamedpuma.errors import ConfigError, TamedPumaError
+from tamedpuma.errors import ConfigError, DiskFullError, TamedPumaError
+from tamedpuma.paths import free_bytes, no_space, write_atomic
 
 log = logging.getLogger("tamedpuma.sweep")
 _VALIDATE_EVERY_JOB = Sweeper.validate_batch_is_legal  # Hydra's (see representative_jobs)
@@ -95,11 +103,33 @@ def build(cfg: DictConfig) -> Built:
             plain["method"]["checkpoint"] = str(model.path)
         controller = methods.make(run.method.name, plain["method"], kinematics)
         sim_config, disturbance = run.sim, run.disturbance
+        for line in run_warnings(plain, scenario, kinematics, model):
+            print(f"warning: {line}", file=sys.stderr)
     except TamedPumaError:
         raise
     except (ValueError, TypeError, KeyError) as exc:
         raise ConfigError(f"invalid configuration: {type(exc).__name__}: {exc}") from exc
     return Built(run, spec, scenario, controller, sim_config, disturbance, model)
+
+
+def run_warnings(plain: dict, scenario, kinematics, model) -> list[str]:
+    """What makes a run pointless although its config is valid: a goal beyond the arm's reach
+    (:func:`tamedpuma.worlds.scenarios.reach_problem`), a model trained on another task than
+    the run's (its folder's manifest or report names the task)."""
+    from tamedpuma.puma import store
+    from tamedpuma.worlds.scenarios import reach_problem
+
+    out = [p for p in [reach_problem(scenario, kinematics)] if p]
+    if model is not None:
+        manifest = store.read_manifest(Path(model.path).parent) or {}
+        trained = manifest.get("task")
+        if not isinstance(trained, str):
+            trained = ((manifest.get("config") or {}).get("task") or {}).get("name")
+        task = plain["task"]["name"]
+        if isinstance(trained, str) and trained != task:
+            out.append(f"the model {model.path} was trained on task {trained}, this run is "
+                       f"task {task}")
+    return out
 
 
 EPISODE_FILES = ("episode.mcap", "episode.rrd", "summary.json", "failure.txt")
@@ -117,12 +147,10 @@ def _finite_json(value):
 
 
 def write_summary(run_dir: Path, summary: dict) -> Path:
-    """``run_dir/summary.json``: strict JSON (non-finite numbers as null), written atomically."""
-    path = run_dir / "summary.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(_finite_json(summary), indent=2, allow_nan=False) + "\n")
-    tmp.replace(path)
-    return path
+    """``run_dir/summary.json``: strict JSON (non-finite numbers as null), written atomically
+    (a full disk leaves no partial file and raises :class:`DiskFullError`)."""
+    text = json.dumps(_finite_json(summary), indent=2, allow_nan=False) + "\n"
+    return write_atomic(run_dir / "summary.json", text.encode())
 
 
 def run_one(cfg: DictConfig, run_dir: Path) -> dict:
@@ -147,9 +175,13 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                    velocity_limits=spec.qd_max,
                    model=built.model.metadata() if built.model else {})
     with Simulator(spec, built.sim_config, built.disturbance) as sim:
-        result = run_episode(scenario, built.controller, sim, recorders, info,
-                             stop_on_success=run.stop_on_success, settle_time=run.settle_time,
-                             rest=RestTest(run.rest_window, run.rest_distance))
+        try:
+            result = run_episode(scenario, built.controller, sim, recorders, info,
+                                 stop_on_success=run.stop_on_success,
+                                 settle_time=run.settle_time,
+                                 rest=RestTest(run.rest_window, run.rest_distance))
+        except DiskFullError as exc:  # the bytes a whole log needs at the rate written so far
+            raise exc.for_steps(scenario.max_steps) from exc
     t_episode = time.perf_counter()
     summary = {"status": "complete", "run_dir": str(run_dir), "method": run.method.name,
                "method_label": run.method.label or run.method.name, "task": run.task.name,
@@ -160,6 +192,7 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                "stop_reason": result.stop_reason, **result.metrics.as_dict(),
                "files": {k: str(v) for k, v in files.items()},
                "model": built.model.metadata() if built.model else None,
+               "code_revision": code_revision(),
                # every step's controller time [ms] (pooled statistics across runs)
                "step_compute_ms": [round(float(v), 5) for v in result.compute_ms],
                # where this process's time went [s, wall]: building config, model, scenario and
@@ -169,6 +202,62 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                           "episode": round(t_episode - t_built, 4)}}
     write_summary(run_dir, summary)
     return summary
+
+
+@functools.cache
+def code_revision() -> str:
+    """The code revision this process runs (``git describe``, else the package version)."""
+    from tamedpuma.app.models import code_revision as describe
+
+    return describe()
+
+
+def _kept_model(run_dir: Path, models: dict):
+    """The model the kept run ``run_dir``'s config picks now (None: no model, or a config
+    the current schema no longer reads); ``models`` caches it by the method config."""
+    from tamedpuma.app.schema import as_dict, run_config
+    from tamedpuma.puma import store
+
+    try:
+        cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
+        key = json.dumps(OmegaConf.to_container(cfg.method, resolve=True), sort_keys=True,
+                         default=str)
+        if key not in models:
+            models[key] = store.resolve_for_method(as_dict(run_config(cfg))["method"])
+        return models[key]
+    except Exception:  # noqa: BLE001 - unreadable or no longer valid: not comparable
+        return None
+
+
+def resume_check(sweep_dir: Path) -> tuple[str | None, list[str]]:
+    """Before a sweep runs into ``sweep_dir``, compare the complete runs it will keep with
+    what the same configs use now: ``(refusal, warnings)``. A kept run whose method would
+    now load another trained model (a ``models build`` finished in between) refuses the
+    resume, naming both sha256: its table row would pool two models. Runs of another code
+    revision are a warning (the revision of every run is in its ``summary.json``)."""
+    models, revisions, kept = {}, {}, 0
+    for path in sorted(Path(sweep_dir).glob("*/summary.json")):
+        try:
+            summary = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if not isinstance(summary, dict) or summary.get("status", "complete") != "complete":
+            continue
+        kept += 1
+        old = (summary.get("model") or {}).get("model_sha256")
+        new = _kept_model(path.parent, models) if old else None
+        if new is not None and new.sha256 != old:
+            return (f"resume refused: {path.parent} kept a run of model sha256 {old[:12]}, "
+                    f"its config now picks sha256 {new.sha256[:12]} ({new.path}); one sweep "
+                    "mixes no models: resume into a new folder (hydra.sweep.dir=...) or move "
+                    "the kept runs away", [])
+        rev = summary.get("code_revision")
+        if rev:
+            revisions[rev] = revisions.get(rev, 0) + 1
+    now = code_revision()
+    warnings = [f"warning: {n} of the {kept} kept complete runs were made at code revision "
+                f"{rev}, this is {now}" for rev, n in revisions.items() if rev != now]
+    return None, warnings
 
 
 def method_label(method_cfg) -> str:
@@ -219,13 +308,16 @@ def record_failure(cfg: DictConfig, run_dir: Path, exc: BaseException) -> dict:
                "task": OmegaConf.select(cfg, "task.name", default=None),
                "scenario": OmegaConf.select(cfg, "scenario.name", default=None),
                "seed": OmegaConf.select(cfg, "seed", default=None)}
+    summary["recorded"] = True
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "failure.txt").write_text(
-            "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)))
+        write_atomic(run_dir / "failure.txt", "".join(
+            traceback.format_exception(type(exc), exc, exc.__traceback__)).encode())
         write_summary(run_dir, summary)
-    except OSError as write_error:  # the failure itself could not be recorded: say so
-        print(f"error: cannot record the failure in {run_dir}: {write_error}", file=sys.stderr)
+    except (OSError, TamedPumaError) as write_error:  # the failure could not be recorded
+        summary["recorded"] = False
+        print(f"error: cannot record the failure in {run_dir}: "
+              f"{' '.join(str(write_error).split())}", file=sys.stderr)
     return summary
 
 
@@ -233,6 +325,9 @@ def record_failure(cfg: DictConfig, run_dir: Path, exc: BaseException) -> dict:
 #: by the main process at the end of the sweep from the sweep folder's OUTCOMES_FILE (the jobs may
 #: run in other processes: Hydra's joblib launcher)
 _OUTCOMES: list[tuple[str, str, str]] = []
+#: (outcomes file, offset) of the running multirun, set by the callback at its start: the
+#: outcomes of a sweep stopped before its end are read from there
+_OUTCOMES_SOURCE: list = []
 #: one JSON line per job ({"run_dir", "outcome", "why"}), appended by the job (O_APPEND: lines of
 #: concurrent jobs do not mix)
 OUTCOMES_FILE = "sweep_outcomes.jsonl"
@@ -276,8 +371,12 @@ def _report(summary: dict) -> None:
         outcome = f"success under the paper criterion only [{m['failure_whole_body']}]"
     else:
         outcome = f"no success [{m['failure_whole_body']}]"
-    print(f"{m['method_label']} on {m['task']}/{m['scenario']}: {outcome} after {m['steps']} steps "
-          f"({m['duration_s']:.2f} s), final position error {m['final_position_error_m']:.4f} m, "
+    tts = m.get("time_to_success_s")
+    episode = f"episode {m['steps']} steps, {m['duration_s']:.2f} s"
+    if isinstance(tts, (int, float)) and math.isfinite(tts):  # the settle time comes after
+        episode = f"goal reached at {tts:.2f} s; {episode} with the settle time"
+    print(f"{m['method_label']} on {m['task']}/{m['scenario']}: {outcome} ({episode}), "
+          f"final position error {m['final_position_error_m']:.4f} m, "
           f"min clearance {m['min_clearance_m']:.3f} m, "
           f"controller {m['compute_ms_median']:.3f} ms (median)")
     if m.get("model"):
@@ -295,10 +394,13 @@ def _report(summary: dict) -> None:
 
 
 def _partial_log_line(run_dir: Path) -> str:
+    """Where an interrupted run's partial logs are, or that it had not opened any yet."""
     files = sorted(str(p) for p in run_dir.glob("episode.*") if p.is_file())
-    where = ", ".join(files) if files else f"nothing was written in {run_dir}"
-    return (f"interrupted: partial log (incomplete) in {where}; "
-            "recover an .mcap.active with tamedpuma.recording.recover_mcap")
+    if not files:
+        return f"interrupted before the run's logs were opened: nothing recorded in {run_dir}"
+    hint = ("; recover an .mcap.active with tamedpuma.recording.recover_mcap"
+            if any(f.endswith(".mcap.active") for f in files) else "")
+    return f"interrupted: partial log (incomplete) in {', '.join(files)}{hint}"
 
 
 def _die_with_launcher() -> None:
@@ -334,10 +436,24 @@ def _terminated(*_) -> None:
     """SIGTERM in a launcher worker. During a run: unwind it (its logs close as incomplete),
     then exit. Anywhere else in the job (before the run opens its logs, after they closed):
     leave at once, there is nothing to close."""
+    if _TERMINATED and _RUN_OPEN:  # a second SIGTERM while the run closes its logs: the
+        return  # first one is unwinding it (cut short, the Rerun log stayed .active)
     _TERMINATED.append(True)
     if not _RUN_OPEN:
         _leave_worker()
     sys.exit(143)
+
+
+def _terminated_main(*_) -> None:
+    """SIGTERM in the main process: unwind (a run's logs close as incomplete, exit 143); a
+    repeated SIGTERM while that unwinding closes the logs is ignored."""
+    if _MAIN_TERMINATED:
+        return
+    _MAIN_TERMINATED.append(True)
+    sys.exit(143)
+
+
+_MAIN_TERMINATED = []  # set in the main process by its first SIGTERM
 
 
 def _leave_worker() -> None:
@@ -348,10 +464,10 @@ def _leave_worker() -> None:
 
 def _exit_if_terminated() -> None:
     """After a SIGTERMed job has closed its logs, leave the worker process for good: raised
-    into the launcher's worker loop, the SystemExit was caught and sent back as a task result,
-    and the loky worker, its launcher gone, waited for more work for ever (seen in session 7:
-    workers of a SIGKILLed sweep left asleep, re-parented to init; in session 14 the same for
-    a SIGTERM that reached a worker while its job was still setting up, before the run)."""
+    into the launcher's worker loop, the SystemExit would be caught and sent back as a task
+    result, and the loky worker, its launcher gone, would wait for more work for ever
+    (re-parented to init), also when the SIGTERM reached it while its job was still setting
+    up, before the run."""
     if _TERMINATED:
         _leave_worker()
 
@@ -360,6 +476,8 @@ def _exit_if_terminated() -> None:
 def _hydra_main(cfg: DictConfig) -> None:
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
+    # Hydra logs INFO to the console: torch's exit-time cache statistics are not the run's
+    logging.getLogger("torch").setLevel(logging.WARNING)
     if hydra_cfg.mode != RunMode.MULTIRUN:
         _job(cfg, run_dir, multirun=False)
         return
@@ -396,10 +514,17 @@ def _job(cfg: DictConfig, run_dir: Path, multirun: bool) -> None:
             if isinstance(exc, TamedPumaError):
                 fail(str(exc))
             raise
+        if no_space(exc, run_dir):  # every later run would fail alike: the sweep stops
+            if not isinstance(exc, DiskFullError):
+                exc = DiskFullError(getattr(exc, "filename", None) or run_dir,
+                                    free_bytes(run_dir))
+            raise SweepStopped(str(exc), str(run_dir)) from exc
         failure = record_failure(cfg, run_dir, exc)
         _record_outcome(run_dir, "failed", failure["reason"])
-        print(f"error: run failed ({failure['failure']}): {failure['reason']} "
-              f"[recorded in {run_dir / 'summary.json'}]", file=sys.stderr)
+        where = (f"recorded in {run_dir / 'summary.json'}" if failure["recorded"]
+                 else "not recorded")
+        print(f"error: run failed ({failure['failure']}): {failure['reason']} [{where}]",
+              file=sys.stderr)
         return
     finally:
         _RUN_OPEN.clear()
@@ -434,10 +559,33 @@ def _validate_representatives(sweeper, batch) -> None:
     _VALIDATE_EVERY_JOB(sweeper, representative_jobs(batch))
 
 
+class SweepStopped(BaseException):
+    """Ends a sweep at once, through Hydra's launcher (which reports an Exception with a
+    traceback): a full disk, on which every later run would fail alike. ``main`` prints the
+    counts so far and the message, and exits with status 2."""
+
+
+_HYDRA_SAVE_CONFIG = hydra.core.utils._save_config
+
+
+def _save_config_or_stop(cfg, filename: str, output_dir: Path) -> None:
+    """Hydra's ``_save_config`` (a job's ``.hydra/*.yaml``, the sweep's ``multirun.yaml``); a
+    full disk removes the partial file and stops the sweep with one line."""
+    try:
+        _HYDRA_SAVE_CONFIG(cfg, filename, output_dir)
+    except OSError as exc:
+        path = Path(output_dir) / filename
+        if not no_space(exc, path):
+            raise
+        path.unlink(missing_ok=True)
+        raise SweepStopped(str(DiskFullError(path, free_bytes(path)))) from exc
+
+
 def _sweep_report() -> int:
     """Print the multirun's counts and failed runs; 1 if any run failed, else 0."""
     counts = {k: sum(1 for o in _OUTCOMES if o[1] == k) for k in ("complete", "skipped", "failed")}
-    print(f"sweep: {len(_OUTCOMES)} runs: {counts['complete']} executed and complete, "
+    n = len(_OUTCOMES)
+    print(f"sweep: {n} run{'' if n == 1 else 's'}: {counts['complete']} executed and complete, "
           f"{counts['skipped']} skipped (already complete), {counts['failed']} failed")
     for run_dir, outcome, why in _OUTCOMES:
         if outcome == "failed":
@@ -445,20 +593,52 @@ def _sweep_report() -> int:
     return 1 if counts["failed"] else 0
 
 
+#: Rerun's own log filter: its file sink's errors (a full disk) are reported by the recorder
+#: as one line instead, see :meth:`tamedpuma.recording.RerunRecorder.close`
+_RERUN_LOG = "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off"
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
+    os.environ.setdefault("RUST_LOG", _RERUN_LOG)  # read when rerun is first imported
     # a killed run (SIGTERM) unwinds normally, so recorders close their files as incomplete
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    signal.signal(signal.SIGTERM, _terminated_main)
+    # loky's resource tracker of a launcher killed with SIGKILL removes the semaphores it left
+    # and warns about each: noise after the workers closed their logs (see _die_with_launcher)
+    os.environ["PYTHONWARNINGS"] = ",".join(filter(None, [
+        os.environ.get("PYTHONWARNINGS"),
+        "ignore::UserWarning:joblib.externals.loky.backend.resource_tracker"]))
     os.environ[_LAUNCHER_PID] = str(os.getpid())  # inherited by the joblib launcher's workers
-    error = precheck_overrides("sweep", argv)
+    shell_completion(argv, "tamedpuma.sweep")
+    try:
+        error = precheck_overrides("sweep", argv)
+    except KeyboardInterrupt:
+        print("interrupted (Ctrl-C) while checking the configuration: nothing was run",
+              file=sys.stderr)
+        sys.exit(130)
+    except SystemExit as exc:
+        if exc.code == 143:
+            print("interrupted (SIGTERM) while checking the configuration: nothing was run",
+                  file=sys.stderr)
+        raise
     if error:
         fail(error)
     _OUTCOMES.clear()
     Sweeper.validate_batch_is_legal = _validate_representatives
+    hydra.core.utils._save_config = _save_config_or_stop
     try:
         _hydra_main()
     except KeyboardInterrupt:
         sys.exit(130)  # the job printed where its partial log is
+    except SweepStopped as stop:
+        message, run_dir = (list(stop.args) + [""])[:2]
+        if _OUTCOMES_SOURCE:  # the callback's end-of-sweep collection did not run
+            _OUTCOMES[:] = outcomes_since(*_OUTCOMES_SOURCE)
+            if run_dir:
+                _OUTCOMES.append((run_dir, "failed", message))
+            if _OUTCOMES:
+                _sweep_report()
+        fail(message)
     if _OUTCOMES:
         sys.exit(_sweep_report())
 

@@ -127,19 +127,32 @@ def main(argv: list[str]) -> int:
                           "--config-dir DIR and --evaluate CKPT)")
     cfg = compose("train", with_search_path(overrides, search))
     cfg["command"] = " ".join(["python -m tamedpuma.train", *argv])
+    from tamedpuma.paths import resolve
     from tamedpuma.puma import pipeline
 
     # SIGTERM unwinds like Ctrl-C, so both say where the resumable state is
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    out_dir = resolve(str(cfg["out_dir"]))
+    created = not out_dir.exists()
     try:
         report = pipeline.run(cfg, log=lambda m: print(m, file=sys.stderr))
     except (KeyboardInterrupt, SystemExit) as exc:
+        _remove_if_empty(out_dir, created)
         if isinstance(exc, SystemExit) and exc.code in (0, None):
             raise
         print(_interrupted_line(cfg), file=sys.stderr)
         return 130 if isinstance(exc, KeyboardInterrupt) else 143
+    except Exception:
+        _remove_if_empty(out_dir, created)  # a failed training leaves no empty folder
+        raise
     print(_summary(report))
     return 0
+
+
+def _remove_if_empty(folder: Path, created: bool) -> None:
+    """Remove ``folder`` if this training created it and left nothing in it."""
+    if created and folder.is_dir() and not any(folder.iterdir()):
+        folder.rmdir()
 
 
 if __name__ == "__main__":

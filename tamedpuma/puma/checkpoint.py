@@ -12,6 +12,7 @@ missing key, a missing/unexpected parameter or a parameter of the wrong shape.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,10 +83,20 @@ def save(path: str | Path, net: PumaNet, meta: Meta) -> Path:
         "data_source": meta.data_source,
         "report": _plain(meta.report),
     }
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(payload, tmp)
-    tmp.replace(path)
-    return path
+    return save_atomic(payload, path)
+
+
+def save_atomic(obj, path: str | Path) -> Path:
+    """``torch.save(obj)`` to ``path`` through a temporary file and a rename: ``path`` is the
+    old file or the whole new one; a full disk leaves no ``.tmp`` behind and raises a one-line
+    :class:`~tamedpuma.errors.DiskFullError` naming the bytes needed."""
+    import io
+
+    from ..paths import write_atomic
+
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    return write_atomic(path, buffer.getvalue())
 
 
 def _fail(path, msg) -> CheckpointError:
@@ -96,20 +107,66 @@ _ZIP_MAGIC = b"PK\x03\x04"  # torch.save's archive format
 _PICKLE_MAGIC = b"\x80"      # torch.save's legacy format (a pickle, protocol >= 2)
 
 
+#: modules whose globals a checkpoint's pickle may name (tensors, their storages, plain
+#: containers): anything else would be imported and called by a plain unpickler
+_SAFE_MODULES = ("torch", "collections", "_codecs", "numpy")
+
+
+def _pickle_bytes(path: Path) -> bytes:
+    """The pickle of a checkpoint: the file itself, or the ``data.pkl`` of a torch archive."""
+    import zipfile
+
+    if zipfile.is_zipfile(path):
+        with zipfile.ZipFile(path) as zf:
+            name = next((n for n in zf.namelist() if n.endswith("data.pkl")), None)
+            return zf.read(name) if name else b""
+    return path.read_bytes()
+
+
+def code_globals(path: Path) -> list[str]:
+    """The globals (``module.name``) outside :data:`_SAFE_MODULES` that unpickling ``path``
+    would import and may call (``posix.system``...), read from its opcodes without running
+    them; empty for a clean or unreadable pickle."""
+    import pickletools
+
+    found, strings = [], []
+    try:
+        for op, arg, _ in pickletools.genops(_pickle_bytes(path)):
+            if isinstance(arg, str):
+                strings.append(arg)
+            if op.name in ("GLOBAL", "INST"):
+                found.append(str(arg).replace(" ", "."))
+            elif op.name == "STACK_GLOBAL" and len(strings) >= 2:
+                found.append(f"{strings[-2]}.{strings[-1]}")
+    except Exception:  # noqa: BLE001 - a truncated pickle: what was read so far counts
+        pass
+    return [g for g in found if g.split(".", 1)[0] not in _SAFE_MODULES]
+
+
 def _read_problem(path: Path, exc: BaseException) -> str:
     """What is wrong with a file ``torch.load`` could not read, in a few words."""
     text = " ".join(str(exc).split())
     with open(path, "rb") as fh:
         head = fh.read(4)
+    unsafe = code_globals(path)
+    if unsafe:
+        return f"refused: loading it would run code (it names {', '.join(unsafe[:3])})"
     if not (head == _ZIP_MAGIC or head.startswith(_PICKLE_MAGIC)):
         return f"not a PyTorch checkpoint (unrecognised content, first bytes {head.hex()})"
     unsafe = [ln.strip() for ln in str(exc).splitlines()
               if "unsupported global" in ln.lower()]  # torch's wording differs by version
     if unsafe:
         found = unsafe[0]
-        return f"refused: loading it would run code ({found[:120]})"
+        return f"refused: loading it would run code ({_clip(found, 120)})"
     kind = "archive" if head == _ZIP_MAGIC else "file"
-    return f"truncated or corrupt PyTorch {kind} ({text[:80] or type(exc).__name__})"
+    return f"truncated or corrupt PyTorch {kind} ({_clip(text, 120) or type(exc).__name__})"
+
+
+def _clip(text: str, n: int) -> str:
+    """``text`` cut at a word boundary to at most ``n`` characters (with "..." if cut)."""
+    if len(text) <= n:
+        return text
+    return text[:n].rsplit(" ", 1)[0] + " ..."
 
 
 def _read(path: Path) -> dict:
@@ -122,7 +179,9 @@ def _read(path: Path) -> dict:
     if path.stat().st_size == 0:
         raise _fail(path, "empty file (0 bytes)")
     try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # e.g. "Detected pickle protocol 5": the error says
+            warnings.simplefilter("ignore", UserWarning)
+            ck = torch.load(path, map_location="cpu", weights_only=True)
     except PermissionError as exc:
         raise _fail(path, f"cannot be read ({exc.strerror or exc})") from None
     except Exception as exc:  # noqa: BLE001 - corrupt, truncated or not a torch file

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from ..paths import CONF_DIR, resolve, writable_problem
+from ..paths import CONF_DIR, resolve, writable_problem, write_atomic
 from . import checkpoint, data, demo_formats, demos_synthetic, evaluation, task_from_demos
 from .network import NetConfig, StateSpec
 from .training import TrainConfig, Workspace, train
@@ -45,6 +45,9 @@ def load_raws(task: dict, puma: dict) -> tuple[list[data.RawDemo], str, str]:
     'lasa'), or a folder/file in any format of :mod:`tamedpuma.puma.demo_formats`."""
     name = _require(task, "name", "task")
     src = task.get("demos")
+    if src is None and task.get("goal_position") is None:  # no data, no synthetic set's goal
+        raise ConfigError("missing config key task.demos (a task from demonstrations needs "
+                          "task.demos=PATH: a folder or file of demonstrations)")
     if src is None:
         syn = task["synthetic"]
         raws = demos_synthetic.generate(str(syn.get("kind") or name),
@@ -241,12 +244,10 @@ def _training_part(cfg: dict) -> dict:
 
 
 def _saver(out_dir: Path, cfg: dict):
-    import torch
+    from .checkpoint import save_atomic
 
     def save(state: dict) -> None:
-        tmp = out_dir / (STATE_FILE + ".tmp")
-        torch.save({"config": _training_part(cfg), "state": state}, tmp)
-        tmp.replace(out_dir / STATE_FILE)
+        save_atomic({"config": _training_part(cfg), "state": state}, out_dir / STATE_FILE)
     return save
 
 
@@ -373,7 +374,7 @@ def run(cfg: dict, log=print) -> dict:
     report["checkpoint"] = str(path)
     report["pipeline_seconds"] = round(time.perf_counter() - t_start, 2)
     report["pipeline_cpu_seconds"] = round(time.process_time() - cpu_start, 2)
-    (out_dir / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    write_atomic(out_dir / "report.json", (json.dumps(report, indent=2) + "\n").encode())
     if cfg["bench_out"] and "evaluation" in report:
         bench = resolve(str(cfg["bench_out"]))
         bench.parent.mkdir(parents=True, exist_ok=True)

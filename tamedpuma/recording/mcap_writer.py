@@ -56,7 +56,8 @@ from foxglove.messages import (
     Vector3,
 )
 
-from tamedpuma.errors import LogExistsError
+from tamedpuma.errors import DiskFullError, LogError, LogExistsError, TamedPumaError
+from tamedpuma.paths import free_bytes, no_space
 
 from ..runlog import ACTIVE_SUFFIX, ATTACH_URDF, META_CONFIG, META_RUN_INFO, META_SUMMARY
 from .records import RunInfo, StepRecord
@@ -189,6 +190,7 @@ class McapRecorder:
                     "properties": {"step": {"type": "integer"}, "t": {"type": "number"}},
                     "additionalProperties": {"type": ["number", "null"]}})
         self._count = 0
+        self._failed = False  # a write failed (a full disk): the file is kept as .active
         self._pending: list[StepRecord] = []  # steps taken since the last flush
         self._in_chunk = False  # True while _log_pending runs (an exception may cut it short)
         self._obstacle_spheres = _LastSpheres(_OBSTACLE_COLOR)
@@ -226,8 +228,12 @@ class McapRecorder:
         self._pending.append(rec)
         self._count += 1
         if self._count % self.flush_every == 0:
-            self._log_pending()
-            self._writer.flush()
+            try:
+                self._log_pending()
+                self._writer.flush()
+            except (OSError, RuntimeError) as exc:
+                self._failed = True
+                raise write_error(self.active_path, exc, self._count) from exc
 
     def _log_pending(self) -> None:
         self._in_chunk = True
@@ -292,11 +298,14 @@ class McapRecorder:
         """Write the summary metadata, finish the file and rename it to ``path``.
 
         complete: False if the episode was interrupted. summary: JSON-serialisable values
-        (non-serialisable ones are stored as their ``str``).
+        (non-serialisable ones are stored as their ``str``). A file whose writing failed (a
+        full disk) keeps its ``.active`` name: readable up to its last flush, and incomplete.
         """
         if self._writer is None:
             return
         try:
+            if self._failed:
+                return
             if self._in_chunk:
                 # a chunk cut short by an exception (the sweep's SIGTERM handler, Ctrl-C) while
                 # its records were being logged: those before the interrupted one are logged
@@ -311,12 +320,34 @@ class McapRecorder:
                 "steps": str(self._count),
                 "summary_json": json.dumps(dict(summary), default=_jsonable),
             })
+        except (OSError, RuntimeError) as exc:
+            self._failed = True
+            raise write_error(self.active_path, exc, self._count) from exc
         finally:
-            self._writer.close()
-            self._writer = None
-            for ch in (self._joints, self._tf, self._ee, self._scene, self._scalars):
-                ch.close()
+            self._finish()
+
+    def _finish(self) -> None:
+        """Close the writer and the channels; rename the file unless a write failed."""
+        writer, self._writer = self._writer, None
+        try:
+            writer.close()
+        except (OSError, RuntimeError):
+            self._failed = True
+        for ch in (self._joints, self._tf, self._ee, self._scene, self._scalars):
+            ch.close()
+        if not self._failed:
             os.replace(self.active_path, self.path)
+
+
+def write_error(path: Path, exc: BaseException, steps: int) -> TamedPumaError:
+    """A failed write of the log ``path`` after ``steps`` steps as a one-line error: a
+    :class:`DiskFullError` (with the bytes per step written so far) when the file system is
+    full, else a :class:`LogError` naming the writer's message."""
+    if no_space(exc, path):
+        size = path.stat().st_size if path.is_file() else 0
+        per_step = size / steps if steps and size else None
+        return DiskFullError(path, free_bytes(path), per_step=per_step)
+    return LogError(f"cannot write {path}: {' '.join(str(exc).split())}")
 
 
 def _jsonable(value):

@@ -44,7 +44,7 @@ from rerun.components import LineStrip3DBatch
 from rerun.encodings import Vec3DBatch
 from rerun.urdf import UrdfTree
 
-from .mcap_writer import active_path, prepare_output
+from .mcap_writer import active_path, prepare_output, write_error
 from .records import RunInfo, StepRecord
 
 WORLD_FRAME = "world"
@@ -72,7 +72,8 @@ PLOT_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("contacts", ("obstacle_contact", "ground_contact")),
 )
 INTERNALS = "method internals"
-MAX_LEGEND = 3  # plots with more series show no legend (hover shows the names)
+MAX_LEGEND = 8  # plots with more series show no legend (hover shows the names): the
+#: joint plots (7 joints, the speed limit) keep theirs
 #: Vertical field of view of Rerun's 3-D eye [rad] (measured: a point 1 m off-axis at 3 m
 #: projects 0.32 image heights from the centre, i.e. 55°).
 RERUN_FOV_Y = np.deg2rad(55.0)
@@ -216,7 +217,9 @@ def replay_blueprint(scalar_names: Iterable[str] = (), joint_names: Iterable[str
                                          plot_legend=legend(len(names))))
     return rrb.Blueprint(
         rrb.Horizontal(scene, rrb.Grid(*plots, grid_columns=2), column_shares=[3, 2]),
-        collapse_panels=True)
+        # the plots' x-axis in simulated seconds (the "step" timeline labels it #0, #1, ...)
+        rrb.TimePanel(state="collapsed", timeline="time"),
+        rrb.SelectionPanel(state="collapsed"), rrb.BlueprintPanel(state="collapsed"))
 
 
 def default_blueprint() -> rrb.Blueprint:
@@ -302,6 +305,7 @@ class RerunRecorder:
         self._columns: _Columns | None = None  # the steps not sent yet, one row each
         self._ee_path = _Columns()  # every end-effector point so far (the path strips' source)
         self._count = 0  # steps sent
+        self._failed = False  # a write failed: the file keeps its .active name
         self._last_send = time.monotonic()
 
     def _log_robot(self, rec, info: RunInfo) -> None:
@@ -343,7 +347,11 @@ class RerunRecorder:
         self._last = rec
         if (self._columns.n + len(self._pending) >= self.batch
                 or time.monotonic() - self._last_send >= self.max_wait):
-            self._send()
+            try:
+                self._send()
+            except (OSError, RuntimeError) as exc:  # the file sink failed (a full disk)
+                self._failed = True
+                raise write_error(self.active_path, exc, self._count) from exc
 
     def _take_pending(self) -> None:
         """Copy the buffered steps into the column buffers, in order: one stacked array per
@@ -372,11 +380,18 @@ class RerunRecorder:
         pending.clear()
 
     def close(self, complete: bool, summary: Mapping[str, object]) -> None:
-        """Send buffered steps, log the outcome (static ``/summary``) and close the file."""
+        """Send buffered steps, log the outcome (static ``/summary``) and close the file.
+
+        The file is renamed to ``path`` only if it ends with the RRD footer: a write that
+        failed (the file sink reports a full disk on stderr, not always to the caller) leaves
+        ``<path>.active``, readable up to the failure, and raises a one-line error."""
         stream = self._rec
         if stream is None:
             return
+        finished = False
         try:
+            if self._failed:
+                return
             self._send(flush=False)  # flushed below, with the layout and the summary
             if self._last is not None:
                 self._points.append(scene_points(self._last))
@@ -386,10 +401,19 @@ class RerunRecorder:
             stream.log("/summary", rr.AnyValues(**{**fields, "complete": bool(complete),
                                                    "recorded_steps": self._count}), static=True)
             stream.flush()
+            finished = True
+        except (OSError, RuntimeError) as exc:
+            self._failed = True
+            raise write_error(self.active_path, exc, self._count) from exc
         finally:
             stream.disconnect()
             self._rec = None
-            os.replace(self.active_path, self.path)
+            if finished and not has_footer(self.active_path):
+                self._failed = True
+                raise write_error(self.active_path, OSError("the file has no RRD footer"),
+                                  self._count)
+            if not self._failed:
+                os.replace(self.active_path, self.path)
 
     def blueprint(self) -> rrb.Blueprint:
         """The layout for what was written so far (camera framing every point seen)."""
@@ -492,6 +516,21 @@ class RerunRecorder:
 
 
 _TREES: dict[tuple[str, int, int], UrdfTree] = {}
+
+
+#: the last bytes of a finished RRD file (the footer's magic, then its version)
+RRD_FOOTER_MAGIC = b"RRF2FOOT"
+
+
+def has_footer(path: str | os.PathLike) -> bool:
+    """True if the RRD file ``path`` ends with its footer (written when the stream closes)."""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            fh.seek(max(0, fh.tell() - 64))
+            return RRD_FOOTER_MAGIC in fh.read()
+    except OSError:
+        return False
 
 
 def _urdf_tree(path: str) -> UrdfTree:

@@ -37,6 +37,7 @@ import math
 import numpy as np
 import pybullet as pb
 
+from tamedpuma.errors import ScenarioError
 from tamedpuma.robot.kinematics import RobotSpec
 from tamedpuma.robot.rotations import bullet_rotation_matrices
 from tamedpuma.types import Contacts, Observation, Scenario
@@ -90,7 +91,8 @@ class Simulator:
         pb.setGravity(0, 0, -self.config.gravity, physicsClientId=c)
         n_sub = round(dt / self.config.substep)
         if n_sub < 1 or not math.isclose(n_sub * self.config.substep, dt, rel_tol=1e-9):
-            raise ValueError(f"dt {dt} is not a multiple of the substep {self.config.substep}")
+            raise ScenarioError(f"scenario.dt {dt} s is not a multiple (>= 1) of the "
+                                f"simulator's substep {self.config.substep} s")
         self._n_sub = n_sub
         pb.setPhysicsEngineParameter(fixedTimeStep=self.config.substep, numSubSteps=0,
                                      deterministicOverlappingPairs=1, physicsClientId=c)

@@ -1,4 +1,4 @@
-"""Random scenarios drawn the way the Table-1 ones look (issue 12), deterministic for a seed.
+"""Random scenarios drawn the way the Table-1 ones look, deterministic for a seed.
 
 One call, :func:`generate`, turns ``(task, seed, start kind)`` into a validated
 :class:`~tamedpuma.types.Scenario`; the same arguments always give the same scenario. Drawing:

@@ -172,6 +172,21 @@ def arm_points(kinematics, q: np.ndarray, per_segment: int = 8) -> np.ndarray:
     return np.concatenate([kinematics.sphere_centers(q), along, kinematics.ee_pose(q)[0][None]])
 
 
+def reach_problem(scenario: Scenario, kinematics) -> str | None:
+    """Why the goal cannot be reached from any configuration, or None: it lies farther from
+    the first link's origin than the arm spans (the sum of the distances between consecutive
+    link origins and the end effector at ``q0`` [m], an upper bound of the reach)."""
+    origins = kinematics.link_poses(scenario.q0)[0]
+    chain = np.vstack([origins, kinematics.ee_pose(scenario.q0)[0][None]])
+    span = float(np.linalg.norm(np.diff(chain, axis=0), axis=1).sum())
+    distance = float(np.linalg.norm(scenario.goal.position - origins[0]))
+    if distance <= span:
+        return None
+    where = ", ".join(f"{v:.2f}" for v in scenario.goal.position)
+    return (f"the goal ({where}) m is {distance:.2f} m from the robot's base, beyond the "
+            f"arm's reach ({span:.2f} m): the run cannot succeed")
+
+
 def clutter_count(clutter: Mapping, own: int) -> int:
     """How many clutter obstacles to add: ``clutter.total`` − the scenario's own ``own`` when a
     total is set (the obstacle-count sweep: 2, 10, 100, 1000 in all), else ``clutter.count``."""
