@@ -99,7 +99,7 @@ def test_disturbance_table_reports_recovery_from_the_onset(tmp_path):
     _summary(runs / "push" / "puma", "puma", 2, 1.0, False, "push", onset=1.0)
     frame, _ = load_summaries(runs)
     table = disturbance.disturbance_table(frame).set_index("method")
-    assert table.loc["fpm", "recovery [s]"] == "3.00 ± 0.00"  # reached at 4 s, pushed at 1 s
+    assert table.loc["fpm", "recovery [s]"] == "3.00 (1 run)"  # reached at 4 s, pushed at 1 s
     assert table.loc["puma", "success (whole body)"] == "0.00"
     assert table.loc["puma", "whole-body failures"] == "stall 1"
 

@@ -1,4 +1,5 @@
-"""Rebuild the paper's Table 1 from run logs: ``python -m analysis.tables RUNS_DIR [--out DIR]``.
+"""Rebuild the paper's Table 1 from run logs:
+``python -m tamedpuma.analysis.tables RUNS_DIR [--out DIR]``.
 
 One row per method label (``method.label`` of the run's config, else the method name: the CPM
 forms ``cpm``, ``cpm_literal`` and ``cpm_original`` are separate rows), scored on the runs with
@@ -29,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from tamedpuma.analysis.path_difference import path_difference
-from tamedpuma.analysis.runs import parse_and_load, runs_parser
+from tamedpuma.analysis.runs import add_scoring_flags, parse_and_load, runs_parser, scored_runs
 
 METHOD_ORDER = ["puma", "modulation_ik", "fabrics", "fpm", "cpm", "fpm_literal", "cpm_literal",
                 "cpm_original"]
@@ -57,9 +58,12 @@ def path_differences(runs: pd.DataFrame, paths: dict, reference: str = "puma") -
 
 
 def _pm(values: pd.Series, digits: int = 2) -> str:
+    """'mean ± std' of the values, 'value (1 run)' for one, '—' for none."""
     values = pd.Series(values).dropna()
     if values.empty:
         return "—"
+    if len(values) == 1:
+        return f"{values.iloc[0]:.{digits}f} (1 run)"
     return f"{values.mean():.{digits}f} ± {values.std(ddof=0):.{digits}f}"
 
 
@@ -173,21 +177,20 @@ def model_notes(runs: pd.DataFrame) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = runs_parser(__doc__, "output folder (default: RUNS)")
-    parser.add_argument("--include-incomplete", action="store_true",
-                        help="score killed/truncated runs too (default: listed and excluded)")
+    parser = add_scoring_flags(runs_parser(__doc__, "output folder (default: RUNS)"))
     got = parse_and_load(parser, argv)
     if got is None:
         return 2
     args, (runs, paths, times) = got
     attrs = dict(runs.attrs)
-    incomplete = runs[~runs["complete"].astype(bool)]
-    if not args.include_incomplete:
-        runs = runs[runs["complete"].astype(bool)].copy()
-        if runs.empty:
-            print(f"error: no complete run below {args.runs} ({len(incomplete)} incomplete; "
-                  "--include-incomplete scores them)", file=sys.stderr)
-            return 2
+    scored = scored_runs(runs, args)
+    if scored is None:
+        return 2
+    runs, incomplete = scored
+    if runs.empty:
+        print(f"error: no complete run below {args.runs} ({len(incomplete)} incomplete; "
+              "--include-incomplete scores them)", file=sys.stderr)
+        return 2
     runs["path_difference_m"] = path_differences(runs, paths)
     table = table1(runs, times)
     out = args.out or args.runs

@@ -192,8 +192,8 @@ class CpmController(TamedController):
     regulator_scale: factor on the ψ term (1 in the paper, 0.05 in the original code)."""
 
     def __init__(self, puma: PumaController, fabric: Fabric, *, beta: float, eps: float,
-                 variant: str, regulator_scale: float, potential_scale: float, damping: str,
-                 semi_implicit: bool, alpha_min: float | None = None,
+                 variant: str, potential_scale: float, damping: str, semi_implicit: bool,
+                 regulator_scale: float = 1.0, alpha_min: float | None = None,
                  rate: ControlRate | None = None, energy: str = "fabric",
                  forcing: Forcing | None = None, tank: EnergyTank | None = None,
                  configuration_potential: str = "attractor"):
