@@ -619,3 +619,17 @@ def test_one_placement_pass_gives_the_heights_and_spheres_of_two(kinematics):
         margins, at = ground.margins_and_spheres(kinematics, q)
         np.testing.assert_array_equal(margins, ground.margins(kinematics, q))
         np.testing.assert_array_equal(at, spheres)
+
+
+def test_fpm_streams_pumas_potential_every_step(robot_spec, kinematics, monkeypatch,
+                                               scalar_log):
+    """FPM logs ψ (the stall monitor's sample, every 0.1 s) in every step's scalars, so the
+    potential plot of a run is never empty; it falls as the arm converges."""
+    monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
+    scenario = _obstacle_free_scenario(robot_spec, "tomato", max_steps=150)
+    with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
+        run_episode(scenario, make("fpm", _method_config("fpm"), kinematics), world,
+                    [scalar_log], stop_on_success=False)
+    psi = np.array([row["psi"] for row in scalar_log.rows])
+    assert len(psi) == 150 and np.isfinite(psi).all()
+    assert psi[-1] < 0.5 * psi[0]

@@ -204,8 +204,12 @@ class TamedController:
 
     def stall_scalars(self) -> dict[str, float]:
         """``stall_pull``: 1 while the stall pull is armed, else 0; with the configuration pull
-        on, ``configuration_pull``: 1 while it is engaged (log scalars)."""
+        on, ``configuration_pull``: 1 while it is engaged; ``psi``: PUMA's potential ψ as the
+        stall monitor last sampled it (every 0.1 s; the step computes it anyway, so logging it
+        costs nothing) (log scalars)."""
         out = {"stall_pull": float(self.stall is not None and self.stall.armed)}
+        if self.stall is not None and np.isfinite(self.stall.psi):
+            out["psi"] = float(self.stall.psi)
         if self.configuration is not None:
             out["configuration_pull"] = float(self.configuration.engaged)
         return out
