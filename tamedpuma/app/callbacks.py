@@ -77,9 +77,12 @@ class SweepOutcomes(Callback):
 
 def progress_line(config: DictConfig, job_return: Any) -> str:
     """``[done/total] <run folder>: <outcome>`` after a job: done counts the run folders of
-    the sweep with a ``summary.json``, total the sweep's jobs (``multirun.yaml``)."""
+    the sweep with a ``summary.json`` (not the earlier attempts a resumed sweep set aside),
+    total the sweep's jobs (``multirun.yaml``)."""
+    from tamedpuma.analysis.runs import set_aside
+
     root = Path(str(config.hydra.sweep.dir))
-    done = sum(1 for _ in root.rglob("summary.json"))
+    done = sum(1 for p in root.rglob("summary.json") if not set_aside(p))
     try:
         total = sweep_size(OmegaConf.load(root / "multirun.yaml")) or "?"
     except Exception:  # noqa: BLE001 - an unreadable manifest: progress without a total
