@@ -208,7 +208,8 @@ class _Selection:
         net.eval()
         net.cache_goal()
         with torch.no_grad():
-            score, info = validator(net, final)
+            score, info = validator(net, final, tuple(r["dtw"] for r in self.records
+                                                      if "dtw" in r))
         net.train()
         stop = bool(info.get("stop", False))
         self.records.append({"it": it, **info, "score": list(score)})
@@ -400,7 +401,7 @@ def _start(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCo
 
 def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetConfig,
           cfg: TrainConfig, seed: int = 0, progress: bool = True,
-          validator: Callable[[PumaNet, bool], tuple[tuple, dict]] | None = None,
+          validator: Callable[[PumaNet, bool, tuple], tuple[tuple, dict]] | None = None,
           resume: dict | None = None, save: Callable[[dict], None] | None = None,
           save_every: int = 0) -> TrainResult:
     """Train a primitive on ``demos``; returns the network (eval mode) and the loss history.
@@ -408,7 +409,8 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
     With ``validator`` and ``cfg.select_every`` > 0, the weights are validated every
     ``select_every`` iterations from ``select_from`` of the run on (and at the end); the weights
     with the best score (a tuple, larger is better) are returned. The validator must use its own
-    random starts, not the evaluation's.
+    random starts, not the evaluation's; it is called with the network, whether this is the final
+    validation, and the earlier validations' DTWs.
     ``save(state)`` is called every ``save_every`` iterations with the resumable state; passing
     that state back as ``resume`` continues the run exactly (same result as uninterrupted).
     """
