@@ -126,3 +126,23 @@ def test_demonstrations_the_network_cannot_follow_are_named_and_strict_refuses(t
     assert any(n in last for n in named)
     assert not (tmp_path / "strict" / "puma.pt").exists()
     assert not json.loads((tmp_path / "strict" / "report.json").read_text())["gates"]["passed"]
+
+
+def test_a_model_that_failed_its_gates_is_named_where_it_is_loaded(tmp_path):
+    from tamedpuma.app.models import gate_warnings
+    from tamedpuma.puma.primitive import warn_failed_gates
+
+    failures = gates.check(_evaluation([0.004, 0.03, 0.001, 0.001]), np.array([0.05] * 4),
+                           ["a", "b", "c", "d"], EvalConfig())
+    assert len(failures) == 1
+    report = {"gates": gates.as_report(failures, np.array([0.05] * 4), EvalConfig())}
+    (tmp_path / "report.json").write_text(json.dumps(report))
+    said = []
+    assert gate_warnings("tomato", tmp_path, said.append) == [failures[0].line]
+    assert "tomato" in said[0] and said[1].endswith(failures[0].line)
+    said.clear()
+    assert warn_failed_gates(tmp_path / "puma.pt", report, said.append) == [failures[0].line]
+    warn_failed_gates(tmp_path / "puma.pt", report, said.append)  # once per model file
+    assert len(said) == 2 and "b (3.00 cm" in said[1]
+    passed = {"gates": gates.as_report([], np.array([0.05] * 4), EvalConfig())}
+    assert warn_failed_gates(tmp_path / "other.pt", passed, said.append) == [] and len(said) == 2
