@@ -94,6 +94,14 @@ def evaluate_checkpoint(path: str, overrides: list[str]) -> dict:
     eval_cfg = evaluation.EvalConfig(**eval_kw)
     report = {"checkpoint": path, "evaluation": evaluation.evaluate(net, demos, meta.workspace,
                                                                     eval_cfg)}
+    from tamedpuma.puma import gates
+
+    spread, nearest = gates.nearest_demos(demos)
+    failures = gates.check(report["evaluation"], spread, gates.demo_names(demos), eval_cfg,
+                           demos.unit, nearest, gates.demo_extent(demos))
+    report["gates"] = gates.as_report(failures, spread, eval_cfg)
+    for f in failures:
+        print(f"warning: gate {f.gate}: {f.line}", file=sys.stderr)
     return report
 
 
