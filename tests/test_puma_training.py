@@ -167,3 +167,28 @@ def test_the_default_config_stops_on_the_data_not_on_a_fixed_line():
     assert t["stop_dtw"] == 0 and t["keep_dtw"] == 0  # no absolute DTW line
     assert 0 < t["stop_spread"] < 0.5 and t["patience"] >= 2 and 0 < t["min_delta"] < 0.2
     assert t["path_weight"] > 0 and t["ema"] > 0 and t["val_confirm"] + t["val_starts"] >= 1000
+
+
+def test_a_plateau_starts_the_final_decay_and_the_run_ends_after_it():
+    p = _tiny("puma.train.iterations=100", "puma.train.select_every=5", "puma.train.select_from=0",
+              "puma.train.anneal=10")
+    calls = []
+
+    def validator(net, final, previous=()):
+        calls.append(final)
+        return (0,), {"stop": False, "plateau": len(calls) >= 2, "dtw": 1.0}
+
+    args = (p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg)
+    saved = {}
+    res = training.train(*args, seed=4, progress=False, validator=validator,
+                         save=lambda s: saved.setdefault(s["it"], copy.deepcopy(s)), save_every=5)
+    assert res.iterations_run == 20 and calls == [False, False, False, True]  # 10 + 10
+    start, lr10 = saved[15]["anneal"]
+    lr = p.train_cfg.lr
+    assert start == 10 and lr10 < lr  # the cosine had begun to fall
+    assert saved[15]["opt"]["param_groups"][0]["lr"] == pytest.approx(
+        lr10 + (0.02 * lr - lr10) * 0.5)  # half way down
+    calls[:] = [False, False, False]
+    again = training.train(*args, seed=4, progress=False, validator=validator, resume=saved[15])
+    assert again.iterations_run == 20
+    assert torch.equal(_flat(again.net.state_dict()), _flat(res.net.state_dict()))

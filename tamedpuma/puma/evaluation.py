@@ -177,7 +177,7 @@ def imitation_dtw(net: PumaNet, demos: Demonstrations) -> float:
 def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int = 300,
               confirm: int = 0, horizon: float | None = None, stop_dtw: float = 0.0,
               stop_compat: float = 0.0, keep_dtw: float = 0.0, target: float = 0.0,
-              patience: int = 0, min_delta: float = 0.03):
+              patience: int = 0, min_delta: float = 0.03, plateau_stops: bool = True):
     """Validation for checkpoint selection and early stopping, on its own random starts (seed
     ``cfg.seed + 1000``, not the evaluation's) and ψ samples (``cfg.seed + 1001``).
 
@@ -188,7 +188,8 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
     - the DTW is ≤ ``target`` or ≤ ``stop_dtw`` (good enough: ``target`` is set from the
       demonstrations' own spread), or
     - the DTW has not improved on the best so far by a relative ``min_delta`` for ``patience``
-      validations (more iterations stop helping) and is within ``min_delta`` of that best, or
+      validations (more iterations stop helping) and is within ``min_delta`` of that best
+      (``plateau_stops``; else ``info["plateau"]`` tells the caller, which anneals), or
     - it is the ``final`` validation;
 
     and only candidates (and any DTW ≤ ``keep_dtw``) are checked further: ψ-compatible fraction
@@ -215,9 +216,10 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
         dtw = imitation_dtw(net, demos)
         plateau = _Plateau(patience, min_delta)
         stale = [plateau.update(d) for d in (*previous, dtw)][-1]
-        candidate = any(0 < t and dtw <= t for t in (target, stop_dtw)) or final or (
-            stale and dtw <= plateau.best * (1 + min_delta))
-        info = {"dtw": dtw, "stop": False, "stale": plateau.stale}
+        good = any(0 < t and dtw <= t for t in (target, stop_dtw))
+        candidate = good or final or (plateau_stops and stale
+                                      and dtw <= plateau.best * (1 + min_delta))
+        info = {"dtw": dtw, "stop": False, "stale": plateau.stale, "plateau": stale}
         if not candidate and not (keep_dtw > 0 and dtw <= keep_dtw):
             return (False, False, 0.0, -dtw), info
         psi_ok = True

@@ -319,7 +319,8 @@ def validator_of(p: Prepared):
                                 confirm=t.val_confirm, horizon=t.val_horizon or None,
                                 stop_dtw=t.stop_dtw, stop_compat=t.stop_compat,
                                 keep_dtw=t.keep_dtw, target=stop_target(p),
-                                patience=t.patience, min_delta=t.min_delta)
+                                patience=t.patience, min_delta=t.min_delta,
+                                plateau_stops=t.anneal == 0)
 
 
 def stop_target(p: Prepared) -> float:

@@ -67,6 +67,7 @@ class TrainConfig:
     stop_spread: float = 0.0
     patience: int = 0
     min_delta: float = 0.03
+    anneal: int = 0
     strict: bool = False
     squared_hinge: bool = False
     compat_weight: float = 0.1
@@ -89,7 +90,7 @@ class TrainConfig:
                nonneg=("stability_batch", "stability_weight", "stability_weight_end", "margin",
                        "decay_rate",
                        "val_starts", "val_confirm", "val_horizon", "stop_dtw", "keep_dtw",
-                       "stop_spread", "patience", "min_delta",
+                       "stop_spread", "patience", "min_delta", "anneal",
                        "select_every", "compat_weight", "path_weight", "path_windows",
                        "sample_pad",
                        "boundary_weight", "vel_weight", "pos_weight", "grad_clip"),

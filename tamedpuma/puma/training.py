@@ -238,6 +238,8 @@ class _Run:
     chain: tuple | None = None
     chain_rest: torch.Tensor | None = None
     ema: PumaNet | None = None  # exponential moving average of the weights (cfg.ema > 0)
+    anneal_from: int | None = None  # iteration the final learning-rate decay started at
+    anneal_lr: float = 0.0          # the learning rate it started from
     history: list[dict] = field(default_factory=list)
     selection: _Selection = field(default_factory=_Selection)
 
@@ -248,6 +250,7 @@ class _Run:
                 "torch_rng": torch.get_rng_state(), "chain": self.chain,
                 "chain_rest": self.chain_rest, "history": self.history,
                 "ema": None if self.ema is None else self.ema.state_dict(),
+                "anneal": (self.anneal_from, self.anneal_lr),
                 "selection": {"best": self.selection.best, "best_state": self.selection.best_state,
                               "records": self.selection.records}}
 
@@ -262,6 +265,7 @@ class _Run:
         if self.ema is not None:
             self.ema.load_state_dict(state["ema"])
         self.history = list(state["history"])
+        self.anneal_from, self.anneal_lr = state.get("anneal", (None, 0.0))
         sel = state["selection"]
         self.selection = _Selection(None if sel["best"] is None else tuple(sel["best"]),
                                     sel["best_state"], list(sel["records"]))
@@ -327,6 +331,23 @@ def stability_weight(cfg: TrainConfig, it: int) -> float:
     return w0 + (w1 - w0) * frac
 
 
+def _schedule(run: _Run, cfg: TrainConfig) -> None:
+    """The learning rate for the next iteration: the cosine schedule over ``iterations``, or,
+    once a plateau started the final decay (``anneal``), linear from where it was to 2% of
+    ``lr`` over ``anneal`` iterations."""
+    if run.anneal_from is None:
+        run.sched.step()
+        return
+    frac = min(1.0, (run.it + 1 - run.anneal_from) / max(1, cfg.anneal))
+    for group in run.opt.param_groups:
+        group["lr"] = run.anneal_lr + (0.02 * cfg.lr - run.anneal_lr) * frac
+
+
+def _annealed(run: _Run, cfg: TrainConfig) -> bool:
+    """True once the final decay has run its ``anneal`` iterations."""
+    return run.anneal_from is not None and run.it >= run.anneal_from + cfg.anneal
+
+
 def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
     """One optimisation step; returns the loss terms (floats)."""
     net = run.net
@@ -364,7 +385,7 @@ def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
     if cfg.grad_clip > 0:
         torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
     run.opt.step()
-    run.sched.step()
+    _schedule(run, cfg)
     if run.ema is not None:
         with torch.no_grad():
             torch._foreach_lerp_(list(run.ema.parameters()), list(net.parameters()),
@@ -435,10 +456,14 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
         if bar is not None:
             bar.update(1)
         run.it = it + 1
-        if validator is not None and run.selection.due(cfg, it) \
-                and run.selection.validate(run.ema if run.ema is not None else run.net,
-                                           validator, it + 1, it == cfg.iterations - 1):
-            break  # early stop: the validation met every target
+        final = it == cfg.iterations - 1 or _annealed(run, cfg)
+        if validator is not None and cfg.select_every > 0 and (final or run.selection.due(cfg, it)):
+            if run.selection.validate(run.ema if run.ema is not None else run.net,
+                                      validator, it + 1, final) or final:
+                break  # early stop: the validation met every target (or the decay ended)
+            if cfg.anneal > 0 and run.anneal_from is None \
+                    and run.selection.records[-1].get("plateau"):
+                run.anneal_from, run.anneal_lr = run.it, run.opt.param_groups[0]["lr"]
         if save is not None and save_every > 0 and run.it % save_every == 0 \
                 and run.it < cfg.iterations:
             save(run.state())
