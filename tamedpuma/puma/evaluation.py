@@ -222,10 +222,7 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
         info = {"dtw": dtw, "stop": False, "stale": plateau.stale, "plateau": stale}
         if not candidate and not (keep_dtw > 0 and dtw <= keep_dtw):
             return (False, False, 0.0, -dtw), info
-        psi_ok = True
-        if stop_compat > 0:
-            info["compatible_fraction"] = compatibility(net, ws, ccfg)["compatible_fraction"]
-            psi_ok = info["compatible_fraction"] >= stop_compat
+        psi_ok = stop_compat <= 0 or _psi(net, ws, ccfg, info) >= stop_compat
         frac = info["converged_fraction"] = conv(net, 0, starts)
         if frac == 1.0 and confirm > 0 and psi_ok:
             info["confirmed_fraction"] = conv(net, starts, starts + confirm)
@@ -235,6 +232,12 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
         return (passed, psi_ok, frac, -dtw), info
 
     return run
+
+
+def _psi(net: PumaNet, ws: Workspace, cfg: EvalConfig, info: dict) -> float:
+    """The ψ-compatible fraction (also stored in ``info``)."""
+    info["compatible_fraction"] = compatibility(net, ws, cfg)["compatible_fraction"]
+    return info["compatible_fraction"]
 
 
 @dataclass
