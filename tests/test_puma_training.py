@@ -192,3 +192,22 @@ def test_a_plateau_starts_the_final_decay_and_the_run_ends_after_it():
     again = training.train(*args, seed=4, progress=False, validator=validator, resume=saved[15])
     assert again.iterations_run == 20
     assert torch.equal(_flat(again.net.state_dict()), _flat(res.net.state_dict()))
+
+
+def test_on_a_plateau_the_validation_checks_but_only_stops_where_told():
+    from tamedpuma.puma import evaluation
+
+    p = _tiny()
+    net = training.build_net(p.demos, p.workspace, p.spec, p.net_cfg).eval()
+    net.cache_goal()
+    d = evaluation.imitation_dtw(net, p.demos)
+    kw = dict(starts=20, patience=2, min_delta=0.03, stop_compat=0.5, horizon=1.0)
+    annealing = evaluation.validator(p.demos, p.workspace, p.eval_cfg, plateau_stops=False, **kw)
+    with torch.no_grad():
+        _, fresh = annealing(net, False, ())
+        _, flat = annealing(net, False, (d, d))
+        _, ending = evaluation.validator(p.demos, p.workspace, p.eval_cfg, **kw)(net, False, (d, d))
+    assert "converged_fraction" not in fresh and not fresh["plateau"]
+    assert flat["plateau"] and "converged_fraction" in flat and not flat["stop"]
+    assert ending["stop"] == (ending["converged_fraction"] == 1.0
+                              and ending["compatible_fraction"] >= 0.5)

@@ -192,7 +192,8 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
       (``plateau_stops``; else ``info["plateau"]`` tells the caller, which anneals), or
     - it is the ``final`` validation;
 
-    and only candidates (and any DTW ≤ ``keep_dtw``) are checked further: ψ-compatible fraction
+    and only candidates, validations on a plateau (so that a passing one is kept while the
+    learning rate decays) and any DTW ≤ ``keep_dtw`` are checked further: ψ-compatible fraction
     ≥ ``stop_compat``, ``starts`` random starts and, where all of those converge, ``confirm``
     more. ``previous``: the earlier validations' DTWs (the plateau is a function of them: a
     resumed run stops where an uninterrupted one does). ``info["stop"]``: a candidate passed
@@ -220,7 +221,7 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
         candidate = good or final or (plateau_stops and stale
                                       and dtw <= plateau.best * (1 + min_delta))
         info = {"dtw": dtw, "stop": False, "stale": plateau.stale, "plateau": stale}
-        if not candidate and not (keep_dtw > 0 and dtw <= keep_dtw):
+        if not (candidate or stale) and not (keep_dtw > 0 and dtw <= keep_dtw):
             return (False, False, 0.0, -dtw), info
         psi_ok = stop_compat <= 0 or _psi(net, ws, ccfg, info) >= stop_compat
         frac = info["converged_fraction"] = conv(net, 0, starts)
