@@ -34,6 +34,7 @@ def test_tiny_pipeline_end_to_end(tmp_path, capsys):
     text = capsys.readouterr().out
     again = json.loads(text[text.index("{"):])
     assert again["evaluation"]["convergence"] == ev["convergence"]
+    assert again["gates"]["failures"] == report["gates"]["failures"]  # judged alike
 
 
 def test_first_order_position_and_seeded(tmp_path):

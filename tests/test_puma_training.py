@@ -130,7 +130,7 @@ def test_early_stop_returns_the_validated_average_and_resumes_exactly():
     p = _tiny("puma.train.iterations=40", "puma.train.select_every=5", "puma.train.select_from=0")
     calls = []
 
-    def validator(net, final):
+    def validator(net, final, previous=()):
         calls.append(copy.deepcopy(net.state_dict()))
         return (len(calls),), {"stop": len(calls) == 3}
 
@@ -162,7 +162,52 @@ def test_without_validation_the_average_is_returned():
     assert not torch.equal(_flat(res.net.state_dict()), _flat(run.net.state_dict()))
 
 
-def test_the_default_config_trains_fast_and_stops_early():
+def test_the_default_config_stops_on_the_data_not_on_a_fixed_line():
     t = compose("train", ["task=tomato"])["puma"]["train"]
-    assert t["iterations"] <= 2400 and t["stop_dtw"] <= t["keep_dtw"] <= 0.02
+    assert t["stop_dtw"] == 0 and t["keep_dtw"] == 0  # no absolute DTW line
+    assert 0 < t["stop_spread"] < 0.5 and t["patience"] >= 2 and 0 < t["min_delta"] < 0.2
     assert t["path_weight"] > 0 and t["ema"] > 0 and t["val_confirm"] + t["val_starts"] >= 1000
+
+
+def test_a_plateau_starts_the_final_decay_and_the_run_ends_after_it():
+    p = _tiny("puma.train.iterations=100", "puma.train.select_every=5", "puma.train.select_from=0",
+              "puma.train.anneal=10")
+    calls = []
+
+    def validator(net, final, previous=()):
+        calls.append(final)
+        return (0,), {"stop": False, "plateau": len(calls) >= 2, "dtw": 1.0}
+
+    args = (p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg)
+    saved = {}
+    res = training.train(*args, seed=4, progress=False, validator=validator,
+                         save=lambda s: saved.setdefault(s["it"], copy.deepcopy(s)), save_every=5)
+    assert res.iterations_run == 20 and calls == [False, False, False, True]  # 10 + 10
+    start, lr10 = saved[15]["anneal"]
+    lr = p.train_cfg.lr
+    assert start == 10 and lr10 < lr  # the cosine had begun to fall
+    assert saved[15]["opt"]["param_groups"][0]["lr"] == pytest.approx(
+        lr10 + (0.02 * lr - lr10) * 0.5)  # half way down
+    calls[:] = [False, False, False]
+    again = training.train(*args, seed=4, progress=False, validator=validator, resume=saved[15])
+    assert again.iterations_run == 20
+    assert torch.equal(_flat(again.net.state_dict()), _flat(res.net.state_dict()))
+
+
+def test_on_a_plateau_the_validation_checks_but_only_stops_where_told():
+    from tamedpuma.puma import evaluation
+
+    p = _tiny()
+    net = training.build_net(p.demos, p.workspace, p.spec, p.net_cfg).eval()
+    net.cache_goal()
+    d = evaluation.imitation_dtw(net, p.demos)
+    kw = dict(starts=20, patience=2, min_delta=0.03, stop_compat=0.5, horizon=1.0)
+    annealing = evaluation.validator(p.demos, p.workspace, p.eval_cfg, plateau_stops=False, **kw)
+    with torch.no_grad():
+        _, fresh = annealing(net, False, ())
+        _, flat = annealing(net, False, (d, d))
+        _, ending = evaluation.validator(p.demos, p.workspace, p.eval_cfg, **kw)(net, False, (d, d))
+    assert "converged_fraction" not in fresh and not fresh["plateau"]
+    assert flat["plateau"] and "converged_fraction" in flat and not flat["stop"]
+    assert ending["stop"] == (ending["converged_fraction"] == 1.0
+                              and ending["compatible_fraction"] >= 0.5)

@@ -37,8 +37,7 @@ from tamedpuma.errors import TamedPumaError
 from tamedpuma.puma import download, store
 
 TASKS = ("tomato", "pouring")
-#: the shipped models use the default training config (since issue 16 it builds in about two
-#: minutes per model on one core)
+#: the shipped models use the default training config
 SHIPPED_OVERRIDES: tuple[str, ...] = ()
 ORDERS = (2, 1)
 
@@ -207,9 +206,27 @@ def run_jobs(jobs: list[Job], parallel: int, log=print, staged: bool = True) -> 
             done.append(job.out_dir)
             log(f"built {job.name} in {seconds:.0f} s "
                 f"({len(done)}/{len(jobs)}, {time.perf_counter() - t0:.0f} s so far)")
+            gate_warnings(job.name, job.out_dir, log)
     if failed:
         raise TamedPumaError("training failed: " + "; ".join(failed))
     return done
+
+
+def gate_warnings(name: str, folder: Path, log=print) -> list[str]:
+    """Say which gates the model in ``folder`` failed after its training (its ``report.json``,
+    :mod:`tamedpuma.puma.gates`); returns those lines."""
+    from tamedpuma.puma.gates import failed_lines
+
+    try:
+        report = json.loads((folder / "report.json").read_text())
+    except (OSError, ValueError):
+        return []
+    lines = failed_lines(report)
+    if lines:
+        log(f"warning: {name} ({folder}) failed {len(lines)} gate(s):")
+        for line in lines:
+            log(f"  - {line}")
+    return lines
 
 
 def data_root(arg: str | None) -> Path:
@@ -237,6 +254,8 @@ def ensure_real_models(data: str | None = None, parallel: int | None = None,
         run_jobs(todo, min(n, len(todo)), log)
     else:
         log(f"real-data models cached in {store.models_dir()}")
+        for j in jobs:
+            gate_warnings(j.name, j.out_dir, log)
     return [j.out_dir for j in jobs]
 
 

@@ -4,7 +4,10 @@ Composes ``conf/train.yaml`` with Hydra overrides (``task=pouring``, ``puma=tiny
 ``task.demos=../shared/data/pumafabrics-demos/pick_tomato_31may``, ``seed=1``, ``out_dir=...``),
 trains with a progress bar, writes ``<out_dir>/puma.pt`` and ``<out_dir>/report.json`` and prints
 a summary. ``python -m tamedpuma.train --evaluate runs/puma/tomato/puma.pt`` re-evaluates a
-checkpoint on demand. A user's own config folder: ``--config-dir DIR`` or
+checkpoint on demand. ``python -m tamedpuma.train --table OUT.md [--sets tomato,pouring_v2]
+[--seeds 0,1,2] [--orders 2,1] [--runs DIR] [--data DIR] [overrides...]`` trains and evaluates every
+demonstration set at hand (:data:`TABLE_SETS`) and writes one table (:mod:`tamedpuma.puma.
+learner_table`). A user's own config folder: ``--config-dir DIR`` or
 ``hydra.searchpath=[file://DIR]`` (its ``task/*.yaml`` next to the shipped ones).
 User errors print one line ``error: ...`` on stderr and exit with status 2.
 """
@@ -91,7 +94,80 @@ def evaluate_checkpoint(path: str, overrides: list[str]) -> dict:
     eval_cfg = evaluation.EvalConfig(**eval_kw)
     report = {"checkpoint": path, "evaluation": evaluation.evaluate(net, demos, meta.workspace,
                                                                     eval_cfg)}
+    from tamedpuma.puma import gates
+
+    spread, nearest = gates.nearest_demos(demos)
+    failures = gates.check(report["evaluation"], spread, gates.demo_names(demos), eval_cfg,
+                           demos.unit, nearest, gates.demo_extent(demos))
+    report["gates"] = gates.as_report(failures, spread, eval_cfg)
+    for f in failures:
+        print(f"warning: gate {f.gate}: {f.line}", file=sys.stderr)
     return report
+
+
+#: the demonstration sets of ``--table``: name -> overrides ({root}: the authors' demonstrations)
+TABLE_SETS = {
+    "tomato": ["task=tomato", "task.demos={root}/pick_tomato_31may"],
+    "pouring_v2": ["task=pouring", "task.demos={root}/pouring_v2"],
+    "pouring_other": ["task=from_demos", "task.demos={root}/pouring", "task.name=pouring_other"],
+    "synthetic_tomato": ["task=tomato"],
+    "synthetic_pouring": ["task=pouring"],
+}
+TABLE_DEFAULT = "tomato,pouring_v2,pouring_other,synthetic_tomato,synthetic_pouring,lasa"
+
+
+def _table_overrides(name: str, order: int, root) -> list[str]:
+    """The overrides of one set (``lasa`` = all 30 shapes, ``lasa:Angle`` one) and order."""
+    if name.startswith("lasa:"):
+        return ["task=lasa", "puma=lasa", f"task.shape={name[5:]}", "task.name=lasa"]
+    if name not in TABLE_SETS:
+        raise ConfigError(f"unknown set {name!r} (one of: {', '.join(TABLE_SETS)}, lasa, "
+                          "lasa:SHAPE)")
+    ov = [o.format(root=root) for o in TABLE_SETS[name]]
+    if "{root}" in " ".join(TABLE_SETS[name]) and root is None:
+        raise ConfigError(f"set {name!r} needs the authors' demonstrations: fetch them with "
+                          "`python -m tamedpuma.models download`")
+    return ov + (["puma=position"] if order == 1 else [])
+
+
+def table_main(argv: list[str]) -> int:
+    """``--table OUT.md [--sets ...] [--seeds ...] [--orders ...] [--runs DIR] [overrides]``."""
+    from tamedpuma.paths import resolve
+    from tamedpuma.puma import data, download, learner_table
+
+    opts = {"--sets": TABLE_DEFAULT, "--seeds": "0,1,2", "--orders": "2",
+            "--runs": "runs/learner_table", "--data": ""}
+    out, rest, i = Path(argv[0]), [], 1
+    while i < len(argv):
+        if argv[i] in opts:
+            if i + 1 >= len(argv):
+                raise ConfigError(f"{argv[i]} needs a value")
+            opts[argv[i]], i = argv[i + 1], i + 2
+        elif argv[i].startswith("--"):
+            raise ConfigError(f"unknown option {argv[i]} (--table takes --sets, --seeds, "
+                              "--orders, --runs, --data and overrides)")
+        else:
+            rest, i = rest + [argv[i]], i + 1
+    try:
+        seeds = [int(s) for s in opts["--seeds"].split(",")]
+        orders = [int(s) for s in opts["--orders"].split(",")]
+    except ValueError:
+        raise ConfigError("--seeds and --orders take comma-separated integers") from None
+    sets = [s for name in opts["--sets"].split(",")
+            for s in (["lasa:" + n for n in data.lasa_names()] if name == "lasa" else [name])]
+    root = Path(opts["--data"]).expanduser() if opts["--data"] else download.find_root()
+    jobs = []  # seed by seed: every set's first seed comes first
+    for seed in seeds:
+        for name in sets:
+            for order in orders if not name.startswith("lasa:") else [2]:
+                run_dir = Path(opts["--runs"]) / name.replace(":", "_") / f"o{order}_s{seed}"
+                cfg = compose("train", [*_table_overrides(name, order, root), f"seed={seed}",
+                                        f"out_dir={run_dir}", "overwrite=true",
+                                        "progress=false", *rest])
+                jobs.append(learner_table.Job(name, order, seed, cfg))
+    rows = learner_table.run(jobs, resolve(str(out)), log=lambda m: print(m, file=sys.stderr))
+    print(learner_table.markdown(rows))
+    return 0
 
 
 def _interrupted_line(cfg: dict) -> str:
@@ -109,6 +185,10 @@ def _interrupted_line(cfg: dict) -> str:
 
 @command(__doc__)
 def main(argv: list[str]) -> int:
+    if argv and argv[0] == "--table":
+        if len(argv) < 2:
+            raise ConfigError("--table needs an output file, e.g. --table learner.md")
+        return table_main(argv[1:])
     if argv and argv[0] == "--evaluate":
         if len(argv) < 2:
             raise ConfigError("--evaluate needs a checkpoint path")

@@ -171,6 +171,7 @@ class Demonstrations:
     source: str
     unit: str = "m"
     hold: int = 0  # rest samples appended to each demonstration
+    names: tuple[str, ...] = ()  # each demonstration's name (its file), for messages
 
     def trimmed(self, i: int):
         """Demonstration i without the appended rest samples: (pos, quat | None)."""
@@ -250,4 +251,12 @@ def prepare(raws: list[RawDemo], dt: float, *, smoothing: float = 0.0, hold: int
     return Demonstrations(
         dt=float(dt), pos=pos_l, quat=quat_l if orient else None, vel=vel_l,
         goal_pos=np.array(gp), goal_quat=np.array(gq) if orient else None,
-        data_hash=data_hash(raws), source=source, unit=unit, hold=hold)
+        data_hash=data_hash(raws), source=source, unit=unit, hold=hold,
+        names=tuple(_short(r.source, i) for i, r in enumerate(raws)))
+
+
+def _short(source: str, i: int) -> str:
+    """A demonstration's name for messages: its file name, else ``#i``."""
+    import os
+
+    return os.path.basename(str(source).rstrip("/")) or f"#{i}"

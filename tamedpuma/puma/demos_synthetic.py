@@ -9,11 +9,10 @@ smooth lateral detour ``16 s²(1 − s)²`` through a random via offset (largest
 path), sampled at about 33 Hz (Δt ≈ 0.030 s with small jitter, like the real KUKA recordings),
 positions [m] and orientations slerped along the same time law. Start regions, rotation angles
 and rotation axes follow the real demonstrations' (the start relative to the final pose of each
-demonstration in ``pick_tomato_31may`` and ``pouring_v2``; the numbers are at ``TASKS``). Until
-session 11 the rotation axes did not (pouring (1, 0.2, 0.1) against the real (0.64, −0.70,
-−0.12)): the shipped pouring model then met the default scenario's start, 2.25 rad about
-(0.65, −0.72, 0.22) from the goal, far outside its data, and PUMA alone swept its joints
-through their range from there.
+demonstration in ``pick_tomato_31may`` and ``pouring_v2``; the numbers are at ``TASKS``). The
+axes matter: with pouring's about (1, 0.2, 0.1) instead of the real (0.64, −0.70, −0.12), the
+default scenario's start (2.25 rad about (0.65, −0.72, 0.22) from the goal) lies far outside the
+data, and PUMA alone sweeps the joints through their range from there.
 """
 
 from __future__ import annotations

@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
@@ -106,6 +108,7 @@ def imitation_metrics(net: PumaNet, demos: Demonstrations) -> dict:
         cols["frechet_angle"] = _dp_batch(acost, True)
     out = {k: float(np.mean(v)) for k, v in cols.items()}
     out["dtw_max"] = float(np.max(cols["dtw"]))
+    out["dtw_per_demo"] = [float(v) for v in cols["dtw"]]
     out["n_demos"] = len(trimmed)
     return out
 
@@ -173,18 +176,28 @@ def imitation_dtw(net: PumaNet, demos: Demonstrations) -> float:
 
 def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int = 300,
               confirm: int = 0, horizon: float | None = None, stop_dtw: float = 0.0,
-              stop_compat: float = 0.0, keep_dtw: float = 0.0):
+              stop_compat: float = 0.0, keep_dtw: float = 0.0, target: float = 0.0,
+              patience: int = 0, min_delta: float = 0.03, plateau_stops: bool = True):
     """Validation for checkpoint selection and early stopping, on its own random starts (seed
     ``cfg.seed + 1000``, not the evaluation's) and ψ samples (``cfg.seed + 1001``).
 
-    Without ``stop_dtw``: ``score = (converged fraction of ``starts``, −DTW)`` (horizon
-    ``horizon`` or ``cfg.horizon``). With ``stop_dtw`` > 0 (early stopping), in stages: the DTW
-    (quick); only where it is ≤ ``keep_dtw`` (default ``stop_dtw``), or at the ``final``
-    validation, the ψ-compatible fraction (≥ ``stop_compat``) and ``starts`` random starts, and
-    where all of those pass, ``confirm`` more. ``info["stop"]`` when the DTW is ≤ ``stop_dtw``,
-    ψ passes and every start converges. ``score = (DTW ≤ keep_dtw, ψ passes, converged fraction
-    (of all starts run), −DTW)`` (the fraction 0 where not measured)."""
-    keep = max(keep_dtw, stop_dtw)
+    Without a stop rule (``stop_dtw``, ``target`` and ``patience`` all 0): ``score = (converged
+    fraction of ``starts``, −DTW)`` (horizon ``horizon`` or ``cfg.horizon``). With one, every
+    validation measures the mean DTW (quick); the weights are a candidate to stop on when
+
+    - the DTW is ≤ ``target`` or ≤ ``stop_dtw`` (good enough: ``target`` is set from the
+      demonstrations' own spread), or
+    - the DTW has not improved on the best so far by a relative ``min_delta`` for ``patience``
+      validations (more iterations stop helping) and is within ``min_delta`` of that best
+      (``plateau_stops``; else ``info["plateau"]`` tells the caller, which anneals), or
+    - it is the ``final`` validation;
+
+    and only candidates, validations on a plateau (so that a passing one is kept while the
+    learning rate decays) and any DTW ≤ ``keep_dtw`` are checked further: ψ-compatible fraction
+    ≥ ``stop_compat``, ``starts`` random starts and, where all of those converge, ``confirm``
+    more. ``previous``: the earlier validations' DTWs (the plateau is a function of them: a
+    resumed run stops where an uninterrupted one does). ``info["stop"]``: a candidate passed
+    every check. ``score = (passed, ψ passes, converged fraction, −DTW)`` (0: not measured)."""
     vcfg = EvalConfig(**{**cfg.__dict__, "random_starts": starts + confirm,
                          "seed": cfg.seed + 1000,
                          "horizon": float(horizon) if horizon else cfg.horizon})
@@ -196,28 +209,55 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
         return convergence_from(net, pos0[lo:hi], None if quat0 is None else quat0[lo:hi],
                                 demos.dt, vcfg)["converged_fraction"]
 
-    def run(net: PumaNet, final: bool = False):
-        if stop_dtw <= 0:
+    def run(net: PumaNet, final: bool = False, previous: tuple = ()):
+        if stop_dtw <= 0 and target <= 0 and patience <= 0:
             dtw = imitation_metrics(net, demos)["dtw"]
             frac = conv(net, 0, starts)
             return (frac, -dtw), {"converged_fraction": frac, "dtw": dtw}
         dtw = imitation_dtw(net, demos)
-        info = {"dtw": dtw, "stop": False}
-        dtw_ok = dtw <= keep
-        if not dtw_ok and not final:
+        plateau = _Plateau(patience, min_delta)
+        stale = [plateau.update(d) for d in (*previous, dtw)][-1]
+        good = any(0 < t and dtw <= t for t in (target, stop_dtw))
+        candidate = good or final or (plateau_stops and stale
+                                      and dtw <= plateau.best * (1 + min_delta))
+        info = {"dtw": dtw, "stop": False, "stale": plateau.stale, "plateau": stale}
+        if not (candidate or stale) and not (keep_dtw > 0 and dtw <= keep_dtw):
             return (False, False, 0.0, -dtw), info
-        psi_ok = True
-        if stop_compat > 0:
-            info["compatible_fraction"] = compatibility(net, ws, ccfg)["compatible_fraction"]
-            psi_ok = info["compatible_fraction"] >= stop_compat
+        psi_ok = stop_compat <= 0 or _psi(net, ws, ccfg, info) >= stop_compat
         frac = info["converged_fraction"] = conv(net, 0, starts)
-        if frac == 1.0 and confirm > 0 and dtw_ok and psi_ok:
+        if frac == 1.0 and confirm > 0 and psi_ok:
             info["confirmed_fraction"] = conv(net, starts, starts + confirm)
             frac = (starts + confirm * info["confirmed_fraction"]) / (starts + confirm)
-        info["stop"] = dtw <= stop_dtw and psi_ok and frac == 1.0
-        return (dtw_ok, psi_ok, frac, -dtw), info
+        passed = psi_ok and frac == 1.0
+        info["stop"] = candidate and passed
+        return (passed, psi_ok, frac, -dtw), info
 
     return run
+
+
+def _psi(net: PumaNet, ws: Workspace, cfg: EvalConfig, info: dict) -> float:
+    """The ψ-compatible fraction (also stored in ``info``)."""
+    info["compatible_fraction"] = compatibility(net, ws, cfg)["compatible_fraction"]
+    return info["compatible_fraction"]
+
+
+@dataclass
+class _Plateau:
+    """Validations since the mean DTW last improved on its best by a relative ``min_delta``."""
+
+    patience: int
+    min_delta: float
+    best: float = float("inf")
+    stale: int = 0
+
+    def update(self, dtw: float) -> bool:
+        """Record one validation's DTW; True once ``patience`` (> 0) passed without improving."""
+        if dtw < self.best * (1.0 - self.min_delta):
+            self.stale = 0
+        else:
+            self.stale += 1
+        self.best = min(self.best, dtw)
+        return self.patience > 0 and self.stale >= self.patience
 
 
 def evaluate(net: PumaNet, demos: Demonstrations, ws: Workspace, cfg: EvalConfig) -> dict:

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..paths import CONF_DIR, resolve, writable_problem, write_atomic
-from . import checkpoint, data, demo_formats, demos_synthetic, evaluation, task_from_demos
+from . import checkpoint, data, demo_formats, demos_synthetic, evaluation, gates, task_from_demos
 from .network import NetConfig, StateSpec
 from .training import TrainConfig, Workspace, train
 
@@ -266,6 +266,8 @@ class Prepared:
     eval_cfg: evaluation.EvalConfig
     problems: list
     derived: task_from_demos.DerivedTask | None
+    spread: np.ndarray  # per demonstration: DTW/point to the nearest other one [unit]
+    nearest: np.ndarray  # per demonstration: the index of that nearest one
 
 
 def prepare(cfg: dict, log=print) -> Prepared:
@@ -305,17 +307,26 @@ def prepare(cfg: dict, log=print) -> Prepared:
         raise ConfigError("an R3 x S3 primitive must be second order (puma.order=2)")
     if not spec.orientation:
         ws = Workspace(ws.low, ws.high, 0.0)
-    return Prepared(cfg, demos, ws, spec, train_cfg, net_cfg, eval_cfg, problems, derived)
+    return Prepared(cfg, demos, ws, spec, train_cfg, net_cfg, eval_cfg, problems, derived,
+                    *gates.nearest_demos(demos))
 
 
 def validator_of(p: Prepared):
     """The training's validation (checkpoint selection, early stopping: ``puma.train.val_*``,
-    ``stop_*``)."""
+    ``stop_*``, ``patience``, ``min_delta``); ``stop_spread`` × the demonstrations' median
+    spread is the DTW that is good enough to stop at."""
     t = p.train_cfg
     return evaluation.validator(p.demos, p.workspace, p.eval_cfg, starts=t.val_starts,
                                 confirm=t.val_confirm, horizon=t.val_horizon or None,
                                 stop_dtw=t.stop_dtw, stop_compat=t.stop_compat,
-                                keep_dtw=t.keep_dtw)
+                                keep_dtw=t.keep_dtw, target=stop_target(p),
+                                patience=t.patience, min_delta=t.min_delta,
+                                plateau_stops=t.anneal == 0)
+
+
+def stop_target(p: Prepared) -> float:
+    """The mean DTW [unit] at which training may stop: ``stop_spread`` × median spread (0: off)."""
+    return float(p.train_cfg.stop_spread * np.median(p.spread))
 
 
 def _training_report(p: Prepared, result, seed: int) -> dict:
@@ -323,7 +334,7 @@ def _training_report(p: Prepared, result, seed: int) -> dict:
     demos, ws = p.demos, p.workspace
     report = {"task": p.cfg["task"].get("name"), "data_source": demos.source,
               "data_hash": demos.data_hash, "n_demos": len(demos), "spec": asdict(p.spec),
-              "seed": seed, "train_seconds": round(result.seconds, 2),
+              "unit": demos.unit, "seed": seed, "train_seconds": round(result.seconds, 2),
               "iterations": p.train_cfg.iterations, "iterations_run": result.iterations_run,
               "final_losses": result.history[-1] if result.history else {},
               "selection": result.selection, "dt": demos.dt,
@@ -347,6 +358,9 @@ def run(cfg: dict, log=print) -> dict:
     out_dir = resolve(str(cfg["out_dir"]))
     ckpt_path = prepare_out_dir(out_dir, bool(cfg["overwrite"]))
     p = prepare(cfg, log)
+    if p.train_cfg.strict and not cfg["evaluate"]:
+        raise ConfigError("puma.train.strict=true needs evaluate=true (the gates judge the "
+                          "evaluation)")
     cfg, task, demos = p.cfg, p.cfg["task"], p.demos
     log(f"PUMA {task.get('name')}: {len(demos)} demonstrations from {demos.source}, "
         f"spec {p.spec}, dt {demos.dt} s")
@@ -362,15 +376,7 @@ def run(cfg: dict, log=print) -> dict:
     path = checkpoint.save(ckpt_path, result.net, meta)
     (out_dir / STATE_FILE).unlink(missing_ok=True)
     if cfg["evaluate"]:
-        from .primitive import load_primitive
-
-        net, _ = checkpoint.load(path)  # evaluate what was saved
-        t0 = time.perf_counter()
-        report["evaluation"] = evaluation.evaluate(net, demos, p.workspace, p.eval_cfg)
-        report["evaluation_seconds"] = round(time.perf_counter() - t0, 2)
-        report["inference"] = inference_timing(load_primitive(path, threads=1))
-        meta = checkpoint.Meta(**{**meta.__dict__, "report": report})
-        checkpoint.save(path, result.net, meta)
+        _evaluate(p, path, result.net, meta, report, log)
     report["checkpoint"] = str(path)
     report["pipeline_seconds"] = round(time.perf_counter() - t_start, 2)
     report["pipeline_cpu_seconds"] = round(time.process_time() - cpu_start, 2)
@@ -380,6 +386,38 @@ def run(cfg: dict, log=print) -> dict:
         bench.parent.mkdir(parents=True, exist_ok=True)
         bench.write_text(json.dumps(benchmark_summary(report, cfg), indent=2) + "\n")
     return report
+
+
+def _evaluate(p: Prepared, path: Path, net, meta, report: dict, log) -> None:
+    """Evaluate the saved checkpoint, judge it (:func:`_gate`) and save it again with the report;
+    with ``puma.train.strict`` a failed gate removes it and raises :class:`gates.GateError`."""
+    from .primitive import load_primitive
+
+    saved, _ = checkpoint.load(path)  # evaluate what was saved
+    t0 = time.perf_counter()
+    report["evaluation"] = evaluation.evaluate(saved, p.demos, p.workspace, p.eval_cfg)
+    report["evaluation_seconds"] = round(time.perf_counter() - t0, 2)
+    report["inference"] = inference_timing(load_primitive(path, threads=1))
+    failures = _gate(p, report, log)
+    checkpoint.save(path, net, checkpoint.Meta(**{**meta.__dict__, "report": report}))
+    if failures and p.train_cfg.strict:
+        path.unlink()
+        out = path.parent / "report.json"
+        out.write_text(json.dumps(report, indent=2) + "\n")
+        raise gates.GateError(f"not saved (puma.train.strict=true): {len(failures)} gate(s) "
+                              f"failed, first: {failures[0].line} (all in {out})")
+
+
+def _gate(p: Prepared, report: dict, log) -> list[gates.Failure]:
+    """Judge the evaluation (:mod:`.gates`), store the verdict in ``report["gates"]`` and log one
+    warning line per failed gate."""
+    failures = gates.check(report["evaluation"], p.spread, gates.demo_names(p.demos), p.eval_cfg,
+                           p.demos.unit, p.nearest, gates.demo_extent(p.demos))
+    report["gates"] = gates.as_report(failures, p.spread, p.eval_cfg)
+    report["stop_target"] = stop_target(p)
+    for f in failures:
+        log(f"warning: gate {f.gate}: {f.line}")
+    return failures
 
 
 def benchmark_summary(report: dict, cfg: dict) -> dict:

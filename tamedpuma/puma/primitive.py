@@ -182,4 +182,27 @@ def load_primitive(path: str | Path, threads: int | None = 1) -> PosePrimitive |
         if len(_LOADED) >= LOADED_KEPT:
             _LOADED.pop(next(iter(_LOADED)))
         _LOADED[key] = checkpoint.load(path)
-    return wrap(*_LOADED[key])
+    net, meta = _LOADED[key]
+    warn_failed_gates(path, meta.report)
+    return wrap(net, meta)
+
+
+_WARNED: set[str] = set()
+
+
+def warn_failed_gates(path: str | Path, report: dict | None, log=None) -> list[str]:
+    """Say once per model file (on stderr, or through ``log``) which gates its training failed
+    (:mod:`.gates`, stored in its report); returns those lines."""
+    import sys
+
+    from .gates import failed_lines
+
+    lines = failed_lines(report)
+    key = str(Path(path).resolve())
+    if lines and key not in _WARNED:
+        _WARNED.add(key)
+        say = log or (lambda m: print(m, file=sys.stderr))
+        say(f"warning: the model {path} failed {len(lines)} gate(s) after its training:")
+        for line in lines:
+            say(f"  - {line}")
+    return lines

@@ -64,6 +64,11 @@ class TrainConfig:
     stop_dtw: float = 0.0
     keep_dtw: float = 0.0
     stop_compat: float = 0.0
+    stop_spread: float = 0.0
+    patience: int = 0
+    min_delta: float = 0.03
+    anneal: int = 0
+    strict: bool = False
     squared_hinge: bool = False
     compat_weight: float = 0.1
     compat_eps: float = 0.01
@@ -85,6 +90,7 @@ class TrainConfig:
                nonneg=("stability_batch", "stability_weight", "stability_weight_end", "margin",
                        "decay_rate",
                        "val_starts", "val_confirm", "val_horizon", "stop_dtw", "keep_dtw",
+                       "stop_spread", "patience", "min_delta", "anneal",
                        "select_every", "compat_weight", "path_weight", "path_windows",
                        "sample_pad",
                        "boundary_weight", "vel_weight", "pos_weight", "grad_clip"),
@@ -99,7 +105,13 @@ class TrainConfig:
 
 @dataclass(frozen=True)
 class EvalConfig:
-    """Evaluation settings: starts, horizon [s], tolerances [unit, rad], compatibility samples."""
+    """Evaluation settings: starts, horizon [s], tolerances [unit, rad], compatibility samples,
+    and the gates a trained model must pass (:mod:`tamedpuma.puma.gates`): mean DTW at most
+    ``gate_spread`` × the demonstrations' own spread, each demonstration's DTW at most
+    ``gate_worst`` × its distance to the nearest other one (never below ``gate_extent`` × its
+    largest distance from the goal nor ``gate_floor`` × ``pos_tol``), at least
+    ``gate_converged`` of the random starts converged and ``gate_compat`` of the states
+    ψ-compatible (0 turns a gate off)."""
 
     random_starts: int = 1000
     horizon: float = 40.0
@@ -109,8 +121,16 @@ class EvalConfig:
     compat_min_dist: float = 0.02
     seed: int = 12345
     chunk: int = 1000
+    gate_spread: float = 0.25
+    gate_worst: float = 0.4
+    gate_extent: float = 0.05
+    gate_floor: float = 0.5
+    gate_converged: float = 1.0
+    gate_compat: float = 0.995
 
     def __post_init__(self):
         _check(self, "puma.eval", positive=("random_starts", "horizon", "pos_tol", "ang_tol",
                                             "compat_samples", "chunk"),
-               nonneg=("compat_min_dist", "seed"))
+               nonneg=("compat_min_dist", "seed", "gate_spread", "gate_worst", "gate_extent",
+                       "gate_floor"),
+               fraction=("gate_converged", "gate_compat"))

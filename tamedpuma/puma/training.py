@@ -208,7 +208,8 @@ class _Selection:
         net.eval()
         net.cache_goal()
         with torch.no_grad():
-            score, info = validator(net, final)
+            score, info = validator(net, final, tuple(r["dtw"] for r in self.records
+                                                      if "dtw" in r))
         net.train()
         stop = bool(info.get("stop", False))
         self.records.append({"it": it, **info, "score": list(score)})
@@ -237,6 +238,8 @@ class _Run:
     chain: tuple | None = None
     chain_rest: torch.Tensor | None = None
     ema: PumaNet | None = None  # exponential moving average of the weights (cfg.ema > 0)
+    anneal_from: int | None = None  # iteration the final learning-rate decay started at
+    anneal_lr: float = 0.0          # the learning rate it started from
     history: list[dict] = field(default_factory=list)
     selection: _Selection = field(default_factory=_Selection)
 
@@ -247,6 +250,7 @@ class _Run:
                 "torch_rng": torch.get_rng_state(), "chain": self.chain,
                 "chain_rest": self.chain_rest, "history": self.history,
                 "ema": None if self.ema is None else self.ema.state_dict(),
+                "anneal": (self.anneal_from, self.anneal_lr),
                 "selection": {"best": self.selection.best, "best_state": self.selection.best_state,
                               "records": self.selection.records}}
 
@@ -261,6 +265,7 @@ class _Run:
         if self.ema is not None:
             self.ema.load_state_dict(state["ema"])
         self.history = list(state["history"])
+        self.anneal_from, self.anneal_lr = state.get("anneal", (None, 0.0))
         sel = state["selection"]
         self.selection = _Selection(None if sel["best"] is None else tuple(sel["best"]),
                                     sel["best_state"], list(sel["records"]))
@@ -326,6 +331,23 @@ def stability_weight(cfg: TrainConfig, it: int) -> float:
     return w0 + (w1 - w0) * frac
 
 
+def _schedule(run: _Run, cfg: TrainConfig) -> None:
+    """The learning rate for the next iteration: the cosine schedule over ``iterations``, or,
+    once a plateau started the final decay (``anneal``), linear from where it was to 2% of
+    ``lr`` over ``anneal`` iterations."""
+    if run.anneal_from is None:
+        run.sched.step()
+        return
+    frac = min(1.0, (run.it + 1 - run.anneal_from) / max(1, cfg.anneal))
+    for group in run.opt.param_groups:
+        group["lr"] = run.anneal_lr + (0.02 * cfg.lr - run.anneal_lr) * frac
+
+
+def _annealed(run: _Run, cfg: TrainConfig) -> bool:
+    """True once the final decay has run its ``anneal`` iterations."""
+    return run.anneal_from is not None and run.it >= run.anneal_from + cfg.anneal
+
+
 def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
     """One optimisation step; returns the loss terms (floats)."""
     net = run.net
@@ -363,7 +385,7 @@ def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
     if cfg.grad_clip > 0:
         torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
     run.opt.step()
-    run.sched.step()
+    _schedule(run, cfg)
     if run.ema is not None:
         with torch.no_grad():
             torch._foreach_lerp_(list(run.ema.parameters()), list(net.parameters()),
@@ -400,7 +422,7 @@ def _start(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCo
 
 def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetConfig,
           cfg: TrainConfig, seed: int = 0, progress: bool = True,
-          validator: Callable[[PumaNet, bool], tuple[tuple, dict]] | None = None,
+          validator: Callable[[PumaNet, bool, tuple], tuple[tuple, dict]] | None = None,
           resume: dict | None = None, save: Callable[[dict], None] | None = None,
           save_every: int = 0) -> TrainResult:
     """Train a primitive on ``demos``; returns the network (eval mode) and the loss history.
@@ -408,7 +430,8 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
     With ``validator`` and ``cfg.select_every`` > 0, the weights are validated every
     ``select_every`` iterations from ``select_from`` of the run on (and at the end); the weights
     with the best score (a tuple, larger is better) are returned. The validator must use its own
-    random starts, not the evaluation's.
+    random starts, not the evaluation's; it is called with the network, whether this is the final
+    validation, and the earlier validations' DTWs.
     ``save(state)`` is called every ``save_every`` iterations with the resumable state; passing
     that state back as ``resume`` continues the run exactly (same result as uninterrupted).
     """
@@ -433,10 +456,14 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
         if bar is not None:
             bar.update(1)
         run.it = it + 1
-        if validator is not None and run.selection.due(cfg, it) \
-                and run.selection.validate(run.ema if run.ema is not None else run.net,
-                                           validator, it + 1, it == cfg.iterations - 1):
-            break  # early stop: the validation met every target
+        final = it == cfg.iterations - 1 or _annealed(run, cfg)
+        if validator is not None and cfg.select_every > 0 and (final or run.selection.due(cfg, it)):
+            if run.selection.validate(run.ema if run.ema is not None else run.net,
+                                      validator, it + 1, final) or final:
+                break  # early stop: the validation met every target (or the decay ended)
+            if cfg.anneal > 0 and run.anneal_from is None \
+                    and run.selection.records[-1].get("plateau"):
+                run.anneal_from, run.anneal_lr = run.it, run.opt.param_groups[0]["lr"]
         if save is not None and save_every > 0 and run.it % save_every == 0 \
                 and run.it < cfg.iterations:
             save(run.state())

@@ -1,0 +1,168 @@
+"""Gates on a trained primitive's evaluation: does it reproduce what it was shown?
+
+The demonstrations' own spread sets the scale: ``s_i`` = DTW per point between demonstration i
+and its nearest other demonstration (positions relative to each one's final pose, paths resampled
+to at most ``max_points`` samples) [unit of the data]. With one demonstration, ``s_0`` = 0.1 × its
+largest distance to the goal. The gates (thresholds in :class:`~.settings.EvalConfig`, 0 = off):
+
+- imitation: mean DTW ≤ max(``gate_spread`` × median s_i, ½ ``gate_extent`` × median e_i, floor);
+- worst demonstration: DTW_i ≤ max(``gate_worst`` × s_i, ``gate_extent`` × e_i, floor) for every
+  i (a demonstration the network cannot follow from its own start: another goal, a truncated or
+  paused motion, or a route that contradicts a neighbour starting close by);
+- convergence: converged fraction of the random starts ≥ ``gate_converged``;
+- ψ-compatibility: compatible fraction ≥ ``gate_compat``;
+
+with e_i the largest distance of demonstration i from its goal (for nearly coinciding
+demonstrations the spread alone is no scale) and floor = ``gate_floor`` × ``pos_tol``
+(differences below it are within the convergence tolerance). Each failed gate is one line
+naming the demonstration(s) and what to try.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ..errors import TamedPumaError
+from .data import Demonstrations
+from .evaluation import dtw_per_point_batch
+from .settings import EvalConfig
+
+
+class GateError(TamedPumaError):
+    """A model refused because it failed a gate (``puma.train.strict=true``)."""
+
+
+@dataclass(frozen=True)
+class Failure:
+    """One failed gate: its name, the demonstrations it concerns and the line to print."""
+
+    gate: str
+    demos: tuple[str, ...]
+    line: str
+
+
+def _resampled(p: np.ndarray, max_points: int) -> np.ndarray:
+    idx = np.unique(np.linspace(0, len(p) - 1, min(len(p), max_points)).round().astype(int))
+    return p[idx]
+
+
+def demo_spread(demos: Demonstrations, max_points: int = 120) -> np.ndarray:
+    """``s_i``: DTW per point [unit] from each demonstration to its nearest other one."""
+    return nearest_demos(demos, max_points)[0]
+
+
+def nearest_demos(demos: Demonstrations, max_points: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    """(``s_i``, index of the nearest other demonstration, -1 with a single one)."""
+    paths = [_resampled(demos.trimmed(i)[0], max_points) for i in range(len(demos))]
+    if len(paths) == 1:
+        return np.array([0.1 * float(np.linalg.norm(paths[0], axis=1).max())]), np.array([-1])
+    spread, nearest = np.empty(len(paths)), np.empty(len(paths), int)
+    for i, ref in enumerate(paths):
+        others = [j for j in range(len(paths)) if j != i]
+        d = dtw_per_point_batch([paths[j] for j in others], [ref] * len(others))
+        spread[i], nearest[i] = float(np.min(d)), others[int(np.argmin(d))]
+    return spread, nearest
+
+
+def demo_names(demos: Demonstrations) -> list[str]:
+    """Each demonstration's name (its file, or ``#i``)."""
+    names = list(demos.names or ())
+    return names if len(names) == len(demos) else [f"#{i}" for i in range(len(demos))]
+
+
+def _fmt(x: float, unit: str) -> str:
+    return f"{100 * x:.2f} cm" if unit == "m" else f"{x:.3g} {unit}"
+
+
+def _listed(names, values, limits, unit: str, near=None, most: int = 5) -> str:
+    order = np.argsort(-np.asarray(values) / np.maximum(np.asarray(limits), 1e-12))
+    shown = [f"{names[k]} ({_fmt(values[k], unit)} > {_fmt(limits[k], unit)}"
+             + (f", nearest {near[k]}" if near is not None and near[k] else "") + ")"
+             for k in order[:most]]
+    more = len(order) - most
+    return ", ".join(shown) + (f" and {more} more" if more > 0 else "")
+
+
+def demo_extent(demos: Demonstrations) -> np.ndarray:
+    """``e_i``: each demonstration's largest distance from its goal [unit]."""
+    return np.array([float(np.linalg.norm(demos.trimmed(i)[0], axis=1).max())
+                     for i in range(len(demos))])
+
+
+def _imitation(im: dict, spread, names, cfg: EvalConfig, unit: str, nearest=None,
+               extent=None) -> list[Failure]:
+    extent = np.zeros_like(spread) if extent is None else np.asarray(extent, float)
+    floor = cfg.gate_floor * cfg.pos_tol
+    dtw = np.asarray(im.get("dtw_per_demo", [im["dtw"]]), float)
+    out = []
+    if cfg.gate_worst > 0 and len(dtw) == len(spread):
+        limits = np.maximum(np.maximum(cfg.gate_worst * spread, cfg.gate_extent * extent),
+                            floor)
+        bad = np.flatnonzero(dtw > limits)
+        if len(bad):
+            out.append(Failure("worst_demo", tuple(names[k] for k in bad), (
+                f"{len(bad)} of {len(dtw)} demonstration(s) not reproduced (DTW/point > "
+                f"{cfg.gate_worst:g} x the distance to the nearest other demonstration and "
+                f"{cfg.gate_extent:g} x its extent): "
+                + _listed([names[k] for k in bad], dtw[bad], limits[bad], unit,
+                          None if nearest is None else
+                          [names[j] if j >= 0 else "" for j in np.asarray(nearest)[bad]])
+                + "; check them for another goal, a truncated or paused motion or a route that "
+                "contradicts a neighbour from a close start (remove or re-record them), else "
+                "train longer (puma.train.iterations, puma.train.patience)")))
+    if cfg.gate_spread > 0:
+        limit = max(cfg.gate_spread * float(np.median(spread)),
+                    0.5 * cfg.gate_extent * float(np.median(extent)), floor)
+        if im["dtw"] > limit:
+            worst = np.argsort(-dtw)[:3] if len(dtw) == len(names) else []
+            out.append(Failure("imitation", tuple(names[k] for k in worst), (
+                f"mean DTW/point {_fmt(im['dtw'], unit)} > {cfg.gate_spread:g} x the "
+                f"demonstrations' own spread ({_fmt(float(np.median(spread)), unit)}) = "
+                f"{_fmt(limit, unit)}; worst: "
+                + ", ".join(f"{names[k]} ({_fmt(dtw[k], unit)})" for k in worst)
+                + "; try a longer schedule (puma.train.iterations, puma.train.patience) or a "
+                "wider network (puma.network.width=256)")))
+    return out
+
+
+def check(evaluation: dict, spread: np.ndarray, names: list[str], cfg: EvalConfig,
+          unit: str = "m", nearest: np.ndarray | None = None,
+          extent: np.ndarray | None = None) -> list[Failure]:
+    """The failed gates of one evaluation (``evaluation.evaluate``'s dict); [] when all pass.
+    ``nearest``: each demonstration's nearest other one (index), named in the messages;
+    ``extent``: e_i (None: 0)."""
+    out = _imitation(evaluation["imitation"], np.asarray(spread, float), names, cfg, unit,
+                     nearest, extent)
+    cv = evaluation["convergence"]
+    if cv["converged_fraction"] < cfg.gate_converged:
+        out.append(Failure("convergence", (), (
+            f"{cv['not_converged']} of {cv['starts']} random starts did not reach the goal "
+            f"within {cv['horizon_s']:g} s (farthest ends {_fmt(cv['final_pos_error_max'], unit)}"
+            f" away, {cv['final_angle_error_max']:.2f} rad); try a stronger stability push "
+            "(puma.train.stability_weight_end), more iterations, or a workspace the "
+            "demonstrations cover")))
+    cp = evaluation["compatibility"]
+    if cp["compatible_fraction"] < cfg.gate_compat:
+        out.append(Failure("compatibility", (), (
+            f"psi-compatible on {100 * cp['compatible_fraction']:.1f}% of {cp['samples']} "
+            f"states (< {100 * cfg.gate_compat:.1f}%): CPM may stall there; try "
+            "puma.train.compat_weight=0.3 or puma.train.path_weight=5")))
+    return out
+
+
+def as_report(failures: list[Failure], spread: np.ndarray, cfg: EvalConfig) -> dict:
+    """The ``gates`` entry of ``report.json``."""
+    return {"passed": not failures, "failures": [asdict(f) for f in failures],
+            "spread_median": float(np.median(spread)),
+            "spread_per_demo": [float(s) for s in spread],
+            "thresholds": {k: getattr(cfg, k) for k in ("gate_spread", "gate_worst", "gate_extent",
+                                                        "gate_floor", "gate_converged",
+                                                        "gate_compat")}}
+
+
+def failed_lines(report: dict | None) -> list[str]:
+    """The failed gates' lines stored in a report (``[]`` when it passed or has no gates)."""
+    gates = (report or {}).get("gates") or {}
+    return [str(f.get("line", f)) for f in gates.get("failures", [])]

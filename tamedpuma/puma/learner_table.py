@@ -1,0 +1,94 @@
+"""The learner across motions and seeds: train and evaluate each demonstration set, one table.
+
+Each job is one composed training config (``pipeline.run``); its row holds the imitation (mean
+and worst demonstration DTW per point, mean discrete Fréchet distance; m for the robot sets, the
+data's unit otherwise), the converged fraction of the random starts, the ψ-compatible fraction,
+the iterations run, the training's wall time and the whole run's wall and CPU time [s], and the
+gates that failed. The Markdown table and a JSON twin are rewritten after every job, so a long
+run can be read (and stopped) at any point; the last lines give the medians.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import pipeline
+
+
+@dataclass(frozen=True)
+class Job:
+    """One training: a demonstration set's name, the model order, the seed and the config."""
+
+    name: str
+    order: int
+    seed: int
+    cfg: dict
+
+
+def row(job: Job, report: dict) -> dict:
+    """The table row of one finished training (its ``report.json``)."""
+    ev = report["evaluation"]
+    im, cv, cp = ev["imitation"], ev["convergence"], ev["compatibility"]
+    gates = report.get("gates") or {}
+    return {"set": job.name, "order": job.order, "seed": job.seed, "n_demos": report["n_demos"],
+            "unit": report.get("unit", "m"), "dtw": im["dtw"], "dtw_worst": im["dtw_max"],
+            "frechet": im["frechet"], "converged": cv["converged_fraction"],
+            "compatible": cp["compatible_fraction"], "iterations": report["iterations_run"],
+            "train_s": report["train_seconds"], "wall_s": report["pipeline_seconds"],
+            "cpu_s": report["pipeline_cpu_seconds"],
+            "gates_failed": [f["gate"] for f in gates.get("failures", [])]}
+
+
+def _scale(r: dict) -> tuple[float, str]:
+    return (100.0, "cm") if r["unit"] == "m" else (1.0, r["unit"])
+
+
+def markdown(rows: list[dict], note: str = "") -> str:
+    """The table, one row per training, then the medians of the times and the share met."""
+    lines = ["| set | order | seed | demos | DTW mean | DTW worst demo | Fréchet | converged | "
+             "ψ-compatible | iterations | train [s] | wall [s] | CPU [s] | gates failed |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        k, u = _scale(r)
+        lines.append(
+            f"| {r['set']} | {r['order']} | {r['seed']} | {r['n_demos']} | "
+            f"{k * r['dtw']:.2f} {u} | {k * r['dtw_worst']:.2f} {u} | {k * r['frechet']:.2f} {u}"
+            f" | {100 * r['converged']:.1f}% | {100 * r['compatible']:.2f}% | {r['iterations']} | "
+            f"{r['train_s']:.0f} | {r['wall_s']:.0f} | {r['cpu_s']:.0f} | "
+            f"{', '.join(r['gates_failed']) or 'none'} |")
+    if rows:
+        med = lambda key: float(np.median([r[key] for r in rows]))  # noqa: E731
+        lines.append(f"\nMedians over {len(rows)} runs: train {med('train_s'):.0f} s, wall "
+                     f"{med('wall_s'):.0f} s, CPU {med('cpu_s'):.0f} s; all gates passed in "
+                     f"{sum(not r['gates_failed'] for r in rows)} of {len(rows)}.")
+    return "\n".join(lines) + "\n" + (f"\n{note}\n" if note else "")
+
+
+def run(jobs: list[Job], table: Path, log=print) -> list[dict]:
+    """Train and evaluate every job in turn; rewrite ``table`` (.md) and its ``.json`` after each.
+    A job whose training fails is logged and left out (the others still run)."""
+    from ..errors import TamedPumaError
+
+    table.parent.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for i, job in enumerate(jobs):
+        log(f"[{i + 1}/{len(jobs)}] {job.name} order {job.order} seed {job.seed}")
+        t0 = time.perf_counter()
+        try:
+            report = pipeline.run(job.cfg, log=log)
+        except TamedPumaError as exc:
+            log(f"failed: {job.name} seed {job.seed}: {exc}")
+            continue
+        rows.append(row(job, report))
+        log(f"done in {time.perf_counter() - t0:.0f} s: {json.dumps(rows[-1])}")
+        note = (f"Machine: {os.cpu_count()} cores, load average at the last row "
+                f"{', '.join(f'{x:.1f}' for x in os.getloadavg())}.")
+        table.write_text(markdown(rows, note))
+        table.with_suffix(".json").write_text(json.dumps(rows, indent=2) + "\n")
+    return rows
