@@ -517,7 +517,8 @@ def test_shell_completion_completes_method_options_for_python_m(capsys, monkeypa
     env = {**ENV, "COMP_LINE": "python -m tamedpuma.sweep method=f", "COMP_POINT": "34"}
     proc = subprocess.run([sys.executable, "-m", "tamedpuma.sweep", "-sc", "query=bash"],
                           env=env, capture_output=True, text=True, timeout=120)
-    assert proc.stdout.split() == ["method=fabrics", "method=fpm"], proc.stderr[-2000:]
+    assert proc.stdout.split() == ["method=fabrics", "method=fpm", "method=fpm_literal"], (
+        proc.stderr[-2000:])
     script = subprocess.run([sys.executable, "-m", "tamedpuma.sweep", "-sc", "install=bash"],
                             env=ENV, capture_output=True, text=True, timeout=120).stdout
     if not Path("/bin/bash").exists():
@@ -527,7 +528,8 @@ def test_shell_completion_completes_method_options_for_python_m(capsys, monkeypa
             '_tamedpuma_sweep_completion; printf "%s\\n" "${COMPREPLY[@]}"\n')
     proc = subprocess.run(["/bin/bash", "-c", test], env=ENV, capture_output=True, text=True,
                           timeout=120)
-    assert proc.stdout.split() == ["method=fabrics", "method=fpm"], proc.stderr[-2000:]
+    assert proc.stdout.split() == ["method=fabrics", "method=fpm", "method=fpm_literal"], (
+        proc.stderr[-2000:])
 
 
 def test_runs_of_a_far_goal_or_a_model_of_another_task_are_warned(tmp_path, monkeypatch,
