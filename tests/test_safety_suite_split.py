@@ -54,9 +54,10 @@ def test_a_bad_puma_free_file_is_a_one_line_error_before_any_run(tmp_path, capsy
 
 
 def test_settle_continues_the_run_after_the_reach_and_judges_the_orientation_there():
-    """With ``settle`` S the run goes on S seconds past the first reach (the sweep's rule): the
-    position outcome is the same as without, the run is S/Δt steps longer, and the orientation
-    is judged at its end (Fabrics on a random tomato scenario: no model needed)."""
+    """With ``settle`` S the run goes on at least S seconds past the first reach and then until
+    the hand rests (the sweep's rule): the position outcome is the same as without, the run is
+    at least S/Δt steps past the reach, and the orientation is judged S after the reach (Fabrics
+    on a random tomato scenario: no model needed)."""
     from analysis.safety_suite import run_one
 
     spec = {"task": "tomato", "kind": "near_table1", "seed": 2001, "method": "fabrics",
@@ -65,11 +66,8 @@ def test_settle_continues_the_run_after_the_reach_and_judges_the_orientation_the
     settled = run_one({**spec, "settle": 1.0})
     assert at_reach["success_paper"] and settled["success_paper"]
     assert settled["time_to_success"] == at_reach["time_to_success"]
-    assert settled["steps"] == at_reach["steps"] + 50  # Δt = 0.02 s
-    assert at_reach["settled_orientation_error"] == pytest.approx(
-        at_reach["end_orientation_error"])
-    assert settled["settled_orientation_error"] == pytest.approx(
-        settled["end_orientation_error"])
+    reach = round(at_reach["time_to_success"] / 0.02)  # Δt = 0.02 s
+    assert settled["steps"] >= max(at_reach["steps"], reach + 50 + 1)
     assert settled["success_orientation_paper"] == (settled["settled_orientation_error"] <= 0.2)
 
 

@@ -1,5 +1,4 @@
-"""Rebuild the paper's Table 1 from run logs:
-``python -m tamedpuma.analysis.tables RUNS_DIR [--out DIR]``.
+"""Table 1 from run logs: ``python -m tamedpuma.analysis.tables RUNS_DIR [--out DIR]``.
 
 One row per method label (``method.label`` of the run's config, else the method name: the CPM
 forms ``cpm``, ``cpm_literal`` and ``cpm_original`` are separate rows), scored on the runs with
