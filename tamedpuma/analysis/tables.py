@@ -171,7 +171,7 @@ def model_notes(runs: pd.DataFrame) -> list[str]:
         name, kind, source, origin, sha = key
         methods = ", ".join(sorted(set(group.get("method_label", group["method"]))))
         lines.append(f"model {name}: {kind} data ({source}), {origin}, sha256 {sha[:12]}; "
-                     f"{len(group)} runs ({methods})")
+                     f"{len(group)} run{'' if len(group) == 1 else 's'} ({methods})")
     return lines
 
 
