@@ -162,13 +162,13 @@ class _StopRule:
         self.limit, self.reach_step = scenario.max_steps, None
 
     def converged(self, k: int, t: float, error: np.ndarray, distance: float) -> bool:
-        resting = self.monitor.update(t, error)
         inside = distance <= self.tolerance
         if self.reach_step is None and inside and t >= self.after_onset:
             self.reach_step = k
             self.limit = max(self.limit, k + self.settle_steps + 1)
-        return (self.enabled and self.reach_step is not None
-                and k >= self.reach_step + self.settle_steps and inside and resting)
+        due = (self.enabled and self.reach_step is not None
+               and k >= self.reach_step + self.settle_steps and inside)
+        return self.monitor.update(t, error, check=due) and due  # the window test only when due
 
 
 def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,

@@ -176,7 +176,9 @@ class RestMonitor:
         self.times: deque[float] = deque()
         self.errors: deque[np.ndarray] = deque()
 
-    def update(self, t: float, error_vector: np.ndarray) -> bool:
+    def update(self, t: float, error_vector: np.ndarray, check: bool = True) -> bool:
+        """Record step (t, e); whether it is at rest (False without ``check``: the window is
+        kept, the test not computed)."""
         if self.t0 is None:
             self.t0 = t
         self.times.append(t)
@@ -184,7 +186,7 @@ class RestMonitor:
         while self.times[0] < t - self.window + 1e-9:
             self.times.popleft()
             self.errors.popleft()
-        if t - self.t0 < self.window - 1e-9:
+        if not check or t - self.t0 < self.window - 1e-9:
             return False
         d = np.asarray(self.errors) - self.errors[-1]
         return bool(np.einsum("ij,ij->i", d, d).max() <= self.distance ** 2)
