@@ -424,6 +424,35 @@ def _secondary_problem(rng, n=7, k=3, m2=3):
     return A1, J1, 100.0 * J2.T @ J2, J2
 
 
+def test_secondary_damping_with_a_factor_of_its_rows_gives_the_same_metric():
+    """The small problem (``rows2``, A₂ = rows2ᵀrows2) returns None where the (n, n)
+    eigenproblem finds no direction below σ₀, and otherwise the same D bit for bit, for
+    thresholds on both sides of each σ̂ᵢ (and right at one)."""
+    rng = np.random.default_rng(5)
+    decided = {"none": 0, "D": 0}
+    for _ in range(30):
+        A1, J1, _, J2 = _secondary_problem(rng)
+        w = rng.uniform(50.0, 150.0, size=3)
+        rows2 = np.sqrt(w)[:, None] * J2
+        A2 = J2.T @ (w[:, None] * J2)
+        L = np.linalg.cholesky(A1)
+        Ju = np.linalg.solve(L, J1.T).T
+        N = np.eye(7) - Ju.T @ np.linalg.solve(Ju @ Ju.T, Ju)
+        X = np.linalg.solve(L, np.linalg.solve(L, A2).T)
+        sig = np.sqrt(np.maximum(np.linalg.eigvalsh(N @ X @ N)[-3:], 0.0))
+        for threshold in (*(0.5 * sig), *(2.0 * sig), sig[0], 1e-9, 1e9):
+            damping = SecondaryDamping(gain=100.0, threshold=float(threshold))
+            full = damping.metric(A1, J1, A2, 3)
+            short = damping.metric(A1, J1, A2, 3, rows2)
+            if full is None:
+                assert short is None
+                decided["none"] += 1
+            else:
+                assert short is not None and np.array_equal(full, short)
+                decided["D"] += 1
+    assert decided["none"] >= 30 and decided["D"] >= 30
+
+
 def test_secondary_damping_acts_only_on_near_singular_directions_left_to_the_orientation(
         monkeypatch):
     """:class:`SecondaryDamping`: D is symmetric PSD of rank ≤ m₂ and invisible to the first

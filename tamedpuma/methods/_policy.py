@@ -290,7 +290,9 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
     if k == m:
         return linear_solve(A, rhs)
     A2 = J[k:].T @ wJ[k:]
-    D = None if secondary is None else secondary.metric(A, J1, A2, m - k)
+    D = None if secondary is None else secondary.metric(
+        A, J1, A2, m - k, weighted_rows(math.sqrt(weight) if type(weight) is float
+                                        else np.sqrt(np.asarray(weight)[k:]), J[k:]))
     if D is not None:
         A2 = A2 + D
     return prioritized_solve(A, rhs, J1, A2, wJ[k:].T @ target[k:])
@@ -336,14 +338,21 @@ class SecondaryDamping:
     threshold: float = 3.0
 
     def metric(self, A1: np.ndarray, J1: np.ndarray, A2: np.ndarray,
-               rank: int) -> np.ndarray | None:
+               rank: int, rows2: np.ndarray | None = None) -> np.ndarray | None:
         """D (n, n) [1] for the first stage's metric A₁ (SPD), the first rows J₁ (k, n) and the
         secondary rows' A₂ (PSD, rank ≤ ``rank``); None (nothing to add: the common case in
-        free space) when no direction is below σ₀ or μ_max = 0."""
+        free space) when no direction is below σ₀ or μ_max = 0.
+
+        rows2: a factor of A₂ (``A₂ = rows2ᵀ rows2``, i.e. diag(√w) J₂, (m₂, n)), when known:
+        where the small (m₂, m₂) problem of :meth:`_small` finds every σ̂ᵢ clearly (10⁻⁶
+        relative) above σ₀, None without the (n, n) eigenproblem; otherwise D from it, the
+        same numbers as without rows2."""
         n = A1.shape[0]
         if self.gain <= 0.0 or rank <= 0:
             return None
         L = np.linalg.cholesky(A1)
+        if rows2 is not None and self._clearly_above(L, J1, rows2):
+            return None
         X = np.linalg.solve(L, np.linalg.solve(L, A2).T)  # L⁻¹A₂L⁻ᵀ (A₂ symmetric)
         J1u = np.linalg.solve(L, J1.T).T  # J₁L⁻ᵀ: the first rows in u
         try:
@@ -361,6 +370,22 @@ class SecondaryDamping:
         mu = self.gain * (1.0 - sigma[low] / self.threshold) ** 2
         LV = L @ V[:, -rank:][:, low]
         return (LV * mu) @ LV.T
+
+    def _clearly_above(self, L: np.ndarray, J1: np.ndarray, rows2: np.ndarray) -> bool:
+        """Whether every σ̂ᵢ is above σ₀ by 10⁻⁶ relative (far beyond the rounding in which the
+        two problems differ). With Ĵ₁ᵀ = L⁻¹J₁ᵀ and Ĵ₂ᵀ = L⁻¹rows2ᵀ, ``G = Ĵ₂N₁Ĵ₂ᵀ =
+        Ĵ₂Ĵ₂ᵀ − Ĵ₂Ĵ₁ᵀ(Ĵ₁Ĵ₁ᵀ)⁻¹Ĵ₁Ĵ₂ᵀ`` has the non-zero eigenvalues σ̂ᵢ² of ``N₁L⁻¹A₂L⁻ᵀN₁``
+        (N₁ a projector)."""
+        k = J1.shape[0]
+        Y = np.linalg.solve(L, np.concatenate((J1, rows2)).T)  # [Ĵ₁ᵀ, Ĵ₂ᵀ]
+        Y1, Y2 = Y[:, :k], Y[:, k:]
+        C = Y1.T @ Y2
+        try:
+            G = Y2.T @ Y2 - C.T @ np.linalg.solve(Y1.T @ Y1, C)
+        except np.linalg.LinAlgError:  # the position rows singular: the (n, n) problem decides
+            return False
+        lam = np.linalg.eigvalsh(0.5 * (G + G.T))
+        return bool(lam[0] >= (self.threshold * (1.0 + 1e-6)) ** 2)
 
 
 #: δ [1] of :func:`prioritized_solve`: the priority constraint's damping relative to tr(S)/k

@@ -57,6 +57,12 @@ class LinkHulls:
     frame_ids: tuple[int, ...]
     vertices: tuple[np.ndarray, ...]
     speed_bound: float  # [m/s] no hull point moves faster within the joint speed limits
+    radii: tuple[float, ...] = ()  # [m] each hull's farthest vertex from its link origin
+
+    def __post_init__(self):
+        if not self.radii:  # computed from the vertices when not given
+            object.__setattr__(self, "radii", tuple(
+                float(np.max(np.linalg.norm(v, axis=1))) for v in self.vertices))
 
 
 def point_speed_bound(kinematics, frame_ids, vertices) -> float:
@@ -149,8 +155,10 @@ def hull_ground_rows(kinematics, hulls: LinkHulls, qd: np.ndarray,
     model, data = kinematics.model, kinematics.data
     qd = np.asarray(qd, dtype=float)
     lowest = []  # (link index, height, vertex relative to the origin in world axes)
-    for i, (fid, v) in enumerate(zip(hulls.frame_ids, hulls.vertices)):
+    for i, (fid, v, radius) in enumerate(zip(hulls.frame_ids, hulls.vertices, hulls.radii)):
         placement = data.oMf[fid]
+        if placement.translation[2] - radius >= below:  # no vertex of this hull is lower
+            continue
         R = placement.rotation
         z = v @ R[2]
         j = int(np.argmin(z))
