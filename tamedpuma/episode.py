@@ -5,9 +5,10 @@ Per control step k (period Δt):
 1. read the simulator's truth (joint state, link poses, body spheres, contacts, clearance);
 2. time the whole controller step ``q̈_k = controller.step(obs_k)`` (kinematics included) [ms];
 3. hand a :class:`StepRecord` to every recorder (streams; nothing is held back to the end);
-4. stop once the hand rests inside the goal ball, at least ``settle_time`` [s] after it first
-   reached it (``stop_on_success``; the settle period lets the orientation be judged after the
-   position has held, the rest test tells a converged run from one passing through the ball:
+4. stop once the hand's pose rests inside the goal ball, at least ``settle_time`` [s] after it
+   first reached it (``stop_on_success``; the settle period lets the orientation be judged after
+   the position has held, the rest test tells a converged run from one passing through the
+   ball, and a hand still turning towards the goal orientation from one at rest:
    :class:`~tamedpuma.metrics.RestMonitor`), or at the step limit (extended to cover the settle
    period of a reach near the limit), else apply q̈_k.
 
@@ -24,9 +25,15 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from tamedpuma.metrics import ERROR_VECTOR_FIELDS, RestMonitor, RunMetrics, run_metrics
+from tamedpuma.metrics import (
+    ERROR_VECTOR_FIELDS,
+    ROTATION_VECTOR_FIELDS,
+    RestMonitor,
+    RunMetrics,
+    run_metrics,
+)
 from tamedpuma.recording.records import Recorder, RunInfo, StepRecord
-from tamedpuma.robot.rotations import orientation_error
+from tamedpuma.robot.rotations import orientation_error, quat_log, relative_quat
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Controller, Scenario
 from tamedpuma.worlds.bullet import Simulator
 
@@ -49,10 +56,12 @@ class EpisodeResult:
 @dataclass(frozen=True)
 class RestTest:
     """When the hand is at rest: its error vector x_ee − x_g moved less than ``distance`` [m]
-    over the last ``window`` [s] (:func:`tamedpuma.metrics.at_rest`)."""
+    and the error rotation's vector log(ζ ⊗ ζ_g⁻¹) less than ``angle`` [rad] over the last
+    ``window`` [s] (:func:`tamedpuma.metrics.at_rest`)."""
 
     window: float = 1.0
     distance: float = 0.005
+    angle: float = 0.02
 
 
 @dataclass
@@ -63,6 +72,7 @@ class _Trace:
     q: list = field(default_factory=list)
     ee_position: list = field(default_factory=list)
     error_vector: list = field(default_factory=list)
+    rotation_vector: list = field(default_factory=list)
     position_error: list = field(default_factory=list)
     orientation_error: list = field(default_factory=list)
     clearance: list = field(default_factory=list)
@@ -83,12 +93,12 @@ class _Trace:
             **arrays, q_min=spec.q_min, q_max=spec.q_max, tolerance=scenario.goal_tolerance,
             time_limit=scenario.max_steps * scenario.dt, settle_time=settle_time,
             disturbance_time=disturbance_time, rest_window=rest.window,
-            rest_distance=rest.distance)
+            rest_distance=rest.distance, rest_angle=rest.angle)
 
 
 def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, link_pos, link_quat,
                  ee_index: int, centers, contacts, pos_err: float, rot_err: float,
-                 compute_ms: float) -> StepRecord:
+                 rotation: np.ndarray, compute_ms: float) -> StepRecord:
     """What the recorders receive for step k (simulator truth, the command and its scalars)."""
     clearance = contacts.sphere_clearance
     scalars = {
@@ -97,6 +107,7 @@ def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, link_
         "position_error_m": pos_err,
         **dict(zip(ERROR_VECTOR_FIELDS, (link_pos[ee_index] - obs.goal_position).tolist())),
         "orientation_error_rad": rot_err,
+        **dict(zip(ROTATION_VECTOR_FIELDS, rotation.tolist())),
         "obstacle_contact": float(contacts.obstacle_contact),
         "ground_contact": float(contacts.ground_contact),
         **{name: float(v) for name, v in command.scalars.items()},
@@ -110,14 +121,16 @@ def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, link_
 
 
 def _observe(sim, obs, ee_index: int):
-    """The simulator's truth at a step: link poses, body spheres, contacts, goal errors."""
+    """The simulator's truth at a step: link poses, body spheres, contacts, goal errors (the
+    distance [m], the angle [rad] and the error rotation's vector log(ζ ⊗ ζ_g⁻¹) [rad])."""
     link_pos, link_quat = sim.link_poses()
     centers = sim.body_sphere_centers(link_pos, link_quat)
     contacts = sim.contacts(centers)
     error = link_pos[ee_index] - obs.goal_position
     pos_err = math.sqrt(float(error.dot(error)))  # = np.linalg.norm, without its wrapper
     rot_err = float(orientation_error(link_quat[ee_index], obs.goal_quaternion))
-    return link_pos, link_quat, centers, contacts, pos_err, rot_err
+    rotation = quat_log(relative_quat(link_quat[ee_index], obs.goal_quaternion))
+    return link_pos, link_quat, centers, contacts, pos_err, rot_err, rotation
 
 
 def _timed_step(controller: Controller, obs, dof: int):
@@ -158,17 +171,18 @@ class _StopRule:
         self.settle_steps = math.ceil(settle_time / scenario.dt - 1e-9)
         self.tolerance, self.enabled = scenario.goal_tolerance, stop_on_success
         self.after_onset = -math.inf if onset is None else onset - 1e-9
-        self.monitor = RestMonitor(rest.window, rest.distance)
+        self.monitor = RestMonitor(rest.window, rest.distance, rest.angle)
         self.limit, self.reach_step = scenario.max_steps, None
 
-    def converged(self, k: int, t: float, error: np.ndarray, distance: float) -> bool:
+    def converged(self, k: int, t: float, error: np.ndarray, rotation: np.ndarray,
+                  distance: float) -> bool:
         inside = distance <= self.tolerance
         if self.reach_step is None and inside and t >= self.after_onset:
             self.reach_step = k
             self.limit = max(self.limit, k + self.settle_steps + 1)
         due = (self.enabled and self.reach_step is not None
                and k >= self.reach_step + self.settle_steps and inside)
-        return self.monitor.update(t, error, check=due) and due  # the window test only when due
+        return self.monitor.update(t, error, rotation, check=due) and due  # tested when due
 
 
 def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
@@ -195,24 +209,25 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
     try:
         k = 0
         while k < stop.limit:
-            link_pos, link_quat, centers, contacts, pos_err, rot_err = _observe(sim, obs, ee_index)
+            link_pos, link_quat, centers, contacts, pos_err, rot_err, rotation = _observe(
+                sim, obs, ee_index)
             command, qdd, compute_ms = _timed_step(controller, obs, spec.dof)
             if recorders:  # (no record is built for none: recorder=none costs nothing)
                 record = _step_record(k, obs, truth(obs), command, qdd, link_pos, link_quat,
                                       ee_index, centers, contacts, pos_err, rot_err,
-                                      compute_ms)
+                                      rotation, compute_ms)
                 for rec in recorders:
                     rec.write(record)
             error = link_pos[ee_index] - obs.goal_position
             trace.add(t=obs.t, q=obs.q, ee_position=link_pos[ee_index], error_vector=error,
-                      position_error=pos_err,
+                      rotation_vector=rotation, position_error=pos_err,
                       orientation_error=rot_err, clearance=contacts.sphere_clearance,
                       obstacle_contact=contacts.obstacle_contact,
                       ground_contact=contacts.ground_contact, compute_ms=compute_ms)
             if not np.isfinite(qdd).all():
                 stop_reason = "nonfinite_command"
                 break
-            if stop.converged(k, obs.t, error, pos_err):
+            if stop.converged(k, obs.t, error, rotation, pos_err):
                 stop_reason = "converged"
                 break
             obs = sim.step(qdd)

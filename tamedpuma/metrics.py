@@ -26,9 +26,12 @@ its onset count, so the run must reach the goal after the disturbance.
   vector e = x_ee − x_g (the hand relative to the possibly moving goal) moved less than
   ``rest_distance`` [m] from e_k; k_c is the first step k ≥ k_r at rest with ‖e_k‖ ≤
   ``tolerance``. Converged: k_c exists, t_c < the time limit and the criterion's collision
-  conditions hold over 0..k_c; with orientation also the orientation error at k_c is ≤
-  ``orientation_tolerance``. A hand that passes through the ball, or hovers in it without
-  resting, has reached but not converged.
+  conditions hold over 0..k_c. **Converged with orientation**: the same at k_o, the first step
+  k ≥ k_r at which the whole pose rests inside the ball (also the rotation vector of the error
+  rotation, r = log(ζ ⊗ ζ_g⁻¹), moved less than ``rest_angle`` [rad] over the window: a hand
+  still turning towards the goal orientation is not at rest), with the orientation error at
+  k_o ≤ ``orientation_tolerance``. A hand that passes through the ball, or hovers in it
+  without resting, has reached but not converged.
 - left after reach: the position error exceeded ``tolerance`` at some step after k_r (the hand
   entered the ball and went out again); ``max_error_after_reach_m`` is the farthest it went.
 - time to success [s]: t_r (NaN if never reached); rest time [s]: t_c (NaN if none).
@@ -51,6 +54,9 @@ import numpy as np
 
 #: the logged scalars of the error vector x_ee − x_g [m] (the rest test's input from a log)
 ERROR_VECTOR_FIELDS = ("position_error_x_m", "position_error_y_m", "position_error_z_m")
+#: the logged scalars of the error rotation's vector r = log(ζ ⊗ ζ_g⁻¹) [rad] (the pose rest test)
+ROTATION_VECTOR_FIELDS = ("orientation_error_x_rad", "orientation_error_y_rad",
+                          "orientation_error_z_rad")
 
 #: Collision causes in the order they are reported when several occur at the same step.
 CAUSES = ("sphere_penetration", "obstacle_contact", "ground_contact", "joint_limit")
@@ -153,65 +159,94 @@ def _reach_and_settle(t: np.ndarray, inside: np.ndarray, settle_time: float,
 
 
 def at_rest(t: np.ndarray, error_vector: np.ndarray, rest_window: float,
-            rest_distance: float) -> np.ndarray:
+            rest_distance: float, rotation_vector: np.ndarray | None = None,
+            rest_angle: float = math.inf) -> np.ndarray:
     """Per step (T,): the error vector e (T, 3) [m] stayed within ``rest_distance`` [m] of e_k
-    over the ``rest_window`` [s] before step k (False until a whole window has passed)."""
+    over the ``rest_window`` [s] before step k (False until a whole window has passed), and,
+    given ``rotation_vector`` r (T, 3) [rad], r within ``rest_angle`` [rad] of r_k too."""
     t = np.asarray(t, dtype=float)
     e = np.asarray(error_vector, dtype=float)
+    r = None if rotation_vector is None else np.asarray(rotation_vector, dtype=float)
     start = np.searchsorted(t, t - rest_window + 1e-9)  # first step inside each window
     out = np.zeros(len(t), dtype=bool)
     for k in np.nonzero(t - t[0] >= rest_window - 1e-9)[0]:
-        d = e[start[k]:k + 1] - e[k]
-        out[k] = bool(np.einsum("ij,ij->i", d, d).max() <= rest_distance ** 2)
+        out[k] = (_within(e[start[k]:k + 1], rest_distance)
+                  and (r is None or _within(r[start[k]:k + 1], rest_angle)))
     return out
 
 
-class RestMonitor:
-    """:func:`at_rest` one step at a time (the episode loop's stop test): ``update(t, e)`` returns
-    whether step k is at rest, with the same window and distance."""
+def _within(window: np.ndarray, radius: float) -> bool:
+    """Every row of ``window`` (m, 3) within ``radius`` of its last row."""
+    d = window - window[-1]
+    return bool(np.einsum("ij,ij->i", d, d).max() <= radius ** 2)
 
-    def __init__(self, rest_window: float, rest_distance: float):
-        self.window, self.distance = rest_window, rest_distance
+
+class RestMonitor:
+    """:func:`at_rest` one step at a time (the episode loop's stop test): ``update(t, e, r)``
+    returns whether step k is at rest, with the same window, distance and angle."""
+
+    def __init__(self, rest_window: float, rest_distance: float, rest_angle: float = math.inf):
+        self.window, self.distance, self.angle = rest_window, rest_distance, rest_angle
         self.t0: float | None = None
         self.times: deque[float] = deque()
         self.errors: deque[np.ndarray] = deque()
+        self.rotations: deque[np.ndarray] = deque()
 
-    def update(self, t: float, error_vector: np.ndarray, check: bool = True) -> bool:
-        """Record step (t, e); whether it is at rest (False without ``check``: the window is
-        kept, the test not computed)."""
+    def update(self, t: float, error_vector: np.ndarray, rotation_vector=None,
+               check: bool = True) -> bool:
+        """Record step (t, e, r); whether it is at rest (False without ``check``: the window is
+        kept, the test not computed; without r, or with an infinite angle, the position alone)."""
         if self.t0 is None:
             self.t0 = t
         self.times.append(t)
         self.errors.append(np.array(error_vector, dtype=float))
+        use_r = rotation_vector is not None and math.isfinite(self.angle)
+        self.rotations.append(np.array(rotation_vector, dtype=float) if use_r else None)
         while self.times[0] < t - self.window + 1e-9:
             self.times.popleft()
             self.errors.popleft()
+            self.rotations.popleft()
         if not check or t - self.t0 < self.window - 1e-9:
             return False
-        d = np.asarray(self.errors) - self.errors[-1]
-        return bool(np.einsum("ij,ij->i", d, d).max() <= self.distance ** 2)
+        if not _within(np.asarray(self.errors), self.distance):
+            return False
+        if not use_r or any(r is None for r in self.rotations):
+            return True
+        return _within(np.asarray(self.rotations), self.angle)
 
 
 def rest_step(t, error_vector, inside: np.ndarray, reach: int | None, rest_window: float,
-              rest_distance: float) -> int | None:
+              rest_distance: float, rotation_vector=None,
+              rest_angle: float = math.inf) -> int | None:
     """k_c: the first step at or after ``reach`` at rest (:func:`at_rest`) inside the ball."""
     if reach is None or error_vector is None:
         return None
-    rest = at_rest(t, error_vector, rest_window, rest_distance) & inside
+    rest = at_rest(t, error_vector, rest_window, rest_distance, rotation_vector,
+                   rest_angle) & inside
     rest[:reach] = False
     k = _first(rest)
     return k if k < len(rest) else None
 
 
 def _rest_outcome(t, error_vector, inside, reach, rot_err, causes, time_limit: float,
-                  orientation_tolerance: float, rest_test: tuple[float, float]) -> dict:
-    """``converged_*``, ``orientation_converged_*`` (both criteria) and ``rest_time_s``; a
-    static goal's error vector may be the hand's position (it moves as e does)."""
-    rest = rest_step(t, error_vector, inside, reach, *rest_test)
+                  orientation_tolerance: float, rest_test: tuple, rotation_vector) -> dict:
+    """``converged_*`` at the position's rest step, ``orientation_converged_*`` at the pose's
+    (without a rotation vector: the position's) and ``rest_time_s`` (the position's);
+    a static goal's error vector may be the hand's position (it moves as e does)."""
+    window, distance, angle = rest_test
+    rest = rest_step(t, error_vector, inside, reach, window, distance)
+    pose = rest
+    if rotation_vector is not None and math.isfinite(angle):
+        pose = rest_step(t, error_vector, inside, reach, window, distance, rotation_vector,
+                         angle)
     in_time = rest is not None and t[rest] < time_limit - 1e-9
-    oriented = rest is not None and rot_err[rest] <= orientation_tolerance
-    return {**_converged(causes, rest, in_time, oriented),
-            "rest_time_s": float(t[rest]) if rest is not None else float("nan")}
+    out = {k: v for k, v in _converged(causes, rest, in_time, False).items()
+           if not k.startswith("orientation_")}
+    pose_in_time = pose is not None and t[pose] < time_limit - 1e-9
+    oriented = pose is not None and rot_err[pose] <= orientation_tolerance
+    out.update({k: v for k, v in _converged(causes, pose, pose_in_time, oriented).items()
+                if k.startswith("orientation_")})
+    return {**out, "rest_time_s": float(t[rest]) if rest is not None else float("nan")}
 
 
 def _converged(causes, rest: int | None, in_time: bool, oriented: bool) -> dict:
@@ -291,7 +326,9 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
                 settle_time: float = 0.0, ee_position: np.ndarray | None = None,
                 stall_window: float = 2.0, stall_distance: float = 0.01,
                 disturbance_time: float | None = None, error_vector: np.ndarray | None = None,
-                rest_window: float = 1.0, rest_distance: float = 0.005) -> RunMetrics:
+                rest_window: float = 1.0, rest_distance: float = 0.005,
+                rotation_vector: np.ndarray | None = None,
+                rest_angle: float = math.inf) -> RunMetrics:
     """Metrics of one run from per-step arrays (T steps): t (T,) [s], end-effector position
     error to the goal (T,) [m], orientation error (T,) [rad], clearance (T,) [m], contact flags
     (T,), q (T, n) [rad], compute_ms (T,), optional ee_position (T, 3) [m] (for the stall class).
@@ -300,7 +337,9 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
     settle_time [s]: how long after the reach the orientation is judged;
     error_vector (T, 3) [m]: x_ee − x_g per step, for the rest test (default: ee_position − the
     final goal, exact for a goal that does not move; without either no run converges);
-    rest_window [s], rest_distance [m]: the rest test (:func:`at_rest`).
+    rest_window [s], rest_distance [m]: the rest test (:func:`at_rest`);
+    rotation_vector (T, 3) [rad] and rest_angle [rad]: the pose's rest test (converged with
+    orientation; without them it is judged at the position's rest).
     Works on live arrays and on arrays read from a log."""
     t = np.asarray(t, dtype=float)
     n = len(t)
@@ -330,7 +369,7 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
         settle_time_s=float(settle_time),
         **_rest_outcome(t, error_vector if error_vector is not None else ee_position, inside,
                         reach, rot_err, causes, time_limit, orientation_tolerance,
-                        (rest_window, rest_distance)),
+                        (rest_window, rest_distance, rest_angle), rotation_vector),
         **_after_reach(pos_err, tolerance, reach),
         final_position_error_m=float(pos_err[-1]),
         final_orientation_error_rad=float(rot_err[-1]),

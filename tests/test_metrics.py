@@ -219,3 +219,41 @@ def test_a_rest_outside_the_time_limit_or_off_orientation_is_not_converged():
     n = 400
     off = _converging(n, orientation_error=np.full(n, 0.5))
     assert off.converged_paper and not off.orientation_converged_paper
+
+
+def test_a_hand_still_turning_is_not_at_rest_in_its_pose():
+    """The position rests at 4.4 s while the orientation error falls from 0.6 rad to 0.1 rad
+    (time constant 4 s; 0.27 rad then, above the 0.2 rad tolerance): converged is judged at the
+    position's rest; converged with orientation at the pose's rest (7.8 s, 0.17 rad), once the
+    turning has slowed below rest_angle per window.
+    Judged at the position's rest (without the rotation vector, as older logs are), the
+    orientation would have failed."""
+    n = 700
+    t = np.arange(n) * DT
+    angle = 0.1 + 0.5 * np.exp(-t / 4.0)
+    rotation = np.stack([angle, 0 * angle, 0 * angle], axis=1)
+    kw = dict(orientation_error=angle, rest_angle=0.02)
+    turning = _converging(n, rotation_vector=rotation, **kw)
+    position_only = _converging(n, **kw)
+    assert turning.converged_paper and position_only.converged_paper
+    assert turning.rest_time_s == position_only.rest_time_s
+    assert turning.orientation_converged_paper and not position_only.orientation_converged_paper
+    # the pose's rest step: the angle moves 0.5 e^(−(t−1)/4)(1 − e^(−1/4)) over the last 1 s,
+    # below 0.02 rad from t = 1 + 4 ln 5.5 = 7.8 s
+    offline = at_rest(t, np.zeros((n, 3)), 1.0, 0.005, rotation, 0.02)
+    assert t[np.argmax(offline)] == pytest.approx(1.0 + 4.0 * np.log(5.5), abs=0.1)
+
+
+def test_the_online_rest_monitor_agrees_with_the_offline_test_with_rotations():
+    rng = np.random.default_rng(4)
+    t = np.arange(400) * 0.02
+    decay = np.exp(-t / 1.5)[:, None]
+    e = np.cumsum(rng.normal(size=(400, 3)) * np.exp(-t / 0.7)[:, None] * 0.01, axis=0)
+    r = np.cumsum(rng.normal(size=(400, 3)) * decay * 0.02, axis=0)
+    offline = at_rest(t, e, 1.0, 0.005, r, 0.02)
+    monitor = RestMonitor(1.0, 0.005, 0.02)
+    online = np.array([monitor.update(ti, ei, ri) for ti, ei, ri in zip(t, e, r)])
+    np.testing.assert_array_equal(online, offline)
+    position_only = at_rest(t, e, 1.0, 0.005)
+    assert offline[-1] and (position_only & ~offline).any()  # the turning rests later
+    assert not (offline & ~position_only).any()

@@ -17,7 +17,7 @@ import pandas as pd
 import yaml
 
 from tamedpuma.errors import LogError
-from tamedpuma.metrics import ERROR_VECTOR_FIELDS, run_metrics
+from tamedpuma.metrics import ERROR_VECTOR_FIELDS, ROTATION_VECTOR_FIELDS, run_metrics
 from tamedpuma.recording import read_mcap
 
 log = logging.getLogger(__name__)
@@ -196,7 +196,9 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
         settle_time=float(cfg.get("settle_time", 0.0)), ee_position=ee,
         disturbance_time=disturbance_onset(cfg), error_vector=error_vector(sc),
         rest_window=float(cfg.get("rest_window", 1.0)),
-        rest_distance=float(cfg.get("rest_distance", 0.005)))
+        rest_distance=float(cfg.get("rest_distance", 0.005)),
+        rotation_vector=logged_vector(sc, ROTATION_VECTOR_FIELDS),
+        rest_angle=float(cfg.get("rest_angle", float("inf"))))
     method = run.info.get("method")
     row = {"path": str(path), "run_id": run.info.get("run_id"), "method": method,
            "method_label": method_label(cfg, method),
@@ -213,9 +215,16 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
 def error_vector(scalars: pd.DataFrame) -> np.ndarray | None:
     """The logged error vector x_ee − x_g (T, 3) [m], or None for a log without it (the rest
     test then takes the hand's position, exact for a goal that does not move)."""
-    if not set(ERROR_VECTOR_FIELDS) <= set(scalars.columns):
+    return logged_vector(scalars, ERROR_VECTOR_FIELDS)
+
+
+def logged_vector(scalars: pd.DataFrame, names) -> np.ndarray | None:
+    """The logged scalars ``names`` as one (T, len(names)) array, or None for a log without
+    them (older logs: the error rotation's vector, for the pose's rest test, is then left out
+    and the orientation judged at the position's rest, as those runs were)."""
+    if not set(names) <= set(scalars.columns):
         return None
-    return scalars[list(ERROR_VECTOR_FIELDS)].to_numpy()
+    return scalars[list(names)].to_numpy()
 
 
 def disturbance_onset(cfg: dict) -> float | None:

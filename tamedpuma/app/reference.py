@@ -77,7 +77,8 @@ def reference_motion(cfg: DictConfig, build: Callable) -> np.ndarray:
         result = run_episode(built.scenario, built.controller, sim,
                              stop_on_success=built.run.stop_on_success,
                              settle_time=built.run.settle_time,
-                             rest=RestTest(built.run.rest_window, built.run.rest_distance))
+                             rest=RestTest(built.run.rest_window, built.run.rest_distance,
+                                           built.run.rest_angle))
     m = result.metrics
     if not m.success_whole_body:
         raise ScenarioError(

@@ -517,6 +517,7 @@ class RunConfig:
     settle_time: float = 2.0         # [s] the run goes on at least this long after the reach
     rest_window: float = 1.0         # [s] at rest: the hand moved less than rest_distance
     rest_distance: float = 0.005     # [m] relative to the goal over the last rest_window
+    rest_angle: float = 0.02         # [rad] ... and the hand turned less than this (its pose)
     without_obstacles: bool = False  # drop the scenario's obstacles (path-difference runs)
     clutter: ClutterSchema = field(default_factory=ClutterSchema)
 
@@ -525,6 +526,7 @@ class RunConfig:
         _nonneg("settle_time", self.settle_time)
         _positive("rest_window", self.rest_window)
         _positive("rest_distance", self.rest_distance)
+        _positive("rest_angle", self.rest_angle)
         sim = self.sim
         _check(_finite(sim.substep) and 0 < sim.substep <= 0.1, "sim.substep", "in (0, 0.1] s",
                sim.substep)

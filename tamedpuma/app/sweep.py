@@ -179,7 +179,7 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
             result = run_episode(scenario, built.controller, sim, recorders, info,
                                  stop_on_success=run.stop_on_success,
                                  settle_time=run.settle_time,
-                                 rest=RestTest(run.rest_window, run.rest_distance))
+                                 rest=RestTest(run.rest_window, run.rest_distance, run.rest_angle))
         except DiskFullError as exc:  # the bytes a whole log needs at the rate written so far
             raise exc.for_steps(scenario.max_steps) from exc
     t_episode = time.perf_counter()
