@@ -14,7 +14,8 @@ files under ``conf/`` override these values; a YAML key the schema does not know
 (``tests/test_schema.py`` loads every YAML against it).
 
 **Adding a key** is one line in one dataclass (name, type, default, and a range check in its
-``__post_init__`` if it has one). A method's options are the dataclass in :data:`METHODS`.
+``__post_init__`` if it has one). A method's options are the dataclass in :data:`METHODS`; a
+method plugin's are its own settings dataclass (:class:`tamedpuma.methods.MethodPlugin`).
 
 ``run_config(cfg)`` and ``train_config(cfg)`` merge a composed config into the schema (wrong types
 and unknown keys are :class:`ConfigError` naming the key), build the typed objects (ranges
@@ -81,7 +82,9 @@ def _with_fields_of(name: str, library: type, base: type | None = None) -> type:
     library class it is writable, so YAML values merge into a node that a YAML file creates
     (``scenario.random: {}``)."""
     hints = typing.get_type_hints(library)
-    extra = [(f.name, hints[f.name], field(default=f.default)) for f in dataclasses.fields(library)]
+    extra = [(f.name, hints[f.name], field(default=f.default) if f.default_factory is
+              dataclasses.MISSING else field(default_factory=f.default_factory))
+             for f in dataclasses.fields(library)]
 
     def post_init(self):
         if hasattr(base, "__post_init__"):
@@ -495,6 +498,18 @@ METHODS: dict[str, type] = {
     "cpm": CpmMethod,
     "modulation_ik": ModulationIkMethod,
 }
+
+
+def _plugin_schemas() -> dict[str, type]:
+    """The schemas of the installed method plugins (:func:`tamedpuma.methods.plugins`): the
+    plugin's settings dataclass with ``name`` and ``label``, its defaults and checks its own."""
+    from tamedpuma.methods import plugins
+
+    return {name: _with_fields_of(f"{name.title().replace('_', '')}Method", plugin.settings,
+                                  MethodSchema) for name, plugin in plugins().items()}
+
+
+METHODS.update(_plugin_schemas())
 
 
 # ----------------------------------------------------------------------------- whole configs

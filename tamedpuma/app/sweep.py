@@ -48,7 +48,7 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from tamedpuma.app.cli import fail, precheck_overrides, shell_completion
+from tamedpuma.app.cli import fail, precheck_overrides, shell_completion, with_plugin_configs
 from tamedpuma.app.config import CONF_DIR
 from tamedpuma.errors import ConfigError, DiskFullError, TamedPumaError
 from tamedpuma.paths import free_bytes, no_space, write_atomic
@@ -610,6 +610,9 @@ def main(argv: list[str] | None = None) -> None:
         "ignore::UserWarning:joblib.externals.loky.backend.resource_tracker"]))
     os.environ[_LAUNCHER_PID] = str(os.getpid())  # inherited by the joblib launcher's workers
     shell_completion(argv, "tamedpuma.sweep")
+    plugged = with_plugin_configs(argv)
+    if plugged != list(argv):  # Hydra reads sys.argv: the plugins' config folders go there
+        argv = sys.argv[1:] = plugged
     try:
         error = precheck_overrides("sweep", argv)
     except KeyboardInterrupt:
