@@ -220,6 +220,23 @@ class ScenarioSchema:
 
 
 @dataclass
+class SuiteSchema:
+    """The frozen suite a run belongs to (set by ``conf/experiment/*.yaml``): its name and
+    version, recorded in the run's summary; runs of different versions of one suite are not
+    compared (``python -m tamedpuma.analysis.compare``). A change to a suite's scenarios or
+    seeds is a new version."""
+
+    name: str | None = None          # table1 | random | scaling | disturbance (null: no suite)
+    version: int | None = None       # bumped whenever the suite's scenarios or seeds change
+
+    def __post_init__(self):
+        _check(self.version is None or self.version >= 1, "suite.version", "an integer >= 1",
+               self.version)
+        _check((self.name is None) == (self.version is None), "suite", "a name and a version "
+               "together (or neither)", {"name": self.name, "version": self.version})
+
+
+@dataclass
 class RecorderSchema:
     mcap: bool = True                # stream to episode.mcap (Foxglove)
     rerun: bool = True               # stream to episode.rrd (Rerun)
@@ -534,6 +551,7 @@ class RunConfig:
     rest_distance: float = 0.005     # [m] relative to the goal over the last rest_window
     without_obstacles: bool = False  # drop the scenario's obstacles (path-difference runs)
     clutter: ClutterSchema = field(default_factory=ClutterSchema)
+    suite: SuiteSchema = field(default_factory=SuiteSchema)  # the frozen suite of the run
 
     def __post_init__(self):
         _check(self.seed >= 0, "seed", "an integer >= 0", self.seed)
