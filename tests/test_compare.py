@@ -71,8 +71,8 @@ def test_the_same_method_in_two_folders_is_two_entries(tmp_path):
         _summary(b, "cpm", f"s{i}", i != 1, suite=SUITE)
     assert compare.main([str(a), str(b)]) == 0
     row = pd.read_csv(a / "compare.csv").iloc[0]
-    assert (row["A"], row["B"]) == ("cpm@after", "cpm@before")
-    assert row["success paper: only A / only B (p)"] == "0 / 1 (1)"
+    assert (row["A"], row["B"]) == ("cpm@before", "cpm@after")  # in the order given
+    assert row["success paper: only A / only B (p)"] == "1 / 0 (1)"
 
 
 def test_one_folder_pairs_its_methods(tmp_path):

@@ -102,12 +102,14 @@ def rate_rows(scored: pd.DataFrame) -> list[dict]:
 
 def pair_rows(scored: pd.DataFrame, single_folder: bool) -> tuple[list[dict], list[dict]]:
     """Every pair of entries (from different folders, or any two with one folder) per suite on
-    the scenarios both ran: n, each one's rate there, the scenarios only one solves and
-    McNemar's exact p, per outcome; and those scenarios one per row."""
+    the scenarios both ran: n, the scenarios only one solves and McNemar's exact p, per
+    outcome; and those scenarios one per row. A is the entry of the folder given first."""
     rows, scenarios = [], []
     for suite, data in scored.groupby("suite_name", sort=True):
-        source = data.groupby("entry")["source"].first()
-        for a, b in itertools.combinations(sorted(source.index), 2):
+        first = data.groupby("entry")[["order", "source"]].first()
+        ordered = sorted(first.index, key=lambda e: (first.loc[e, "order"], e))
+        source = first["source"]
+        for a, b in itertools.combinations(ordered, 2):
             if source[a] == source[b] and not single_folder:
                 continue
             row = {"suite": suite, "A": a, "B": b}
@@ -150,7 +152,7 @@ def rates_figure(rates: list[dict], out: Path) -> Path:
         ax.set_xlim(-0.02, 1.02)
         ax.set_xlabel("success rate (95 % bootstrap interval)")
         ax.set_title(f"suite {suite}")
-        ax.legend(loc="lower right", fontsize=8)
+        ax.legend(loc="lower left", fontsize=8)
     fig.tight_layout()
     path = out / "compare.png"
     fig.savefig(path, dpi=120)
@@ -163,13 +165,13 @@ def load(folders: list[Path], include_incomplete: bool = False) -> pd.DataFrame 
     names are alike) and the suite columns; None after a one-line error."""
     names = [f.name for f in folders]
     frames = []
-    for folder in folders:
+    for order, folder in enumerate(folders):
         loaded = runs_or_error(folder, summaries=True)
         if loaded is None:
             return None
         runs, _ = split_incomplete(loaded[0], include_incomplete)
         source = folder.name if names.count(folder.name) == 1 else str(folder)
-        frames.append(runs.assign(source=source))
+        frames.append(runs.assign(source=source, order=order))
     return suite_columns(pd.concat(frames, ignore_index=True))
 
 
