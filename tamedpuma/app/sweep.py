@@ -222,8 +222,15 @@ def machine() -> dict:
         except metadata.PackageNotFoundError:
             return None
 
-    return {"system": f"{platform.system()} {platform.release()}",
-            "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+    cpu = platform.processor() or platform.machine()
+    try:  # Linux names the model; platform gives only the architecture there
+        cpu = next(line.split(":", 1)[1].strip() for line in
+                   Path("/proc/cpuinfo").read_text().splitlines()
+                   if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {"system": f"{platform.system()} {platform.release()}", "cpu": cpu,
+            "cores": os.cpu_count(),
             "python": platform.python_version(),
             "packages": {n: version(n) for n in ("numpy", "pin", "pybullet", "torch")}}
 
