@@ -182,6 +182,23 @@ def test_the_plugins_run_through_table1_the_analysis_and_the_replay(fresh_env, t
 
 
 @pytest.mark.slow
+def test_the_plugin_runs_through_the_randomized_suite_and_its_analysis(fresh_env, tmp_path):
+    out = tmp_path / "runs"
+    done = _run(fresh_env, "-m", "tamedpuma.sweep", "-m", "+experiment=random",
+                "method=pink_cbf", "task=tomato", "scenario.start_kind=near_table1",
+                "scenario.random_seed=2000", "without_obstacles=false", "scenario.max_steps=40",
+                f"output_root={out}", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    (path,) = out.rglob("summary.json")
+    summary = json.loads(path.read_text())
+    assert (summary["method"], summary["suite"]) == ("pink_cbf", {"name": "random", "version": 1})
+    table = _run(fresh_env, "-m", "tamedpuma.analysis.random_suite", str(out / "random"),
+                 cwd=tmp_path)
+    assert table.returncode == 0, table.stderr[-2000:]
+    assert "| pink_cbf" in (out / "random" / "random_suite.md").read_text()
+
+
+@pytest.mark.slow
 def test_a_plugin_mistake_is_one_line_in_the_fresh_environment(fresh_env, tmp_path):
     done = _run(fresh_env, "-m", "tamedpuma.sweep", "method=pink_cbf",
                 "method.barrier_gain=-1", f"output_root={tmp_path}", cwd=tmp_path)
