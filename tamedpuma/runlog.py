@@ -26,6 +26,9 @@ from mcap_protobuf.decoder import DecoderFactory
 from tamedpuma.errors import LogError
 
 ACTIVE_SUFFIX = ".active"  # a log still being written (or left by a killed run)
+#: the version of a run's ``summary.json`` layout: 2 added ``schema_version``, ``suite``
+#: ({name, version} or null) and ``machine``; a summary without the field is version 1
+SUMMARY_SCHEMA_VERSION = 2
 META_RUN_INFO = "tamedpuma.run_info"
 META_CONFIG = "tamedpuma.app.config"
 META_SUMMARY = "tamedpuma.summary"
@@ -258,3 +261,20 @@ def _obstacles_frame(topics, factory, step_of: dict, t_of: dict) -> pd.DataFrame
     frame = pd.DataFrame.from_records(rows, columns=cols)
     return frame.astype({"step": int, "id": int, "t": float, "x": float, "y": float,
                          "z": float, "radius": float})
+
+
+def upgrade_summary(summary: dict) -> dict:
+    """A ``summary.json`` of any version up to :data:`SUMMARY_SCHEMA_VERSION` in the current
+    layout: the fields a version lacks are added as null (version 1: ``suite``, ``machine``).
+    A newer summary (written by a later tamedpuma) is a :class:`LogError` naming both
+    versions."""
+    version = summary.get("schema_version", 1)
+    if not isinstance(version, int) or version > SUMMARY_SCHEMA_VERSION:
+        raise LogError(f"summary.json of schema version {version!r}: this tamedpuma reads "
+                       f"versions up to {SUMMARY_SCHEMA_VERSION} (upgrade tamedpuma)")
+    out = dict(summary)
+    if version < 2:
+        out.setdefault("suite", None)
+        out.setdefault("machine", None)
+    out["schema_version"] = SUMMARY_SCHEMA_VERSION
+    return out

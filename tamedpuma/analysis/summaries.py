@@ -17,23 +17,26 @@ import pandas as pd
 
 from tamedpuma.analysis import stats
 from tamedpuma.analysis.runs import set_aside
+from tamedpuma.errors import LogError
+from tamedpuma.runlog import upgrade_summary
 
 log = logging.getLogger(__name__)
 
 
 def load_summaries(root: str | Path) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
     """Every ``summary.json`` below ``root``: a frame (one row per run, ``path`` = the run folder)
-    and the per-step controller times [ms] by run folder. Unreadable files are skipped with a
-    warning (counted in the frame's ``attrs['skipped']``)."""
+    and the per-step controller times [ms] by run folder, every summary in the current layout
+    (:func:`tamedpuma.runlog.upgrade_summary`). Unreadable files are skipped with a warning
+    (counted in the frame's ``attrs['skipped']``)."""
     rows, times, skipped = [], {}, []
     for path in sorted(Path(root).rglob("summary.json")):
         if set_aside(path):  # a resumed sweep's earlier attempt, not a run
             continue
         try:
-            summary = json.loads(path.read_text())
+            summary = upgrade_summary(json.loads(path.read_text()))
             steps = np.asarray(summary.pop("step_compute_ms"), dtype=float)
             summary.pop("files", None)
-        except (OSError, ValueError, KeyError) as exc:
+        except (OSError, ValueError, KeyError, LogError) as exc:
             log.warning("skipping %s: %s", path, exc)
             skipped.append(str(path))
             continue

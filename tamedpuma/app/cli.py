@@ -7,6 +7,7 @@ the first problem into one line; it also checks that ``output_root`` can be writ
 A user's own config folder works the Hydra way: ``--config-dir DIR`` (``-cd DIR``) and
 ``hydra.searchpath=[file://DIR]`` add DIR to the config search path, so its ``task/``,
 ``scenario/``, ``robot/``... options are found next to the shipped ones (:func:`split_argv`).
+The installed method plugins' folders are added the same way (:func:`with_plugin_configs`).
 """
 
 from __future__ import annotations
@@ -195,6 +196,23 @@ def with_search_path(overrides: list[str], search: list[str]) -> list[str]:
             out.append(arg)
     entries = ",".join(f"'{p}'" for p in [*search, *existing])
     return [f"hydra.searchpath=[{entries}]", *out]
+
+
+def with_plugin_configs(argv: list[str]) -> list[str]:
+    """``argv`` with the installed method plugins' config folders
+    (:func:`tamedpuma.methods.config_dirs`) in its ``hydra.searchpath`` (merged with one the
+    user gave), so ``method=<plugin>`` composes like a built-in method; unchanged without
+    plugins (or with a malformed search path, which the pre-check reports)."""
+    from tamedpuma.methods import config_dirs
+
+    dirs = [f"file://{d.resolve()}" for d in config_dirs()]
+    if not dirs:
+        return list(argv)
+    try:
+        merged = with_search_path(list(argv), dirs)
+    except Exception:  # noqa: BLE001 - a malformed override: precheck_overrides names it
+        return list(argv)
+    return merged[1:] + merged[:1]  # last: Hydra's flags (-m) must come before its overrides
 
 
 def _schema_problem(config_name: str, cfg) -> str | None:

@@ -15,11 +15,20 @@ from tamedpuma.errors import ConfigError
 from tamedpuma.paths import CONF_DIR  # noqa: E402 - tamedpuma/conf (package data)
 
 
+def config_roots() -> list[Path]:
+    """The config folders the entry points search: the package's ``conf/``, then the installed
+    method plugins' folders (:func:`tamedpuma.methods.config_dirs`)."""
+    from tamedpuma.methods import config_dirs
+
+    return [CONF_DIR, *config_dirs()]
+
+
 def group_options(group: str, extra_dirs: tuple[Path, ...] = ()) -> list[str]:
     """Every option of config group ``group``, nested ones included (``tomato/00``), in the
-    package's ``conf/`` and in ``extra_dirs`` (a user's ``--config-dir``), sorted."""
+    package's ``conf/``, the method plugins' folders and ``extra_dirs`` (a user's
+    ``--config-dir``), sorted."""
     found = set()
-    for root in (CONF_DIR, *extra_dirs):
+    for root in (*config_roots(), *extra_dirs):
         folder = Path(root) / group
         if folder.is_dir():
             found.update(p.relative_to(folder).with_suffix("").as_posix()
@@ -28,8 +37,10 @@ def group_options(group: str, extra_dirs: tuple[Path, ...] = ()) -> list[str]:
 
 
 def load_group(group: str, name: str) -> dict:
-    """Load ``conf/<group>/<name>.yaml`` as a plain dict (interpolations left unresolved)."""
-    path = CONF_DIR / group / f"{name}.yaml"
+    """Load ``conf/<group>/<name>.yaml`` (or a method plugin's) as a plain dict (interpolations
+    left unresolved)."""
+    paths = [root / group / f"{name}.yaml" for root in config_roots()]
+    path = next((p for p in paths if p.is_file()), paths[0])
     if not path.is_file():
         raise ConfigError(f"unknown {group} {name!r}; choose one of "
                           f"{', '.join(group_options(group))}")

@@ -414,6 +414,8 @@ def method_sections() -> list[str]:
     fabric = group_notes("fabric", "default", "method.fabric")
     lines = []
     for name, cls in schema.METHODS.items():
+        if not (CONF_DIR / "method" / f"{name}.yaml").is_file():
+            continue  # a method plugin's page is its own package's
         notes = {**yaml_notes(CONF_DIR / "method" / f"{name}.yaml", "method"), **fabric}
         composed = compose("sweep", [f"method={name}"])
         lines += table(f"Method `{name}`", f"`method={name}` (`conf/method/{name}.yaml`); "

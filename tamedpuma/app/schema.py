@@ -14,7 +14,8 @@ files under ``conf/`` override these values; a YAML key the schema does not know
 (``tests/test_schema.py`` loads every YAML against it).
 
 **Adding a key** is one line in one dataclass (name, type, default, and a range check in its
-``__post_init__`` if it has one). A method's options are the dataclass in :data:`METHODS`.
+``__post_init__`` if it has one). A method's options are the dataclass in :data:`METHODS`; a
+method plugin's are its own settings dataclass (:class:`tamedpuma.methods.MethodPlugin`).
 
 ``run_config(cfg)`` and ``train_config(cfg)`` merge a composed config into the schema (wrong types
 and unknown keys are :class:`ConfigError` naming the key), build the typed objects (ranges
@@ -81,7 +82,9 @@ def _with_fields_of(name: str, library: type, base: type | None = None) -> type:
     library class it is writable, so YAML values merge into a node that a YAML file creates
     (``scenario.random: {}``)."""
     hints = typing.get_type_hints(library)
-    extra = [(f.name, hints[f.name], field(default=f.default)) for f in dataclasses.fields(library)]
+    extra = [(f.name, hints[f.name], field(default=f.default) if f.default_factory is
+              dataclasses.MISSING else field(default_factory=f.default_factory))
+             for f in dataclasses.fields(library)]
 
     def post_init(self):
         if hasattr(base, "__post_init__"):
@@ -214,6 +217,23 @@ class ScenarioSchema:
         _positive("scenario.goal_tolerance", self.goal_tolerance)
         _check(self.start_kind in START_KINDS, "scenario.start_kind", " or ".join(START_KINDS),
                self.start_kind)
+
+
+@dataclass
+class SuiteSchema:
+    """The frozen suite a run belongs to (set by ``conf/experiment/*.yaml``): its name and
+    version, recorded in the run's summary; runs of different versions of one suite are not
+    compared (``python -m tamedpuma.analysis.compare``). A change to a suite's scenarios or
+    seeds is a new version."""
+
+    name: str | None = None          # table1 | random | scaling | disturbance (null: no suite)
+    version: int | None = None       # bumped whenever the suite's scenarios or seeds change
+
+    def __post_init__(self):
+        _check(self.version is None or self.version >= 1, "suite.version", "an integer >= 1",
+               self.version)
+        _check((self.name is None) == (self.version is None), "suite", "a name and a version "
+               "together (or neither)", {"name": self.name, "version": self.version})
 
 
 @dataclass
@@ -497,6 +517,18 @@ METHODS: dict[str, type] = {
 }
 
 
+def _plugin_schemas() -> dict[str, type]:
+    """The schemas of the installed method plugins (:func:`tamedpuma.methods.plugins`): the
+    plugin's settings dataclass with ``name`` and ``label``, its defaults and checks its own."""
+    from tamedpuma.methods import plugins
+
+    return {name: _with_fields_of(f"{name.title().replace('_', '')}Method", plugin.settings,
+                                  MethodSchema) for name, plugin in plugins().items()}
+
+
+METHODS.update(_plugin_schemas())
+
+
 # ----------------------------------------------------------------------------- whole configs
 
 
@@ -520,6 +552,7 @@ class RunConfig:
     rest_angle: float = 0.02         # [rad] ... and the hand turned less than this (its pose)
     without_obstacles: bool = False  # drop the scenario's obstacles (path-difference runs)
     clutter: ClutterSchema = field(default_factory=ClutterSchema)
+    suite: SuiteSchema = field(default_factory=SuiteSchema)  # the frozen suite of the run
 
     def __post_init__(self):
         _check(self.seed >= 0, "seed", "an integer >= 0", self.seed)

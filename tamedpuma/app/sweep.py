@@ -48,10 +48,11 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from tamedpuma.app.cli import fail, precheck_overrides, shell_completion
+from tamedpuma.app.cli import fail, precheck_overrides, shell_completion, with_plugin_configs
 from tamedpuma.app.config import CONF_DIR
 from tamedpuma.errors import ConfigError, DiskFullError, TamedPumaError
 from tamedpuma.paths import free_bytes, no_space, write_atomic
+from tamedpuma.runlog import SUMMARY_SCHEMA_VERSION
 
 log = logging.getLogger("tamedpuma.sweep")
 _VALIDATE_EVERY_JOB = Sweeper.validate_batch_is_legal  # Hydra's (see representative_jobs)
@@ -193,6 +194,10 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                "files": {k: str(v) for k, v in files.items()},
                "model": built.model.metadata() if built.model else None,
                "code_revision": code_revision(),
+               "schema_version": SUMMARY_SCHEMA_VERSION,
+               "suite": ({"name": run.suite.name, "version": run.suite.version}
+                         if run.suite.name else None),
+               "machine": machine(),
                # every step's controller time [ms] (pooled statistics across runs)
                "step_compute_ms": [round(float(v), 5) for v in result.compute_ms],
                # where this process's time went [s, wall]: building config, model, scenario and
@@ -202,6 +207,32 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                           "episode": round(t_episode - t_built, 4)}}
     write_summary(run_dir, summary)
     return summary
+
+
+@functools.cache
+def machine() -> dict:
+    """What ran the run: OS, CPU, core count, Python and the numerical packages' versions
+    (results of one suite from two machines differ in time, never in scenarios)."""
+    import platform
+    from importlib import metadata
+
+    def version(name: str) -> str | None:
+        try:
+            return metadata.version(name)
+        except metadata.PackageNotFoundError:
+            return None
+
+    cpu = platform.processor() or platform.machine()
+    try:  # Linux names the model; platform gives only the architecture there
+        cpu = next(line.split(":", 1)[1].strip() for line in
+                   Path("/proc/cpuinfo").read_text().splitlines()
+                   if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {"system": f"{platform.system()} {platform.release()}", "cpu": cpu,
+            "cores": os.cpu_count(),
+            "python": platform.python_version(),
+            "packages": {n: version(n) for n in ("numpy", "pin", "pybullet", "torch")}}
 
 
 @functools.cache
@@ -610,6 +641,9 @@ def main(argv: list[str] | None = None) -> None:
         "ignore::UserWarning:joblib.externals.loky.backend.resource_tracker"]))
     os.environ[_LAUNCHER_PID] = str(os.getpid())  # inherited by the joblib launcher's workers
     shell_completion(argv, "tamedpuma.sweep")
+    plugged = with_plugin_configs(argv)
+    if plugged != list(argv):  # Hydra reads sys.argv: the plugins' config folders go there
+        argv = sys.argv[1:] = plugged
     try:
         error = precheck_overrides("sweep", argv)
     except KeyboardInterrupt:
