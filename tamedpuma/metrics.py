@@ -375,10 +375,16 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
         final_orientation_error_rad=float(rot_err[-1]),
         settled_orientation_error_rad=float(rot_err[settle] if settle is not None else np.nan),
         min_clearance_m=float(clearance.min()),
-        collided=bool(causes["sphere_penetration"].any() or causes["obstacle_contact"].any()),
-        sphere_penetration=bool(causes["sphere_penetration"].any()),
-        obstacle_contact=bool(causes["obstacle_contact"].any()),
-        ground_contact=bool(causes["ground_contact"].any()),
-        joint_limit_violation_steps=int(causes["joint_limit"].sum()),
+        **_collisions(causes),
         **_compute_stats(compute_ms),
     )
+
+
+def _collisions(causes: dict) -> dict:
+    """Whether each collision cause occurred in the run, and the steps past a joint limit."""
+    return {"collided": bool(causes["sphere_penetration"].any()
+                             or causes["obstacle_contact"].any()),
+            "sphere_penetration": bool(causes["sphere_penetration"].any()),
+            "obstacle_contact": bool(causes["obstacle_contact"].any()),
+            "ground_contact": bool(causes["ground_contact"].any()),
+            "joint_limit_violation_steps": int(causes["joint_limit"].sum())}
