@@ -212,10 +212,48 @@ def test_a_training_on_a_full_disk_leaves_no_tmp_file(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_rerun_flush_that_never_ends_is_a_full_disk_not_a_hang(tmp_path, monkeypatch):
+    """Rerun's file sink that failed (a full disk) never acknowledges a flush, and closing its
+    stream never returns (nor does rerun's exit-time shutdown): the recorder's flush gives up
+    at once on a full disk, the close returns, and rerun's shutdown at exit is dropped."""
+    import threading
+
+    import rerun as rr
+
+    from tamedpuma.recording import RerunRecorder
+    from tamedpuma.recording import rerun_writer as rw
+    from tests.test_recording import _info, _record, _urdf
+
+    rec = RerunRecorder(tmp_path / "episode.rrd", batch=2)
+    rec.open(_info(_urdf(tmp_path)))
+    rec.write(_record(0))
+    never = threading.Event()
+
+    def timed_out(self, timeout_sec=1e38):
+        never.wait(min(timeout_sec, 0.05))
+        raise RuntimeError("Flush timed out - not all log messages were sent")
+    monkeypatch.setattr(rr.RecordingStream, "flush", timed_out)
+    monkeypatch.setattr(rr.RecordingStream, "disconnect", lambda self: never.wait(20))
+    dropped = []
+    monkeypatch.setattr(rr, "unregister_shutdown", lambda: dropped.append(True))
+    monkeypatch.setattr(rw, "FLUSH_SLICE", 0.05)
+    _full_below(monkeypatch, tmp_path)
+    with pytest.raises(DiskFullError, match="episode.rrd.active"):
+        rec.write(_record(1))  # the batch's flush
+    rec.close(complete=False, summary={})  # returns, the stream left open
+    assert dropped == [True] and rw._STUCK[-1] is not None
+    assert (tmp_path / "episode.rrd.active").is_file() and not (tmp_path / "episode.rrd").exists()
+    rw._STUCK.clear()
+    never.set()
+
+
 @pytest.mark.skipif(os.geteuid() != 0 or not sys.platform.startswith("linux"),
                     reason="mounts a small tmpfs: root on Linux")
-def test_a_single_run_on_a_real_small_tmpfs(tmp_path):
-    """The real thing: a 300 KiB tmpfs as output_root (skipped where mounting fails)."""
+@pytest.mark.parametrize("recorder", ["recorder.flush_every=20", "recorder.mcap=false"])
+def test_a_single_run_on_a_real_small_tmpfs(tmp_path, recorder):
+    """The real thing: a 300 KiB tmpfs as output_root (skipped where mounting fails), with
+    both logs (the MCAP fills it) and with the Rerun log only (its file sink fails: a flush
+    that waited on it held the run, past SIGTERM, for ever)."""
     mount = tmp_path / "small"
     mount.mkdir()
     if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=300k", "tmpfs", str(mount)],
@@ -224,7 +262,7 @@ def test_a_single_run_on_a_real_small_tmpfs(tmp_path):
     try:
         proc = subprocess.run(
             [sys.executable, "-m", "tamedpuma.sweep", "method=joint_attractor",
-             "scenario.max_steps=3000", "stop_on_success=false", "recorder.flush_every=20",
+             "scenario.max_steps=3000", "stop_on_success=false", recorder,
              f"output_root={mount}", f"hydra.run.dir={mount}/run"],
             cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
         lines = [x for x in proc.stderr.splitlines() if not x.startswith("pybullet build")]
@@ -232,6 +270,10 @@ def test_a_single_run_on_a_real_small_tmpfs(tmp_path):
         assert len(lines) == 1 and lines[0].startswith(f"error: disk full: cannot write {mount}")
         assert not (mount / "run/summary.json").exists()
         assert not (mount / "run/episode.mcap").exists()  # nothing left looking complete
+        assert not (mount / "run/episode.rrd").exists()
+        if "mcap=false" in recorder:
+            assert (mount / "run/episode.rrd.active").is_file()
+            return
         from tamedpuma.recording import read_mcap
 
         assert not read_mcap(mount / "run/episode.mcap.active").complete
