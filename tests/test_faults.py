@@ -394,6 +394,57 @@ def test_ctrl_c_and_sigterm_while_checking_the_config_are_one_line(tmp_path, mon
     assert sweep._partial_log_line(tmp_path) == (
         f"interrupted before the run's logs were opened: nothing recorded in {tmp_path}")
 
+    def swallowed(*_):  # OmegaConf turned the SIGTERM's SystemExit into a config error
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            signal.pause()
+        except SystemExit:
+            return "method.null_space.target: 'NoneType' object has no attribute '_invalid'"
+    monkeypatch.setattr(sweep, "precheck_overrides", swallowed)
+    assert _sweep(tmp_path, monkeypatch) == 143
+    assert capsys.readouterr().err == (
+        "interrupted (SIGTERM) while checking the configuration: nothing was run\n")
+
+
+@pytest.mark.parametrize("interrupt,status,name", [(KeyboardInterrupt, 130, "Ctrl-C"),
+                                                   (lambda: SystemExit(143), 143, "SIGTERM")])
+def test_an_interrupt_after_the_config_check_outside_a_run_is_one_line(
+        tmp_path, monkeypatch, capsys, interrupt, status, name):
+    """Between the config check and a run (Hydra composing, creating the sweep folder) or
+    between runs: one line, not a silent exit."""
+    from tamedpuma.app import sweep
+
+    def hydra_setup():
+        raise interrupt()
+    monkeypatch.setattr(sweep, "_hydra_main", hydra_setup)
+    assert _sweep(tmp_path, monkeypatch) == status
+    assert capsys.readouterr().err == (
+        f"interrupted ({name}) outside a run: the complete runs are kept; the same command "
+        "goes on from there\n")
+
+
+@pytest.mark.parametrize("sig,status,name", [(signal.SIGINT, 130, "Ctrl-C"),
+                                             (signal.SIGTERM, 143, "SIGTERM")])
+def test_a_signal_while_an_entry_point_loads_is_one_line(sig, status, name):
+    """Ctrl-C while ``python -m tamedpuma.sweep`` imports torch, pinocchio and Hydra printed
+    the import chain (30 lines); SIGTERM ended it without a word. Every entry point loads
+    inside :func:`tamedpuma.startup.starting`."""
+    code = ("import os, signal, time\n"
+            "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+            "from tamedpuma.startup import starting\n"
+            "with starting():\n"
+            f"    os.kill(os.getpid(), {int(sig)})\n"
+            "    time.sleep(30)\n")
+    proc = subprocess.run([sys.executable, "-c", code], env=ENV, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == status
+    assert proc.stderr == f"interrupted ({name}) while starting: nothing was run\n"
+    for shim in ("sweep", "train", "replay", "models", "bench", "bench_fabrics", "body_model",
+                 "lasa"):
+        text = (ROOT / "tamedpuma" / f"{shim}.py").read_text()
+        assert f"with starting():  # Ctrl-C or SIGTERM while loading: one line, no traceback\n" \
+            f"    from tamedpuma.app.{shim} import main\n" in text, shim
+
 
 # ------------------------------------------------------------ 6. dt below the substep
 

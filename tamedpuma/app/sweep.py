@@ -430,6 +430,10 @@ def _die_with_launcher() -> None:
 _LAUNCHER_PID = "TAMEDPUMA_SWEEP_LAUNCHER_PID"  # set by main(), read by its launcher's workers
 _TERMINATED = []  # set in a launcher worker by SIGTERM (its launcher died, or it was stopped)
 _RUN_OPEN = []  # non-empty while a launcher worker's run has its logs open
+_INTERRUPT_SAID = []  # set when a run of this process said where its partial logs are
+#: what an interrupt of the main process outside a run says (nothing is half-written then)
+_INTERRUPTED_BETWEEN = ("interrupted ({}) outside a run: the complete runs are kept; the same "
+                        "command goes on from there")
 
 
 def _terminated(*_) -> None:
@@ -504,6 +508,7 @@ def _job(cfg: DictConfig, run_dir: Path, multirun: bool) -> None:
         if isinstance(exc, SystemExit) and exc.code in (0, None):
             raise
         print(_partial_log_line(run_dir), file=sys.stderr)
+        _INTERRUPT_SAID.append(True)
         raise
     except Exception as exc:  # noqa: BLE001 - a sweep survives its worst run
         if multirun and _TERMINATED:  # a SIGTERM mid-run that surfaced as another error (seen:
@@ -621,15 +626,26 @@ def main(argv: list[str] | None = None) -> None:
             print("interrupted (SIGTERM) while checking the configuration: nothing was run",
                   file=sys.stderr)
         raise
+    if _MAIN_TERMINATED:  # a SIGTERM inside OmegaConf surfaces as a config error: not one
+        print("interrupted (SIGTERM) while checking the configuration: nothing was run",
+              file=sys.stderr)
+        sys.exit(143)
     if error:
         fail(error)
     _OUTCOMES.clear()
+    _INTERRUPT_SAID.clear()
     Sweeper.validate_batch_is_legal = _validate_representatives
     hydra.core.utils._save_config = _save_config_or_stop
     try:
         _hydra_main()
     except KeyboardInterrupt:
-        sys.exit(130)  # the job printed where its partial log is
+        if not _INTERRUPT_SAID:  # else the run printed where its partial log is
+            print(_INTERRUPTED_BETWEEN.format("Ctrl-C"), file=sys.stderr)
+        sys.exit(130)
+    except SystemExit as exc:
+        if exc.code == 143 and not _INTERRUPT_SAID:
+            print(_INTERRUPTED_BETWEEN.format("SIGTERM"), file=sys.stderr)
+        raise
     except SweepStopped as stop:
         message, run_dir = (list(stop.args) + [""])[:2]
         if _OUTCOMES_SOURCE:  # the callback's end-of-sweep collection did not run
