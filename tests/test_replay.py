@@ -335,9 +335,9 @@ def _value(corner) -> int:
     return _corner(rrb.PlotLegend(corner=corner))
 
 
-def test_the_reference_paths_label_is_drawn_beyond_its_start_not_on_the_strip(tmp_path):
+def test_the_reference_paths_label_is_drawn_below_its_end_not_on_the_strip(tmp_path):
     """The strip keeps its label for hover but does not draw it; the drawn label is a point
-    0.1 m beyond the path's start, seen from the robot's base (the world origin)."""
+    0.15 m below the path's end (the goal, which the arm reaches from above)."""
     from rerun.chunk import RrdReader
 
     from tamedpuma.recording.rerun_writer import REFERENCE_PATH, write_reference_overlay
@@ -351,5 +351,4 @@ def test_the_reference_paths_label_is_drawn_beyond_its_start_not_on_the_strip(tm
     assert list(row[f"{REFERENCE_PATH}/label:Points3D:show_labels"]) == [True]
     assert list(row[f"{REFERENCE_PATH}/label:Points3D:labels"]) == ["puma, no obst"]
     (anchor,) = row[f"{REFERENCE_PATH}/label:Points3D:positions"]
-    radial = points[0, :2] / np.linalg.norm(points[0, :2])
-    np.testing.assert_allclose(anchor, points[0] + 0.1 * np.r_[radial, 0.0], atol=1e-6)
+    np.testing.assert_allclose(anchor, points[-1] - [0.0, 0.0, 0.15], atol=1e-6)

@@ -101,7 +101,7 @@ EYE_DIRECTION = (1.0, -1.5, 0.75)
 #: Hidden by default; each is one click (the eye icon) away in the viewer.
 HIDDEN_BY_DEFAULT = ("/world/lbr_iiwa/collision_geometries", "/world/body_spheres")
 REFERENCE_PATH = "/world/reference_path"
-REFERENCE_LABEL_OFFSET = 0.1  # [m] from the reference path's start, away from the base
+REFERENCE_LABEL_DROP = 0.15  # [m] below the reference path's end, where its label is drawn
 
 
 def plot_groups(scalar_names: Iterable[str]) -> list[tuple[str, list[str]]]:
@@ -709,18 +709,15 @@ class _Columns:
         return {name: col[:self.n] for name, col in self._cols.items()}
 
 
-def reference_label_anchor(points: np.ndarray, base=(0.0, 0.0, 0.0),
-                           offset: float = REFERENCE_LABEL_OFFSET) -> np.ndarray:
-    """Where the reference path's label is drawn [m]: the path's start moved ``offset`` [m]
-    horizontally away from the robot's base (the world origin here). The arm reaches from its
-    base to the hand, so a point beyond the start, seen from the base, is off the arm once the
-    hand has left the start; the label drawn on the strip itself sat at its middle, over the
-    arm as it passed. points: (T, 3) [m]."""
-    start = np.asarray(points, dtype=float).reshape(-1, 3)[0]
-    out = start[:2] - np.asarray(base, dtype=float)[:2]
-    norm = float(np.linalg.norm(out))
-    out = out / norm if norm > 1e-9 else np.array([1.0, 0.0])
-    return start + offset * np.array([out[0], out[1], 0.0])
+def reference_label_anchor(points: np.ndarray,
+                           drop: float = REFERENCE_LABEL_DROP) -> np.ndarray:
+    """Where the reference path's label is drawn [m]: ``drop`` [m] below the path's end (the
+    goal), the label's text under it. The tasks' arm comes to the goal from above and behind,
+    so below it no link passes at any instant; drawn on the strip itself the label sat at the
+    strip's middle, over the arm as it passed, and at the path's start it covers the hand
+    while the run begins. points: (T, 3) [m]."""
+    end = np.asarray(points, dtype=float).reshape(-1, 3)[-1]
+    return end - np.array([0.0, 0.0, drop])
 
 
 def write_reference_overlay(path: str | os.PathLike, recording_id: str, points: np.ndarray,
