@@ -310,6 +310,31 @@ def test_a_resume_after_the_model_changed_is_refused_naming_both(tmp_path, monke
            "an-older-revision" in err
 
 
+def test_a_resume_with_another_checkpoint_is_refused_before_any_job_runs(tmp_path, monkeypatch,
+                                                                        capsys):
+    """The kept run's own config still picks its model; the job that would run now picks
+    another (``method.checkpoint`` changed between the attempts): refused at the first job,
+    before it runs, naming both sha256."""
+    shipped = ROOT / "tamedpuma/puma/shipped"
+    args = ("method=puma", "seed=0,1", "scenario.max_steps=6")
+    first = f"method.checkpoint={shipped / 'tomato/puma.pt'}"
+    assert _sweep(tmp_path, monkeypatch, *args, first) == 0
+    kept = json.loads((tmp_path / "sweep/1/summary.json").read_text())["model"]["model_sha256"]
+    for run in (tmp_path / "sweep/0").iterdir():  # the first job is left to do
+        if run.is_file():
+            run.unlink()
+    capsys.readouterr()
+    other = f"method.checkpoint={shipped / 'pouring/puma.pt'}"
+    assert _sweep(tmp_path, monkeypatch, *args, other) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"error: resume refused: {tmp_path / 'sweep/1'} kept a run of "
+                              f"model sha256 {kept[:12]}, the job {tmp_path / 'sweep/0'} picks "
+                              "sha256 ")
+    assert "one sweep mixes no models" in err[-1]
+    assert not (tmp_path / "sweep/0/summary.json").exists()  # nothing ran
+    assert _sweep(tmp_path, monkeypatch, *args, first) == 0  # the same model: it goes on
+
+
 def _frame(**columns) -> pd.DataFrame:
     n = len(next(iter(columns.values())))
     base = {"method": ["fpm"] * n, "method_label": ["fpm"] * n, "task": ["tomato"] * n,
