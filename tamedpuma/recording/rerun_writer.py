@@ -13,13 +13,16 @@ Entity layout (all 3-D entities live in the named coordinate frame ``world``):
 * ``/joint_speed/<joint>``: |q̇| divided by the joint's speed limit (raw [rad/s] when the limits
   are unknown), with ``/joint_speed/limit`` = 1.
 * ``/world/reference_path``: PUMA's obstacle-free path, from a separate overlay file
-  (:func:`write_reference_overlay`) that the viewer merges in.
+  (:func:`write_reference_overlay`) that the viewer merges in; its label on
+  ``/world/reference_path/label``, below the path's end.
 
 Timelines: ``step`` (sequence) and ``time`` (duration, simulated seconds). The file is streamed
 while the episode runs (``RecordingStream.save`` before the first log). Its blueprint
 (:func:`replay_blueprint`) is sent with the first step and again on close: the 3-D scene with the
 arm's visual meshes (collision meshes and body spheres hidden, one click away), an eye framing
-everything the episode showed (:func:`frame_camera`), and one plot per quantity.
+everything the episode showed (:func:`frame_camera`), and one plot per quantity, its legend in
+the corner its curves leave most free (:func:`legend_corner`, on close, from every
+``FRAME_EVERY``-th step).
 
 Crash safety, as for MCAP: the file is ``<path>.active`` until :meth:`RerunRecorder.close`
 renames it. A killed run's ``.active`` file has no RRD footer (``rerun rrd verify`` fails) but
