@@ -112,6 +112,8 @@ def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, link_
         "ground_contact": float(contacts.ground_contact),
         **{name: float(v) for name, v in command.scalars.items()},
     }
+    if command.logged_later is not None:  # after the step's timing: off the control path
+        scalars.update((name, float(v)) for name, v in command.logged_later().items())
     return StepRecord(
         step=k, t=obs.t, q=obs.q, qd=obs.qd, qdd_cmd=qdd,
         link_positions=link_pos, link_quaternions=link_quat,

@@ -105,6 +105,8 @@ def _scan(path: Path) -> _Scan:
         except Exception as exc:  # noqa: BLE001 - any parse failure ends the readable prefix
             if f"length {2**64 - 1}" in str(exc):  # chunk length never filled in
                 scan.error = "file ends in an unfinished chunk (the writer did not close it)"
+            elif not str(exc).strip():  # e.g. EndOfFile: the file is cut inside a record
+                scan.error = f"the file ends inside a record ({type(exc).__name__})"
             else:
                 scan.error = f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
     return scan

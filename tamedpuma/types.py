@@ -6,7 +6,7 @@ All arrays held by these frozen dataclasses are made read-only on construction.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -143,11 +143,15 @@ class Command:
 
     qdd: (7,) desired joint acceleration [rad/s²]; the simulator commands the joint velocity
     ``clip(q̇ + q̈ Δt, ±q̇_max)``. scalars: the method's internals for the log
-    (energies, α, β, ψ, ...).
+    (energies, α, β, ψ, ...). logged_later: scalars for the log that the step itself does not
+    need (e.g. PUMA's ψ where the step never evaluates it): called after the step is timed
+    (off the control path: not in ``compute_time_ms``), and only when a recorder takes the
+    step; before the next step, while the state the step saw is still current.
     """
 
     qdd: np.ndarray
     scalars: Mapping[str, float] = field(default_factory=dict)
+    logged_later: Callable[[], Mapping[str, float]] | None = None
 
 
 @dataclass(frozen=True)

@@ -62,7 +62,8 @@ def test_import_rules(path):
 
 
 #: the layers, lowest first: a module imports only from its own package or lower layers
-LAYERS = [{"errors"}, {"types", "paths", "runlog"}, {"robot"}, {"fabrics", "puma", "ik_solvers"},
+LAYERS = [{"errors", "startup"}, {"types", "paths", "runlog"}, {"robot"},
+          {"fabrics", "puma", "ik_solvers"},
           {"methods", "worlds"}, {"metrics"}, {"episode"}, {"recording"}, {"analysis"},
           {"app"}]
 #: the one upward edge: the control loop hands recording's record types to the recorders

@@ -327,7 +327,7 @@ def test_the_controller_s_goal_configurations_keep_its_own_ground(kinematics, mo
     spheres with ``spheres``, and the old sphere clearance without ground rows."""
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
     method = {**load_group("method", "puma"), **load_group("method", name)}
-    method.pop("defaults")
+    method.pop("defaults", None)
     method["fabric"] = load_group("fabric", "default")
     rate = method["control_rate"]
     ground = make(name, method, kinematics).configuration.ground
@@ -427,7 +427,7 @@ def _obstacle_free_scenario(robot_spec, task_name: str, **changes):
 def _method_config(name: str) -> dict:
     """``conf/method/<name>.yaml`` over ``puma.yaml``, with the default fabric."""
     method = {**load_group("method", "puma"), **load_group("method", name)}
-    method.pop("defaults")
+    method.pop("defaults", None)
     method["fabric"] = load_group("fabric", "default")
     return method
 
@@ -633,3 +633,42 @@ def test_fpm_streams_pumas_potential_every_step(robot_spec, kinematics, monkeypa
     psi = np.array([row["psi"] for row in scalar_log.rows])
     assert len(psi) == 150 and np.isfinite(psi).all()
     assert psi[-1] < 0.5 * psi[0]
+
+
+class CountedPose(StablePose):
+    """StablePose with ψ alone (counted): what the log's ψ calls."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def psi(self, p, quat, goal_p, goal_quat):
+        self.calls += 1
+        return self.potential(p, quat, goal_p, goal_quat)[0]
+
+
+@pytest.mark.parametrize("name,config", [("puma", "puma"), ("fpm", "fpm_literal")])
+def test_methods_without_a_psi_of_their_own_log_it_off_the_control_path(
+        name, config, robot_spec, kinematics, monkeypatch, scalar_log):
+    """PUMA (and FPM without the stall monitor) never evaluate ψ in their step: the log's ψ is
+    computed after the step (``Command.logged_later``) at the pose the step saw: every step's
+    ψ = ½‖p_g − p‖² + ½‖log(R_g Rᵀ)‖² of its logged errors, and never without a recorder."""
+    primitive = CountedPose()
+    monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(primitive))
+    scenario = _obstacle_free_scenario(robot_spec, "tomato", max_steps=60)
+    with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
+        controller = make(name, _method_config(config), kinematics)
+        run_episode(scenario, controller, world, [scalar_log], stop_on_success=False)
+        assert primitive.calls == 60
+        rows = scalar_log.rows
+        psi = np.array([row["psi"] for row in rows])
+        expected = 0.5 * np.array([row["position_error_m"] ** 2
+                                   + row["orientation_error_rad"] ** 2 for row in rows])
+        np.testing.assert_allclose(psi, expected, rtol=1e-6)
+        assert psi[-1] < 0.5 * psi[0]
+        primitive.calls = 0
+        run_episode(scenario, controller, world, [], stop_on_success=False)
+        assert primitive.calls == 0  # no recorder: ψ is never computed
+        obs = world.reset(scenario)
+        controller.reset(scenario)
+        command = controller.step(obs)
+        assert "psi" not in command.scalars and primitive.calls == 0  # not in the timed step

@@ -212,10 +212,48 @@ def test_a_training_on_a_full_disk_leaves_no_tmp_file(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_rerun_flush_that_never_ends_is_a_full_disk_not_a_hang(tmp_path, monkeypatch):
+    """Rerun's file sink that failed (a full disk) never acknowledges a flush, and closing its
+    stream never returns (nor does rerun's exit-time shutdown): the recorder's flush gives up
+    at once on a full disk, the close returns, and rerun's shutdown at exit is dropped."""
+    import threading
+
+    import rerun as rr
+
+    from tamedpuma.recording import RerunRecorder
+    from tamedpuma.recording import rerun_writer as rw
+    from tests.test_recording import _info, _record, _urdf
+
+    rec = RerunRecorder(tmp_path / "episode.rrd", batch=2)
+    rec.open(_info(_urdf(tmp_path)))
+    rec.write(_record(0))
+    never = threading.Event()
+
+    def timed_out(self, timeout_sec=1e38):
+        never.wait(min(timeout_sec, 0.05))
+        raise RuntimeError("Flush timed out - not all log messages were sent")
+    monkeypatch.setattr(rr.RecordingStream, "flush", timed_out)
+    monkeypatch.setattr(rr.RecordingStream, "disconnect", lambda self: never.wait(20))
+    dropped = []
+    monkeypatch.setattr(rr, "unregister_shutdown", lambda: dropped.append(True))
+    monkeypatch.setattr(rw, "FLUSH_SLICE", 0.05)
+    _full_below(monkeypatch, tmp_path)
+    with pytest.raises(DiskFullError, match="episode.rrd.active"):
+        rec.write(_record(1))  # the batch's flush
+    rec.close(complete=False, summary={})  # returns, the stream left open
+    assert dropped == [True] and rw._STUCK[-1] is not None
+    assert (tmp_path / "episode.rrd.active").is_file() and not (tmp_path / "episode.rrd").exists()
+    rw._STUCK.clear()
+    never.set()
+
+
 @pytest.mark.skipif(os.geteuid() != 0 or not sys.platform.startswith("linux"),
                     reason="mounts a small tmpfs: root on Linux")
-def test_a_single_run_on_a_real_small_tmpfs(tmp_path):
-    """The real thing: a 300 KiB tmpfs as output_root (skipped where mounting fails)."""
+@pytest.mark.parametrize("recorder", ["recorder.flush_every=20", "recorder.mcap=false"])
+def test_a_single_run_on_a_real_small_tmpfs(tmp_path, recorder):
+    """The real thing: a 300 KiB tmpfs as output_root (skipped where mounting fails), with
+    both logs (the MCAP fills it) and with the Rerun log only (its file sink fails: a flush
+    that waited on it held the run, past SIGTERM, for ever)."""
     mount = tmp_path / "small"
     mount.mkdir()
     if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=300k", "tmpfs", str(mount)],
@@ -224,7 +262,7 @@ def test_a_single_run_on_a_real_small_tmpfs(tmp_path):
     try:
         proc = subprocess.run(
             [sys.executable, "-m", "tamedpuma.sweep", "method=joint_attractor",
-             "scenario.max_steps=3000", "stop_on_success=false", "recorder.flush_every=20",
+             "scenario.max_steps=3000", "stop_on_success=false", recorder,
              f"output_root={mount}", f"hydra.run.dir={mount}/run"],
             cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
         lines = [x for x in proc.stderr.splitlines() if not x.startswith("pybullet build")]
@@ -232,6 +270,10 @@ def test_a_single_run_on_a_real_small_tmpfs(tmp_path):
         assert len(lines) == 1 and lines[0].startswith(f"error: disk full: cannot write {mount}")
         assert not (mount / "run/summary.json").exists()
         assert not (mount / "run/episode.mcap").exists()  # nothing left looking complete
+        assert not (mount / "run/episode.rrd").exists()
+        if "mcap=false" in recorder:
+            assert (mount / "run/episode.rrd.active").is_file()
+            return
         from tamedpuma.recording import read_mcap
 
         assert not read_mcap(mount / "run/episode.mcap.active").complete
@@ -266,6 +308,31 @@ def test_a_resume_after_the_model_changed_is_refused_naming_both(tmp_path, monke
     err = capsys.readouterr().err
     assert "warning: 1 of the 1 kept complete runs were made at code revision " \
            "an-older-revision" in err
+
+
+def test_a_resume_with_another_checkpoint_is_refused_before_any_job_runs(tmp_path, monkeypatch,
+                                                                        capsys):
+    """The kept run's own config still picks its model; the job that would run now picks
+    another (``method.checkpoint`` changed between the attempts): refused at the first job,
+    before it runs, naming both sha256."""
+    shipped = ROOT / "tamedpuma/puma/shipped"
+    args = ("method=puma", "seed=0,1", "scenario.max_steps=6")
+    first = f"method.checkpoint={shipped / 'tomato/puma.pt'}"
+    assert _sweep(tmp_path, monkeypatch, *args, first) == 0
+    kept = json.loads((tmp_path / "sweep/1/summary.json").read_text())["model"]["model_sha256"]
+    for run in (tmp_path / "sweep/0").iterdir():  # the first job is left to do
+        if run.is_file():
+            run.unlink()
+    capsys.readouterr()
+    other = f"method.checkpoint={shipped / 'pouring/puma.pt'}"
+    assert _sweep(tmp_path, monkeypatch, *args, other) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"error: resume refused: {tmp_path / 'sweep/1'} kept a run of "
+                              f"model sha256 {kept[:12]}, the job {tmp_path / 'sweep/0'} picks "
+                              "sha256 ")
+    assert "one sweep mixes no models" in err[-1]
+    assert not (tmp_path / "sweep/0/summary.json").exists()  # nothing ran
+    assert _sweep(tmp_path, monkeypatch, *args, first) == 0  # the same model: it goes on
 
 
 def _frame(**columns) -> pd.DataFrame:
@@ -351,6 +418,57 @@ def test_ctrl_c_and_sigterm_while_checking_the_config_are_one_line(tmp_path, mon
         "interrupted (SIGTERM) while checking the configuration: nothing was run\n")
     assert sweep._partial_log_line(tmp_path) == (
         f"interrupted before the run's logs were opened: nothing recorded in {tmp_path}")
+
+    def swallowed(*_):  # OmegaConf turned the SIGTERM's SystemExit into a config error
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            signal.pause()
+        except SystemExit:
+            return "method.null_space.target: 'NoneType' object has no attribute '_invalid'"
+    monkeypatch.setattr(sweep, "precheck_overrides", swallowed)
+    assert _sweep(tmp_path, monkeypatch) == 143
+    assert capsys.readouterr().err == (
+        "interrupted (SIGTERM) while checking the configuration: nothing was run\n")
+
+
+@pytest.mark.parametrize("interrupt,status,name", [(KeyboardInterrupt, 130, "Ctrl-C"),
+                                                   (lambda: SystemExit(143), 143, "SIGTERM")])
+def test_an_interrupt_after_the_config_check_outside_a_run_is_one_line(
+        tmp_path, monkeypatch, capsys, interrupt, status, name):
+    """Between the config check and a run (Hydra composing, creating the sweep folder) or
+    between runs: one line, not a silent exit."""
+    from tamedpuma.app import sweep
+
+    def hydra_setup():
+        raise interrupt()
+    monkeypatch.setattr(sweep, "_hydra_main", hydra_setup)
+    assert _sweep(tmp_path, monkeypatch) == status
+    assert capsys.readouterr().err == (
+        f"interrupted ({name}) outside a run: the complete runs are kept; the same command "
+        "goes on from there\n")
+
+
+@pytest.mark.parametrize("sig,status,name", [(signal.SIGINT, 130, "Ctrl-C"),
+                                             (signal.SIGTERM, 143, "SIGTERM")])
+def test_a_signal_while_an_entry_point_loads_is_one_line(sig, status, name):
+    """Ctrl-C while ``python -m tamedpuma.sweep`` imports torch, pinocchio and Hydra printed
+    the import chain (30 lines); SIGTERM ended it without a word. Every entry point loads
+    inside :func:`tamedpuma.startup.starting`."""
+    code = ("import os, signal, time\n"
+            "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+            "from tamedpuma.startup import starting\n"
+            "with starting():\n"
+            f"    os.kill(os.getpid(), {int(sig)})\n"
+            "    time.sleep(30)\n")
+    proc = subprocess.run([sys.executable, "-c", code], env=ENV, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == status
+    assert proc.stderr == f"interrupted ({name}) while starting: nothing was run\n"
+    for shim in ("sweep", "train", "replay", "models", "bench", "bench_fabrics", "body_model",
+                 "lasa"):
+        text = (ROOT / "tamedpuma" / f"{shim}.py").read_text()
+        assert f"with starting():  # Ctrl-C or SIGTERM while loading: one line, no traceback\n" \
+            f"    from tamedpuma.app.{shim} import main\n" in text, shim
 
 
 # ------------------------------------------------------------ 6. dt below the substep

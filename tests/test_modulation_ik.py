@@ -291,9 +291,17 @@ def test_a_trained_position_primitive_drives_the_controller(kinematics,
                                                             tiny_position_checkpoint):
     ctrl = make(_method_cfg(checkpoint=str(tiny_position_checkpoint), ik_backend=BACKENDS[0]),
                 kinematics)
-    command = ctrl.step(_obs(Q0, [[0.5, -0.3, 0.5]]))
+    obs = _obs(Q0, [[0.5, -0.3, 0.5]])
+    command = ctrl.step(obs)
     assert command.qdd.shape == (7,) and np.all(np.isfinite(command.qdd))
     assert command.scalars["ik_success"] == 1.0
+    # PUMA's ψ of the position model at the hand, for the log only (not in the timed step)
+    assert "psi" not in command.scalars
+    hand = kinematics.ee_frame(Q0)[0]
+    psi, _ = ctrl.primitive.potential(hand, obs.goal_position)
+    assert command.logged_later() == {"psi": pytest.approx(psi, rel=1e-12)} and psi > 0
+    plain = make(_method_cfg(ik_backend=BACKENDS[0]), kinematics, primitive=LinearVelocityField())
+    assert plain.step(obs).logged_later is None  # a field without ψ logs none
 
 
 def test_a_pose_checkpoint_is_refused(kinematics, tmp_path):

@@ -161,3 +161,33 @@ def test_non_finite_and_degenerate_inputs_propagate_as_nan(pose):
                                                              gp, gq)))
             (psi1, _, _), (psi0, _, _) = _both(pose, ("potential", (p, q, gp, gq)))
         assert np.isnan(a1).all() and np.isnan(a0).all() and np.isnan(psi1) and np.isnan(psi0)
+
+
+def test_psi_alone_is_the_potentials_and_leaves_the_step_as_it_was():
+    """``psi`` (the log's ψ) equals ``potential``'s ψ on both paths, pose and vector nets,
+    after an acceleration at the same pose or another; unlike ``potential`` it does not make
+    the next accelerations encode a second row at rest."""
+    rng = np.random.default_rng(6)
+    pose = _random_net(StateSpec(3, True, 2), seed=7)
+    for _ in range(10):
+        p, q, v, w, gp, gq = _random_state(rng)
+        psi1, psi0 = _both(pose, ("acceleration", (p, q, v, w, gp, gq)), ("psi", (p, q, gp, gq)))
+        assert not pose.single.want_rest
+        (ref, _, _), _ = _both(pose, ("potential", (p, q, gp, gq)))
+        pose.single.want_rest = False
+        _close(psi1, ref, max(1.0, ref))
+        _close(psi0, ref, max(1.0, ref))
+        assert psi1 > 0
+    # with the rest row of the last acceleration (a caller that asked for the potential before)
+    pose.single.want_rest = True
+    p, q, v, w, gp, gq = _random_state(rng)
+    psi1, _ = _both(pose, ("acceleration", (p, q, v, w, gp, gq)), ("psi", (p, q, gp, gq)))
+    _close(psi1, pose.potential(p, q, gp, gq)[0], max(1.0, psi1))
+    for order in (1, 2):
+        prim = _random_net(StateSpec(2, False, order), seed=order)
+        x, goal = rng.normal(size=2), rng.normal(size=2)
+        psi1, psi0 = _both(prim, ("psi", (x, goal)))
+        assert not prim.single.want_rest
+        ref = prim.potential(x, goal)[0]
+        _close(psi1, ref, max(1.0, ref))
+        _close(psi0, ref, max(1.0, ref))

@@ -13,7 +13,14 @@ import pytest
 from tamedpuma.recording import read_mcap, read_rrd_joints, read_rrd_scalars
 from tamedpuma.recording.convert import mcap_records
 from tamedpuma.recording.render import HeadlessViewer, rerun_executable, vulkan_available
-from tamedpuma.recording.rerun_writer import Camera, frame_camera, plot_groups, replay_blueprint
+from tamedpuma.recording.rerun_writer import (
+    LEGEND_CORNERS,
+    Camera,
+    frame_camera,
+    legend_corner,
+    plot_groups,
+    replay_blueprint,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 STEPS = 60
@@ -250,3 +257,98 @@ def test_web_serving_hands_the_files_to_the_viewer_with_cors(sweep):
     finally:
         server.shutdown()
         server.server_close()
+
+
+def _drawn_cells_under(corner, t, values, names):
+    """How many cells of a 60 × 20 drawing of the curves the legend in ``corner`` covers (the
+    same box sizes as the recorder: a test of the choice, not of the geometry)."""
+    from tamedpuma.recording import rerun_writer as rw
+
+    x = np.repeat((t - t.min()) / np.ptp(t), values.shape[1])
+    v = values.ravel()
+    y = (v - v.min()) / np.ptp(v)
+    cells = {(min(int(a * 60), 59), min(int(b * 20), 19)) for a, b in zip(x, y)}
+    h = min(1.0, rw.LEGEND_PAD + rw.LEGEND_ROW * len(names))
+    w = min(1.0, rw.LEGEND_PAD_X + rw.LEGEND_CHAR * max(map(len, names)))
+    right, top = corner.name.startswith("Right"), corner.name.endswith("Top")
+    return sum(((cx + 0.5) / 60 >= 1 - w if right else (cx + 0.5) / 60 <= w)
+               and ((cy + 0.5) / 20 >= 1 - h if top else (cy + 0.5) / 20 <= h)
+               for cx, cy in cells)
+
+
+@pytest.mark.parametrize("shape", ["falls", "falls_then_rises", "rises"])
+def test_a_plots_legend_takes_the_corner_its_curves_leave_free(shape):
+    """The clearance curve starts high and falls (near an obstacle), often rising again as the
+    arm leaves it: the legend goes where no curve is drawn, not over it."""
+    t = np.linspace(0.0, 17.0, 170)
+    s = t / t[-1]
+    clearance = {"falls": 0.3 * (1 - s) ** 2,
+                 "falls_then_rises": 0.14 - 0.14 * np.sin(np.pi * s / 0.7) * (s < 0.7)
+                 + 0.35 * np.clip(s - 0.55, 0, None),
+                 "rises": 0.02 + 0.3 * s ** 2}[shape]
+    values = np.column_stack([clearance, clearance - 0.01])
+    names = ["clearance_m", "min_clearance_m"]
+    corner = legend_corner(t, values, names)
+    covered = {c: _drawn_cells_under(c, t, values, names) for c in LEGEND_CORNERS}
+    assert covered[corner] == min(covered.values()), covered  # the least covered...
+    assert shape == "falls_then_rises" or covered[corner] == 0  # ...nothing where one is free
+    if shape == "rises":  # the right top, the viewer's default, would cover the curve
+        assert covered[LEGEND_CORNERS[0]] > 0 and corner != LEGEND_CORNERS[0]
+    assert legend_corner(t, np.full((len(t), 1), np.nan), ["x"]) == LEGEND_CORNERS[0]
+
+
+def _legends(blueprint) -> dict[str, object]:
+    grid = blueprint.root_container.contents[1]
+    return {v.name: v.properties["PlotLegend"] for v in grid.contents}
+
+
+def test_the_replays_legends_take_their_corners_from_the_recorded_curves(sweep, tmp_path):
+    from tamedpuma.recording.convert import mcap_to_rrd, run_info
+    from tamedpuma.recording.rerun_writer import RerunRecorder
+
+    log, records = mcap_records(sweep[0] / "episode.mcap")
+    recorder = RerunRecorder(tmp_path / "episode.rrd")
+    recorder.open(run_info(log))
+    for record in records:
+        recorder.write(record)
+    recorder.close(complete=True, summary={})
+    legends = _legends(recorder.blueprint())
+    t = log.scalars["t"].to_numpy()[::5]
+    for title, names in plot_groups(list(records[0].scalars)):
+        values = log.scalars[names].to_numpy()[::5]
+        assert _corner(legends[title]) == _value(legend_corner(t, values, names)), title
+    q = log.joints[[f"q_{i}" for i in range(7)]].to_numpy()[::5]
+    assert _corner(legends["joints [rad]"]) == _value(legend_corner(t, q,
+                                                                    run_info(log).joint_names))
+    # ...which are not all the viewer's default (else this test could not tell)
+    assert {_corner(legend) for legend in legends.values()} != {_value(LEGEND_CORNERS[0])}
+    assert mcap_to_rrd(sweep[0] / "episode.mcap", tmp_path / "again.rrd") == len(records)
+
+
+def _corner(legend) -> int:
+    return legend.corner.as_arrow_array().to_pylist()[0]
+
+
+def _value(corner) -> int:
+    import rerun.blueprint as rrb
+
+    return _corner(rrb.PlotLegend(corner=corner))
+
+
+def test_the_reference_paths_label_is_drawn_below_its_end_not_on_the_strip(tmp_path):
+    """The strip keeps its label for hover but does not draw it; the drawn label is a point
+    0.15 m below the path's end (the goal, which the arm reaches from above)."""
+    from rerun.chunk import RrdReader
+
+    from tamedpuma.recording.rerun_writer import REFERENCE_PATH, write_reference_overlay
+
+    points = np.array([[0.5, 0.3, 0.8], [0.5, 0.1, 0.5], [0.6, -0.1, 0.3]])
+    path = write_reference_overlay(tmp_path / "ref.rrd", "run", points, label="puma, no obst")
+    store = RrdReader(path).stream().collect()
+    row = store.reader(index=None, contents=f"{REFERENCE_PATH}/**").to_pandas().iloc[0]
+    assert list(row[f"{REFERENCE_PATH}:LineStrips3D:show_labels"]) == [False]
+    assert list(row[f"{REFERENCE_PATH}:LineStrips3D:labels"]) == ["puma, no obst"]
+    assert list(row[f"{REFERENCE_PATH}/label:Points3D:show_labels"]) == [True]
+    assert list(row[f"{REFERENCE_PATH}/label:Points3D:labels"]) == ["puma, no obst"]
+    (anchor,) = row[f"{REFERENCE_PATH}/label:Points3D:positions"]
+    np.testing.assert_allclose(anchor, points[-1] - [0.0, 0.0, 0.15], atol=1e-6)

@@ -337,13 +337,11 @@ def _screenshot(replay: Replay, args) -> int:
                           "mesa-vulkan-drivers)")
     with HeadlessViewer(size=args.size) as viewer:
         viewer.open(replay.files)
-        if args.at is None:
-            step = viewer.last_step()
-            viewer.set_step(step)
-            where = f"step {step}"
-        else:
-            viewer.client.set_time("time", duration=float(args.at), play_state="paused")
-            where = f"t = {args.at:g} s"
+        # on the "time" timeline (the layout's): the plots' x-axis in seconds, not #steps
+        at = viewer.last_time() if args.at is None else float(args.at)
+        viewer.set_time(at)
+        where = f"t = {at:g} s" + (f" (the last step, {viewer.last_step()})"
+                                    if args.at is None else "")
         out = viewer.save(args.screenshot, view=args.view)
     print(f"screenshot of {replay.rrd} at {where}: {out}")
     return 0

@@ -246,18 +246,67 @@ def code_revision() -> str:
 def _kept_model(run_dir: Path, models: dict):
     """The model the kept run ``run_dir``'s config picks now (None: no model, or a config
     the current schema no longer reads); ``models`` caches it by the method config."""
+    try:
+        return _model_for(OmegaConf.load(run_dir / ".hydra" / "config.yaml"), models)
+    except Exception:  # noqa: BLE001 - unreadable or no longer valid: not comparable
+        return None
+
+
+def _model_for(cfg: DictConfig, models: dict):
+    """The trained model a run of ``cfg`` loads (None: its method loads none); ``models``
+    caches it by the method config. Raises for a config the schema does not read."""
     from tamedpuma.app.schema import as_dict, run_config
     from tamedpuma.puma import store
 
-    try:
-        cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
-        key = json.dumps(OmegaConf.to_container(cfg.method, resolve=True), sort_keys=True,
-                         default=str)
-        if key not in models:
-            models[key] = store.resolve_for_method(as_dict(run_config(cfg))["method"])
-        return models[key]
-    except Exception:  # noqa: BLE001 - unreadable or no longer valid: not comparable
+    key = json.dumps(OmegaConf.to_container(cfg.method, resolve=True), sort_keys=True,
+                     default=str)
+    if key not in models:
+        models[key] = store.resolve_for_method(as_dict(run_config(cfg))["method"])
+    return models[key]
+
+
+_KEPT = {}  # sweep folder -> {(method label, task): {sha256: run folder}} of its complete runs
+_JOB_MODELS = {}  # the models jobs load, by method config (see _model_for)
+
+
+def _kept_models(sweep_dir: Path) -> dict:
+    """The models of the complete runs in ``sweep_dir`` by (method label, task), read once per
+    sweep (at its first job: the runs a resume keeps)."""
+    key = str(sweep_dir)
+    if key not in _KEPT:
+        kept = _KEPT[key] = {}
+        for path in sorted(sweep_dir.glob("*/summary.json")):
+            try:
+                summary = json.loads(path.read_text())
+                sha = summary["model"]["model_sha256"]
+            except (OSError, ValueError, KeyError, TypeError):
+                continue
+            if summary.get("status", "complete") == "complete" and sha:
+                group = (summary.get("method_label"), summary.get("task"))
+                kept.setdefault(group, {}).setdefault(sha, path.parent)
+    return _KEPT[key]
+
+
+def model_mix(cfg: DictConfig, run_dir: Path) -> str | None:
+    """The refusal of a job whose method loads another model than the complete runs of the
+    same method label and task that its sweep folder keeps (a resume with another
+    ``method.checkpoint``, or after a ``models build`` for a config :func:`resume_check` does
+    not see), else None: its table row would pool two models."""
+    kept = _kept_models(run_dir.parent).get((method_label(cfg.method), cfg.task.name))
+    if not kept:
         return None
+    try:
+        new = _model_for(cfg, _JOB_MODELS)
+    except Exception:  # noqa: BLE001 - the run itself reports a config it cannot build
+        return None
+    other = next(((sha, d) for sha, d in kept.items() if new is not None and sha != new.sha256),
+                 None)
+    if other is None:
+        return None
+    return (f"resume refused: {other[1]} kept a run of model sha256 {other[0][:12]}, "
+            f"the job {run_dir} picks sha256 {new.sha256[:12]} ({new.path}); one sweep "
+            "mixes no models: resume into a new folder (hydra.sweep.dir=...) or move the kept "
+            "runs away")
 
 
 def resume_check(sweep_dir: Path) -> tuple[str | None, list[str]]:
@@ -461,6 +510,10 @@ def _die_with_launcher() -> None:
 _LAUNCHER_PID = "TAMEDPUMA_SWEEP_LAUNCHER_PID"  # set by main(), read by its launcher's workers
 _TERMINATED = []  # set in a launcher worker by SIGTERM (its launcher died, or it was stopped)
 _RUN_OPEN = []  # non-empty while a launcher worker's run has its logs open
+_INTERRUPT_SAID = []  # set when a run of this process said where its partial logs are
+#: what an interrupt of the main process outside a run says (nothing is half-written then)
+_INTERRUPTED_BETWEEN = ("interrupted ({}) outside a run: the complete runs are kept; the same "
+                        "command goes on from there")
 
 
 def _terminated(*_) -> None:
@@ -522,6 +575,9 @@ def _hydra_main(cfg: DictConfig) -> None:
 def _job(cfg: DictConfig, run_dir: Path, multirun: bool) -> None:
     """One run of the sweep (or the single run): set aside a previous attempt, run, record."""
     if multirun:
+        refusal = model_mix(cfg, run_dir)
+        if refusal:
+            raise SweepStopped(refusal)
         state = run_state(run_dir)
         if state == "complete":
             _record_outcome(run_dir, "skipped", "already complete")
@@ -535,6 +591,7 @@ def _job(cfg: DictConfig, run_dir: Path, multirun: bool) -> None:
         if isinstance(exc, SystemExit) and exc.code in (0, None):
             raise
         print(_partial_log_line(run_dir), file=sys.stderr)
+        _INTERRUPT_SAID.append(True)
         raise
     except Exception as exc:  # noqa: BLE001 - a sweep survives its worst run
         if multirun and _TERMINATED:  # a SIGTERM mid-run that surfaced as another error (seen:
@@ -655,15 +712,27 @@ def main(argv: list[str] | None = None) -> None:
             print("interrupted (SIGTERM) while checking the configuration: nothing was run",
                   file=sys.stderr)
         raise
+    if _MAIN_TERMINATED:  # a SIGTERM inside OmegaConf surfaces as a config error: not one
+        print("interrupted (SIGTERM) while checking the configuration: nothing was run",
+              file=sys.stderr)
+        sys.exit(143)
     if error:
         fail(error)
     _OUTCOMES.clear()
+    _INTERRUPT_SAID.clear()
+    _KEPT.clear()
     Sweeper.validate_batch_is_legal = _validate_representatives
     hydra.core.utils._save_config = _save_config_or_stop
     try:
         _hydra_main()
     except KeyboardInterrupt:
-        sys.exit(130)  # the job printed where its partial log is
+        if not _INTERRUPT_SAID:  # else the run printed where its partial log is
+            print(_INTERRUPTED_BETWEEN.format("Ctrl-C"), file=sys.stderr)
+        sys.exit(130)
+    except SystemExit as exc:
+        if exc.code == 143 and not _INTERRUPT_SAID:
+            print(_INTERRUPTED_BETWEEN.format("SIGTERM"), file=sys.stderr)
+        raise
     except SweepStopped as stop:
         message, run_dir = (list(stop.args) + [""])[:2]
         if _OUTCOMES_SOURCE:  # the callback's end-of-sweep collection did not run

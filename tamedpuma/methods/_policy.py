@@ -172,6 +172,15 @@ class PoseTask:
         jac = state.ee_jacobian
         return float(psi), d_p @ jac[:3] + d_theta @ jac[3:]
 
+    def psi(self, state: KinematicState, goal_position: np.ndarray,
+            goal_quaternion: np.ndarray) -> float:
+        """ψ alone at the hand's pose (no gradient): for the log (a primitive without ``psi``:
+        its :meth:`potential`)."""
+        if not hasattr(self.primitive, "psi"):
+            return self.potential(state, goal_position, goal_quaternion)[0]
+        return self.primitive.psi(state.ee_position, state.ee_quaternion, goal_position,
+                                  goal_quaternion)
+
 
 class PlanarTask:
     """End-effector position in the plane (x, y) for an R² primitive (the point robot)."""
@@ -196,6 +205,14 @@ class PlanarTask:
         d = self.dims
         psi, grad = self.primitive.potential(state.ee_position[:d], goal_position[:d])
         return float(psi), np.asarray(grad, dtype=float) @ state.ee_jacobian[:d]
+
+    def psi(self, state: KinematicState, goal_position: np.ndarray,
+            goal_quaternion: np.ndarray) -> float:
+        """ψ alone at the hand's position (no gradient): for the log (a primitive without
+        ``psi``: its :meth:`potential`)."""
+        if not hasattr(self.primitive, "psi"):
+            return self.potential(state, goal_position, goal_quaternion)[0]
+        return self.primitive.psi(state.ee_position[:self.dims], goal_position[:self.dims])
 
 
 def damped_pseudo_inverse(J: np.ndarray, damping: float) -> np.ndarray:

@@ -141,7 +141,15 @@ class PumaController:
         state = self.kinematics.evaluate(obs.q, obs.qd)
         qdd, xdd = self.joint_acceleration(state, obs)
         return Command(qdd=qdd, scalars={"task_acc_norm": float(np.linalg.norm(xdd)),
-                                         "joint_acc_norm": float(np.linalg.norm(qdd))})
+                                         "joint_acc_norm": float(np.linalg.norm(qdd))},
+                       logged_later=self.psi_later(state, obs))
+
+    def psi_later(self, state, obs: Observation):
+        """``{"psi": ψ}`` at the hand's pose, computed when called: the log's ψ for a step that
+        never evaluates ψ itself (``Command.logged_later``, off the control path). state: the
+        kinematics' evaluation at obs, current until the next step."""
+        task, goal_p, goal_q = self.task, obs.goal_position, obs.goal_quaternion
+        return lambda: {"psi": task.psi(state, goal_p, goal_q)}
 
 
 class TamedController:

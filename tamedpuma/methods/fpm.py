@@ -108,7 +108,7 @@ class FpmController(TamedController):
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
-        _, av, h, qdd_c, xdd, ground = self.forced(obs)
+        state, av, h, qdd_c, xdd, ground = self.forced(obs)
         alpha_raw = energization_alpha(av, self.energy, qd, h,
                                        self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
@@ -121,10 +121,11 @@ class FpmController(TamedController):
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
         qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, ground, qd)
         qdd = (qd_next - qd) / self.dt
-        return Command(qdd=qdd, scalars={**fabric_scalars(av), "alpha": alpha,
-                                         "alpha_raw": alpha_raw, **extra,
-                                         **self.stall_scalars(),
-                                         "task_acc_norm": float(np.linalg.norm(xdd))})
+        scalars = {**fabric_scalars(av), "alpha": alpha, "alpha_raw": alpha_raw, **extra,
+                   **self.stall_scalars(), "task_acc_norm": float(np.linalg.norm(xdd))}
+        # ψ: the stall monitor's sample where it runs, else computed for the log only
+        return Command(qdd=qdd, scalars=scalars, logged_later=None if "psi" in scalars
+                       else self.puma.psi_later(state, obs))
 
 
 def make(cfg: Mapping, kinematics) -> FpmController:

@@ -182,7 +182,8 @@ class ModulationIK:
         prm, dt = self.params, self.dt
         q, qd = np.asarray(obs.q, float), np.asarray(obs.qd, float)
         # the hand's pose only (the placement pass: the numbers evaluate() gives)
-        p_target, rot_target, v, v_mod, mod = self._targets(obs, *self.kinematics.ee_frame(q))
+        hand = self.kinematics.ee_frame(q)
+        p_target, rot_target, v, v_mod, mod = self._targets(obs, *hand)
         spec = self.kinematics.spec
         box = prm.trust * spec.qd_max * dt
         upper = np.minimum(q + box, spec.q_max - prm.limit_margin)
@@ -231,7 +232,16 @@ class ModulationIK:
             "nominal_speed_mps": float(np.linalg.norm(v)),
             "modulated_speed_mps": float(np.linalg.norm(v_mod)),
         }
-        return Command(qdd=qdd, scalars=scalars)
+        return Command(qdd=qdd, scalars=scalars, logged_later=self._psi_later(hand[0], obs))
+
+    def _psi_later(self, p: np.ndarray, obs: Observation):
+        """``{"psi": ψ}`` of the position primitive (PUMA's potential) at the hand's position p
+        [m], computed only for the log (``Command.logged_later``); None for a field without ψ."""
+        psi = getattr(self.primitive, "psi", None)
+        if psi is None:
+            return None
+        goal = obs.goal_position
+        return lambda: {"psi": float(psi(p, goal))}
 
 
 def _clearance(problem: IKProblem, q: np.ndarray) -> float:

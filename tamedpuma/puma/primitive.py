@@ -95,6 +95,13 @@ class PosePrimitive(_Base):
                                            goal_p, goal_quat)
         return float(psi[0]), gp[0], gt[0]
 
+    def psi(self, p, quat, goal_p, goal_quat) -> float:
+        """ψ alone (no gradient) at pose (p [m], ζ) for the goal: what a log needs."""
+        if self.single is not None:
+            return self.single.psi(*_pose_error(p, quat, goal_p, goal_quat))
+        return float(self.potential_batch(np.reshape(p, (1, 3)), np.reshape(quat, (1, 4)),
+                                          goal_p, goal_quat)[0][0])
+
     def potential_batch(self, p, quat, goal_p, goal_quat):
         e = np.asarray(p, np.float64) - np.asarray(goal_p, np.float64)
         q = relative_quat(quat, goal_quat)
@@ -135,6 +142,13 @@ class VectorPrimitive(_Base):
             return self.single.forward(e.tolist(), None, np.asarray(xd, np.float64).tolist())
         xd = np.atleast_2d(np.asarray(xd, np.float64))
         return self.fast.forward(np.atleast_2d(e), None, xd).reshape(e.shape)
+
+    def psi(self, x, goal=None) -> float:
+        """ψ alone (no gradient) at one x (n,): what a log needs."""
+        e = self._rel(x, goal)
+        if self.single is not None:
+            return self.single.psi(e.tolist(), None)
+        return float(self.fast.potential(e[None])[0][0])
 
     def potential(self, x, goal=None):
         """``(ψ, ∂ψ/∂x)`` with ``ψ = ‖ρ(x_g, 0) − ρ(x, 0)‖²``; x (n,) or (B, n)."""

@@ -201,6 +201,23 @@ class SingleState:
             self._rest_key, self._rest = pose, (rows, s1, s2)
         return self._decode(rows.y[0])
 
+    def psi(self, e, rot) -> float:
+        """ψ alone at the goal-relative pose (e, rot as :meth:`forward`), at rest: one encoder
+        pass, no gradient. Unlike :meth:`potential` it leaves :meth:`forward` as it is (no
+        second row at rest), so a caller that logs ψ does not slow the control step."""
+        pose = self._pose_entries(e, rot)
+        if self._rest is not None and pose == self._rest_key:
+            y = self._rest[0].y[1]
+        else:
+            rows, k = self._rows[1], len(pose)
+            rows.raw[0, :k] = pose
+            rows.raw[0, k:-1] = 0.0
+            _mul(rows.raw, self.s_in, out=rows.f)
+            self._encode(rows)
+            y = rows.y[0]
+        diff = y - self.y_goal
+        return float(_dot(diff, diff))
+
     def potential(self, e, rot) -> tuple[float, np.ndarray, np.ndarray | None]:
         """``(ψ, ∂ψ/∂e (n,), ∂ψ/∂δθ (3,) | None)`` at rest, δθ a world-frame rotation applied
         as ζ ← exp(δθ) ⊗ ζ (pose nets)."""

@@ -145,8 +145,17 @@ class HeadlessViewer:
         return int(line.end)
 
     def set_step(self, step: int, timeline: str = "step") -> None:
-        """Pause the time cursor at ``step``."""
+        """Pause the time cursor at ``step`` (the plots' x-axis then counts steps, #0 ...)."""
         self.client.set_time(timeline, sequence=int(step), play_state="paused")
+
+    def last_time(self, timeline: str = "time") -> float:
+        """The end of the duration timeline ``timeline`` in the active recording [s]."""
+        return self.last_step(timeline) / 1e9
+
+    def set_time(self, seconds: float, timeline: str = "time") -> None:
+        """Pause the time cursor at ``seconds`` of the duration timeline (the blueprint's own:
+        the plots' x-axis in seconds)."""
+        self.client.set_time(timeline, duration=float(seconds), play_state="paused")
 
     def view_id(self, name: str) -> str:
         """The id of the view called ``name`` in the active blueprint."""
@@ -171,14 +180,14 @@ class HeadlessViewer:
 
 
 def screenshot(paths: Sequence[str | os.PathLike], out: str | os.PathLike,
-               step: int | None = None, size: tuple[int, int] = (1280, 720),
-               view: str | None = None) -> tuple[Path, int]:
-    """Render ``paths`` (``.rrd`` files of one recording) at ``step`` (default: the last) to the
-    PNG ``out``: the whole viewer, or only the view named ``view`` (e.g. ``"scene"``).
-    Returns (the PNG's path, the step shown). Raises :class:`RenderError`."""
+               at: float | None = None, size: tuple[int, int] = (1280, 720),
+               view: str | None = None) -> tuple[Path, float]:
+    """Render ``paths`` (``.rrd`` files of one recording) at simulated time ``at`` [s] (default:
+    the end) to the PNG ``out``: the whole viewer, or only the view named ``view`` (e.g.
+    ``"scene"``). Returns (the PNG's path, the time shown [s]). Raises :class:`RenderError`."""
     with HeadlessViewer(size=size) as viewer:
         viewer.open(paths)
-        last = viewer.last_step()
-        shown = last if step is None else min(max(int(step), 0), last)
-        viewer.set_step(shown)
+        last = viewer.last_time()
+        shown = last if at is None else min(max(float(at), 0.0), last)
+        viewer.set_time(shown)
         return viewer.save(out, view=view), shown

@@ -13,13 +13,16 @@ Entity layout (all 3-D entities live in the named coordinate frame ``world``):
 * ``/joint_speed/<joint>``: |q̇| divided by the joint's speed limit (raw [rad/s] when the limits
   are unknown), with ``/joint_speed/limit`` = 1.
 * ``/world/reference_path``: PUMA's obstacle-free path, from a separate overlay file
-  (:func:`write_reference_overlay`) that the viewer merges in.
+  (:func:`write_reference_overlay`) that the viewer merges in; its label on
+  ``/world/reference_path/label``, below the path's end.
 
 Timelines: ``step`` (sequence) and ``time`` (duration, simulated seconds). The file is streamed
 while the episode runs (``RecordingStream.save`` before the first log). Its blueprint
 (:func:`replay_blueprint`) is sent with the first step and again on close: the 3-D scene with the
 arm's visual meshes (collision meshes and body spheres hidden, one click away), an eye framing
-everything the episode showed (:func:`frame_camera`), and one plot per quantity.
+everything the episode showed (:func:`frame_camera`), and one plot per quantity, its legend in
+the corner its curves leave most free (:func:`legend_corner`, on close, from every
+``FRAME_EVERY``-th step).
 
 Crash safety, as for MCAP: the file is ``<path>.active`` until :meth:`RerunRecorder.close`
 renames it. A killed run's ``.active`` file has no RRD footer (``rerun rrd verify`` fails) but
@@ -28,8 +31,10 @@ renames it. A killed run's ``.active`` file has no RRD footer (``rerun rrd verif
 
 from __future__ import annotations
 
+import errno
 import fnmatch
 import os
+import threading
 import time
 import warnings
 from collections.abc import Iterable, Mapping
@@ -44,6 +49,7 @@ from rerun.components import LineStrip3DBatch
 from rerun.encodings import Vec3DBatch
 from rerun.urdf import UrdfTree
 
+from ..paths import LOW_SPACE, free_bytes
 from .mcap_writer import active_path, prepare_output, write_error
 from .records import RunInfo, StepRecord
 
@@ -60,20 +66,36 @@ _LIMIT_RGBA = (255, 60, 60, 255)
 
 
 #: One time-series plot per quantity: (title, scalar-name patterns), in display order. A scalar
-#: goes to the first plot whose pattern matches; the rest share "method internals".
+#: goes to the first plot whose pattern matches; the rest share "method internals". Counts and
+#: on/off flags have plots of their own, so each plot keeps few enough series for a legend.
 PLOT_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("position error [m]", ("position_error_m", "goal_distance", "ik_position_error_m")),
+    ("position error x, y, z [m]", ("position_error_?_m",)),
     ("clearance [m]", ("clearance_m", "min_clearance*", "ik_constraint_violation_m")),
     ("ψ (PUMA potential)", ("psi",)),
     ("ψ rate [1/s]", ("psi_rate",)),
     ("energies", ("energy_*", "dissipation", "potential")),
     ("compute time [ms]", ("compute_time_ms", "ik_solve_ms")),
     ("orientation error [rad]", ("orientation_error*", "joint_error_rad")),
-    ("contacts", ("obstacle_contact", "ground_contact")),
+    ("contacts and switches (1: on)", ("obstacle_contact", "ground_contact", "stall_pull",
+                                       "configuration_pull", "ik_success", "ik_brake")),
+    ("counts", ("n_*", "ik_iterations", "ik_failures")),
 )
 INTERNALS = "method internals"
+JOINTS_PLOT = "joints [rad]"
 MAX_LEGEND = 8  # plots with more series show no legend (hover shows the names): the
 #: joint plots (7 joints, the speed limit) keep theirs
+#: A plot's legend box as fractions of the plot (measured on the default 1600 × 900 window,
+#: six rows of plots about 300 × 90 points: a legend row is 23 points high, the box 105 to 125
+#: points wide for names of 9 to 18 characters): height ``LEGEND_PAD + LEGEND_ROW n`` for n
+#: series, width ``LEGEND_PAD_X + LEGEND_CHAR c`` for the longest name of c characters (both
+#: at most 1).
+LEGEND_ROW, LEGEND_PAD = 0.25, 0.06
+LEGEND_CHAR, LEGEND_PAD_X = 0.012, 0.2
+LEGEND_GRID = (60, 20)  # cells (x, y) a plot is drawn into to weigh what a legend covers
+#: The corners a legend may take, the preferred first (ties keep the earlier one).
+LEGEND_CORNERS = (rrb.Corner2D.RightTop, rrb.Corner2D.RightBottom, rrb.Corner2D.LeftTop,
+                  rrb.Corner2D.LeftBottom)
 #: Vertical field of view of Rerun's 3-D eye [rad] (measured: a point 1 m off-axis at 3 m
 #: projects 0.32 image heights from the centre, i.e. 55°).
 RERUN_FOV_Y = np.deg2rad(55.0)
@@ -82,6 +104,7 @@ EYE_DIRECTION = (1.0, -1.5, 0.75)
 #: Hidden by default; each is one click (the eye icon) away in the viewer.
 HIDDEN_BY_DEFAULT = ("/world/lbr_iiwa/collision_geometries", "/world/body_spheres")
 REFERENCE_PATH = "/world/reference_path"
+REFERENCE_LABEL_DROP = 0.15  # [m] below the reference path's end, where its label is drawn
 
 
 def plot_groups(scalar_names: Iterable[str]) -> list[tuple[str, list[str]]]:
@@ -94,6 +117,43 @@ def plot_groups(scalar_names: Iterable[str]) -> list[tuple[str, list[str]]]:
                       if any(fnmatch.fnmatchcase(name, p) for p in pats)), INTERNALS)
         groups[title].append(name)
     return [(t, names) for t, names in groups.items() if names]
+
+
+def legend_corner(t: np.ndarray, values: np.ndarray, names: Iterable[str]) -> rrb.Corner2D:
+    """The corner of a time-series plot where its legend covers the least of the curves.
+
+    t (T,) [s] and values (T, n) (one column per series, non-finite entries not drawn) are
+    scaled as the viewer fits them, ``x = (t − t₀)/(t₁ − t₀)``, ``y = (v − min)/(max − min)``
+    (0.5 for a constant), and drawn into a grid of :data:`LEGEND_GRID` cells (series on top of
+    each other fill a cell once); the legend of n series named ``names`` is a box of height
+    ``min(1, LEGEND_PAD + LEGEND_ROW n)`` and width ``min(1, LEGEND_PAD_X + LEGEND_CHAR c)``
+    (c: the longest name's length) in the corner, and covers the drawn cells whose centres it
+    holds. Ties keep the earlier of :data:`LEGEND_CORNERS`, so a plot without samples keeps
+    the right top one."""
+    names = list(names)
+    t = np.asarray(t, dtype=float)
+    v = np.asarray(values, dtype=float).reshape(len(t), -1)
+    ok = np.isfinite(v) & np.isfinite(t)[:, None]
+    if not ok.any():
+        return LEGEND_CORNERS[0]
+    t_drawn = t[ok.any(axis=1)]
+    span = float(np.ptp(t_drawn))
+    x = (t - t_drawn.min()) / span if span > 0 else np.full(len(t), 0.5)
+    x = np.broadcast_to(x[:, None], v.shape)[ok]
+    lo, hi = float(v[ok].min()), float(v[ok].max())
+    y = (v[ok] - lo) / (hi - lo) if hi > lo else np.full(len(x), 0.5)
+    gx, gy = LEGEND_GRID
+    ix = np.minimum((x * gx).astype(int), gx - 1)
+    iy = np.minimum((y * gy).astype(int), gy - 1)
+    cells = np.unique(ix * gy + iy)
+    cx, cy = (cells // gy + 0.5) / gx, (cells % gy + 0.5) / gy  # the drawn cells' centres
+    height = min(1.0, LEGEND_PAD + LEGEND_ROW * len(names))
+    width = min(1.0, LEGEND_PAD_X + LEGEND_CHAR * max(map(len, names), default=0))
+    right, top = cx >= 1.0 - width, cy >= 1.0 - height
+    left, bottom = cx <= width, cy <= height
+    covered = {rrb.Corner2D.RightTop: right & top, rrb.Corner2D.RightBottom: right & bottom,
+               rrb.Corner2D.LeftTop: left & top, rrb.Corner2D.LeftBottom: left & bottom}
+    return min(LEGEND_CORNERS, key=lambda c: int(covered[c].sum()))
 
 
 @dataclass(frozen=True)
@@ -186,10 +246,13 @@ def scene_points(rec: StepRecord) -> np.ndarray:
 
 
 def replay_blueprint(scalar_names: Iterable[str] = (), joint_names: Iterable[str] = (),
-                     camera: Camera | None = None, speed_limits: bool = True) -> rrb.Blueprint:
+                     camera: Camera | None = None, speed_limits: bool = True,
+                     corners: Mapping[str, rrb.Corner2D] | None = None) -> rrb.Blueprint:
     """The replay layout: the 3-D scene (visual meshes; collision meshes and body spheres hidden
     but listed, so one click shows them; eye from ``camera``) beside one plot per quantity
-    (joints, joint speed against the limits, then :func:`plot_groups` of ``scalar_names``)."""
+    (joints, joint speed against the limits, then :func:`plot_groups` of ``scalar_names``).
+    corners: each plot's legend corner by plot title (:func:`legend_corner`; the right top
+    for a plot not named)."""
     eye = None
     if camera is not None:
         eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital,
@@ -201,25 +264,32 @@ def replay_blueprint(scalar_names: Iterable[str] = (), joint_names: Iterable[str
         overrides={path: rrb.EntityBehavior(visible=False) for path in HIDDEN_BY_DEFAULT},
         eye_controls=eye)
     joint_names = list(joint_names)
+    corners = corners or {}
 
-    def legend(n: int) -> rrb.PlotLegend:  # a legend of many series hides a small plot
-        return rrb.PlotLegend(corner=rrb.Corner2D.RightTop, visible=n <= MAX_LEGEND)
+    def legend(title: str, n: int) -> rrb.PlotLegend:  # a legend of many series hides a plot
+        return rrb.PlotLegend(corner=corners.get(title, LEGEND_CORNERS[0]),
+                              visible=n <= MAX_LEGEND)
 
-    plots = [rrb.TimeSeriesView(name="joints [rad]", origin="/joints",
-                                plot_legend=legend(len(joint_names)))]
+    plots = [rrb.TimeSeriesView(name=JOINTS_PLOT, origin="/joints",
+                                plot_legend=legend(JOINTS_PLOT, len(joint_names)))]
     if joint_names:
-        plots.append(rrb.TimeSeriesView(
-            name="joint speed / limit" if speed_limits else "joint speed [rad/s]",
-            origin="/joint_speed", plot_legend=legend(len(joint_names))))
+        title = speed_plot(speed_limits)
+        plots.append(rrb.TimeSeriesView(name=title, origin="/joint_speed",
+                                        plot_legend=legend(title, len(joint_names))))
     for title, names in plot_groups(scalar_names):
         plots.append(rrb.TimeSeriesView(name=title, origin="/metrics",
                                          contents=[f"/metrics/{n}" for n in names],
-                                         plot_legend=legend(len(names))))
+                                         plot_legend=legend(title, len(names))))
     return rrb.Blueprint(
         rrb.Horizontal(scene, rrb.Grid(*plots, grid_columns=2), column_shares=[3, 2]),
         # the plots' x-axis in simulated seconds (the "step" timeline labels it #0, #1, ...)
         rrb.TimePanel(state="collapsed", timeline="time"),
         rrb.SelectionPanel(state="collapsed"), rrb.BlueprintPanel(state="collapsed"))
+
+
+def speed_plot(speed_limits: bool) -> str:
+    """The joint-speed plot's title: against the limits, or raw without them."""
+    return "joint speed / limit" if speed_limits else "joint speed [rad/s]"
 
 
 def default_blueprint() -> rrb.Blueprint:
@@ -248,6 +318,49 @@ def _log_styles(rec, info: RunInfo) -> None:
     if len(info.velocity_limits):
         rec.log("/joint_speed/limit", rr.SeriesLines(colors=_LIMIT_RGBA, names="limit",
                                                      widths=2.0), static=True)
+
+
+#: A flush waits at most this long [s] in slices of FLUSH_SLICE [s]: rerun's file sink that
+#: failed (a full disk) never acknowledges a flush, and one unbounded native wait would hold the
+#: process past SIGTERM and Ctrl-C (signal handlers run between the slices).
+FLUSH_TIMEOUT, FLUSH_SLICE = 30.0, 0.25
+#: Streams whose file sink failed, kept referenced: closing or collecting them waits on the
+#: sink forever (see :func:`_release`).
+_STUCK: list = []
+
+
+def bounded_flush(stream, path: Path, timeout: float = FLUSH_TIMEOUT) -> None:
+    """Flush ``stream`` (writing ``path``) to disk, waiting at most ``timeout`` [s]. A flush
+    that does not finish while the disk of ``path`` has less than ``LOW_SPACE`` bytes free is
+    the file sink's failure (a full disk): ``OSError(ENOSPC)`` at once; otherwise RuntimeError
+    after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            stream.flush(timeout_sec=FLUSH_SLICE)
+            return
+        except RuntimeError:  # "Flush timed out"
+            free = free_bytes(path)
+            if free is not None and free < LOW_SPACE:
+                raise OSError(errno.ENOSPC, "No space left on device", str(path)) from None
+            if time.monotonic() > deadline:
+                raise
+
+
+def _release(stream, failed: bool) -> None:
+    """Close ``stream``'s file. A stream whose file sink failed never finishes closing (nor
+    does rerun's own shutdown at exit): it is closed in a daemon thread given
+    ``FLUSH_SLICE`` × 8 s, then left open, referenced, and rerun's exit-time shutdown is
+    dropped, so the process ends."""
+    if not failed:
+        stream.disconnect()
+        return
+    closer = threading.Thread(target=stream.disconnect, daemon=True, name="rerun-close")
+    closer.start()
+    closer.join(8 * FLUSH_SLICE)
+    if closer.is_alive():
+        _STUCK.append(stream)
+        rr.unregister_shutdown()
 
 
 class RerunRecorder:
@@ -304,6 +417,7 @@ class RerunRecorder:
         self._scalar_names: list[str] = []
         self._columns: _Columns | None = None  # the steps not sent yet, one row each
         self._ee_path = _Columns()  # every end-effector point so far (the path strips' source)
+        self._samples: list[tuple] = []  # (t, q, speed, scalars) every FRAME_EVERY steps
         self._count = 0  # steps sent
         self._failed = False  # a write failed: the file keeps its .active name
         self._last_send = time.monotonic()
@@ -400,13 +514,13 @@ class RerunRecorder:
                       for k, v in summary.items()}
             stream.log("/summary", rr.AnyValues(**{**fields, "complete": bool(complete),
                                                    "recorded_steps": self._count}), static=True)
-            stream.flush()
+            bounded_flush(stream, self.active_path)
             finished = True
         except (OSError, RuntimeError) as exc:
             self._failed = True
             raise write_error(self.active_path, exc, self._count) from exc
         finally:
-            stream.disconnect()
+            _release(stream, self._failed)
             self._rec = None
             if finished and not has_footer(self.active_path):
                 self._failed = True
@@ -420,7 +534,26 @@ class RerunRecorder:
         info = self._info
         camera = frame_camera(np.vstack(self._points)) if self._points else None
         return replay_blueprint(self._scalar_names, info.joint_names, camera,
-                                speed_limits=len(info.velocity_limits) > 0)
+                                speed_limits=len(info.velocity_limits) > 0,
+                                corners=self._legend_corners())
+
+    def _legend_corners(self) -> dict[str, rrb.Corner2D]:
+        """Each plot's legend corner (:func:`legend_corner`) from the samples kept so far (every
+        ``FRAME_EVERY``-th step; none before the first send: every legend right top)."""
+        if not self._samples:
+            return {}
+        t, q, speed, values = (np.concatenate(part) for part in zip(*self._samples))
+        info = self._info
+        names = list(info.joint_names)
+        corners = {JOINTS_PLOT: legend_corner(t, q, names)}
+        limits = len(info.velocity_limits) > 0
+        if limits:  # the limit line (1) is a series of the plot too
+            speed = np.column_stack([speed, np.ones(len(t))])
+        corners[speed_plot(limits)] = legend_corner(t, speed, names + ["limit"] * limits)
+        index = {name: j for j, name in enumerate(self._scalar_names)}
+        for title, group in plot_groups(self._scalar_names):
+            corners[title] = legend_corner(t, values[:, [index[n] for n in group]], group)
+        return corners
 
     def _send_blueprint(self) -> None:
         self._rec.send_blueprint(self.blueprint(), make_active=True, make_default=True)
@@ -440,6 +573,7 @@ class RerunRecorder:
         n = cols.n
         c = cols.arrays()
         steps, times = c["step"].astype(np.int64), c["t"]
+        keep = np.arange(-self._count % FRAME_EVERY, n, FRAME_EVERY)  # the legends' samples
         index = [rr.TimeColumn("step", sequence=steps), rr.TimeColumn("time", duration=times)]
 
         def send(entity: str, columns) -> None:
@@ -478,8 +612,9 @@ class RerunRecorder:
         values = c["scalars"].astype(float)
         for j, name in enumerate(self._scalar_names):
             send(f"/metrics/{name}", rr.Scalars.columns(scalars=values[:, j]))
+        self._samples.append((times[keep], q[keep], speed[keep], values[keep]))
         if flush:  # on disk before the next batch: a killed run loses only the buffer
-            stream.flush()
+            bounded_flush(stream, self.active_path)
 
     def _send_path(self, stream, steps, times) -> None:
         """EE path: strip b covers steps [b·B, (b+1)·B] (B = PATH_BLOCK), so strips join up and
@@ -577,19 +712,40 @@ class _Columns:
         return {name: col[:self.n] for name, col in self._cols.items()}
 
 
+def reference_label_anchor(points: np.ndarray,
+                           drop: float = REFERENCE_LABEL_DROP) -> np.ndarray:
+    """Where the reference path's label is drawn [m]: ``drop`` [m] below the path's end (the
+    goal), the label's text under it. The tasks' arm comes to the goal from above and behind,
+    so below it no link passes at any instant; drawn on the strip itself the label sat at the
+    strip's middle, over the arm as it passed, and at the path's start it covers the hand
+    while the run begins. points: (T, 3) [m]."""
+    end = np.asarray(points, dtype=float).reshape(-1, 3)[-1]
+    return end - np.array([0.0, 0.0, drop])
+
+
 def write_reference_overlay(path: str | os.PathLike, recording_id: str, points: np.ndarray,
                             label: str = "PUMA without obstacles",
                             application_id: str = "tamedpuma") -> Path:
     """A small ``.rrd`` that adds a reference end-effector path (static ``LineStrips3D`` on
     :data:`REFERENCE_PATH`) to the recording ``recording_id``: the viewer merges files that share
-    application and recording ids, so the run's own file is never modified. points: (T, 3) [m]."""
+    application and recording ids, so the run's own file is never modified. The strip keeps its
+    label for hover and selection but does not draw it; the drawn label is a point of its own
+    (``REFERENCE_PATH/label``) at :func:`reference_label_anchor`. points: (T, 3) [m]."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    points = np.asarray(points, dtype=float)
     rec = rr.RecordingStream(application_id, recording_id=recording_id)
     rec.save(path)
     rec.log(REFERENCE_PATH, rr.CoordinateFrame(WORLD_FRAME), rr.LineStrips3D(
-        [np.asarray(points, dtype=float)], colors=_REFERENCE_RGBA, radii=0.004, labels=label),
+        [points], colors=_REFERENCE_RGBA, radii=0.004, labels=label, show_labels=False),
         static=True)
-    rec.flush()
+    rec.log(f"{REFERENCE_PATH}/label", rr.CoordinateFrame(WORLD_FRAME), rr.Points3D(
+        [reference_label_anchor(points)], colors=_REFERENCE_RGBA, radii=0.004, labels=label,
+        show_labels=True), static=True)
+    try:
+        bounded_flush(rec, path)
+    except (OSError, RuntimeError) as exc:
+        _release(rec, failed=True)
+        raise write_error(path, exc, 0) from exc
     rec.disconnect()
     return path
