@@ -109,12 +109,14 @@ def test_joint_rollouts_equal_separate_ones(window, horizon):
     target = (pos.reshape(5, window + 1, 3), quat.reshape(5, window + 1, 4),
               vel.reshape(5, window + 1, 6))
     starts = _state(4, seed=3)
-    il, st = training._rollouts(net, target, starts, 0.03, window, horizon)
+    il, st, st_y = training._rollouts(net, target, starts, 0.03, window, horizon)
     il_ref = dynamics.stack(dynamics.rollout(
         net, tuple(x[:, 0] for x in target), 0.03, window))
     st_ref = dynamics.stack(dynamics.rollout(net, starts, 0.03, horizon))
     for got, want in zip(il + st, il_ref + st_ref):
         assert got.shape == want.shape and torch.allclose(got, want, atol=1e-12)
+    y_ref = net.encode(*st_ref)  # the reused latents are the rollout states' own
+    assert st_y.shape == y_ref.shape and torch.allclose(st_y, y_ref, atol=1e-12)
 
 
 def _tiny(*overrides):

@@ -21,10 +21,14 @@ State = tuple  # (pos, quat | None, vel | None)
 
 def step(net: PumaNet, state: State, dt: float) -> State:
     """One semi-implicit Euler step of Δt [s]."""
+    return advance(net.spec, state, net(*state), dt)
+
+
+def advance(spec, state: State, out, dt: float) -> State:
+    """The step of Δt [s] from ``state`` with the network's output ``out`` (ẍ or ẋ) there."""
     pos, quat, vel = state
-    n = net.spec.n_pos
-    out = net(pos, quat, vel)
-    if net.spec.order == 2:
+    n = spec.n_pos
+    if spec.order == 2:
         vel = vel + out * dt
         tangent = vel
     else:
@@ -43,6 +47,18 @@ def rollout(net: PumaNet, state: State, dt: float, steps: int, every: int = 1) -
         if k % every == 0:
             out.append(state)
     return out
+
+
+def rollout_latents(net: PumaNet, state: State, dt: float, steps: int):
+    """States at steps 0..steps and the latents ``y_k = ρ(x_k, ẋ_k)`` at steps 0..steps−1 (the
+    ones the steps computed; training reuses them in the stability loss)."""
+    states, latents = [state], []
+    for _ in range(steps):
+        y = net.encode(*state)
+        latents.append(y)
+        state = advance(net.spec, state, net.head(y), dt)
+        states.append(state)
+    return states, latents
 
 
 def stack(states: list[State]) -> State:

@@ -63,15 +63,17 @@ def _hinge(x: torch.Tensor, squared: bool) -> torch.Tensor:
     return (h * h).mean() if squared else h.mean()
 
 
-def stability_terms(net, states, dt, margin, squared=False, low=None, high=None, rate=0.0):
+def stability_terms(net, states, dt, margin, squared=False, low=None, high=None, rate=0.0,
+                    latents=None):
     """The triplet hinge and boundary terms over rollout states (a list, or stacked (B, T+1, ·)).
 
     ``max(0, m + d_{t+1} − (1 − r Δt) d_t)``: with ``rate`` r [1/s] > 0 the latent distance must
     also shrink by a fraction r Δt per step (exponential decrease), which keeps the hinge active
     near the goal where the absolute margin m alone is either trivial or unattainable.
+    ``latents`` (B, T+1, ·): the states' latents if the rollout has them (else encoded here).
     """
     pos, quat, vel = states if isinstance(states, tuple) else dynamics.stack(states)
-    y = net.encode(pos, quat, vel)
+    y = net.encode(pos, quat, vel) if latents is None else latents
     dist = (y - net.goal_latent()).norm(dim=-1)  # (B, T+1)
     stable = _hinge(margin + dist[:, 1:] - (1.0 - rate * dt) * dist[:, :-1], squared)
     boundary = pos.new_zeros(())
@@ -86,13 +88,14 @@ def compat_loss(net: PumaNet, pos, quat, eps: float, margin: float) -> torch.Ten
     vel = None
     if net.spec.order == 2:
         vel = pos.new_zeros(pos.shape[:-1] + (net.spec.tangent_dim,))
-    f = net(pos, quat, vel)
+    y0 = net.encode(pos, quat, vel)
+    f = net.head(y0)
     step = eps * f / f.norm(dim=-1, keepdim=True).clamp_min(1e-9)
     n = net.spec.n_pos
     pos2 = pos + step[..., :n]
     quat2 = manifold.step_orientation(quat, step[..., n:], 1.0) if quat is not None else None
     yg = net.goal_latent()
-    d0 = (net.encode(pos, quat) - yg).norm(dim=-1)
+    d0 = (y0 - yg).norm(dim=-1)
     d1 = (net.encode(pos2, quat2) - yg).norm(dim=-1)
     return torch.relu(margin + d1 - d0).mean()
 

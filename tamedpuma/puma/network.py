@@ -145,7 +145,12 @@ class PumaNet(nn.Module):
 
     def forward(self, pos, quat=None, vel=None) -> torch.Tensor:
         """Acceleration (order 2) or velocity (order 1) in physical units, shape (..., tangent)."""
-        out = self.decoder(self.encode(pos, quat, vel))
+        return self.head(self.encode(pos, quat, vel))
+
+    def head(self, y: torch.Tensor) -> torch.Tensor:
+        """The output for a latent ``y = ρ(x, ẋ)``: ``s ⊙ (φ(y) − φ(y_g))`` (training reuses the
+        latents of its rollouts in the stability loss instead of encoding the states again)."""
+        out = self.decoder(y)
         if self.cfg.pin_goal:
             if self._shared_goal is not None:
                 goal_out = self._shared_goal[1]

@@ -291,7 +291,8 @@ def _cat(a, b, dim=0):
 
 def _rollouts(net: PumaNet, target, starts, dt: float, window: int, horizon: int):
     """The imitation windows (from the first sample of each ``target`` window, ``window`` steps)
-    and the stability rollouts (from ``starts``, ``horizon`` steps), stacked (B, T+1, ·) each.
+    and the stability rollouts (from ``starts``, ``horizon`` steps), stacked (B, T+1, ·) each,
+    and the stability rollouts' latents (B, T+1, ·) (the steps' own, the last one encoded).
 
     Both run as one batch for their common steps (rows are independent: the same states as two
     separate rollouts, at about half the per-operation cost), the longer one then alone."""
@@ -301,21 +302,26 @@ def _rollouts(net: PumaNet, target, starts, dt: float, window: int, horizon: int
            vel_t[:, 0] if order2 else None)
     b = len(pos_t)
     common = min(window, horizon)
-    both = dynamics.stack(dynamics.rollout(
-        net, tuple(_cat(a, c) for a, c in zip(il0, starts)), dt, common))
+    states, ys = dynamics.rollout_latents(net, tuple(_cat(a, c) for a, c in zip(il0, starts)),
+                                          dt, common)
+    both = dynamics.stack(states)
     il = tuple(None if x is None else x[:b] for x in both)
     st = tuple(None if x is None else x[b:] for x in both)
+    st_y = [y[b:] for y in ys]
 
-    def extend(part, steps):
+    def extend(part, steps, latents=None):
         last = tuple(None if x is None else x[:, -1] for x in part)
-        more = dynamics.stack(dynamics.rollout(net, last, dt, steps)[1:])
-        return tuple(_cat(x, m, 1) for x, m in zip(part, more))
+        more, more_y = dynamics.rollout_latents(net, last, dt, steps)
+        if latents is not None:
+            latents.extend(more_y)
+        return tuple(_cat(x, m, 1) for x, m in zip(part, dynamics.stack(more[1:])))
 
     if window > common:
         il = extend(il, window - common)
     if horizon > common:
-        st = extend(st, horizon - common)
-    return il, st
+        st = extend(st, horizon - common, st_y)
+    st_y.append(net.encode(*(None if x is None else x[:, -1] for x in st)))
+    return il, st, torch.stack(st_y, dim=1)
 
 
 def stability_weight(cfg: TrainConfig, it: int) -> float:
@@ -355,13 +361,13 @@ def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
     pos0, quat0, vel0, rest = _stability_starts(run, spec, cfg)
     net.share_goal()
     try:
-        il, states = _rollouts(net, target, (pos0, quat0, vel0), run.dt, cfg.window,
-                               cfg.stability_horizon)
+        il, states, latents = _rollouts(net, target, (pos0, quat0, vel0), run.dt, cfg.window,
+                                        cfg.stability_horizon)
         l_il = losses.imitation_error(net, tuple(None if x is None else x[:, 1:] for x in il),
                                       target, cfg.vel_weight, cfg.pos_weight)
         l_st, l_b = losses.stability_terms(
             net, states, run.dt, cfg.margin, cfg.squared_hinge,
-            run.low if cfg.boundary_weight > 0 else None, run.high, cfg.decay_rate)
+            run.low if cfg.boundary_weight > 0 else None, run.high, cfg.decay_rate, latents)
         if cfg.persist > 0:
             run.chain = tuple(None if x is None else x[:, -1].detach() for x in states)
             run.chain_rest = rest
