@@ -47,7 +47,31 @@ def _spheres(configuration: Configuration, frame_ids) -> tuple[np.ndarray, np.nd
     return centers, jacobians.reshape(len(frame_ids), 3, model.nv)
 
 
-class SphereObstacleBarrier(Barrier):
+class _SphereBarrier(Barrier):
+    """A barrier of body-sphere rows h_i(q, t) ≥ 0 [m]: a subclass gives ``_rows`` =
+    (h (m,), ∂h/∂q (m, n), ∂h/∂t (m,)); the CBF constraint ∂h/∂q q̇ + ∂h/∂t ≥ −γ h enters the
+    QP as G Δq ≤ b with G = −∂h/∂q / Δt, b = γ h + ∂h/∂t. No objective term of its own."""
+
+    def _rows(self, configuration: Configuration):
+        raise NotImplementedError
+
+    def compute_barrier(self, configuration: Configuration) -> np.ndarray:
+        return self._rows(configuration)[0]
+
+    def compute_jacobian(self, configuration: Configuration) -> np.ndarray:
+        return self._rows(configuration)[1]
+
+    def compute_qp_objective(self, configuration: Configuration):
+        nv = configuration.model.nv
+        return np.zeros((nv, nv)), np.zeros(nv)
+
+    def compute_qp_inequalities(self, configuration: Configuration, dt: float = 1e-3):
+        h, jac, dh_dt = self._rows(configuration)
+        self.dim = len(h)
+        return -jac / dt, self.gamma * h + dh_dt
+
+
+class SphereObstacleBarrier(_SphereBarrier):
     """h_ij = ‖c_i − o_j‖ − r_i − r_j − d_min [m] for the pairs closer than the activation
     distance; ∂h/∂q = n_ijᵀ J_i with n_ij = (c_i − o_j)/‖c_i − o_j‖; moving obstacles add
     ∂h/∂t = −n_ij·ȯ_j. Set the obstacles with :meth:`update` before each solve."""
@@ -84,24 +108,8 @@ class SphereObstacleBarrier(Barrier):
         dh_dt = -np.einsum("mk,mk->m", normal, self.velocities[j])
         return (h[i, j] - self.d_min)[moving], rows[moving], dh_dt[moving]
 
-    def compute_barrier(self, configuration: Configuration) -> np.ndarray:
-        return self._rows(configuration)[0]
 
-    def compute_jacobian(self, configuration: Configuration) -> np.ndarray:
-        return self._rows(configuration)[1]
-
-    def compute_qp_objective(self, configuration: Configuration):
-        nv = configuration.model.nv
-        return np.zeros((nv, nv)), np.zeros(nv)
-
-    def compute_qp_inequalities(self, configuration: Configuration, dt: float = 1e-3):
-        """∂h/∂q Δq/Δt + ∂h/∂t ≥ −γ h as G Δq ≤ b: G = −∂h/∂q / Δt, b = γ h + ∂h/∂t."""
-        h, jac, dh_dt = self._rows(configuration)
-        self.dim = len(h)
-        return -jac / dt, self.gamma * h + dh_dt
-
-
-class GroundBarrier(Barrier):
+class GroundBarrier(_SphereBarrier):
     """h_i = z_i − r_i − z_ground [m] for every body sphere on a moving link; ∂h/∂q = J_i[z]."""
 
     def __init__(self, frame_ids, radii, gain: float, height: float):
@@ -116,22 +124,7 @@ class GroundBarrier(Barrier):
         rows = jac[:, 2, :]
         moving = np.linalg.norm(rows, axis=1) > 1e-9
         self.min_clearance = float(h[moving].min()) if moving.any() else NO_OBSTACLE_CLEARANCE
-        return h[moving], rows[moving]
-
-    def compute_barrier(self, configuration: Configuration) -> np.ndarray:
-        return self._rows(configuration)[0]
-
-    def compute_jacobian(self, configuration: Configuration) -> np.ndarray:
-        return self._rows(configuration)[1]
-
-    def compute_qp_objective(self, configuration: Configuration):
-        nv = configuration.model.nv
-        return np.zeros((nv, nv)), np.zeros(nv)
-
-    def compute_qp_inequalities(self, configuration: Configuration, dt: float = 1e-3):
-        h, jac = self._rows(configuration)
-        self.dim = len(h)
-        return -jac / dt, self.gamma * h
+        return h[moving], rows[moving], np.zeros(int(moving.sum()))  # a ground that stays put
 
 
 class PinkCbf:
