@@ -8,7 +8,7 @@ change brings. Each ablated row is compared with its base **on the same scenario
 scenario name; suite ``table1`` or ``random`` from the name), on the runs with obstacles:
 
 - the rates of both criteria and of converged (paper criterion, with and without orientation)
-  with 95 % percentile-bootstrap intervals (seeded);
+  with 95 % Wilson score intervals;
 - paired on converged (paper): the scenarios the removal **loses** (the base converges, the
   ablated run does not) and **gains**, and McNemar's exact two-sided p;
 - the verdict: ``pays`` (the removal loses significantly, p < 0.05), ``costs`` (it gains
@@ -92,7 +92,7 @@ def verdict(pair: dict, churn: dict | None) -> str:
 
 
 def _rate(values: pd.Series) -> str:
-    return str(stats.bootstrap_ci(values, seed=0))
+    return str(stats.rate_interval(values))
 
 
 def ablation_rows(scored: pd.DataFrame, suite: str) -> tuple[list[dict], list[dict]]:

@@ -5,8 +5,8 @@ Each folder's run summaries (``summary.json``) are read; every (folder, method l
 *entry* (named by its method label, with ``@<folder>`` where two folders hold the same label).
 On the runs with obstacles, per suite (the run's recorded suite, else ``table1`` or ``random``
 from the scenario's name), the table gives each entry's success rates (paper and whole-body
-criteria) with 95 % percentile-bootstrap intervals (:func:`tamedpuma.analysis.stats.bootstrap_ci`,
-seeded), and for every pair of entries from different folders (every pair, with one folder)
+criteria) with 95 % Wilson score intervals (:func:`tamedpuma.analysis.stats.rate_interval`),
+and for every pair of entries from different folders (every pair, with one folder)
 **on the scenarios both ran** (task, scenario, obstacle count, disturbance): the scenarios one
 solves and the other does not, and McNemar's exact two-sided p
 (:func:`tamedpuma.analysis.ablation.paired`).
@@ -93,7 +93,7 @@ def rate_rows(scored: pd.DataFrame) -> list[dict]:
     """Per suite and entry: the scenario count and both success rates with 95 % intervals."""
     rows = []
     for (suite, entry), r in scored.groupby(["suite_name", "entry"], sort=True):
-        rates = {o: stats.bootstrap_ci(r[o], seed=0) for o in OUTCOMES}
+        rates = {o: stats.rate_interval(r[o]) for o in OUTCOMES}
         rows.append({"suite": suite, "entry": entry, "scenarios": len(r),
                      **{f"{o.replace('_', ' ')} [95% CI]": str(rates[o]) for o in OUTCOMES},
                      **{f"_{o}": rates[o] for o in OUTCOMES}})
@@ -150,7 +150,7 @@ def rates_figure(rates: list[dict], out: Path) -> Path:
                         label=outcome.replace("_", " "))
         ax.set_yticks(y, [r["entry"] for r in rows])
         ax.set_xlim(-0.02, 1.02)
-        ax.set_xlabel("success rate (95 % bootstrap interval)")
+        ax.set_xlabel("success rate (95 % Wilson interval)")
         ax.set_title(f"suite {suite}")
         ax.legend(loc="lower left", fontsize=8)
     fig.tight_layout()

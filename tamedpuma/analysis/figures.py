@@ -6,7 +6,8 @@
 - ``clearance_psi_<task>.png``: clearance [m] and ψ/ψ₀ (the learned potential, normalised by its
   start value) over time, one thin line per run, coloured by method;
 - ``success_timing.png``: success rate per method (paper and whole-body criteria), time to
-  success [s] and controller time [ms] (median of each run), each with a 95% bootstrap interval;
+  success [s] and controller time [ms] (median of each run), each with a 95% interval (Wilson
+  for the rates, bootstrap for the times);
 - ``scaling.png`` (only when a method was run at three or more obstacle counts up to 10 or more,
   the ``clutter.count`` sweep): controller time and success against the number of obstacles.
 
@@ -22,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from tamedpuma.analysis.runs import parse_and_load, runs_parser
-from tamedpuma.analysis.stats import bootstrap_ci
+from tamedpuma.analysis.stats import bootstrap_ci, rate_interval
 from tamedpuma.analysis.tables import _labels, ordered_labels
 from tamedpuma.errors import LogError
 from tamedpuma.recording import read_mcap
@@ -187,7 +188,7 @@ def clearance_psi_figure(runs: pd.DataFrame, series: dict, task: str, out: Path)
 def method_summary(runs: pd.DataFrame) -> pd.DataFrame:
     """Per method label, on its runs with obstacles (all its runs if it has none): success
     rates, time to success [s] and per-run median controller time [ms], each a
-    :class:`~tamedpuma.analysis.stats.Interval` (95% bootstrap)."""
+    :class:`~tamedpuma.analysis.stats.Interval` (95%: Wilson for the rates, bootstrap else)."""
     labels = _labels(runs)
     rows = []
     for label in ordered_labels(labels):
@@ -195,8 +196,8 @@ def method_summary(runs: pd.DataFrame) -> pd.DataFrame:
         scored = r[r["n_obstacles"] > 0] if (r["n_obstacles"] > 0).any() else r
         rows.append({
             "method": label, "runs": len(scored),
-            "success_paper": bootstrap_ci(scored["success_paper"].astype(float)),
-            "success_whole_body": bootstrap_ci(scored["success_whole_body"].astype(float)),
+            "success_paper": rate_interval(scored["success_paper"].astype(float)),
+            "success_whole_body": rate_interval(scored["success_whole_body"].astype(float)),
             "time_to_success_s": bootstrap_ci(
                 scored.loc[scored["success_paper"], "time_to_success_s"]),
             "compute_ms_median": bootstrap_ci(scored["compute_ms_median"]),
@@ -265,7 +266,7 @@ def scaling_figure(runs: pd.DataFrame, out: Path) -> list[Path]:
         ax_t.errorbar(n, [m.value for m in med],
                       yerr=[[m.value - m.low for m in med], [m.high - m.value for m in med]],
                       color=colors[label], marker="o", ms=3, capsize=2, label=label)
-        succ = [bootstrap_ci(g.get_group(k)["success_paper"].astype(float)) for k in n]
+        succ = [rate_interval(g.get_group(k)["success_paper"].astype(float)) for k in n]
         ax_s.errorbar(n, [s.value for s in succ],
                       yerr=[[s.value - s.low for s in succ], [s.high - s.value for s in succ]],
                       color=colors[label], marker="o", ms=3, capsize=2, label=label)

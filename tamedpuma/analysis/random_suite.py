@@ -3,8 +3,8 @@
 
 Per task and method label, on the runs with obstacles: success under both criteria
 (``tamedpuma/metrics.py``) and success with orientation under the paper criterion (the goal
-orientation also held after the settle time: the pose the task asks for) with 95 % percentile-
-bootstrap confidence intervals (10 000 resamples of the scenarios, seeded), converged (the hand
+orientation also held after the settle time: the pose the task asks for) with 95 % Wilson score
+intervals (:func:`tamedpuma.analysis.stats.rate_interval`), converged (the hand
 comes to rest in the goal ball; with and without the goal orientation) with its interval and the
 runs that left the ball after first reaching it, time to success [s]
 (mean ± std over the paper-criterion successes), the path difference to PUMA [m] (mean ± std over
@@ -19,10 +19,11 @@ from __future__ import annotations
 
 import sys
 
+import numpy as np
 import pandas as pd
 
+from tamedpuma.analysis import stats
 from tamedpuma.analysis.runs import parse_and_load, runs_parser, split_incomplete, write_table
-from tamedpuma.analysis.summaries import bootstrap_ci
 from tamedpuma.analysis.tables import (
     _pm,
     column_rate,
@@ -35,8 +36,7 @@ from tamedpuma.worlds.random_scenarios import START_KINDS
 
 
 def _rate(values) -> str:
-    lo, hi = bootstrap_ci(values)
-    return f"{pd.Series(values).mean():.2f} [{lo:.2f}, {hi:.2f}]"
+    return str(stats.rate_interval(np.asarray(values, dtype=float)))
 
 
 def start_kind(scenario: str) -> str:

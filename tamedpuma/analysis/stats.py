@@ -1,4 +1,5 @@
-"""Bootstrap confidence intervals for per-method figures (success rate, times).
+"""Confidence intervals for per-method figures: Wilson score intervals for success rates
+(:func:`rate_interval`), percentile bootstrap for times and other means (:func:`bootstrap_ci`).
 
 Percentile bootstrap: resample the n per-run values with replacement B times, compute the
 statistic on each resample, and take the (α/2, 1 − α/2) quantiles of those B values as the
@@ -10,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 
@@ -45,6 +47,24 @@ def bootstrap_ci(values, statistic: Callable[[np.ndarray], float] = np.mean,
     alpha = 1.0 - level
     low, high = np.quantile(stats, [alpha / 2, 1 - alpha / 2])
     return Interval(float(statistic(x)), float(low), float(high), n)
+
+
+def rate_interval(values, level: float = 0.95) -> Interval:
+    """A success rate k/n of 0/1 ``values`` (NaN dropped) with its Wilson score interval at
+    ``level``: ``(p̂ + z²/2n ± z √(p̂(1 − p̂)/n + z²/4n²)) / (1 + z²/n)``, z the normal quantile.
+    Unlike a bootstrap of 0/1 values it does not collapse to a point at 0 or 1 (30 of 30 is
+    [0.89, 1.00], not [1.00, 1.00])."""
+    x = np.asarray(values, dtype=float).ravel()
+    x = x[np.isfinite(x)]
+    n = len(x)
+    if n == 0:
+        return Interval(np.nan, np.nan, np.nan, 0)
+    p = float(x.mean())
+    z = NormalDist().inv_cdf(0.5 + level / 2.0)
+    denom = 1.0 + z * z / n
+    center = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1.0 - p) / n + z * z / (4 * n * n)) / denom
+    return Interval(p, min(p, max(0.0, center - half)), max(p, min(1.0, center + half)), n)
 
 
 def mcnemar_exact(lost: int, gained: int) -> float:
