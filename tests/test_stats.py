@@ -37,3 +37,20 @@ def test_30_of_30_is_not_a_point_and_the_interval_covers_at_its_level():
 def test_no_values_and_nan_are_left_out():
     assert str(rate_interval([])) == "—"
     assert rate_interval([1.0, np.nan, 0.0]).n == 2
+
+
+@pytest.mark.parametrize("value,count", [
+    ("a,b,c", 3), ("1", 1), ("[1,2],[3,4]", 2), ("range(2000,2100)", 100),
+    ("range(2000, 2005)", 5), ("range(5)", 5), ("range(0,1,0.25)", 4), ("range(3,1)", 0),
+    ("glob(fpm/*)", None)])
+def test_a_sweep_override_counts_its_values_as_hydra_sweeps_them(value, count):
+    from tamedpuma.analysis.sweep_values import sweep_size, value_count
+
+    assert value_count(value) == count
+    if count is not None:  # as Hydra's own parser sweeps it
+        from hydra.core.override_parser.overrides_parser import OverridesParser
+
+        override = OverridesParser.create().parse_override(f"k={value}")
+        assert count == (len(list(override.sweep_string_iterator()))
+                         if override.is_sweep_override() else 1)
+    assert sweep_size(["tomato,pouring", value]) == (None if count is None else 2 * count)

@@ -25,6 +25,7 @@ from tamedpuma.analysis.runs import (
     scored_runs,
     split_incomplete,
 )
+from tamedpuma.analysis.sweep_values import sweep_size
 from tamedpuma.analysis.tables import _labels, path_differences, table1
 
 
@@ -38,29 +39,11 @@ def _sweep_size(multirun_yaml: Path) -> int | None:
         for item in (hydra.get("overrides") or {}).get("task") or []:
             key, _, value = str(item).partition("=")
             params[key.lstrip("+~")] = value
-        total = 1
-        for value in params.values():
-            total *= len(_split_values(str(value)))
-        return total
+        return sweep_size(str(v) for v in params.values())
     except (OSError, yaml.YAMLError, AttributeError, TypeError):
         return None
 
 
-def _split_values(value: str) -> list[str]:
-    """``a,b,[c,d]`` -> ``['a', 'b', '[c,d]']`` (commas inside brackets do not split)."""
-    out, depth, cur = [], 0, ""
-    for ch in value:
-        if ch in "[({":
-            depth += 1
-        elif ch in "])}":
-            depth -= 1
-        if ch == "," and depth == 0:
-            out.append(cur)
-            cur = ""
-        else:
-            cur += ch
-    out.append(cur)
-    return out
 
 
 def completeness(root: Path, runs: pd.DataFrame) -> list[dict]:

@@ -12,7 +12,6 @@ sweep folder, exactly ``python -m tamedpuma.analysis.tables <sweep dir>`` (print
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -20,9 +19,12 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from tamedpuma.analysis import sweep_values
+
 
 def sweep_size(config: DictConfig) -> int | None:
-    """Number of runs of a basic-sweeper sweep: the product of its comma-list lengths."""
+    """Number of runs of a basic-sweeper sweep: the product of its value counts (comma lists and
+    ``range(...)``; :mod:`tamedpuma.analysis.sweep_values`); None with a ``glob(...)``."""
     try:
         params = {str(k): str(v) for k, v in (config.hydra.sweeper.params or {}).items()}
         overrides = list(config.hydra.overrides.task or [])
@@ -33,8 +35,7 @@ def sweep_size(config: DictConfig) -> int | None:
         key = key.lstrip("+~")
         if key in params or "," in value:
             params[key] = value
-    sizes = [len(v.split(",")) for v in params.values()]
-    return math.prod(sizes) if sizes else None
+    return sweep_values.sweep_size(params.values()) if params else None
 
 
 class SweepOutcomes(Callback):
