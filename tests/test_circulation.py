@@ -14,7 +14,7 @@ from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.methods._circulation import Circulation
 from tamedpuma.methods._policy import LinearTaskPrimitive, PlanarTask
-from tamedpuma.methods._tamed import Forcing, PumaController
+from tamedpuma.methods._tamed import ControlRate, Forcing, PumaController
 from tamedpuma.methods.cpm import CpmController
 from tamedpuma.methods.fpm import FpmController
 from tamedpuma.types import Goal, Obstacles, Scenario
@@ -32,16 +32,19 @@ def _behind(offset: float) -> Scenario:
                     goal_tolerance=0.05)
 
 
+pytestmark = pytest.mark.usefixtures("point_scale_forcing")
+
+
 def _controller(name: str, circulation: float):
     kin = PointKinematics(SPEC)
     puma = PumaController(PlanarTask(LinearTaskPrimitive(1.0, 2.0)), kin)
     fabric = Fabric(FabricGains.from_mapping(None), SPEC.q_min, SPEC.q_max)
-    forcing = Forcing(mode="metric", weight=20.0, null_metric=0.0, circulation=circulation,
-                      circulation_gain=1.0)
+    forcing = Forcing(mode="metric", circulation=circulation)
     if name == "fpm":
         return FpmController(puma, fabric, energy="execution", forcing=forcing)
     return CpmController(puma, fabric, beta=8.0, eps=1e-6, variant="paper", regulator_scale=1.0,
-                         potential_scale=1.0, damping="matched", semi_implicit=True,
+                         potential_scale=1.0, damping="matched",
+                         rate=ControlRate(semi_implicit=True),
                          energy="execution", forcing=forcing)
 
 
@@ -115,7 +118,7 @@ def test_free_space_and_pushes_away_leave_the_forcing_alone():
     assert circ.specs(state, qd, np.zeros(4), np.zeros((0, 3)), np.zeros(0)) is None
 
 
-@pytest.mark.parametrize("bad", [{"circulation": -0.1}, {"circulation_gain": -1.0}])
+@pytest.mark.parametrize("bad", [{"circulation": -0.1}, {"stall_pull": -1.0}])
 def test_bad_circulation_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="circulation"):
         Forcing.from_mapping({"mode": "metric", **bad})

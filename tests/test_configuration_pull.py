@@ -1,4 +1,4 @@
-"""The configuration pull (``method.forcing.stall_configuration``,
+"""The configuration pull (``method.forcing.configuration_pull``,
 :mod:`tamedpuma.methods._configuration_pull`): its goal configuration, when it engages and lets
 go, and the joint-limit trap it removes, in PyBullet with FPM around a globally stable
 task-space pose attractor standing in for PUMA (no trained model needed)."""
@@ -29,6 +29,7 @@ from tamedpuma.methods._configuration_pull import (
 )
 from tamedpuma.methods._policy import PoseTask, TaskAcceleration
 from tamedpuma.methods._tamed import Forcing
+from tamedpuma.methods.cpm import CpmController
 from tamedpuma.robot.ground import (
     hull_ground_rows,
     hull_heights,
@@ -323,19 +324,16 @@ def test_the_monitor_turns_from_the_waypoint_to_the_goal_configuration(kinematic
 def test_the_controller_s_goal_configurations_keep_its_own_ground(kinematics, monkeypatch,
                                                                   name):
     """The configuration pull checks q_g against the ground the barrier step keeps: the link
-    hulls at ``control_rate.ground_height`` with the default ``ground_geometry: mesh``, the
-    spheres with ``spheres``, and the old sphere clearance without ground rows."""
+    hulls at :data:`~tamedpuma.methods._tamed.GROUND_HEIGHT_M`, and the sphere clearance
+    without the barrier step."""
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
     method = {**load_group("method", "puma"), **load_group("method", name)}
     method.pop("defaults", None)
     method["fabric"] = load_group("fabric", "default")
     rate = method["control_rate"]
     ground = make(name, method, kinematics).configuration.ground
-    assert ground.hulls is not None and ground.height == rate["ground_height"]
-    method["control_rate"] = {**rate, "ground_geometry": "spheres"}
-    ground = make(name, method, kinematics).configuration.ground
-    assert ground.hulls is None and ground.height == rate["ground_height"]
-    method["control_rate"] = {**rate, "ground": False}
+    assert ground.hulls is not None and ground.height == tamed.GROUND_HEIGHT_M
+    method["control_rate"] = {**rate, "barrier_step": False}
     assert make(name, method, kinematics).configuration.ground is None
 
 
@@ -378,25 +376,19 @@ def test_the_attractor_potential_is_the_pull_s_own_by_finite_differences(kinemat
     assert below == pytest.approx(above, abs=1e-8)
 
 
-@pytest.mark.parametrize("bad", [{"stall_configuration": "sometimes"},
-                                 {"stall_configuration_gain": 0.0},
-                                 {"stall_configuration_release": -1.0},
-                                 {"stall_configuration_waypoints": -1},
-                                 {"stall_configuration_waypoints": 2.5},
-                                 {"stall_configuration_waypoints": True},
-                                 {"stall_configuration_near_release": -0.01},
-                                 {"stall_configuration_near_release": 0.2},  # > release
-                                 {"stall_configuration_position_fallback": "yes"}])
+@pytest.mark.parametrize("bad", [{"configuration_pull": "sometimes"},
+                                 {"configuration_pull": True},
+                                 {"configuration_pull_gain": 4.0}])
 def test_bad_configuration_pull_settings_are_refused(bad):
-    with pytest.raises(ConfigError, match="stall_configuration"):
+    with pytest.raises(ConfigError, match="configuration_pull"):
         Forcing.from_mapping(bad)
 
 
 def test_without_the_stall_pull_or_switched_off_there_is_no_monitor(robot_spec):
     assert Forcing(stall_pull=1.5).make_configuration_monitor(robot_spec) is None
-    assert Forcing(stall_pull=0.0, stall_configuration="limits"
+    assert Forcing(stall_pull=0.0, configuration_pull="limits"
                    ).make_configuration_monitor(robot_spec) is None
-    assert Forcing(stall_pull=1.5, stall_configuration="limits"
+    assert Forcing(stall_pull=1.5, configuration_pull="limits"
                    ).make_configuration_monitor(robot_spec) is not None
 
 
@@ -447,7 +439,7 @@ def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_i
     ik = _CountingIK(monkeypatch)
     results, in_steps = {}, []
     for mode in ("off", "limits"):
-        method["forcing"] = {**method["forcing"], "stall_configuration": mode}
+        method["forcing"] = {**method["forcing"], "configuration_pull": mode}
         controller = make("fpm", method, kinematics)
         step = controller.step
 
@@ -477,17 +469,16 @@ def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_i
 def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
         robot_spec, kinematics, monkeypatch, scalar_log, mode):
     """CPM in the trap above (q₁ = 2.2 rad) with the configuration pull (engaging at a joint
-    limit only, or at every arming) and ``configuration_potential: attractor``: while the pull
-    acts, the regulator watches the attractor's φ, whose total energy ½‖q̇‖² + φ does not rise
-    (CPM's dH/dt ≤ −β‖q̇‖² with H on φ), and the arm reaches the goal."""
+    limit only, or at every arming): while the pull acts, the regulator watches the
+    attractor's φ, whose total energy ½‖q̇‖² + φ does not rise (CPM's dH/dt ≤ −β‖q̇‖² with H
+    on φ), and the arm reaches the goal."""
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
     # 60 s: CPM creeps along the limit for 22 s before the stall pull arms, and the way out is
     # 8 rad of joint travel at the attractor's cruise speed g/k (1 rad/s with the defaults)
     scenario = _obstacle_free_scenario(robot_spec, "pouring", max_steps=3000,
                                        q0=np.array([2.2, 0.6, 0.0, -1.2, 0.0, 0.6, 0.0]))
     method = _method_config("cpm")
-    method["forcing"] = {**method["forcing"], "stall_configuration": mode}
-    method["configuration_potential"] = "attractor"
+    method["forcing"] = {**method["forcing"], "configuration_pull": mode}
     with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
         run = run_episode(scenario, make("cpm", method, kinematics), world, [scalar_log])
     assert run.metrics.success_whole_body, run.metrics.failure_whole_body
@@ -530,14 +521,15 @@ def test_cpm_crawling_up_its_potential_arms_the_stall_pull_and_the_attractor_tak
     centre = 0.5 * (kinematics.ee_pose(scenario.q0)[0] + scenario.goal.position)
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(ClimbingPotential(centre)))
     method = _method_config("cpm")
-    assert method["forcing"]["stall_configuration"] == "always"
-    assert method["forcing"]["stall_progress_fraction"] > 0
+    assert method["forcing"]["configuration_pull"] == "always"
+    assert CpmController.creep_fraction > 0
     runs = {}
-    for name, forcing in (("without", {"stall_configuration": "limits",
-                                       "stall_progress_fraction": 0.0}),
-                          ("default", {})):
+    for name, forcing, creep in (("without", {"configuration_pull": "limits"}, 0.0),
+                                 ("default", {}, CpmController.creep_fraction)):
         m = {**method, "forcing": {**method["forcing"], **forcing}}
-        with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
+        with monkeypatch.context() as patch, Simulator(robot_spec, SimConfig(),
+                                                       Disturbance()) as world:
+            patch.setattr(CpmController, "creep_fraction", creep)
             runs[name] = run_episode(scenario, make("cpm", m, kinematics), world)
     crawl = runs["without"]
     assert not crawl.metrics.success_paper and crawl.metrics.final_position_error_m > 0.3

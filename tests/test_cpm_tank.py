@@ -11,7 +11,7 @@ from tamedpuma.episode import run_episode
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.methods._policy import LinearTaskPrimitive, PlanarTask
-from tamedpuma.methods._tamed import Forcing, PumaController
+from tamedpuma.methods._tamed import ControlRate, Forcing, PumaController
 from tamedpuma.methods.cpm import CpmController, EnergyTank
 from tamedpuma.methods.fpm import FpmController
 from tamedpuma.types import Goal, Obstacles, Scenario
@@ -73,18 +73,21 @@ def _wall() -> Scenario:
                     goal_tolerance=0.05)
 
 
+pytestmark = pytest.mark.usefixtures("point_scale_forcing")
+
+
 def _controller(name: str, tank: float = 0.0):
     kin = PointKinematics(SPEC)
     puma = PumaController(PlanarTask(LinearTaskPrimitive(1.0, 2.0)), kin)
     fabric = Fabric(FabricGains.from_mapping(None), SPEC.q_min, SPEC.q_max)
-    forcing = Forcing(mode="metric", weight=20.0, null_metric=0.0, circulation=0.3,
-                      circulation_gain=1.0)
+    forcing = Forcing(mode="metric", circulation=0.3)
     if name == "fpm":
         return FpmController(puma, fabric, alpha_min=-20.0, energy="execution", forcing=forcing)
     return CpmController(puma, fabric, beta=BETA, eps=1e-6, variant="paper", regulator_scale=1.0,
-                         potential_scale=1.0, damping="matched", semi_implicit=True,
+                         potential_scale=1.0, damping="matched",
+                         rate=ControlRate(semi_implicit=True),
                          alpha_min=-20.0, energy="execution", forcing=forcing,
-                         tank=EnergyTank(tank))
+                         tank=EnergyTank(tank, refill=0.0, clearance=np.inf))
 
 
 def test_with_a_tank_cpm_goes_round_a_wall_where_plain_cpm_stalls(scalar_log):
@@ -107,12 +110,10 @@ def test_with_a_tank_cpm_goes_round_a_wall_where_plain_cpm_stalls(scalar_log):
 
 
 def test_the_tank_pays_only_near_an_obstacle_when_it_has_a_clearance():
-    """With ``tank_clearance`` the tank is engaged only within that clearance of an obstacle (or
-    ``tank_limit_clearance`` of a joint limit): far from obstacles CPM is CPM, to the bit (ψ
-    never rises there)."""
-    tank = EnergyTank(1.0, 0.5, clearance=0.03, limit_clearance=0.01)
-    assert tank.engaged(0.02, 1.0) and tank.engaged(1.0, 0.005)
-    assert not tank.engaged(0.05, 0.5)
+    """With a clearance the tank is engaged only within that clearance of an obstacle: far from
+    obstacles CPM is CPM, to the bit (ψ never rises there)."""
+    tank = EnergyTank(1.0, 0.5, clearance=0.03)
+    assert tank.engaged(0.02) and not tank.engaged(0.05)
     sc = _wall()
     free = Scenario(name="free", task="point", q0=sc.q0, goal=sc.goal,
                     obstacles=Obstacles.empty(), dt=sc.dt, max_steps=sc.max_steps,

@@ -20,6 +20,7 @@ from tamedpuma.methods._policy import (
     pull_to_joints,
 )
 from tamedpuma.methods._tamed import (
+    ControlRate,
     Forcing,
     PumaController,
     check_energy,
@@ -90,7 +91,7 @@ def test_execution_energization_keeps_the_speed_and_fabric_energization_keeps_h_
 
 def test_the_geometry_with_the_task_metric_is_the_spec_sum_and_leaves_the_hand_to_puma(
         kinematics):
-    """``forcing.geometry: task_metric``: h = −(M + JᵀwJ)⁻¹f is the avoidance spec (M, f) summed
+    """``forcing.mode: task_metric``: h = −(M + JᵀwJ)⁻¹f is the avoidance spec (M, f) summed
     with the task leaf (JᵀwJ, 0) (ẍ = 0, metric w); w → 0 gives the fabric's h = −M⁻¹f, and as w
     grows the geometry's hand acceleration J h falls like 1/w while h tends to the fabric
     restricted to the joints the hand leaves free (the null space of J)."""
@@ -112,14 +113,14 @@ def test_the_geometry_with_the_task_metric_is_the_spec_sum_and_leaves_the_hand_t
         limit = Z @ np.linalg.solve(Z.T @ av.M @ Z, -Z.T @ av.f)  # the fabric there (w → ∞)
         err = [np.linalg.norm(geometry_with_task_metric(av, J, w) - limit) for w in (1e6, 1e8)]
         assert err[1] < 0.05 * err[0] + 1e-5 * np.linalg.norm(limit)  # falls like 1/w
-        w_rows = np.array([50.0, 50.0, 50.0, 5.0, 5.0, 5.0])  # per-row weights, as task_weights
+        w_rows = np.array([50.0, 50.0, 50.0, 5.0, 5.0, 5.0])  # per-row weights
         hw = geometry_with_task_metric(av, J, w_rows)
         assert np.allclose((av.M + J.T @ (w_rows[:, None] * J)) @ hw, -av.f, atol=1e-9)
 
 
-@pytest.mark.parametrize("bad", [{"mode": "sum"}, {"weight": 0.0}, {"null_metric": -1.0},
-                                 {"wieght": 3.0}, {"geometry": "summed"},
-                                 {"mode": "additive", "geometry": "task_metric"}])
+@pytest.mark.parametrize("bad", [{"mode": "sum"}, {"weight": 100.0}, {"circulation": -1.0},
+                                 {"wieght": 3.0}, {"priority": "orientation"},
+                                 {"configuration_pull": "sometimes"}])
 def test_bad_forcing_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="method.forcing"):
         Forcing.from_mapping(bad)
@@ -129,19 +130,21 @@ SPEC = point_spec(speed_limit=50.0)
 
 
 @pytest.mark.parametrize("name", ["fpm", "cpm"])
-def test_point_robot_reaches_the_goal_around_the_obstacle_with_metric_forcing(name):
+def test_point_robot_reaches_the_goal_around_the_obstacle_with_metric_forcing(
+        name, point_scale_forcing):
     """The behaviour the option is for, on the point robot (obstacle between start and goal):
     no collision, goal reached, for both methods with the execution energy."""
     kin = PointKinematics(SPEC)
     puma = PumaController(PlanarTask(LinearTaskPrimitive(1.0, 2.0)), kin)
     fabric = Fabric(FabricGains.from_mapping(None), SPEC.q_min, SPEC.q_max)
-    forcing = Forcing(mode="metric", weight=20.0, null_metric=0.0)
+    forcing = Forcing(mode="metric")
     if name == "fpm":
         ctrl = FpmController(puma, fabric, energy="execution", forcing=forcing)
     else:
         ctrl = CpmController(puma, fabric, beta=8.0, eps=1e-6, variant="paper",
                              regulator_scale=1.0, potential_scale=1.0, damping="matched",
-                             semi_implicit=True, energy="execution", forcing=forcing)
+                             rate=ControlRate(semi_implicit=True), energy="execution",
+                             forcing=forcing)
     sc = point_scenario(obstacles=True, max_steps=1500, dt=0.02)
     run = run_episode(sc, ctrl, PointMassWorld(SPEC))
     m = run.metrics
@@ -204,36 +207,36 @@ def test_the_barrier_rows_metrics_and_rates_rebuild_the_fabric(kinematics, groun
         assert np.all(np.abs(pairs[:, 0]) > 0)  # the moving one
 
 
-def test_rotation_weight_gives_the_position_rows_priority_where_barriers_hold_joints(kinematics):
-    """``forcing.rotation_weight`` ρ: the task metric diag(w, w, w, ρw, ρw, ρw). In free space
-    (7 joints for 6 rows) q̈_C realises ẍ_d for any ρ; with two joints held by large barrier
-    metrics (5 joints left for 6 rows) the position residual shrinks as ρ falls, and it is the
-    weighted least-squares solution (the normal equations hold)."""
+def _rows(rho: float) -> np.ndarray:
+    """The per-row task metric diag(w, w, w, ρw, ρw, ρw) with w = 100."""
+    return np.array([1.0, 1.0, 1.0, rho, rho, rho]) * 100.0
+
+
+def test_per_row_task_weights_give_the_position_rows_priority_where_barriers_hold_joints(
+        kinematics):
+    """:func:`pull_through_metric` with a per-row task metric diag(w, w, w, ρw, ρw, ρw). In free
+    space (7 joints for 6 rows) q̈_C realises ẍ_d for any ρ; with two joints held by large
+    barrier metrics (5 joints left for 6 rows) the position residual shrinks as ρ falls, and it
+    is the weighted least-squares solution (the normal equations hold)."""
     rng = np.random.default_rng(3)
-    assert Forcing(weight=100.0).task_weights(6) == 100.0
-    assert np.array_equal(Forcing(weight=100.0, rotation_weight=0.1).task_weights(6),
-                          [100.0, 100.0, 100.0, 10.0, 10.0, 10.0])
-    assert Forcing(weight=5.0, rotation_weight=0.1).task_weights(3) == 5.0
     for _ in range(5):
         q = Q0 + rng.normal(scale=0.3, size=7)
         _, task = _task(kinematics, q, rng.normal(size=7), rng)
         target = task.xdd - task.jdqd
-        free = [pull_through_metric(task, 1e-6 * np.eye(7), Forcing(rotation_weight=rho)
-                                    .task_weights(6), 0.0) for rho in (1.0, 0.01)]
+        free = [pull_through_metric(task, 1e-6 * np.eye(7), _rows(rho), 0.0)
+                for rho in (1.0, 0.01)]
         for qdd in free:
             assert np.linalg.norm(task.J @ qdd - target) < 1e-5 * np.linalg.norm(target)
         held = 1e-6 * np.eye(7)
         held[[1, 4], [1, 4]] = 1e8  # joints 2 and 5 at their limit barriers
         residual = []
         for rho in (1.0, 0.1, 0.01):
-            w = Forcing(rotation_weight=rho).task_weights(6)
+            w = _rows(rho)
             qdd = pull_through_metric(task, held, w, 0.0)
             gradient = held @ qdd - task.J.T @ (w * (target - task.J @ qdd))
             assert np.linalg.norm(gradient) < 1e-6 * np.linalg.norm(task.J.T @ (w * target))
             residual.append(np.linalg.norm((task.J @ qdd - target)[:3]))
         assert residual[0] > residual[1] > residual[2]
-    with pytest.raises(ConfigError, match="rotation_weight"):
-        Forcing.from_mapping({"mode": "metric", "rotation_weight": 0.0})
 
 
 
@@ -501,11 +504,8 @@ def test_secondary_damping_acts_only_on_near_singular_directions_left_to_the_ori
     D = damping.metric(A1, J1, 100.0 * J2.T @ J2, 3)
     assert np.all(np.isfinite(D)) and np.abs(D).max() > 0
     assert np.allclose(J1 @ np.linalg.solve(A1, D), 0.0, atol=1e-8 * np.abs(D).max())
-    assert Forcing(priority="position", singular_damping=100.0).secondary_damping() == damping
-    assert Forcing(priority="none", singular_damping=100.0).secondary_damping() is None
-    assert Forcing(priority="position").secondary_damping() is None
-    with pytest.raises(ConfigError, match="singular_damping"):
-        Forcing.from_mapping({"mode": "metric", "singular_damping": -1.0})
+    assert Forcing(priority="position").secondary_damping() == damping
+    assert Forcing(priority="none").secondary_damping() is None
 
 
 def test_secondary_damping_calms_the_orientation_rows_at_the_wrist_singularity(kinematics):

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from tamedpuma.app.config import robot_config
-from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.methods._tamed import ControlRate
 from tamedpuma.robot.body_model import urdf_collision_geometry
@@ -104,8 +103,7 @@ def test_the_barrier_step_keeps_the_links_above_the_plane(kinematics, hulls, geo
     """Drive the hand straight down at 0.5 m/s for 1.2 s through the barrier step: the rows of
     the chosen geometry never go below the plane. The mesh rows let the hand closer to the
     ground than the spheres (the hand's 7 cm sphere), and every link's mesh stays above it."""
-    rate = ControlRate(barrier_step=True, ground=True, ground_height=0.01,
-                       ground_geometry=geometry, standoff=0.001)
+    rate = ControlRate(barrier_step=True)  # ground rows 1 cm above the plane
     fab = Fabric(FabricGains(), kinematics.spec.q_min, kinematics.spec.q_max)
     q, qd, dt = Q0.copy(), np.zeros(7), 0.02
     far = np.array([[5.0, 5.0, 5.0]]), np.array([0.05]), np.zeros((1, 3))
@@ -128,11 +126,6 @@ def test_the_barrier_step_keeps_the_links_above_the_plane(kinematics, hulls, geo
         assert lowest < 0.03 and hand_z < 0.07  # down to the plane, below the sphere's 8 cm
     else:
         assert hand_z > 0.07
-
-
-def test_an_unknown_ground_geometry_is_a_config_error():
-    with pytest.raises(ConfigError, match="ground_geometry"):
-        ControlRate.from_mapping({"ground": True, "ground_geometry": "capsules"})
 
 
 def test_no_hull_point_moves_faster_than_the_speed_bound(kinematics, hulls):

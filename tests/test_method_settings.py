@@ -12,7 +12,7 @@ import pytest
 from tamedpuma.app import schema
 
 #: the current counts; docs/method.md lists each addition behind them
-BUDGET = {"FpmMethod": 43, "CpmMethod": 54}
+BUDGET = {"FpmMethod": 12, "CpmMethod": 16}
 
 
 def leaves(cls, prefix: str = "") -> list[str]:

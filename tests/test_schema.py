@@ -188,15 +188,13 @@ def test_a_value_out_of_range_is_refused(hydra_conf, override, match):
 
 @pytest.mark.parametrize("override,match", [
     ("method.beta=-1", r"method\.beta"),
-    ("method.potential_scale=0", r"method\.potential_scale"),
-    ("method.damping=soft", r"method\.damping must be constant or matched or matched_forcing"),
+    ("method.tank=-1", r"method\.tank"),
+    ("method.alpha_bound=-1", r"method\.alpha_bound"),
+    ("method.damping=soft", r"method\.damping must be constant or matched"),
     ("method.fabric.goal_weight=-1", r"fabric\.goal_weight"),
     ("method.fabric.obstacle.energy_gain=0", r"energy_gain must be positive"),
-    ("method.configuration_potential=psi", r"method\.configuration_potential must be puma or "
-                                           r"attractor"),
-    ("method.forcing.stall_configuration_length=0", r"stall_configuration_gain \[rad/s²\] and "
-                                                   r"_length"),
-    ("method.forcing.stall_configuration_clearance=-1", r"_clearance \[m\] ≥ 0"),
+    ("method.forcing.configuration_pull=sometimes", r"method\.forcing\.configuration_pull"),
+    ("method.forcing.mode=sum", r"method\.forcing\.mode"),
 ])
 def test_a_method_value_out_of_range_is_refused(hydra_conf, override, match):
     with pytest.raises(ConfigError, match=match):
@@ -247,7 +245,7 @@ def test_defaults_are_typed_objects_and_complete(hydra_conf):
     run = schema.run_config(compose("sweep", overrides=["method=cpm_literal"]))
     assert run.method.damping == "constant" and run.method.label == "cpm_literal"
     plain = schema.as_dict(run.method)
-    assert {"beta", "eps", "variant", "potential_scale", "semi_implicit", "pinv_damping",
+    assert {"beta", "tank", "variant", "alpha_bound", "control_rate", "pinv_damping",
             "checkpoint", "null_space", "fabric"} <= set(plain)
     from tamedpuma.worlds.bullet import SimConfig
 

@@ -14,6 +14,7 @@ from omegaconf import OmegaConf
 from tamedpuma.app import train
 from tamedpuma.episode import run_episode
 from tamedpuma.methods._policy import Damping, TaskAcceleration, manipulability, pull_to_joints
+from tamedpuma.methods._tamed import SPEED_HEADROOM
 from tamedpuma.robot.ground import hull_ground_rows, link_hulls
 from tamedpuma.worlds.bullet import Simulator
 
@@ -28,9 +29,9 @@ def tiny_checkpoint(tmp_path_factory):
 
 # the control-rate safety options, each switched on here (FPM and CPM's configs set their
 # defaults; the schema's are off)
-SAFE = ["method.energization=bounded", "method.control_rate.speed_limit=true",
+SAFE = ["method.alpha_bound=20", "method.control_rate.speed_limit=true",
         "method.control_rate.barrier_step=true", "method.control_rate.semi_implicit=true",
-        "method.control_rate.ground=true", "method.pinv_damping_max=0.1",
+        "method.pinv_damping_max=0.1",
         "method.goal_velocity=feedforward"]
 
 
@@ -67,7 +68,7 @@ def test_fpm_and_cpm_respect_speed_limits_and_barriers_on_a_random_scenario(
     with Simulator(spec, built.sim_config) as sim:
         run = run_episode(built.scenario, spy, sim, stop_on_success=False)
     commanded = np.array([r[0] for r in spy.rows])
-    headroom = float(cfg.method.control_rate.speed_headroom)
+    headroom = SPEED_HEADROOM
     assert np.all(np.abs(commanded) <= (1 - headroom) * spec.qd_max * (1 + 1e-9))
     measured = np.array([r[2] for r in spy.rows])  # PyBullet's joint velocities
     assert np.all(np.abs(measured) <= spec.qd_max)
@@ -75,16 +76,12 @@ def test_fpm_and_cpm_respect_speed_limits_and_barriers_on_a_random_scenario(
         assert min(r[1]["alpha"] for r in spy.rows) >= -float(cfg.method.alpha_bound) - 1e-9
     assert run.metrics.min_clearance_m > 0
     assert np.all(run.q >= spec.q_min) and np.all(run.q <= spec.q_max)
-    if cfg.method.control_rate.ground_geometry == "mesh":  # every link's mesh above the ground
-        hulls = link_hulls(kinematics)
-        lowest = []
-        for q in run.q:
-            kinematics.evaluate(q, np.zeros(7))
-            lowest.append(hull_ground_rows(kinematics, hulls, np.zeros(7)).heights.min())
-        assert min(lowest) > 0
-    else:
-        centers = np.array([kinematics.sphere_centers(q) for q in run.q])
-        assert np.min(centers[:, :, 2] - spec.sphere_radii) > 0
+    hulls = link_hulls(kinematics)  # every link's mesh above the ground
+    lowest = []
+    for q in run.q:
+        kinematics.evaluate(q, np.zeros(7))
+        lowest.append(hull_ground_rows(kinematics, hulls, np.zeros(7)).heights.min())
+    assert min(lowest) > 0
 
 
 def test_singularity_robust_inverse_bounds_the_joint_acceleration(kinematics):

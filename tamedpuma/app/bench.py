@@ -197,7 +197,7 @@ def _tamed_parts(ctrl, state, obs, av, accel, null) -> dict:
     W = approached_metric(av, free) if forcing.directional else av.M
     if forcing.directional:
         parts["directional metric"] = lambda: approached_metric(av, free)
-    weights = forcing.task_weights(len(accel.xdd))
+    weights = forcing.weight
     priority = forcing.priority_rows(len(accel.xdd))  # as the step solves it
     secondary = forcing.secondary_damping()  # the orientation rows' damping, as the step
     parts["pullback through the metric"] = lambda: pull_through_metric(

@@ -39,7 +39,6 @@ from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics.gains import FabricGains
 from tamedpuma.methods._tamed import ENERGIES, ControlRate, Forcing
 from tamedpuma.methods.cpm import DAMPINGS as CPM_DAMPINGS
-from tamedpuma.methods.cpm import POTENTIALS as CPM_POTENTIALS
 from tamedpuma.methods.cpm import VARIANTS as CPM_VARIANTS
 from tamedpuma.methods.modulation_ik import ModulationIKParams
 from tamedpuma.puma.settings import EvalConfig, NetConfig, TrainConfig
@@ -439,8 +438,7 @@ class FabricsMethod(MethodSchema):
 @dataclass
 class FpmMethod(PumaMethod):
     fabric: FabricGains = field(default_factory=FabricGains)
-    energization: str = "exact"       # exact (α unbounded) | bounded (α ≥ −alpha_bound)
-    alpha_bound: float = 20.0         # [1/s]
+    alpha_bound: float = math.inf     # [1/s] α ≥ −alpha_bound (.inf: unbounded, eq. 9 as written)
     energy: str = "fabric"            # the energy energized: fabric (H_{L_e} of the leaves) |
     #                                   execution (½‖q̇‖²: M_e = I; methods/_tamed.py)
     control_rate: ControlRate = field(default_factory=ControlRate)  # safety at the control rate
@@ -449,14 +447,11 @@ class FpmMethod(PumaMethod):
 
     def __post_init__(self):
         super().__post_init__()
-        _check(self.energization in ("exact", "bounded"), "method.energization",
-               "exact or bounded", self.energization)
-        _nonneg("method.alpha_bound", self.alpha_bound)
+        _check(isinstance(self.alpha_bound, (int, float)) and self.alpha_bound >= 0,
+               "method.alpha_bound", ">= 0 [1/s] (.inf: unbounded)", self.alpha_bound)
         _check(self.energy in ENERGIES, "method.energy", " or ".join(ENERGIES), self.energy)
         Forcing.from_mapping(dataclasses.asdict(self.forcing)
                              if dataclasses.is_dataclass(self.forcing) else self.forcing)
-        _check(0.0 < self.control_rate.kappa < 1.0, "method.control_rate.kappa", "in (0, 1)",
-               self.control_rate.kappa)
 
 
 @dataclass
@@ -464,34 +459,17 @@ class CpmMethod(FpmMethod):
     variant: str = "paper"           # paper | original (the authors' code)
     beta: float = 0.5                # β [1/s] > 0: the damping (its floor with damping: matched)
     damping: str = "matched"         # matched: β(q, q̇) = max(β, r − α) | constant: the paper's β
-    #                                  | matched_forcing: see tamedpuma/methods/cpm.py (DAMPINGS)
-    potential_scale: float = 0.3     # k_ψ > 0 on ψ in the regulator
-    semi_implicit: bool = True       # take the q̇-proportional terms implicitly over Δt
-    eps: float = 1.0e-6              # ε [(rad/s)²] of the regulator's denominator
-    tank: float = 0.0                # energy tank capacity [rad²/s²] (0: off; methods/cpm.py
-    #                                  EnergyTank): FPM's law where the tank pays for it
-    tank_refill: float = 0.0         # σ ∈ [0, 1]: the share of surplus dissipation refilling it
-    tank_clearance: float = math.inf  # [m] the tank pays only while a body sphere is this close
-    #                                   to an obstacle (inf: anywhere)
-    tank_limit_clearance: float = 0.0  # [rad] ... or a joint this close to its limit
-    configuration_potential: str = "attractor"  # the regulator's potential while the
-    #                               configuration pull acts: attractor (its own φ) | puma (ψ)
+    tank: float = 0.0                # energy tank capacity [1] × k_ψ ψ(q₀) (0: off;
+    #                                  methods/cpm.py EnergyTank): FPM's law where it pays
 
     def __post_init__(self):
         super().__post_init__()
-        _check(self.configuration_potential in CPM_POTENTIALS,
-               "method.configuration_potential", " or ".join(CPM_POTENTIALS),
-               self.configuration_potential)
         _check(self.variant in CPM_VARIANTS, "method.variant", " or ".join(CPM_VARIANTS),
                self.variant)
         _check(self.damping in CPM_DAMPINGS, "method.damping", " or ".join(CPM_DAMPINGS),
                self.damping)
         _nonneg("method.beta", self.beta)
-        _positive("method.potential_scale", self.potential_scale)
-        _positive("method.eps", self.eps)
         _nonneg("method.tank", self.tank)
-        _check(0.0 <= self.tank_refill <= 1.0, "method.tank_refill", "in [0, 1]",
-               self.tank_refill)
 
 
 @dataclass

@@ -1,5 +1,5 @@
 """Configuration pull: when the stall pull arms with a joint at its limit, a joint-space
-attractor to a goal configuration takes the forcing over (``method.forcing.stall_configuration``;
+attractor to a goal configuration takes the forcing over (``method.forcing.configuration_pull``;
 FPM and CPM only, off by default).
 
 Why. In the logs of the random scenarios (BENCHMARKS.md) every FPM failure on
@@ -108,11 +108,11 @@ pose, PUMA's own rest point, so the attractor's rest point lies in PUMA's zero s
 the hand's path is not PUMA's (the imitation is suspended where it had stopped delivering the
 goal).
 
-CPM. With ``method.configuration_potential: puma`` CPM's regulator still watches PUMA's ψ while the
-attractor acts, and the way out of these stalls climbs ψ (the hand first moves away from the goal):
-the regulator brakes it, and the arm crawls at the speed √ε below which the regulator fades
-(random pouring ``anywhere`` 41023: 0.53 → 0.80 m in 26 s). With ``attractor`` the regulator
-watches the attractor's own potential φ (:meth:`ConfigurationMonitor.potential`) while it acts:
+CPM. Were CPM's regulator to watch PUMA's ψ while the attractor acts: the way out of these
+stalls climbs ψ (the hand first moves away from the goal), the regulator brakes it, and the
+arm crawls at the speed √ε below which the regulator fades (random pouring ``anywhere``
+41023: 0.53 → 0.80 m in 26 s). So the regulator watches the attractor's own potential φ
+(:meth:`ConfigurationMonitor.potential`) while it acts:
 −∂φ/∂q is the attractor's pull, so φ is compatible with it, and CPM's law on φ gives
 ``dH_φ/dt ≤ −β‖q̇‖²`` with ``H_φ = ½‖q̇‖² + φ`` during the engagement (in free space CPM then
 follows the attractor exactly: its own damping k ≥ β dissipates enough). H switches between the
@@ -138,7 +138,7 @@ from tamedpuma.robot.ik import pose_dls_steps, run_to_end
 from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.robot.rotations import quat_to_matrix
 
-#: modes of ``method.forcing.stall_configuration``
+#: modes of ``method.forcing.configuration_pull``
 MODES = ("off", "limits", "always")
 #: [m] the goal may move this far before q_g is chosen again
 REPLAN_DISTANCE_M = 0.02
@@ -166,7 +166,7 @@ _PREPARED: dict = {}
 
 @dataclass(frozen=True)
 class ConfigurationPull:
-    """Settings (``method.forcing.stall_configuration*``): mode (``off``, ``limits``,
+    """The configuration pull: mode (``method.forcing.configuration_pull``: ``off``, ``limits``,
     ``always``: no joint at a limit needed farther than ``release``), gain g [rad/s²], length
     ℓ [rad], limit_band [rad], release [m], margin [rad] (q_g's distance from the limits),
     near_release [m] (where the stall pull arms within ``release`` of the goal, the pull
@@ -183,12 +183,12 @@ class ConfigurationPull:
     length: float = 1.0
     limit_band: float = 0.1
     release: float = 0.15
-    near_release: float = 0.0
+    near_release: float = 0.03
     margin: float = 0.1
     clearance: float = 0.01
     restarts: int = 24
     position_fallback: bool = False
-    waypoints: int = 0
+    waypoints: int = 32
     window: float = 2.0
     progress: float = 0.05
     budget: int = SEARCH_BUDGET
@@ -570,8 +570,8 @@ class ConfigurationMonitor:
                 and self.at_limit(q))
 
     def potential(self, q: np.ndarray) -> tuple[float, np.ndarray]:
-        """The attractor's own potential while engaged (CPM's regulator, ``method.
-        configuration_potential: attractor``): φ(q) = g ρ_ℓ(‖q − q_g‖) [rad²/s²] with the Huber
+        """The attractor's own potential while engaged (what CPM's regulator
+        watches while the pull acts): φ(q) = g ρ_ℓ(‖q − q_g‖) [rad²/s²] with the Huber
         function ρ_ℓ(d) = d²/(2ℓ) for d ≤ ℓ, d − ℓ/2 beyond, so that
 
             ∂φ/∂q = g (q − q_g) / max(‖q − q_g‖, ℓ)                            [rad/s²]

@@ -318,7 +318,7 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
 @dataclass(frozen=True)
 class SecondaryDamping:
     """Singularity-robust damping of the secondary (orientation) rows of a prioritized pullback
-    (``method.forcing.singular_damping`` μ_max [1], ``singular_threshold`` σ₀ [1]; Chiaverini
+    (μ_max [1], σ₀ [1]; with ``method.forcing.priority: position``; Chiaverini
     1997's singularity-robust task priority, in the metric of the first stage).
 
     The second stage of :func:`prioritized_solve` minimises ``½q̈ᵀ(A₁ + A₂)q̈ − (f₁ + f₂)ᵀq̈``

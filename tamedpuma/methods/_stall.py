@@ -102,9 +102,9 @@ PSI_SAMPLE_S = 0.1
 
 @dataclass(frozen=True)
 class StallPull:
-    """The stall pull's settings (``method.forcing.stall_*``): gain g [m/s²] (0: off), window
-    [s], progress [m], progress_fraction [1], psi_progress [1], radius [m], ramp [s], release
-    [1], hold_radius [m] (see the module)."""
+    """The stall pull: gain g [m/s²] (``method.forcing.stall_pull``; 0: off), and its fixed
+    window [s], progress [m], progress_fraction [1] (CPM's creep criterion), psi_progress [1],
+    radius [m], ramp [s], release [1] and hold_radius [m] (see the module)."""
 
     gain: float = 0.0
     window: float = 2.0
@@ -114,7 +114,7 @@ class StallPull:
     radius: float = 0.045
     ramp: float = 1.0
     release: float = 0.05
-    hold_radius: float = 0.0
+    hold_radius: float = 0.15
 
 
 class StallMonitor:

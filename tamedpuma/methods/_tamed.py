@@ -39,7 +39,6 @@ from tamedpuma.robot.ground import (
     GroundRows,
     hull_ground_rows,
     link_hulls,
-    sphere_ground_rows,
 )
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
 
@@ -108,7 +107,7 @@ class PumaController:
         (:mod:`tamedpuma.methods._circulation`) summed in when given, and the stall pull of
         ``stall`` (:mod:`tamedpuma.methods._stall`) added to PUMA's position rows while armed
         (and the configuration pull's joint-space spec in their place while it is engaged)."""
-        if forcing.mode == "metric":
+        if forcing.metric:
             task, null = self.task_and_null(state, obs, av.min_clearance, stall, configuration)
             extra, W = None, av.M
             if circulation is not None or forcing.directional:
@@ -118,7 +117,7 @@ class PumaController:
                                           obs.obstacle_radii,
                                           lambda: self.pull_at_rest(state, obs),
                                           av.min_clearance)
-            weights = forcing.task_weights(len(task.xdd))
+            weights = forcing.weight
             secondary = forcing.secondary_damping()
 
             def solve(W: np.ndarray) -> np.ndarray:
@@ -131,7 +130,7 @@ class PumaController:
                 qdd_c, _ = restore_approached(av, receding, W, solve(W), solve)
             else:
                 qdd_c = solve(W)
-            if forcing.geometry == "task_metric":
+            if forcing.mode == "task_metric":
                 return geometry_with_task_metric(av, task.J, weights), qdd_c, task.xdd
             return av.acceleration(), qdd_c, task.xdd
         qdd_c, xdd = self.joint_acceleration(state, obs, stall)
@@ -155,7 +154,10 @@ class PumaController:
 class TamedController:
     """What FPM and CPM share: PUMA pulled to the joints, the avoidance fabric, the energy
     energized, the forcing (with its circulation), the α floor and the control-rate filters.
-    Subclasses implement ``step`` from :meth:`forced`."""
+    Subclasses implement ``step`` from :meth:`forced`; ``creep_fraction``: the stall pull's
+    creep criterion (0: off; :mod:`tamedpuma.methods._stall`)."""
+
+    creep_fraction = 0.0
 
     def __init__(self, puma: PumaController, fabric: Fabric, alpha_min: float | None = None,
                  rate: ControlRate | None = None, energy: str = "fabric",
@@ -166,17 +168,16 @@ class TamedController:
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.circulation = self.forcing.make_circulation()
-        self.stall = self.forcing.make_stall_monitor()
+        self.stall = self.forcing.make_stall_monitor(self.creep_fraction)
         self.dt = float("nan")  # the scenario's, from reset
-        self.hulls = (link_hulls(self.kinematics) if self.rate.barrier_step and self.rate.ground
-                      and self.rate.ground_geometry == "mesh" else None)
+        self.hulls = link_hulls(self.kinematics) if self.rate.barrier_step else None
         self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec,
                                                                      self.ground())
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
         self.circulation = self.forcing.make_circulation()
-        self.stall = self.forcing.make_stall_monitor()
+        self.stall = self.forcing.make_stall_monitor(self.creep_fraction)
         self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec,
                                                                      self.ground())
         if self.configuration is not None:  # the goal's IK before the first step
@@ -187,9 +188,9 @@ class TamedController:
     def ground(self) -> Ground | None:
         """The ground the barrier step keeps (its geometry and plane), for the configuration
         pull's goal configuration; None when the step has no ground rows."""
-        if not (self.rate.barrier_step and self.rate.ground):
+        if self.hulls is None:
             return None
-        return Ground(self.rate.ground_height, self.hulls)
+        return Ground(GROUND_HEIGHT_M, self.hulls)
 
     def forced(self, obs: Observation):
         """(kinematic state, avoidance fabric, h, q̈_C, ẍ_d, ground rows) at the observation."""
@@ -200,13 +201,12 @@ class TamedController:
         return state, av, h, qdd_c, xdd, ground
 
     def ground_rows(self, state, qd: np.ndarray) -> GroundRows | None:
-        """The heights above the ground the barrier step keeps (``control_rate.ground``, of
-        ``ground_geometry``), or None without them; ``state`` must be the kinematics' last
-        evaluation, at velocity qd (the mesh rows read its pass)."""
+        """The heights above the ground the barrier step keeps (each moving link's lowest hull
+        point), or None without the barrier step; ``state`` must be the kinematics' last
+        evaluation, at velocity qd (the rows read its pass)."""
         if self.hulls is None:
-            return sphere_ground_rows(state) if self.rate.barrier_step and self.rate.ground \
-                else None
-        below = self.hulls.speed_bound * self.dt / self.rate.kappa  # higher: no row needed
+            return None
+        below = self.hulls.speed_bound * self.dt / BARRIER_KAPPA  # higher: no row needed
         return hull_ground_rows(self.kinematics, self.hulls, qd,
                                 below if np.isfinite(below) else np.inf)
 
@@ -373,64 +373,46 @@ def fabric_scalars(av) -> dict[str, float]:
             "n_clamped": float(av.n_clamped), "n_limit_clamped": float(av.n_limit_clamped)}
 
 
+#: κ [1]: the largest fraction of a barrier distance one control period may use (barrier step)
+BARRIER_KAPPA = 0.5
+#: the barrier step lets a barrier distance shrink towards this, not 0 (each row's units:
+#: obstacle pairs in radius sums, joint limits in rad, ground in m)
+BARRIER_STANDOFF = 1.0e-3
+#: [m] the plane the barrier step keeps every moving link's lowest hull point above
+GROUND_HEIGHT_M = 0.01
+#: h [1]: the speed limit scales q̇⁺ onto (1 − h) q̇_max, a margin for the joint velocity loop
+#: (PyBullet's velocity motors, given a target at the limit, ran up to 1.0009× it)
+SPEED_HEADROOM = 0.01
+
+
 @dataclass(frozen=True)
 class ControlRate:
     """What FPM and CPM do to stay safe at the control rate (:mod:`tamedpuma.fabrics.discrete`;
-    the ``control_rate`` block of conf/method/fpm.yaml and cpm.yaml).
+    the ``control_rate`` block of conf/method/fpm.yaml and cpm.yaml). Each only removes energy
+    (see that module), so the paper's energy arguments still hold.
 
-    barrier_step: project the next velocity so that no barrier (body sphere × obstacle, joint
-    limit, ground when its leaf is on) is crossed within one period (kappa κ: the largest
-    fraction of a barrier distance one period may use); speed_limit: scale the next velocity
-    uniformly onto the joint velocity limits (direction kept) instead of leaving the per-joint
-    clamp to the simulator; semi_implicit (FPM): take −α q̇ implicitly when it brakes;
-    braking_split (FPM, with semi_implicit): also take the geometry's own braking along q̇
-    beyond the α bound implicitly (:func:`braking_split`; CPM always does); standoff: the
-    barrier step lets a barrier distance shrink towards this value instead of 0 (in each row's
-    units: obstacle pairs in radius sums, joint limits in rad, ground in m);
-    ground: add the robot's heights above the ground minus ``ground_height`` [m] to the barrier
-    step only (no continuous ground leaf, whose metres-scaled barrier also blocked the tomato
-    goal 4.5 cm above the table); ground_geometry: whose heights (:mod:`tamedpuma.robot.ground`):
-    ``spheres`` (the body spheres, ``c_z − r``) or ``mesh`` (each moving link's lowest
-    collision-hull point: the geometry the whole-body criterion judges, without the spheres'
-    inflation); speed_headroom h [1]: with ``speed_limit``, the uniform scaling aims at
-    ``(1 − h) q̇_max`` instead of q̇_max, a margin for the joint velocity loop's tracking error
-    (PyBullet's velocity motors, given a target at the limit, ran up to 1.0009× it in the
-    random suites).
-    All of them only remove energy (see the module), so the paper's energy arguments still hold.
-    """
+    barrier_step: project the next velocity so that no barrier is crossed within one period:
+    body sphere × obstacle pairs, joint limits and the ground (each moving link's lowest
+    collision-hull point kept :data:`GROUND_HEIGHT_M` above z = 0: the geometry the whole-body
+    criterion judges; :mod:`tamedpuma.robot.ground`), a barrier distance shrinking by at most
+    :data:`BARRIER_KAPPA` of itself per period, towards :data:`BARRIER_STANDOFF`.
+    speed_limit: scale the next velocity uniformly onto ``(1 − SPEED_HEADROOM) q̇_max``
+    (direction kept) instead of leaving the per-joint clamp to the simulator.
+    semi_implicit: take the velocity-proportional terms implicitly over the period (FPM: −α q̇,
+    and the geometry's own braking along q̇ beyond the α bound, :func:`braking_split`; CPM: its
+    whole coefficient c), so that a large |c|Δt brakes towards rest instead of reversing q̇."""
 
     barrier_step: bool = False
-    kappa: float = 0.5
     speed_limit: bool = False
     semi_implicit: bool = False
-    braking_split: bool = False
-    standoff: float = 0.0
-    ground: bool = False
-    ground_height: float = 0.0
-    ground_geometry: str = "spheres"
-    speed_headroom: float = 0.0
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> ControlRate:
         cfg = dict(cfg or {})
-        keys = {"barrier_step", "kappa", "speed_limit", "semi_implicit", "braking_split",
-                "standoff", "ground", "ground_height", "ground_geometry", "speed_headroom"}
-        unknown = sorted(set(cfg) - keys)
+        unknown = sorted(set(cfg) - {field.name for field in fields(ControlRate)})
         if unknown:
             raise ConfigError(f"unknown method.control_rate keys {unknown}")
-        rate = ControlRate(**cfg)  # missing keys: the dataclass defaults
-        if not 0.0 < rate.kappa < 1.0:
-            raise ConfigError(f"method.control_rate.kappa must be in (0, 1), got {rate.kappa}")
-        if rate.ground_geometry not in ("spheres", "mesh"):
-            raise ConfigError(f"method.control_rate.ground_geometry must be 'spheres' or 'mesh', "
-                              f"got {rate.ground_geometry!r}")
-        if not 0.0 <= rate.standoff < 0.1:
-            raise ConfigError(f"method.control_rate.standoff must be in [0, 0.1), got "
-                              f"{rate.standoff}")
-        if not 0.0 <= rate.speed_headroom < 0.5:
-            raise ConfigError(f"method.control_rate.speed_headroom must be in [0, 0.5), got "
-                              f"{rate.speed_headroom}")
-        return rate
+        return ControlRate(**cfg)  # missing keys: the dataclass defaults
 
     def velocity_step(self, qd: np.ndarray, a: np.ndarray, c: float, dt: float, av,
                       gains) -> np.ndarray:
@@ -441,24 +423,41 @@ class ControlRate:
     def next_velocity(self, qd_next, av, dt: float, qd_max, ground: GroundRows | None = None,
                       qd=None) -> tuple[np.ndarray, dict]:
         """Filter the next velocity q̇⁺ [rad/s] (ground: the robot's heights above the ground
-        and their rows, :meth:`TamedController.ground_rows`, used with ``ground``; qd: the
-        current velocity, whose rows' rates give the moving obstacles' drift); returns it and
-        the log scalars ``n_barrier_active`` (rows projected) and ``speed_scale`` (s ≤ 1)."""
+        and their rows, :meth:`TamedController.ground_rows`; qd: the current velocity, whose
+        rows' rates give the moving obstacles' drift); returns it and the log scalars
+        ``n_barrier_active`` (rows projected) and ``speed_scale`` (s ≤ 1)."""
         n_active, scale = 0, 1.0
         if self.barrier_step and av.barrier_rows is not None:
             rows, x, jd = av.barrier_rows, av.barrier_x, av.barrier_jdqd
             drift = None if av.barrier_xd is None or qd is None else av.barrier_xd - rows @ qd
-            if self.ground and ground is not None:
+            if ground is not None:
                 rows = np.concatenate((rows, ground.rows))
-                x = np.concatenate((x, ground.heights - self.ground_height))
+                x = np.concatenate((x, ground.heights - GROUND_HEIGHT_M))
                 jd = np.concatenate((jd, ground.jdqd))
                 if drift is not None:
                     drift = np.concatenate((drift, np.zeros(len(ground.heights))))
-            qd_next, n_active = barrier_step(qd_next, rows, x, dt, self.kappa, av.M, jd, drift,
-                                             av.far_rows, self.standoff)
+            qd_next, n_active = barrier_step(qd_next, rows, x, dt, BARRIER_KAPPA, av.M, jd,
+                                             drift, av.far_rows, BARRIER_STANDOFF)
         if self.speed_limit:
-            qd_next, scale = limit_speed(qd_next, (1.0 - self.speed_headroom) * qd_max)
+            qd_next, scale = limit_speed(qd_next, (1.0 - SPEED_HEADROOM) * qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}
+
+
+#: w [1]: PUMA's task metric in the metric forcing (outweighs the base metric 0.2 and a barrier's
+#: metric until the barrier is within a few millimetres)
+TASK_WEIGHT = 100.0
+#: m_null [1]: the metric of the secondary (elbow) objective in the metric forcing
+NULL_METRIC = 0.05
+#: g [1]: the fraction of a body sphere's push into an obstacle given back along its tangent
+CIRCULATION_GAIN = 1.0
+#: c₀ [1]: only a push within arccos(c₀) of head-on is turned (about 46°)
+CIRCULATION_ONSET = 0.7
+#: μ_max [1] and σ₀ [1] of the orientation rows' singularity-robust damping under position
+#: priority (:class:`~tamedpuma.methods._policy.SecondaryDamping`)
+SINGULAR_DAMPING = 100.0
+SINGULAR_THRESHOLD = 3.0
+#: how PUMA's forcing may meet the avoidance fabric (``method.forcing.mode``)
+FORCING_MODES = ("additive", "metric", "task_metric")
 
 
 @dataclass(frozen=True)
@@ -471,75 +470,56 @@ class Forcing:
     PUMA's path. ``metric``: the pullback of PUMA's task spec ``(w I, −w ẍ_d)`` summed with the
     avoidance fabric's metric M (base, obstacle pairs, joint limits), as a forced fabric sums
     its forcing spec: ``f_θ^C = (M + wJᵀJ + m_null I)⁻¹(wJᵀ(ẍ_d − J̇q̇) + m_null q̈_null)``
-    (:func:`~tamedpuma.methods._policy.pull_through_metric`), a weighted pseudo-inverse which in
-    free space realises ẍ_d as the damped one does (λ² ≈ (m_b + m_null)/w) and near a barrier
-    suppresses the push along its normal (M ~ 0.2/x per obstacle pair, 0.1/x² per approached
-    joint limit), so the arm slides along the obstacle instead of hovering against it. h is the
-    paper's and the zero set of f_θ^C is unchanged (q̇ = 0, ẍ_d = 0 leaves only the damped
-    elbow objective), so FPM's and CPM's statements hold as with ``additive``. The price: a goal
-    that needs a joint within a few centimetres of a barrier is approached more slowly or not
-    at all (BENCHMARKS.md names the measured case).
-    weight: w [1]; null_metric: m_null [1], the metric of the secondary (elbow) objective;
+    (:func:`~tamedpuma.methods._policy.pull_through_metric`; w = :data:`TASK_WEIGHT`, m_null =
+    :data:`NULL_METRIC`), a weighted pseudo-inverse which in free space realises ẍ_d as the
+    damped one does (λ² ≈ (m_b + m_null)/w) and near a barrier suppresses the push along its
+    normal (M ~ 0.2/x per obstacle pair, 0.1/x² per approached joint limit), so the arm slides
+    along the obstacle instead of hovering against it. h is the paper's and the zero set of
+    f_θ^C is unchanged (q̇ = 0, ẍ_d = 0 leaves only the damped elbow objective), so FPM's and
+    CPM's statements hold as with ``additive``. ``task_metric``: ``metric``, and PUMA's task
+    metric one more leaf of the geometry, ``h = −(M + Jᵀ w J)⁻¹f``
+    (:func:`geometry_with_task_metric`).
     circulation: d_a [m], the clearance within which a body sphere's push into an obstacle is
-    turned around it (0: off; ``metric`` only; :mod:`tamedpuma.methods._circulation`);
-    circulation_gain: g [1], the fraction of that push given back along the tangent;
-    circulation_onset: c₀ [1], the cosine of the largest angle from head-on that counts;
+    turned around it (0: off; not with ``additive``; :mod:`tamedpuma.methods._circulation`);
     directional: leave out of the metric the barrier rows the forcing recedes from
     (:func:`approached_metric`, settled on q̈_C itself: rows q̈_C approaches are put back and
-    q̈_C solved again, :func:`restore_approached`; ``metric`` only);
-    rotation_weight: ρ [1], the orientation rows' share of the task metric (:meth:`task_weights`;
-    ``metric`` only); priority: ``position`` applies the orientation rows' force only in the
-    dynamically consistent null space of the position rows
-    (:func:`~tamedpuma.methods._policy.prioritized_solve`), ``none``: one weighted solve;
-    singular_damping: μ_max [1] of the orientation rows' singularity-robust damping under
-    ``priority: position`` (0: off), singular_threshold: σ₀ [1], the singular value (in the
-    first stage's metric) below which it acts
-    (:class:`~tamedpuma.methods._policy.SecondaryDamping`);
-    geometry: ``fabric`` h = −M⁻¹f, ``task_metric`` h = −(M + Jᵀ diag(w) J)⁻¹f
-    (:func:`geometry_with_task_metric`; ``metric`` only); stall_pull: g [m/s²] of the goal
-    attractor added to PUMA's position rows once the hand stalls (0: off), armed after
-    stall_window [s] in which neither the hand's distance improved by stall_progress [m] nor
-    PUMA's potential by the fraction stall_psi_progress, while farther than stall_radius [m]
-    from the goal, ramped in over stall_ramp [s], released once PUMA's potential is
-    stall_release [1] below its value at arming; within stall_hold_radius [m] of the goal only
-    the distance is progress and a pull armed there holds for good
-    (:mod:`tamedpuma.methods._stall`); stall_configuration: ``off``, ``limits`` or ``always``, when
-    a joint-space attractor to a goal configuration replaces PUMA's rows after the stall pull
-    arms (with a joint within 0.1 rad of a limit, or at every arming), with gain
-    stall_configuration_gain [rad/s²], until the hand is within stall_configuration_release [m]
-    of the goal (armed nearer than that: within stall_configuration_near_release [m], 0: it does
-    not engage there; stall_configuration_position_fallback: the goal position alone where no
-    solution of the goal pose is clear) (:mod:`tamedpuma.methods._configuration_pull`)."""
+    q̈_C solved again, :func:`restore_approached`; not with ``additive``);
+    priority: ``position`` applies the orientation rows' force only in the dynamically
+    consistent null space of the position rows, damped where that null space leaves them
+    nearly singular (:func:`~tamedpuma.methods._policy.prioritized_solve`,
+    :class:`~tamedpuma.methods._policy.SecondaryDamping`), ``none``: one weighted solve;
+    stall_pull: g [m/s²] of the goal attractor added to PUMA's position rows once the hand
+    stops making progress (0: off; :mod:`tamedpuma.methods._stall`); configuration_pull:
+    ``off``, ``limits`` or ``always``, when a joint-space attractor to a clear goal
+    configuration replaces PUMA's rows after the stall pull arms (with a joint within 0.1 rad
+    of a limit, or at every arming; :mod:`tamedpuma.methods._configuration_pull`)."""
 
     mode: str = "additive"
-    weight: float = 100.0
-    null_metric: float = 0.05
     circulation: float = 0.0
-    circulation_gain: float = 1.0
-    circulation_onset: float = 0.0
     directional: bool = False
-    rotation_weight: float = 1.0
     priority: str = "none"
-    singular_damping: float = 0.0
-    singular_threshold: float = 3.0
-    geometry: str = "fabric"
-    stall_pull: float = StallPull.gain  # the stall pull's defaults are StallPull's
-    stall_window: float = StallPull.window
-    stall_progress: float = StallPull.progress
-    stall_progress_fraction: float = StallPull.progress_fraction
-    stall_psi_progress: float = StallPull.psi_progress
-    stall_radius: float = StallPull.radius
-    stall_ramp: float = StallPull.ramp
-    stall_release: float = StallPull.release
-    stall_hold_radius: float = StallPull.hold_radius
-    stall_configuration: str = ConfigurationPull.mode
-    stall_configuration_gain: float = ConfigurationPull.gain
-    stall_configuration_length: float = ConfigurationPull.length
-    stall_configuration_release: float = ConfigurationPull.release
-    stall_configuration_near_release: float = ConfigurationPull.near_release
-    stall_configuration_position_fallback: bool = ConfigurationPull.position_fallback
-    stall_configuration_clearance: float = ConfigurationPull.clearance
-    stall_configuration_waypoints: int = ConfigurationPull.waypoints
+    stall_pull: float = 0.0
+    configuration_pull: str = "off"
+
+    @property
+    def weight(self) -> float:
+        """w [1], PUMA's task metric (:data:`TASK_WEIGHT`)."""
+        return TASK_WEIGHT
+
+    @property
+    def null_metric(self) -> float:
+        """m_null [1] (:data:`NULL_METRIC`)."""
+        return NULL_METRIC
+
+    @property
+    def geometry(self) -> str:
+        """``task_metric`` (h = −(M + JᵀwJ)⁻¹f) or ``fabric`` (h = −M⁻¹f)."""
+        return "task_metric" if self.mode == "task_metric" else "fabric"
+
+    @property
+    def metric(self) -> bool:
+        """Whether PUMA's forcing is pulled through the avoidance fabric's metric."""
+        return self.mode != "additive"
 
     def priority_rows(self, m: int) -> int:
         """How many leading task rows take precedence (``priority: position``: the 3 position
@@ -548,66 +528,35 @@ class Forcing:
         return 3 if self.priority == "position" and m == 6 else 0
 
     def secondary_damping(self) -> SecondaryDamping | None:
-        """The orientation rows' singularity-robust damping (None when ``singular_damping`` is
-        0 or without ``priority: position``)."""
-        if self.priority != "position" or self.singular_damping <= 0.0:
+        """The orientation rows' singularity-robust damping under ``priority: position``
+        (:data:`SINGULAR_DAMPING`, :data:`SINGULAR_THRESHOLD`), else None."""
+        if self.priority != "position":
             return None
-        return SecondaryDamping(self.singular_damping, self.singular_threshold)
-
-    def task_weights(self, m: int) -> float | np.ndarray:
-        """The task metric's diagonal [1]: w on every row of a position task; for a pose task
-        (m = 6, rows [v; ω]) w on the position rows and ρw on the orientation rows, an (m,)
-        array (the scalar w when ρ = 1: no array per control step).
-
-        Why. In free space the arm has joints to spare (7 for 6 rows) and q̈_C realises ẍ_d
-        whatever the weights. Where barriers hold joints (two joints at their limit barriers
-        leave 5 for 6 rows) the weighted pseudo-inverse gives the least-squares compromise
-        between PUMA's position and orientation pulls, and with equal weights that compromise
-        rests short of the goal (an online goal change: 7.6 cm, joints 2 and 5 at their
-        limits). ρ < 1 gives the position rows priority there, as the goal is judged on
-        position. ẍ_d = 0 still gives q̈_C = the damped elbow objective, so PUMA's zero set
-        (FPM) and CPM's energy statement are unchanged."""
-        rho = self.rotation_weight
-        if m != 6 or rho == 1.0:
-            return self.weight
-        w = np.full(m, self.weight)
-        w[3:] *= rho
-        return w
+        return SecondaryDamping(SINGULAR_DAMPING, SINGULAR_THRESHOLD)
 
     def make_circulation(self) -> Circulation | None:
         """The stateful :class:`~tamedpuma.methods._circulation.Circulation` of this forcing
         (None when ``circulation`` is 0, or with ``additive``)."""
-        if self.mode != "metric" or self.circulation <= 0.0:
+        if not self.metric or self.circulation <= 0.0:
             return None
-        return Circulation(self.circulation, self.circulation_gain, self.weight,
-                           self.circulation_onset)
+        return Circulation(self.circulation, CIRCULATION_GAIN, TASK_WEIGHT, CIRCULATION_ONSET)
 
     def make_configuration_monitor(self, spec, ground: Ground | None = None
                                    ) -> ConfigurationMonitor | None:
         """A fresh :class:`~tamedpuma.methods._configuration_pull.ConfigurationMonitor` for the
-        robot ``spec`` and the controller's ``ground`` (None when ``stall_configuration`` is off
+        robot ``spec`` and the controller's ``ground`` (None when ``configuration_pull`` is off
         or there is no stall pull)."""
-        if self.stall_configuration == "off" or self.stall_pull <= 0.0:
+        if self.configuration_pull == "off" or self.stall_pull <= 0.0:
             return None
-        return ConfigurationMonitor(ConfigurationPull(
-            mode=self.stall_configuration, gain=self.stall_configuration_gain,
-            length=self.stall_configuration_length,
-            release=self.stall_configuration_release,
-            near_release=self.stall_configuration_near_release,
-            position_fallback=self.stall_configuration_position_fallback,
-            clearance=self.stall_configuration_clearance,
-            waypoints=self.stall_configuration_waypoints), spec, ground)
+        return ConfigurationMonitor(ConfigurationPull(mode=self.configuration_pull), spec,
+                                    ground)
 
-    def make_stall_monitor(self) -> StallMonitor | None:
+    def make_stall_monitor(self, progress_fraction: float = 0.0) -> StallMonitor | None:
         """A fresh :class:`~tamedpuma.methods._stall.StallMonitor` (None when ``stall_pull``
-        is 0)."""
+        is 0); progress_fraction: the creep criterion (CPM's, :mod:`tamedpuma.methods._stall`)."""
         if self.stall_pull <= 0.0:
             return None
-        return StallMonitor(StallPull(
-            gain=self.stall_pull, window=self.stall_window, progress=self.stall_progress,
-            progress_fraction=self.stall_progress_fraction,
-            psi_progress=self.stall_psi_progress, radius=self.stall_radius, ramp=self.stall_ramp,
-            release=self.stall_release, hold_radius=self.stall_hold_radius))
+        return StallMonitor(StallPull(gain=self.stall_pull, progress_fraction=progress_fraction))
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
@@ -616,60 +565,19 @@ class Forcing:
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         f = Forcing(**cfg)
-        if f.mode not in ("additive", "metric"):
-            raise ConfigError(f"method.forcing.mode must be 'additive' or 'metric', got {f.mode!r}")
-        if f.geometry not in ("fabric", "task_metric"):
-            raise ConfigError(f"method.forcing.geometry must be 'fabric' or 'task_metric', "
-                              f"got {f.geometry!r}")
-        if f.geometry == "task_metric" and f.mode != "metric":
-            raise ConfigError("method.forcing.geometry=task_metric needs method.forcing.mode="
-                              "metric; with mode=additive set method.forcing.geometry=fabric")
+        if f.mode not in FORCING_MODES:
+            raise ConfigError(f"method.forcing.mode must be one of {FORCING_MODES}, got "
+                              f"{f.mode!r}")
         if f.priority not in ("none", "position"):
             raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
                               f"got {f.priority!r}")
-        if not (f.singular_damping >= 0 and f.singular_threshold > 0):
-            raise ConfigError("method.forcing.singular_damping must be ≥ 0 and "
-                              "singular_threshold > 0")
-        if not (f.weight > 0 and f.null_metric >= 0 and 0 < f.rotation_weight <= 1):
-            raise ConfigError("method.forcing.weight must be > 0, null_metric ≥ 0, "
-                              "rotation_weight in (0, 1]")
-        if not (f.circulation >= 0 and f.circulation_gain >= 0
-                and 0 <= f.circulation_onset < 1):
-            raise ConfigError("method.forcing.circulation [m] and circulation_gain must be ≥ 0, "
-                              "circulation_onset in [0, 1)")
-        _check_stall_settings(f)
+        if f.configuration_pull not in CONFIGURATION_MODES:
+            raise ConfigError(f"method.forcing.configuration_pull must be one of "
+                              f"{CONFIGURATION_MODES}, got {f.configuration_pull!r}")
+        if not (f.circulation >= 0 and f.stall_pull >= 0):
+            raise ConfigError(f"method.forcing.circulation [m] and stall_pull [m/s²] must be "
+                              f"≥ 0, got {f.circulation}, {f.stall_pull}")
         return f
-
-
-def _check_stall_settings(f: Forcing) -> None:
-    """The stall pull's and the configuration pull's settings of ``method.forcing`` (one-line
-    ConfigError on a bad one)."""
-    if f.stall_configuration not in CONFIGURATION_MODES:
-        raise ConfigError(f"method.forcing.stall_configuration must be one of "
-                          f"{CONFIGURATION_MODES}, got {f.stall_configuration!r}")
-    if not (f.stall_configuration_gain > 0 and f.stall_configuration_length > 0
-            and f.stall_configuration_release >= 0 and f.stall_configuration_clearance >= 0
-            and 0 <= f.stall_configuration_near_release <= f.stall_configuration_release
-            and isinstance(f.stall_configuration_waypoints, int)
-            and not isinstance(f.stall_configuration_waypoints, bool)
-            and f.stall_configuration_waypoints >= 0):
-        raise ConfigError("method.forcing.stall_configuration_gain [rad/s²] and _length "
-                          "[rad] must be > 0, stall_configuration_release and _clearance "
-                          "[m] ≥ 0, stall_configuration_near_release [m] in [0, "
-                          "stall_configuration_release], stall_configuration_waypoints an "
-                          "integer ≥ 0")
-    if not isinstance(f.stall_configuration_position_fallback, bool):
-        raise ConfigError(f"method.forcing.stall_configuration_position_fallback must be true "
-                          f"or false, got {f.stall_configuration_position_fallback!r}")
-    if not (f.stall_pull >= 0 and f.stall_window > 0 and f.stall_progress >= 0
-            and f.stall_radius >= 0 and f.stall_ramp >= 0 and 0 <= f.stall_release < 1
-            and 0 <= f.stall_psi_progress < 1 and f.stall_hold_radius >= 0
-            and 0 <= f.stall_progress_fraction < 1):
-        raise ConfigError("method.forcing.stall_pull [m/s²], stall_progress [m], stall_radius "
-                          "[m], stall_hold_radius [m] and stall_ramp [s] must be ≥ 0, "
-                          "stall_window [s] > 0, "
-                          "stall_psi_progress, stall_progress_fraction and stall_release in "
-                          "[0, 1)")
 
 
 #: the energies a TamedPUMA method may energize (``method.energy``)
@@ -735,8 +643,9 @@ def braking_split(a: np.ndarray, c: float, qd: np.ndarray, alpha_raw: float, alp
 
 
 def alpha_floor(cfg: Mapping) -> float | None:
-    """α_min of a method config: ``energization: exact`` → None, ``bounded`` → −alpha_bound."""
-    mode = str(cfg["energization"])
-    if mode not in ("exact", "bounded"):
-        raise ConfigError(f"method.energization must be 'exact' or 'bounded', got {mode!r}")
-    return -abs(float(cfg["alpha_bound"])) if mode == "bounded" else None
+    """α_min [1/s] of a method config: −``alpha_bound``, or None (energization exact, α
+    unbounded) for ``alpha_bound: .inf``."""
+    bound = float(cfg["alpha_bound"])
+    if not bound >= 0.0:
+        raise ConfigError(f"method.alpha_bound must be ≥ 0 [1/s] (.inf: unbounded), got {bound}")
+    return None if bound == np.inf else -bound

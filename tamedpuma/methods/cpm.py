@@ -123,14 +123,25 @@ from tamedpuma.methods._tamed import (
 from tamedpuma.types import Command, Observation, Scenario
 
 VARIANTS = ("paper", "original")
-DAMPINGS = ("constant", "matched", "matched_forcing")
-#: the potential CPM's regulator watches while the configuration pull acts
-POTENTIALS = ("puma", "attractor")
+DAMPINGS = ("constant", "matched")
+#: ε [(rad/s)²] of the energization and regulator denominators: above the joint controller's
+#: velocity noise squared, so that the regulator's q̇q̇ᵀ/(q̇ᵀMq̇ + ε) does not amplify that noise
+EPS = 1.0e-3
+#: k_ψ [1]: the regulator watches k_ψ ψ (still a compatible potential); with β it sets the speed
+#: along the path, about k_ψ|∂ψ/∂q·u|/(β uᵀMu)
+POTENTIAL_SCALE = 0.3
+#: σ [1]: the share of CPM's surplus dissipation that refills the energy tank
+TANK_REFILL = 0.5
+#: [m] the tank pays only while a body sphere is this close to an obstacle
+TANK_CLEARANCE_M = 0.03
+#: the creep criterion of CPM's stall pull (:mod:`tamedpuma.methods._stall`): the hand's
+#: distance counts as progress only when it falls by this fraction of what is left
+CREEP_FRACTION = 0.05
 
 
 @dataclass(frozen=True)
 class EnergyTank:
-    """An energy tank for CPM (``method.tank``, ``method.tank_refill``): where CPM's regulator
+    """An energy tank for CPM (``method.tank``): where CPM's regulator
     would brake FPM's law ``q̈ = energize[h] + f_θ^C``, the tank pays the energy that law
     injects, as long as it holds any (passivity with an energy tank: Ferraguti, Secchi &
     Fantuzzi 2013; Kronander & Billard 2016, for dynamical systems that are not conservative).
@@ -152,18 +163,16 @@ class EnergyTank:
     ψ on the free space. capacity [rad²/s², H's units] (0: off); refill σ ∈ [0, 1]."""
 
     capacity: float = 0.0
-    refill: float = 0.0
-    clearance: float = np.inf
-    limit_clearance: float = 0.0
+    refill: float = TANK_REFILL
+    clearance: float = TANK_CLEARANCE_M
 
-    def engaged(self, obstacle_clearance: float, limit_distance: float) -> bool:
-        """Whether the tank may pay: a body sphere within ``clearance`` [m] of an obstacle, or a
-        joint within ``limit_clearance`` [rad] of its (fabric) limit."""
-        return obstacle_clearance < self.clearance or limit_distance < self.limit_clearance
+    def engaged(self, obstacle_clearance: float) -> bool:
+        """Whether the tank may pay: a body sphere within ``clearance`` [m] of an obstacle."""
+        return obstacle_clearance < self.clearance
 
     def __post_init__(self):
         if not (self.capacity >= 0.0 and 0.0 <= self.refill <= 1.0):
-            raise ConfigError(f"method.tank must be ≥ 0 and method.tank_refill in [0, 1], got "
+            raise ConfigError(f"method.tank must be ≥ 0 and the tank's refill in [0, 1], got "
                               f"{self.capacity}, {self.refill}")
 
     def coefficient(self, c_cpm: float, c_fpm: float, power_zero: float, qn: float,
@@ -189,14 +198,18 @@ class EnergyTank:
 class CpmController(TamedController):
     """CPM on one robot. beta: damping β [1/s] (> 0 for the convergence guarantee);
     eps: ε [(rad/s)²] of the regulator's denominator; variant: 'paper' or 'original';
-    regulator_scale: factor on the ψ term (1 in the paper, 0.05 in the original code)."""
+    potential_scale: k_ψ on ψ; damping: ``constant`` β or ``matched`` β(q, q̇) = max(β, r − α);
+    regulator_scale: factor on the ψ term (1 in the paper, 0.05 in the original code). While
+    the configuration pull acts the regulator watches that pull's own potential (the potential
+    compatible with what then forces the arm)."""
 
-    def __init__(self, puma: PumaController, fabric: Fabric, *, beta: float, eps: float,
-                 variant: str, potential_scale: float, damping: str, semi_implicit: bool,
+    creep_fraction = CREEP_FRACTION
+
+    def __init__(self, puma: PumaController, fabric: Fabric, *, beta: float, variant: str,
+                 damping: str, eps: float = EPS, potential_scale: float = POTENTIAL_SCALE,
                  regulator_scale: float = 1.0, alpha_min: float | None = None,
                  rate: ControlRate | None = None, energy: str = "fabric",
-                 forcing: Forcing | None = None, tank: EnergyTank | None = None,
-                 configuration_potential: str = "attractor"):
+                 forcing: Forcing | None = None, tank: EnergyTank | None = None):
         if variant not in VARIANTS:
             raise ConfigError(f"cpm variant must be one of {VARIANTS}, got {variant!r}")
         if variant == "paper" and not beta > 0:
@@ -210,12 +223,6 @@ class CpmController(TamedController):
         if damping not in DAMPINGS:
             raise ConfigError(f"cpm damping must be one of {DAMPINGS}, got {damping!r}")
         self.matched = damping == "matched"
-        self.matched_forcing = damping == "matched_forcing"
-        self.semi_implicit = semi_implicit
-        if configuration_potential not in POTENTIALS:
-            raise ConfigError(f"cpm configuration_potential must be one of {POTENTIALS}, got "
-                              f"{configuration_potential!r}")
-        self.attractor_potential = configuration_potential == "attractor"
         self.tank = tank or EnergyTank()
         if self.tank.capacity > 0.0 and energy != "execution":
             raise ConfigError("cpm's energy tank needs method.energy: execution")
@@ -228,8 +235,7 @@ class CpmController(TamedController):
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av, h, qdd_c, xdd, ground = self.forced(obs)
-        attractor = (self.attractor_potential and self.configuration is not None
-                     and self.configuration.engaged)
+        attractor = self.configuration is not None and self.configuration.engaged
         if attractor:  # the configuration pull's own potential while it acts (see the module)
             psi, dpsi = self.configuration.potential(obs.q)
         else:
@@ -241,16 +247,8 @@ class CpmController(TamedController):
         r_coef = -self.regulator_scale * (qd @ dpsi) / denom  # regulator: r q̇
         beta = self.beta
         if self.variant == "paper":
-            if self.matched_forcing:  # α = α_h + α_f; β = max(β_min, r − α_f)
-                alpha_h = bounded_alpha(energization_alpha(av, self.energy, qd, h, self.eps),
-                                        self.alpha_min)
-                alpha_f = float(Mqd @ qdd_c) / denom
-                alpha = alpha_h + alpha_f
-                beta = max(self.beta, r_coef - alpha_f)
-                alpha_raw = alpha
-            else:
-                alpha_raw = energization_alpha(av, self.energy, qd, h_plus_f, self.eps)
-                alpha = bounded_alpha(alpha_raw, self.alpha_min)
+            alpha_raw = energization_alpha(av, self.energy, qd, h_plus_f, self.eps)
+            alpha = bounded_alpha(alpha_raw, self.alpha_min)
             if self.matched:  # β = max(β_min, r − α): exactly h + f_C whenever that dissipates
                 beta = max(self.beta, r_coef - alpha)
             c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇
@@ -258,7 +256,7 @@ class CpmController(TamedController):
                 c, alpha_raw, alpha = self._tank_law(obs, av, h, h_plus_f, Mqd, psi, dpsi,
                                                      c, alpha_raw, alpha)
             a, c_split = braking_split(h_plus_f, c, qd, alpha_raw, alpha)
-            if self.semi_implicit and c_split < 0.0:
+            if self.rate.semi_implicit and c_split < 0.0:
                 # the velocity-proportional part (with the geometry's own braking along q̇
                 # where the α bound acts: braking_split) taken implicitly over the control
                 # period: q̇⁺ = (q̇ + Δt a) / (1 − Δt c): it damps, never reverses q̇
@@ -292,9 +290,7 @@ class CpmController(TamedController):
         qd = obs.qd
         if not self.tank_level >= 0.0:  # first step: κ times the potential energy
             self.tank_level = self.tank_size = self.tank.capacity * psi
-        limit_distance = float(np.min(np.minimum(obs.q - self.fabric.q_min,
-                                                 self.fabric.q_max - obs.q)))
-        engaged = self.tank.engaged(av.min_clearance, limit_distance)
+        engaged = self.tank.engaged(av.min_clearance)
         # FPM's α only where the tank may pay (elsewhere c_fpm = −∞: CPM's law, the tank refills)
         alpha_raw_h = alpha_h = np.nan
         c_fpm = -np.inf
@@ -319,15 +315,9 @@ def make(cfg: Mapping, kinematics) -> CpmController:
     puma, fabric = puma_and_fabric(cfg, kinematics)
     rate = ControlRate.from_mapping(cfg["control_rate"])
     if cfg["variant"] == "original":  # the authors' code: no energization, β = 0, ψ × 0.05
-        return CpmController(puma, fabric, beta=0.0, eps=float(cfg["eps"]), variant="original",
-                             regulator_scale=0.05, potential_scale=1.0, damping="constant",
-                             semi_implicit=bool(cfg["semi_implicit"]), rate=rate)
-    return CpmController(puma, fabric, beta=float(cfg["beta"]), eps=float(cfg["eps"]),
-                         variant=str(cfg["variant"]), potential_scale=float(cfg["potential_scale"]),
-                         damping=str(cfg["damping"]), semi_implicit=bool(cfg["semi_implicit"]),
-                         alpha_min=alpha_floor(cfg), rate=rate, energy=str(cfg["energy"]),
-                         forcing=Forcing.from_mapping(cfg["forcing"]),
-                         tank=EnergyTank(float(cfg["tank"]), float(cfg["tank_refill"]),
-                                         float(cfg["tank_clearance"]),
-                                         float(cfg["tank_limit_clearance"])),
-                         configuration_potential=str(cfg["configuration_potential"]))
+        return CpmController(puma, fabric, beta=0.0, variant="original", regulator_scale=0.05,
+                             potential_scale=1.0, damping="constant", rate=rate)
+    return CpmController(puma, fabric, beta=float(cfg["beta"]), variant=str(cfg["variant"]),
+                         damping=str(cfg["damping"]), alpha_min=alpha_floor(cfg), rate=rate,
+                         energy=str(cfg["energy"]), forcing=Forcing.from_mapping(cfg["forcing"]),
+                         tank=EnergyTank(float(cfg["tank"])))

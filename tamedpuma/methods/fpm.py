@@ -32,16 +32,17 @@ Table 1"), and which of the paper's statements still holds with it:
   recedes from (Table-1 pouring 05 without obstacles: joint 2 into its limit, the hand 1.2 m
   from the goal). The forcing is still a weighted pseudo-inverse of PUMA's spec through a PSD
   metric, so its zero set and the statement below are unchanged.
-- ``forcing.geometry: task_metric`` computes the geometry with PUMA's task metric as one more
-  leaf, ``h = −(M + JᵀwJ)⁻¹f`` (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`),
-  instead of ``h = −M⁻¹f``. The leaf is ``ẍ = 0`` in PUMA's task space with the constant metric
+- ``forcing.mode: task_metric`` is ``metric`` and computes the geometry with PUMA's task
+  metric as one more leaf, ``h = −(M + JᵀwJ)⁻¹f``
+  (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`), instead of ``h = −M⁻¹f``. The
+  leaf is ``ẍ = 0`` in PUMA's task space with the constant metric
   w, a Finsler energy with a zero geometry, so the sum is still a fabric and its energized
   form has the same statement. Why: the barriers' metric (×30) exceeds the base's wherever a
   barrier is near, and there h = −M⁻¹f carries their curvature terms (m_r J̇q̇ along each
   barrier row) and the joint-limit braking to the hand at full strength, unweighed against
   PUMA's forcing added after it; in a logged failure (random tomato ``near_table1`` 7001)
   it moved the hand away from the goal at 0.3-0.6 m/s² against PUMA's 0.1-0.2 m/s².
-  CPM's default; FPM keeps ``fabric`` (on 600 random scenarios 507 → 513 successes, within
+  CPM's default; FPM keeps ``metric`` (on 600 random scenarios 507 → 513 successes, within
   the churn, and Table-1 pouring 06 then fails).
 - ``forcing.priority: position`` solves PUMA's position rows first and adds the orientation
   rows without changing the hand's acceleration (``prioritized_solve`` in
@@ -67,15 +68,16 @@ Table 1"), and which of the paper's statements still holds with it:
   forcing is PUMA's to the bit, so the statement above holds there;
   while armed the rest set is that of PUMA's forcing plus a convex attractor to the same goal,
   which no longer contains the stall point unless the barriers hold the attractor too.
-- ``forcing.stall_configuration: limits`` (:mod:`tamedpuma.methods._configuration_pull`): when
+- ``forcing.configuration_pull: limits`` (:mod:`tamedpuma.methods._configuration_pull`): when
   the stall pull arms with a joint within 0.1 rad of a limit, a joint-space attractor to the
   nearest IK solution of the goal pose (inside the limits, clear, reached along a clear straight
   segment) replaces PUMA's rows until the hand is within 0.15 m of the goal or the attractor
   stops making progress. The limit box is convex, so it has no rest point made by the limits;
   its own rest point is the goal pose, in PUMA's zero set, and elsewhere the forcing is as
   above, so the statement holds; the path is not PUMA's while it acts.
-- ``energization: bounded`` (α ≥ −alpha_bound) only adds damping; ``control_rate`` filters only
-  remove energy (:mod:`tamedpuma.fabrics.discrete`); ``limit_margin`` moves the joint-limit
+- ``alpha_bound`` (α ≥ −alpha_bound; ``.inf``: unbounded, eq. 9) only adds damping;
+  ``control_rate`` filters only remove energy (:mod:`tamedpuma.fabrics.discrete`);
+  ``limit_margin`` moves the joint-limit
   barriers inside the real limits.
 
 Scalars: ``energy_fabric`` (H_{L_e}), ``alpha`` (α [1/s]), ``min_clearance_m`` [m] (body
@@ -113,9 +115,7 @@ class FpmController(TamedController):
                                        self.fabric.gains.energization_eps)
         alpha = bounded_alpha(alpha_raw, self.alpha_min)
         if self.rate.semi_implicit:
-            a, c = h + qdd_c, -alpha
-            if self.rate.braking_split:
-                a, c = braking_split(a, c, qd, alpha_raw, alpha)
+            a, c = braking_split(h + qdd_c, -alpha, qd, alpha_raw, alpha)
             qd_next = self.rate.velocity_step(qd, a, c, self.dt, av, self.fabric.gains)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)

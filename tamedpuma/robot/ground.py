@@ -1,5 +1,5 @@
 """How far the robot is above the ground plane z = 0: the rows the control-rate barrier step keeps
-positive (``method.control_rate.ground_geometry``; tamedpuma/methods/_tamed.py ControlRate).
+positive (``method.control_rate.barrier_step``; tamedpuma/methods/_tamed.py ControlRate).
 
 Two geometries, each a set of heights x_i [m] with their rows a_i = ∂x_i/∂q [m/rad] and
 curvature terms ȧ_i q̇ [m/s²]:
@@ -133,7 +133,7 @@ def _build_link_hulls(kinematics) -> LinkHulls:
         ids.append(fid)
         verts.append(np.ascontiguousarray(v, dtype=float))
     if not links:
-        raise ConfigError("method.control_rate.ground_geometry=mesh: no moving link has "
+        raise ConfigError("method.control_rate.barrier_step (its ground rows): no moving link has "
                           f"collision geometry in {kinematics.spec.urdf_path}")
     return LinkHulls(tuple(links), tuple(ids), tuple(verts),
                      point_speed_bound(kinematics, ids, verts))
