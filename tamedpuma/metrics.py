@@ -239,23 +239,21 @@ def _rest_outcome(t, error_vector, inside, reach, rot_err, causes, time_limit: f
     if rotation_vector is not None and math.isfinite(angle):
         pose = rest_step(t, error_vector, inside, reach, window, distance, rotation_vector,
                          angle)
-    in_time = rest is not None and t[rest] < time_limit - 1e-9
-    out = {k: v for k, v in _converged(causes, rest, in_time, False).items()
-           if not k.startswith("orientation_")}
-    pose_in_time = pose is not None and t[pose] < time_limit - 1e-9
+    out = _converged(causes, rest, time_limit, t, "converged")
     oriented = pose is not None and rot_err[pose] <= orientation_tolerance
-    out.update({k: v for k, v in _converged(causes, pose, pose_in_time, oriented).items()
-                if k.startswith("orientation_")})
+    out.update(_converged(causes, pose, time_limit, t, "orientation_converged", oriented))
     return {**out, "rest_time_s": float(t[rest]) if rest is not None else float("nan")}
 
 
-def _converged(causes, rest: int | None, in_time: bool, oriented: bool) -> dict:
-    """``converged_*`` and ``orientation_converged_*`` for both criteria at the rest step."""
+def _converged(causes, rest: int | None, time_limit: float, t, prefix: str,
+               oriented: bool = True) -> dict:
+    """``<prefix>_paper`` and ``<prefix>_whole_body``: at rest (step ``rest``) before the time
+    limit, with no failure cause of the criterion up to it, and ``oriented``."""
+    in_time = rest is not None and t[rest] < time_limit - 1e-9
     out = {}
     for label, names in (("paper", PAPER_CAUSES), ("whole_body", CAUSES)):
         clean = rest is not None and not any(causes[n][: rest + 1].any() for n in names)
-        out[f"converged_{label}"] = bool(clean and in_time)
-        out[f"orientation_converged_{label}"] = bool(clean and in_time and oriented)
+        out[f"{prefix}_{label}"] = bool(clean and in_time and oriented)
     return out
 
 
