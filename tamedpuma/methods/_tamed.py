@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
+from typing import NamedTuple
 
 import numpy as np
 
@@ -151,6 +152,20 @@ class PumaController:
         return lambda: {"psi": task.psi(state, goal_p, goal_q)}
 
 
+class Forced(NamedTuple):
+    """What FPM's and CPM's laws start from at one observation (:meth:`TamedController.forced`):
+    the kinematics' evaluation ``state``, the avoidance fabric ``av`` (M, f, barrier rows), its
+    geometry ``h`` [rad/s²], PUMA's forcing ``qdd_c`` = f_θ^C [rad/s²], PUMA's task acceleration
+    ``xdd`` [m/s², rad/s²] and the ground rows of the barrier step (None without it)."""
+
+    state: object
+    av: object
+    h: np.ndarray
+    qdd_c: np.ndarray
+    xdd: np.ndarray
+    ground: GroundRows | None
+
+
 class TamedController:
     """What FPM and CPM share: PUMA pulled to the joints, the avoidance fabric, the energy
     energized, the forcing (with its circulation), the α floor and the control-rate filters.
@@ -192,13 +207,13 @@ class TamedController:
             return None
         return Ground(GROUND_HEIGHT_M, self.hulls)
 
-    def forced(self, obs: Observation):
-        """(kinematic state, avoidance fabric, h, q̈_C, ẍ_d, ground rows) at the observation."""
+    def forced(self, obs: Observation) -> Forced:
+        """The fabric and PUMA's forcing at the observation (:class:`Forced`)."""
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
         ground = self.ground_rows(state, obs.qd)  # from the pass that evaluated ``state``
         h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, self.circulation,
                                                  self.stall, self.configuration)
-        return state, av, h, qdd_c, xdd, ground
+        return Forced(state, av, h, qdd_c, xdd, ground)
 
     def ground_rows(self, state, qd: np.ndarray) -> GroundRows | None:
         """The heights above the ground the barrier step keeps (each moving link's lowest hull
