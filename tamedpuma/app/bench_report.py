@@ -155,7 +155,8 @@ def _controller_head(report: dict) -> list[str]:
              ""]
     base = report.get("baseline")
     if base:
-        lines += [f"\"before\": the same cells in {label(base)} (`--baseline {base.get('tree') or base.get('rev')}`), "
+        where = base.get("tree") or base.get("rev")  # a report from before --baseline DIR: rev
+        lines += [f"\"before\": the same cells in {label(base)} (`--baseline {where}`), "
                   "in the same run: one timing worker per source tree running its own timing "
                   "code, blocks of at most 100 calls alternating between them (order swapped "
                   "every round), so both sides see the same load; with both numbers and their "
