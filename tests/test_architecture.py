@@ -69,7 +69,7 @@ LAYERS = [{"errors", "startup"}, {"types", "paths", "runlog"}, {"robot"},
 #: the one upward edge: the control loop hands recording's record types to the recorders
 _ALLOWED = {("episode", "tamedpuma.recording.records")}
 _SHIMS = {"sweep", "train", "lasa", "bench_fabrics", "bench", "replay", "body_model", "models",
-          "__init__", "__main__"}
+          "safety_suite", "__init__", "__main__"}
 
 
 def _layer(part: str) -> int:
