@@ -113,7 +113,11 @@ def run_steps(args, command: str) -> dict | None:
 
 def steps_only(args, command: str) -> int:
     """``--steps``: the in-episode section alone."""
-    report = run_steps(args, command)
+    try:
+        report = run_steps(args, command)
+    except Exception as exc:  # as in run(): one line, not a traceback
+        print(f"error: {one_line(exc)}", file=sys.stderr)
+        return 2
     if report is None:
         print("error: --steps needs --steps-table1 ≥ 1 or --steps-seeds", file=sys.stderr)
         return 2
@@ -231,7 +235,11 @@ def run(args, command: str) -> int:
         report["baseline"] = report["episode_baseline"] = describe(before)
     controller_cells(args, report, before)
     step_parts(args, report)
-    steps = run_steps(args, command)
+    try:
+        steps = run_steps(args, command)
+    except Exception as exc:  # a composition error of the overrides, a missing model
+        report["errors"].append({"method": "in episodes", "error": one_line(exc)})
+        steps = None
     if steps is not None:
         report["steps"] = {"methods": steps["methods"], "reference": steps["reference"],
                            "cases": steps["cases"]}
