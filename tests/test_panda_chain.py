@@ -68,3 +68,16 @@ def test_the_replay_builds_the_panda_recording(panda_run):
     assert replay.main([str(panda_run), "--build"]) == 0
     joints = read_rrd_joints(panda_run / "episode.rrd")
     assert set(PANDA["joint_names"]) <= set(joints.columns)
+
+
+def test_the_replay_hides_the_collision_meshes_of_the_robot_it_shows():
+    """The scene hides the collision meshes under the URDF's robot name (the Panda's, not a
+    fixed iiwa path), and names none without a robot model."""
+    from tamedpuma.recording.rerun_writer import replay_blueprint
+
+    def hidden(blueprint):
+        scene = blueprint.root_container.contents[0]
+        return {path for path in scene.visualizer_overrides if "collision" in path}
+
+    assert hidden(replay_blueprint(robot="panda")) == {"/world/panda/collision_geometries"}
+    assert hidden(replay_blueprint()) == set()
