@@ -123,9 +123,9 @@ class Workload:
 def make_workload(kin, counts=COUNTS, clearance: float = 0.15, seed: int = 0) -> Workload:
     """The seeded states near :data:`Q0` and obstacles (≥ ``clearance`` [m] from the arm at Q0)."""
     rng = np.random.default_rng(seed)
-    states = tuple((Q0 + rng.normal(scale=0.05, size=7), rng.normal(scale=0.3, size=7))
+    states = tuple((Q0 + rng.normal(scale=0.05, size=Q0.size), rng.normal(scale=0.3, size=Q0.size))
                    for _ in range(N_STATES))
-    centers0 = kin.evaluate(Q0, np.zeros(7)).sphere_centers
+    centers0 = kin.evaluate(Q0, np.zeros(Q0.size)).sphere_centers
     obstacles = {n: random_obstacles(rng, n, centers0, kin.spec.sphere_radii, clearance)
                  for n in counts}
     return Workload(states, obstacles)
