@@ -190,7 +190,7 @@ def read_mcap(path: str | os.PathLike) -> RunLog:
     scalars = scalars.astype(float)  # JSON null (a non-finite scalar) -> NaN
 
     info = _parse_info(scan.metadata.get(META_RUN_INFO, {}))
-    joints = _joints_frame(topics, factory, step_of, t_of, len(info.get("joint_names") or "7" * 7))
+    joints = _joints_frame(topics, factory, step_of, t_of, len(info.get("joint_names") or ()))
     ee = _ee_frame(topics, factory, step_of, t_of)
     obstacles = _obstacles_frame(topics, factory, step_of, t_of)
 
@@ -212,19 +212,27 @@ def read_mcap(path: str | os.PathLike) -> RunLog:
     )
 
 
-def _joints_frame(topics, factory, step_of: dict, t_of: dict, n: int = 7) -> pd.DataFrame:
-    cols = (["t"] + [f"q_{i}" for i in range(n)] + [f"qd_{i}" for i in range(n)]
+def _joint_columns(n: int) -> list[str]:
+    return (["t"] + [f"q_{i}" for i in range(n)] + [f"qd_{i}" for i in range(n)]
             + [f"qdd_cmd_{i}" for i in range(n)])
+
+
+def _joints_frame(topics, factory, step_of: dict, t_of: dict, n: int = 0) -> pd.DataFrame:
+    """Per step: t, q_i, qd_i, qdd_cmd_i for each of the robot's joints (``n``: the run's
+    joint count from its names; 0 for a log that names none: the messages' own count)."""
+    empty = pd.DataFrame(columns=_joint_columns(n), index=pd.Index([], name="step", dtype=int))
     if "/joint_states" not in topics:
-        return pd.DataFrame(columns=cols, index=pd.Index([], name="step", dtype=int))
+        return empty
     times, decoded = _decoded(topics["/joint_states"], factory)
     keep = [i for i, t in enumerate(times.tolist()) if t in step_of]
+    if not keep:
+        return empty
     values = np.array([[v for j in decoded[i].joints for v in (j.position, j.velocity,
                                                               j.acceleration)]
                        for i in keep], dtype=float).reshape(len(keep), -1, 3)
+    cols = _joint_columns(values.shape[1])
     t = np.array([t_of[tn] for tn in times[keep].tolist()], dtype=float)
-    data = np.column_stack([t, values[:, :, 0], values[:, :, 1],
-                            values[:, :, 2]]) if keep else np.zeros((0, len(cols)))
+    data = np.column_stack([t, values[:, :, 0], values[:, :, 1], values[:, :, 2]])
     index = pd.Index([step_of[t] for t in times[keep].tolist()], name="step", dtype=int)
     return pd.DataFrame(data, columns=cols, index=index)
 

@@ -6,11 +6,20 @@ import json
 
 import pytest
 
-from tamedpuma.app import bench
+from tamedpuma.app import (
+    bench,
+    bench_baseline,
+    bench_parts,
+    bench_report,
+    bench_timing,
+    bench_worker,
+    bench_workers,
+)
+from tamedpuma.app.bench_fabrics import ROOT
 
 
 def test_controller_cells_are_ordered_statistics():
-    rows = bench.time_controller("fabrics", counts=(0, 4), calls=20, budget_s=1.0)
+    rows = bench_timing.time_controller("fabrics", counts=(0, 4), calls=20, budget_s=1.0)
     assert [(r["method"], r["n_obstacles"]) for r in rows] == [("fabrics", 0), ("fabrics", 4)]
     for r in rows:
         assert 0 < r["p10_ms"] <= r["median_ms"] <= r["p90_ms"]
@@ -18,17 +27,15 @@ def test_controller_cells_are_ordered_statistics():
 
 
 def test_budget_stops_a_cell_early():
-    rows = bench.time_controller("fabrics", counts=(2,), calls=100000, budget_s=0.05)
+    rows = bench_timing.time_controller("fabrics", counts=(2,), calls=100000, budget_s=0.05)
     assert 5 <= rows[0]["n_calls"] < 100000
 
 
 def test_episode_rows_and_overheads_are_relative_to_none():
-    from tamedpuma.app.bench_fabrics import ROOT
-
-    rows = bench.time_episodes("fabrics", repeats=2, overrides=["scenario.max_steps=20"],
+    rows = bench_workers.time_episodes("fabrics", repeats=2, overrides=["scenario.max_steps=20"],
                                trees={"now": ROOT, "before": ROOT})
     by = {r["recorder"]: r for r in rows}
-    assert set(by) == set(bench.RECORDERS)
+    assert set(by) == set(bench_workers.RECORDERS)
     assert by["none"]["overhead_vs_none"] == 0.0
     for r in rows:
         assert r["steps"] == r["before_steps"] <= 20 and r["realtime_factor"] > 0
@@ -41,20 +48,21 @@ def test_episode_rows_and_overheads_are_relative_to_none():
         if r["recorder"] != "none":  # the recorders' own time, measured inside the episode
             assert 0 < r["recorder_own_share"] and r["recorder_own_s"]
     assert 0 < by["none"]["physics_s"] < by["none"]["wall_s"]
-    section = bench.markdown_section({"date": "d", "controller": [], "episodes": rows,
-                                      "episode_baseline": {"rev": "HEAD", "commit": "0" * 40},
-                                      "machine": {"cpu_model": "c", "cores": 2, "python": "3",
-                                                  "numpy": "2"}})
-    assert "| mcap+rerun | " in section and "`0000000` (`HEAD`)" in section
+    section = bench_report.markdown_section({
+        "date": "d", "controller": [], "episodes": rows,
+        "episode_baseline": {"tree": "/tmp/before", "commit": "0" * 40},
+        "machine": {"cpu_model": "c", "cores": 2, "python": "3", "numpy": "2"}})
+    assert "| mcap+rerun | " in section and "commit `0000000`" in section
     assert "the simulator alone" in section
 
 
 def test_command_writes_json_and_keeps_other_sections(tmp_path):
     (tmp_path / "BENCHMARKS.md").write_text("# Benchmarks\n\n## Fabrics\nkeep\n\n## Controller "
                                             "step\nold figures\n\n## Z\nz\n")
+    (tmp_path / "README.md").write_text("readme\n")
     code = bench.main(["--methods", "fabrics", "nope", "--counts", "2", "--calls", "10",
-                       "--budget", "0.5", "--episodes", "0", "--skip-fabrics",
-                       "--root", str(tmp_path)])
+                       "--budget", "0.5", "--episodes", "0", "--skip-fabrics", "--parts",
+                       "--steps-table1", "0", "--steps-seeds", "--root", str(tmp_path)])
     assert code == 0
     report = json.loads((tmp_path / "benchmarks" / "bench.json").read_text())
     assert [r["n_obstacles"] for r in report["controller"]] == [2]
@@ -62,6 +70,9 @@ def test_command_writes_json_and_keeps_other_sections(tmp_path):
     text = (tmp_path / "BENCHMARKS.md").read_text()
     assert "keep" in text and "## Z\nz" in text and "old figures" not in text
     assert text.count("## Controller step") == 1 and "| fabrics | 2 |" in text
+    assert (tmp_path / "README.md").read_text() == "readme\n"  # the bench edits no other file
+    assert sorted(p.name for p in tmp_path.rglob("*")) == [
+        "BENCHMARKS.md", "README.md", "bench.json", "benchmarks"]
 
 
 def test_one_command_also_regenerates_the_fabrics_section(tmp_path, monkeypatch):
@@ -70,7 +81,8 @@ def test_one_command_also_regenerates_the_fabrics_section(tmp_path, monkeypatch)
     monkeypatch.delenv("TAMEDPUMA_REFERENCE_PYTHON", raising=False)
     (tmp_path / "BENCHMARKS.md").write_text("# Benchmarks\n\n## Fabrics\nold\n\n## Z\nz\n")
     code = bench.main(["--methods", "fabrics", "--counts", "2", "--calls", "20", "--budget",
-                       "0.5", "--episodes", "0", "--parts", "--root", str(tmp_path)])
+                       "0.5", "--episodes", "0", "--parts", "--steps-table1", "0",
+                       "--steps-seeds", "--root", str(tmp_path)])
     assert code == 0
     text = (tmp_path / "BENCHMARKS.md").read_text()
     fabrics = text.split("## Fabrics")[1].split("## ")[0]
@@ -92,66 +104,62 @@ def test_baseline_rows_get_before_figures_and_ratios():
             {"method": "fpm", "n_obstacles": 10, "median_ms": 0.25, **cell}]
     before = [{"method": "fpm", "n_obstacles": 2, "median_ms": 0.5, "p10_ms": 0.4,
                "p90_ms": 0.6, "n_calls": 7}]
-    bench.attach_baseline(rows, before)
+    bench_baseline.attach_baseline(rows, before)
     assert rows[0]["speedup"] == pytest.approx(2.5) and rows[0]["before_p90_ms"] == 0.6
     assert "speedup" not in rows[1]
-    section = bench.markdown_section({"date": "d", "controller": rows, "baseline": {
-        "rev": "HEAD~1", "commit": "0123456789"}, "machine": {
+    section = bench_report.markdown_section({"date": "d", "controller": rows, "baseline": {
+        "tree": "/tmp/before", "commit": None}, "machine": {
         "cpu_model": "c", "cores": 2, "python": "3", "numpy": "2",
         "load_averages_start": [1.0, 2.0, 3.0]}})
     assert "| fpm | 2 | 0.200 |" in section and "| 0.500 | 0.400 | 0.600 | 2.5× |" in section
     assert "| fpm | 10 | 0.250 |" in section and "1.00 / 2.00 / 3.00" in section
+    assert "in `/tmp/before` (`--baseline /tmp/before`)" in section  # not a git checkout
 
 
 def test_report_is_found_after_other_output():
     text = 'noise\n{"not": 1}\n{\n  "controller": [\n    {\n      "a": 1\n    }\n  ]\n}\n'
-    assert bench._report_from_stdout(text) == {"controller": [{"a": 1}]}
+    assert bench.report_from_stdout(text) == {"controller": [{"a": 1}]}
 
 
-def test_readme_summary_between_markers(tmp_path):
-    readme = tmp_path / "README.md"
-    readme.write_text("a <!-- bench-summary -->old<!-- /bench-summary --> b\n")
-    report = {"date": "d", "machine": {"load_averages_start": [1.5, 1, 1]}, "controller": [
-        {"method": "fpm", "n_obstacles": 2, "median_ms": 0.15},
-        {"method": "fpm", "n_obstacles": 1000, "median_ms": 0.5}]}
-    assert bench.update_readme(readme, bench.readme_summary(report))
-    text = readme.read_text()
-    assert "old" not in text and "fpm 0.150 ms (2) / 0.500 ms (1000)" in text
-    assert text.startswith("a <!-- bench-summary -->") and text.endswith("--> b\n")
-    assert not bench.update_readme(tmp_path / "missing.md", "x")
-
-
-def test_baseline_revision_is_timed_by_its_own_code(capsys, monkeypatch):
+def test_a_baseline_checkout_is_timed_by_its_own_code(capsys, monkeypatch):
+    """This checkout as its own baseline: both sides timed by their workers, the ratio given."""
     monkeypatch.delenv("TAMEDPUMA_REFERENCE_PYTHON", raising=False)  # our code only: no reference
     code = bench.main(["--methods", "fabrics", "--counts", "2", "--calls", "10", "--budget",
-                       "0.3", "--episodes", "0", "--parts", "--baseline", "HEAD", "--no-write"])
+                       "0.3", "--episodes", "0", "--parts", "--steps-table1", "0",
+                       "--steps-seeds", "--baseline", str(ROOT), "--no-write"])
     assert code == 0
-    report = bench._report_from_stdout(capsys.readouterr().out)
-    assert not report["errors"] and len(report["baseline"]["commit"]) == 40
+    report = bench.report_from_stdout(capsys.readouterr().out)
+    assert not report["errors"] and report["baseline"]["tree"] == str(ROOT.resolve())
     row = report["controller"][0]
     assert row["before_median_ms"] > 0 and row["speedup"] > 0
 
 
-def test_unknown_baseline_revision_is_one_line_error(capsys):
-    assert bench.main(["--methods", "fabrics", "--parts", "--baseline", "no-such-rev",
+@pytest.mark.parametrize("where", ["no-such-folder", "."])
+def test_a_baseline_that_is_no_checkout_is_one_line_error(capsys, tmp_path, monkeypatch, where):
+    monkeypatch.chdir(tmp_path)  # "." : a folder without the worker module
+    assert bench.main(["--methods", "fabrics", "--parts", "--baseline", where,
                        "--no-write"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error: --baseline no-such-rev") and err.count("\n") == 1
+    assert err.startswith(f"error: --baseline {where}") and err.count("\n") == 1
+
+
+def test_the_worker_module_refuses_an_unknown_kind(capsys):
+    assert bench_worker.main(["nope"]) == 2
+    assert "usage: python -m tamedpuma.app.bench_worker" in capsys.readouterr().err
 
 
 def test_parts_of_a_step_and_the_reference_network():
-    rows = bench.time_parts("fpm", 2, calls=3)
+    rows = bench_parts.time_parts("fpm", 2, calls=3)
     by = {r["part"]: r for r in rows}
-    assert {"step", "kinematics", "avoidance fabric", "network: acceleration",
-            "pullback J⁺ and null space"} <= set(by)
+    assert {"step", "kinematics", "avoidance fabric", "its solve and energization",
+            "network: acceleration"} <= set(by)
     assert all(r["us"] > 0 for r in rows)
     assert by["network: acceleration"]["reference_us"] > 0 and "reference_us" not in by[
         "kinematics"]
-    section = bench.markdown_section({"date": "d", "controller": [], "parts": rows, "machine": {
-        "cpu_model": "c", "cores": 2, "python": "3", "numpy": "2"}})
+    section = bench_report.markdown_section({"date": "d", "controller": [], "parts": rows,
+                                             "machine": {"cpu_model": "c", "cores": 2,
+                                                         "python": "3", "numpy": "2"}})
     assert "| fpm | 2 | network: acceleration |" in section
-    assert {"directional metric", "pullback through the metric", "control-rate filters"} <= set(
-        by)  # FPM's forcing (directional metric, pullback, filters), part by part
 
 
 def test_targets_are_met_or_explained_by_the_profile():
@@ -165,7 +173,7 @@ def test_targets_are_met_or_explained_by_the_profile():
     episodes = [{"recorder": "none", "overhead_vs_none": 0.0, "realtime_factor": 25.0,
                  "physics_s": 0.25, "controller_s": 0.2, "sim_s": 15.0, "steps": 750},
                 {"recorder": "mcap", "overhead_vs_none": 0.08}]
-    lines = "\n".join(bench.target_lines({"controller": controller, "parts": parts,
+    lines = "\n".join(bench_report.target_lines({"controller": controller, "parts": parts,
                                           "episodes": episodes}))
     assert "fpm, 2 obstacles, median ≤ 0.2 ms: **met** (0.190 ms, 1.3× faster" in lines
     assert "fpm, 1000 obstacles, median ≤ 0.6 ms: **not met**: 0.800 ms" in lines
@@ -175,30 +183,28 @@ def test_targets_are_met_or_explained_by_the_profile():
 
 
 def test_side_by_side_workers_time_blocks_and_report_failures():
-    from tamedpuma.app.bench_fabrics import ROOT
-
-    rows = bench.time_side_by_side("fabrics", (0, 3), calls=12, budget_s=1.0,
+    rows = bench_workers.time_side_by_side("fabrics", (0, 3), calls=12, budget_s=1.0,
                                    trees={"a": ROOT, "b": ROOT}, block=5)
     for side in ("a", "b"):
         assert [r["n_obstacles"] for r in rows[side]] == [0, 3]
         assert all(r["n_calls"] == 12 and 0 < r["p10_ms"] <= r["p90_ms"] for r in rows[side])
     with pytest.raises(RuntimeError):
-        bench.time_side_by_side("no_such_method", (2,), calls=5, budget_s=0.5,
+        bench_workers.time_side_by_side("no_such_method", (2,), calls=5, budget_s=0.5,
                                 trees={"a": ROOT})
 
 
 def test_method_variants_add_their_overrides(monkeypatch):
     from tamedpuma.fabrics import compiled
 
-    assert bench.method_overrides("fpm") == ("fpm", [])
+    assert bench_timing.method_overrides("fpm") == ("fpm", [])
     with pytest.raises(ValueError, match="unknown variant"):
-        bench.method_overrides("fpm+fortran")
+        bench_timing.method_overrides("fpm+fortran")
     monkeypatch.setattr(compiled, "AVAILABLE", True)
-    assert bench.method_overrides("fabrics+numba") == ("fabrics",
+    assert bench_timing.method_overrides("fabrics+numba") == ("fabrics",
                                                        ["method.fabric.kernel=numba"])
     monkeypatch.setattr(compiled, "AVAILABLE", False)
     with pytest.raises(ValueError, match="numba is not installed"):
-        bench.method_overrides("fabrics+numba")
+        bench_timing.method_overrides("fabrics+numba")
 
 
 def test_render_rewrites_the_sections_from_the_saved_reports(tmp_path, capsys):

@@ -48,5 +48,21 @@ def test_the_cases_are_the_experiments_own():
 def test_an_episode_s_step_figures_are_its_summary_s():
     row = bench_steps.run_case("fabrics", ["+experiment=table1", "case=tomato_00",
                                            "without_obstacles=false"])
-    assert row["steps"] == len(row["ms"]) == row["cpu"]["steps"] > 10
+    assert row["steps"] == len(row["ms"]) > 10
     assert row["summary_mismatch"] < 1e-3
+
+
+def test_without_the_reference_the_report_says_its_figure_is_cited(monkeypatch):
+    note = bench_steps.reference_note(False, None)
+    assert note.startswith("not timed in this run") and "TAMEDPUMA_REFERENCE_PYTHON" in note
+    assert "cited" in note and bench_steps.reference_note(True, None) == "timed live in this run"
+    report = {"cases": ["table1/tomato_00"], "date": "d", "period_ms": 20.0, "bound_ms": 10.0,
+              "reference": {"reference_median_ms": 0.25, "reference_note": note,
+                            "fabric_median_ms": 0.1},
+              "methods": {"fpm": {"runs": 1, **bench_steps.step_stats([0.5, 0.5, 25.0]),
+                                  "ratio_to_reference": 2.0, "runs_over_period": 1,
+                                  "summary_mismatch": 0.0}},
+              "machine": {"cpu_model": "c", "load_average_1min": 1.0}}
+    section = bench_steps.markdown_section(report)
+    assert section.startswith("## Controller step in episodes") and note in section
+    assert "| fpm | 1 | 3 | 0.500 | 2.00 |" in section and "| 25.00 | 1 | 1 | 1 |" in section

@@ -16,8 +16,6 @@ from mcap.reader import make_reader
 
 from tamedpuma.errors import LogError
 from tamedpuma.recording import (
-    IIWA_JOINT_NAMES,
-    IIWA_LINK_NAMES,
     McapRecorder,
     RerunRecorder,
     RunInfo,
@@ -32,6 +30,10 @@ from tamedpuma.recording import (
 
 REPO = Path(__file__).resolve().parents[1]
 K_BODY = 6
+#: the KUKA iiwa's joint and link names (``pybullet_data/kuka_iiwa/model.urdf``), the robot of
+#: these recordings
+IIWA_JOINT_NAMES = tuple(f"lbr_iiwa_joint_{i}" for i in range(1, 8))
+IIWA_LINK_NAMES = tuple(f"lbr_iiwa_link_{i}" for i in range(0, 8))
 
 
 def _urdf(tmp_path: Path) -> Path:
@@ -53,7 +55,7 @@ def _info(urdf: Path, run_id: str = "run-1") -> RunInfo:
     return RunInfo(run_id=run_id, method="tamedpuma", task="pick", scenario_name="clutter",
                    seed=7, config_yaml="method:\n  name: tamedpuma\nseed: 7\n",
                    urdf_path=str(urdf), body_sphere_radii=np.linspace(0.05, 0.1, K_BODY),
-                   dt=0.02)
+                   dt=0.02, joint_names=IIWA_JOINT_NAMES, link_names=IIWA_LINK_NAMES)
 
 
 def _record(i: int) -> StepRecord:
@@ -420,3 +422,27 @@ def test_a_chunk_cut_short_leaves_every_step_once(tmp_path, monkeypatch):
     assert not log.complete
     assert list(log.joints.index) == list(range(log.n_steps))
     assert log.n_steps == 29
+
+
+def test_a_robot_of_three_joints_is_logged_and_read_with_three(tmp_path):
+    """The log names the joints the robot has: three joints give q_0..q_2 (no seven assumed)."""
+    import dataclasses
+
+    names = ("a", "b", "c")
+    info = dataclasses.replace(_info(_urdf(tmp_path)), joint_names=names)
+    recs = []
+    for i in range(5):
+        r = _record(i)
+        recs.append(StepRecord(**{**r.__dict__, "q": r.q[:3], "qd": r.qd[:3],
+                                  "qdd_cmd": r.qdd_cmd[:3]}))
+    path = tmp_path / "episode.mcap"
+    writer = McapRecorder(path)
+    writer.open(info)
+    for r in recs:
+        writer.write(r)
+    writer.close(complete=True, summary={"steps": 5})
+    log = read_mcap(path)
+    assert log.info["joint_names"] == list(names)
+    assert [c for c in log.joints.columns if c.startswith("q_")] == ["q_0", "q_1", "q_2"]
+    np.testing.assert_array_equal(log.joints[["q_0", "q_1", "q_2"]].to_numpy(),
+                                  np.array([r.q for r in recs]))

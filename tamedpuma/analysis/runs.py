@@ -171,6 +171,13 @@ def method_label(cfg: dict, method: str | None) -> str | None:
     return (cfg.get("method") or {}).get("label") or method
 
 
+def joint_columns(joints: pd.DataFrame) -> list[str]:
+    """The joint position columns ``q_0 .. q_{n-1}`` of a log's joint frame, as many as the
+    robot has."""
+    n = sum(1 for c in joints.columns if re.fullmatch(r"q_\d+", str(c)))
+    return [f"q_{i}" for i in range(n)]
+
+
 def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
     """Metrics of one logged run, its end-effector path (T, 3) [m] and its per-step controller
     times (T,) [ms]."""
@@ -179,7 +186,8 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
     robot = cfg.get("robot", {})
     scenario = cfg.get("scenario", {})
     sc = run.scalars
-    q = run.joints[[f"q_{i}" for i in range(7)]].to_numpy()
+    q = run.joints[joint_columns(run.joints)].to_numpy()
+    n = q.shape[1]
     ee = run.ee[["x", "y", "z"]].to_numpy()
     dt = float(scenario.get("dt", run.info.get("dt") or 0.02))
     max_steps = scenario.get("max_steps")
@@ -188,8 +196,8 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
         orientation_error=sc["orientation_error_rad"].to_numpy(),
         clearance=sc["clearance_m"].to_numpy(), obstacle_contact=sc["obstacle_contact"].to_numpy(),
         ground_contact=sc["ground_contact"].to_numpy(), q=q,
-        q_min=np.array(robot.get("q_min", [-np.inf] * 7)),
-        q_max=np.array(robot.get("q_max", [np.inf] * 7)),
+        q_min=np.array(robot.get("q_min", [-np.inf] * n)),
+        q_max=np.array(robot.get("q_max", [np.inf] * n)),
         compute_ms=sc["compute_time_ms"].to_numpy(),
         tolerance=float(scenario.get("goal_tolerance", 0.05)),
         time_limit=float(max_steps) * dt if max_steps is not None else float("inf"),

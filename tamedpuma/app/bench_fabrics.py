@@ -43,7 +43,9 @@ from tamedpuma.fabrics import Fabric, quaternion_to_rotation
 from tamedpuma.methods.fabrics import gains_from_config
 from tamedpuma.paths import CHECKOUT_ROOT
 
-ROOT = CHECKOUT_ROOT  # the repository the benchmark files are written into
+#: where the benchmark files are written: the checkout holding this package, else (an installed
+#: package has no BENCHMARKS.md of its own) the current folder
+ROOT = CHECKOUT_ROOT if (CHECKOUT_ROOT / "pyproject.toml").is_file() else Path.cwd()
 COUNTS = (2, 10, 100, 1000)
 Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
 GOAL_POSITION = np.array([0.58, -0.214, 0.115])
@@ -121,9 +123,9 @@ class Workload:
 def make_workload(kin, counts=COUNTS, clearance: float = 0.15, seed: int = 0) -> Workload:
     """The seeded states near :data:`Q0` and obstacles (≥ ``clearance`` [m] from the arm at Q0)."""
     rng = np.random.default_rng(seed)
-    states = tuple((Q0 + rng.normal(scale=0.05, size=7), rng.normal(scale=0.3, size=7))
+    states = tuple((Q0 + rng.normal(scale=0.05, size=Q0.size), rng.normal(scale=0.3, size=Q0.size))
                    for _ in range(N_STATES))
-    centers0 = kin.evaluate(Q0, np.zeros(7)).sphere_centers
+    centers0 = kin.evaluate(Q0, np.zeros(Q0.size)).sphere_centers
     obstacles = {n: random_obstacles(rng, n, centers0, kin.spec.sphere_radii, clearance)
                  for n in counts}
     return Workload(states, obstacles)

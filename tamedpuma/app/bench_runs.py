@@ -243,8 +243,8 @@ def job_overheads(repeats: int = 7) -> dict:
 
 def time_table1(cores: int, timeout: float = 7200.0) -> dict:
     """``python -m tamedpuma.sweep +experiment=table1`` into a temporary folder: its wall time,
-    then the profile of its runs and the time ``python -m analysis.tables`` takes to rebuild the
-    tables from the logs (the sweep's last step)."""
+    then the profile of its runs and the time ``python -m tamedpuma.analysis.tables`` takes to
+    rebuild the tables from the logs (the sweep's last step)."""
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,16 +1,18 @@
-"""The controller's step time inside real episodes: ``python -m tamedpuma.bench --steps``.
+"""The controller's step time inside real episodes: a section of ``python -m tamedpuma.bench``
+(``--steps``: this section alone).
 
 Each (method, scenario) pair runs one whole episode through the sweep's own ``run_one`` (the
 same config, model lookup, scenario and simulator as ``python -m tamedpuma.sweep``, without
 recorders) and reads back every step's controller time from the run's ``summary.json``
 (``step_compute_ms``): what the user's runs spend, with the stalls, engagements and warm-up they
 hold. Per method the steps of all its episodes are pooled: median, p99, p99.9 and max [ms], the
-steps over the control period (20 ms) and over the issue's bound (10 ms), and the runs holding
+steps over the control period (20 ms) and over the 10 ms bound, and the runs holding
 one; each run's own median, p99 and max are checked against the summary's ``compute_ms_*``
 fields (the same array: they agree to the summary's rounding). Beside them, in the same run, the
 reference ``fabrics`` planner's ``compute_action`` at 2 obstacles (live under
-``--reference-python``; its dated figure otherwise) and our vanilla fabric on the same states
-(:mod:`tamedpuma.app.bench_fabrics`), and each method's median as a ratio to the reference.
+``--reference-python``; its dated figure otherwise, with a note saying so) and our vanilla
+fabric on the same states (:mod:`tamedpuma.app.bench_fabrics`), and each method's median as a
+ratio to the reference.
 
 Scenarios: the first ``--steps-table1`` scenarios of each Table-1 task (with their obstacles, as
 ``+experiment=table1`` runs them) and the randomized suite's seeds ``--steps-seeds`` of both
@@ -20,6 +22,7 @@ tasks and both start kinds (as ``+experiment=random``).
 from __future__ import annotations
 
 import json
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -31,6 +34,8 @@ BOUND_MS = 10.0  #: the bound every step of FPM, CPM, Fabrics and PUMA is asked 
 METHODS = ("puma", "fabrics", "fpm", "cpm", "modulation_ik")
 TASKS = ("tomato", "pouring")
 START_KINDS = ("near_table1", "anywhere")
+SECTION = "Controller step in episodes"
+COMMAND = "python -m tamedpuma.bench --steps"
 
 
 def table1_cases(per_task: int) -> list[tuple[str, list[str]]]:
@@ -76,36 +81,21 @@ def summary_mismatch(summary: dict, stats: dict) -> float:
 
 def run_case(method: str, overrides: list[str], extra=()) -> dict:
     """One episode of ``method`` with ``overrides`` through the sweep's ``run_one`` (no
-    recorders) in a temporary folder: its outcome and step statistics, of the wall time the
-    summary records and of the CPU time of the stepping thread over the same calls (``cpu``:
-    on a loaded machine the wall time also holds the time the process waited for a core)."""
-    from tamedpuma import episode
-    from tamedpuma.app.bench import compose
+    recorders) in a temporary folder: its outcome and the statistics of the per-step
+    controller times its ``summary.json`` records, checked against the summary's own figures."""
+    from tamedpuma.app.bench_timing import compose
     from tamedpuma.app.sweep import run_one
 
     cfg = compose([*overrides, f"method={method}", "recorder=none", *extra])
-    cpu, timed = [], episode._timed_step
-
-    def cpu_timed(*args):
-        start = time.thread_time()
-        out = timed(*args)
-        cpu.append((time.thread_time() - start) * 1e3)
-        return out
-
-    episode._timed_step = cpu_timed
-    try:
-        with tempfile.TemporaryDirectory(prefix="tamedpuma-steps-") as tmp:
-            run_dir = Path(tmp) / "run"
-            run_dir.mkdir()
-            summary = run_one(cfg, run_dir)
-    finally:
-        episode._timed_step = timed
+    with tempfile.TemporaryDirectory(prefix="tamedpuma-steps-") as tmp:
+        run_dir = Path(tmp) / "run"
+        run_dir.mkdir()
+        summary = run_one(cfg, run_dir)
     ms = summary["step_compute_ms"]
     stats = step_stats(ms)
     return {"method": method, "success": summary.get("success_paper"),
             "stop_reason": summary.get("stop_reason"), **stats,
-            "cpu": step_stats(cpu), "summary_mismatch": summary_mismatch(summary, stats),
-            "ms": ms, "cpu_ms": cpu}
+            "summary_mismatch": summary_mismatch(summary, stats), "ms": ms}
 
 
 def pooled(rows: list[dict]) -> dict:
@@ -115,14 +105,26 @@ def pooled(rows: list[dict]) -> dict:
     for method in dict.fromkeys(r["method"] for r in rows):
         mine = [r for r in rows if r["method"] == method]
         stats = step_stats(np.concatenate([np.asarray(r["ms"], dtype=float) for r in mine]))
-        cpu = [np.asarray(r["cpu_ms"], dtype=float) for r in mine if "cpu_ms" in r]
         out[method] = {"runs": len(mine), **stats,
-                       "cpu": step_stats(np.concatenate(cpu)) if cpu else {"steps": 0},
                        "runs_over_period": sum(r["over_period"] > 0 for r in mine),
                        "runs_over_bound": sum(r["over_bound"] > 0 for r in mine),
                        "successes": sum(bool(r["success"]) for r in mine),
                        "summary_mismatch": max(r["summary_mismatch"] for r in mine)}
     return out
+
+
+def reference_note(live: bool, note: str | None) -> str:
+    """How the reference figure was obtained, in one sentence for the report."""
+    from tamedpuma.app import bench_fabrics
+
+    if live:
+        return "timed live in this run"
+    why = note or (f"no Python with the reference `fabrics` package was given "
+                   f"(--reference-python or ${bench_fabrics.REFERENCE_ENV}; .ci/run builds one "
+                   "with fabrics==0.10.0)")
+    return (f"not timed in this run: {why}; its dated figure "
+            f"({bench_fabrics.CITED_DATE}, {bench_fabrics.CITED_SOURCE}) is cited instead, so "
+            "the ratios compare figures from two different loads")
 
 
 def reference_at_two(reference_python, calls: int = 2000) -> dict:
@@ -136,22 +138,27 @@ def reference_at_two(reference_python, calls: int = 2000) -> dict:
     live = report["reference_live"].get("2")
     ref = live["median_ms"] if live else bench_fabrics.CITED_REFERENCE_MS[2]
     return {"reference_median_ms": ref, "reference_live": bool(live),
-            "reference_note": report.get("reference_note"),
+            "reference_note": reference_note(bool(live), report.get("reference_note")),
             "fabric_median_ms": ours.get("median_ms"),
             "reference_cited_1000_ms": bench_fabrics.CITED_REFERENCE_MS[1000]}
 
 
-def run(methods=METHODS, table1_per_task: int = 3, seeds=(2000,), reference_python=None,
+def cases(table1_per_task: int, seeds) -> list[tuple[str, list[str]]]:
+    """The Table-1 scenarios and randomized-suite seeds timed."""
+    return table1_cases(table1_per_task) + random_cases(seeds)
+
+
+def run(methods=METHODS, table1_per_task: int = 1, seeds=(2000,), reference_python=None,
         extra=(), log=print) -> dict:
     """Every method on every case (one process, one episode at a time), the reference beside
-    them; the report written to ``benchmarks/steps.json``."""
+    them in the same run; the report (``benchmarks/steps.json``)."""
     from tamedpuma.app.bench_fabrics import machine_info
 
-    cases = table1_cases(table1_per_task) + random_cases(seeds)
+    timed = cases(table1_per_task, seeds)
     machine = machine_info()
     reference = reference_at_two(reference_python)
     rows = []
-    for label, overrides in cases:
+    for label, overrides in timed:
         for method in methods:
             row = run_case(method, overrides, extra)
             row["case"] = label
@@ -161,48 +168,56 @@ def run(methods=METHODS, table1_per_task: int = 3, seeds=(2000,), reference_pyth
     methods_out = pooled(rows)
     for m in methods_out.values():
         m["ratio_to_reference"] = m["median_ms"] / reference["reference_median_ms"]
-        if m["cpu"]["steps"]:
-            m["cpu"]["ratio_to_reference"] = (m["cpu"]["median_ms"]
-                                              / reference["reference_median_ms"])
-    machine["load_average_1min_end"] = round(__import__("os").getloadavg()[0], 2)
+    if hasattr(os, "getloadavg"):
+        machine["load_average_1min_end"] = round(os.getloadavg()[0], 2)
     return {"benchmark": "controller step inside whole episodes (run_one, no recorders)",
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-            "period_ms": PERIOD_MS, "bound_ms": BOUND_MS, "cases": [c for c, _ in cases],
+            "period_ms": PERIOD_MS, "bound_ms": BOUND_MS, "cases": [c for c, _ in timed],
             "overrides": list(extra), "reference": reference, "methods": methods_out,
-            "runs": [{k: v for k, v in r.items() if k not in ("ms", "cpu_ms")} for r in rows],
+            "runs": [{k: v for k, v in r.items() if k != "ms"} for r in rows],
             "machine": machine}
 
 
 def lines(report: dict) -> list[str]:
     """The report as a Markdown table."""
     ref = report["reference"]
-    out = [f"In-episode controller step ({len(report['cases'])} scenarios, {report['date']}; "
-           f"reference `compute_action` at 2 obstacles {ref['reference_median_ms']:.3f} ms "
-           f"({'live' if ref['reference_live'] else 'cited'}), our vanilla fabric "
-           f"{ref['fabric_median_ms']:.3f} ms):", "",
-           "| method | runs | steps | median [ms] | × reference | p99 | p99.9 | max | steps > "
-           "20 ms | steps > 10 ms | runs > 20 ms |", "|---|" + "---:|" * 10]
+    note = ref.get("reference_note") or ("timed live in this run" if ref.get("reference_live")
+                                         else "cited")
+    out = [f"In-episode controller step ({len(report['cases'])} scenarios: "
+           f"{', '.join(report['cases'])}; {report['date']}). Every step of every episode, as "
+           "the run's summary.json records it (`step_compute_ms`: the wall time of "
+           "`controller.step`; each run's median, p99 and max agree with the summary's "
+           "`compute_ms_*` to a relative "
+           f"{max((m['summary_mismatch'] for m in report['methods'].values()), default=0):.1g})."
+           f" Reference: `fabrics` 0.10.0 `compute_action` on the iiwa at 2 obstacles "
+           f"{ref['reference_median_ms']:.3f} ms ({note}); our vanilla fabric "
+           f"on the same states {ref['fabric_median_ms']:.3f} ms.", "",
+           f"| method | runs | steps | median [ms] | × reference | p99 | p99.9 | max | steps > "
+           f"{report['period_ms']:.0f} ms (the period) | steps > {report['bound_ms']:.0f} ms | "
+           f"runs > {report['period_ms']:.0f} ms |", "|---|" + "---:|" * 10]
     for name, m in report["methods"].items():
         out.append(f"| {name} | {m['runs']} | {m['steps']} | {m['median_ms']:.3f} | "
                    f"{m['ratio_to_reference']:.2f} | {m['p99_ms']:.2f} | {m['p99_9_ms']:.2f} | "
                    f"{m['max_ms']:.2f} | {m['over_period']} | {m['over_bound']} | "
                    f"{m['runs_over_period']} |")
-    out += ["", "The same steps in CPU time of the stepping thread (the wall time above also "
-            "holds the waits for a core on a loaded machine):", "",
-            "| method | median [ms] | × reference | p99 | p99.9 | max | steps > 20 ms | "
-            "steps > 10 ms |", "|---|" + "---:|" * 7]
-    for name, m in report["methods"].items():
-        c = m.get("cpu") or {}
-        if c.get("steps"):
-            out.append(f"| {name} | {c['median_ms']:.3f} | {c['ratio_to_reference']:.2f} | "
-                       f"{c['p99_ms']:.2f} | {c['p99_9_ms']:.2f} | {c['max_ms']:.2f} | "
-                       f"{c['over_period']} | {c['over_bound']} |")
     return out
 
 
+def markdown_section(report: dict) -> str:
+    """The "## Controller step in episodes" section of BENCHMARKS.md."""
+    load = report["machine"].get("load_average_1min")
+    return "\n".join([f"## {SECTION}", "", f"Regenerated by `{report.get('command', COMMAND)}` "
+                      "(figures: `benchmarks/steps.json`).", "", *lines(report), "",
+                      f"Machine: {report['machine']['cpu_model']}, load average {load} at the "
+                      "start (a shared machine inflates the tail: compare the ratios).", ""])
+
+
 def write(report: dict, root: Path) -> Path:
-    """``root``/benchmarks/steps.json."""
+    """``root``/benchmarks/steps.json and its section of ``root``/BENCHMARKS.md."""
+    from tamedpuma.app.bench_fabrics import update_markdown
+
     out = Path(root) / "benchmarks" / "steps.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2) + "\n")
+    update_markdown(Path(root) / "BENCHMARKS.md", markdown_section(report), SECTION)
     return out

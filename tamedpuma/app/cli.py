@@ -131,9 +131,11 @@ _SHELL_ACTIONS = ("install", "uninstall", "query")
 
 def shell_completion(argv: list[str], module: str) -> list[str]:
     """Hydra's ``--shell-completion`` (``-sc``) for ``python -m module`` (Hydra's own scripts
-    complete ``python script.py`` only): ``install=bash`` prints a bash script for ``python -m
-    module``; ``query=SHELL`` reads the line the shell passes (``COMP_LINE``) with ``python -m
-    module`` as the program's name. A bare flag or an unknown action is a one-line error.
+    complete ``python script.py`` and installed programs only): ``install=bash`` prints a bash
+    script for ``python -m module``; ``query=SHELL`` reads the line the shell passes
+    (``COMP_LINE``) with ``python -m module`` as the program's name. Run as a console script
+    (``tamedpuma-sweep``, ``sys.argv[0]`` not a ``.py`` file) Hydra's own completion serves,
+    under the program's name. A bare flag or an unknown action is a one-line error.
     Returns ``argv`` for Hydra (unchanged without the flag); exits after printing a script."""
     _, _, flags = split_argv(argv)
     value = flags.get("--shell-completion", flags.get("-sc"))
@@ -143,6 +145,8 @@ def shell_completion(argv: list[str], module: str) -> list[str]:
     if action not in _SHELL_ACTIONS or not shell:
         fail(f"--shell-completion needs one of install=SHELL, uninstall=SHELL or query=SHELL "
              f"(SHELL: bash, zsh or fish), e.g. eval \"$(python -m {module} -sc install=bash)\"")
+    if not sys.argv[0].endswith(".py"):  # a console script: Hydra's own completion names it
+        return argv
     if action == "install" and shell == "bash":
         print(_BASH_COMPLETION.format(module=module, name=module.replace(".", "_")))
         sys.exit(0)

@@ -29,7 +29,7 @@ from .reader import (
     read_rrd_series,
     recover_mcap,
 )
-from .records import IIWA_JOINT_NAMES, IIWA_LINK_NAMES, Recorder, RunInfo, StepRecord
+from .records import Recorder, RunInfo, StepRecord
 from .rerun_writer import RerunRecorder
 
 #: recorder kind -> (class, file name inside the run directory)
@@ -61,8 +61,6 @@ def make_recorders(kinds: Iterable[str], run_dir: str | os.PathLike,
 
 
 __all__ = [
-    "IIWA_JOINT_NAMES",
-    "IIWA_LINK_NAMES",
     "RECORDERS",
     "McapRecorder",
     "Recorder",

@@ -13,11 +13,6 @@ from typing import Protocol
 
 import numpy as np
 
-#: The KUKA iiwa joint and link names of ``pybullet_data/kuka_iiwa/model.urdf``.
-IIWA_JOINT_NAMES: tuple[str, ...] = tuple(f"lbr_iiwa_joint_{i}" for i in range(1, 8))
-IIWA_LINK_NAMES: tuple[str, ...] = tuple(f"lbr_iiwa_link_{i}" for i in range(0, 8))
-
-
 _F8 = np.dtype(float)
 
 
@@ -39,8 +34,10 @@ class RunInfo:
 
     run_id: unique id of the run; method, task, scenario_name, seed: what was run;
     config_yaml: the resolved Hydra config (YAML text); urdf_path: robot URDF file;
-    joint_names: the actuated joints (7 for the iiwa: ``lbr_iiwa_joint_1..7``);
-    link_names: the L links whose poses each :class:`StepRecord` carries (``lbr_iiwa_link_0..7``);
+    joint_names: the n actuated joints, in the order of every :class:`StepRecord`'s q (the
+    robot config's, e.g. ``lbr_iiwa_joint_1..7``); link_names: the L links whose poses each
+    :class:`StepRecord` carries (e.g. ``lbr_iiwa_link_0..7``); both required: the recording
+    names what the robot has, never a default robot's;
     body_sphere_radii: (k,) collision-sphere radii on the robot body [m]; dt: control period [s];
     velocity_limits: (n,) joint speed limits [rad/s] (empty: unknown, replays plot raw speeds).
     model: the trained model the method used (``model_path``, ``model_sha256``, ``model_origin``,
@@ -55,8 +52,8 @@ class RunInfo:
     config_yaml: str
     urdf_path: str
     dt: float
-    joint_names: tuple[str, ...] = IIWA_JOINT_NAMES
-    link_names: tuple[str, ...] = IIWA_LINK_NAMES
+    joint_names: tuple[str, ...]
+    link_names: tuple[str, ...]
     body_sphere_radii: np.ndarray = field(default_factory=lambda: np.zeros(0))
     velocity_limits: np.ndarray = field(default_factory=lambda: np.zeros(0))
     model: Mapping[str, str] = field(default_factory=dict)

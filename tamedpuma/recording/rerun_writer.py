@@ -102,8 +102,10 @@ LEGEND_CORNERS = (rrb.Corner2D.RightTop, rrb.Corner2D.RightBottom, rrb.Corner2D.
 RERUN_FOV_Y = np.deg2rad(55.0)
 #: Direction from the scene centre to the default eye (front-right, above).
 EYE_DIRECTION = (1.0, -1.5, 0.75)
-#: Hidden by default; each is one click (the eye icon) away in the viewer.
-HIDDEN_BY_DEFAULT = ("/world/lbr_iiwa/collision_geometries", "/world/body_spheres")
+#: Hidden by default; each is one click (the eye icon) away in the viewer: the body spheres and
+#: the robot's collision meshes (logged by Rerun under the URDF's robot name)
+HIDDEN_BY_DEFAULT = ("/world/body_spheres",)
+COLLISION_MESHES = "/world/{robot}/collision_geometries"
 REFERENCE_PATH = "/world/reference_path"
 REFERENCE_LABEL_DROP = 0.15  # [m] below the reference path's end, where its label is drawn
 
@@ -248,12 +250,14 @@ def scene_points(rec: StepRecord) -> np.ndarray:
 
 def replay_blueprint(scalar_names: Iterable[str] = (), joint_names: Iterable[str] = (),
                      camera: Camera | None = None, speed_limits: bool = True,
-                     corners: Mapping[str, rrb.Corner2D] | None = None) -> rrb.Blueprint:
+                     corners: Mapping[str, rrb.Corner2D] | None = None,
+                     robot: str | None = None) -> rrb.Blueprint:
     """The replay layout: the 3-D scene (visual meshes; collision meshes and body spheres hidden
     but listed, so one click shows them; eye from ``camera``) beside one plot per quantity
     (joints, joint speed against the limits, then :func:`plot_groups` of ``scalar_names``).
     corners: each plot's legend corner by plot title (:func:`legend_corner`; the right top
-    for a plot not named)."""
+    for a plot not named); robot: the URDF's robot name (its collision meshes are hidden; None:
+    no robot model logged)."""
     eye = None
     if camera is not None:
         eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital,
@@ -262,7 +266,8 @@ def replay_blueprint(scalar_names: Iterable[str] = (), joint_names: Iterable[str
     scene = rrb.Spatial3DView(
         name="scene", origin="/world",
         spatial_information=rrb.SpatialInformation(target_frame=WORLD_FRAME, show_axes=False),
-        overrides={path: rrb.EntityBehavior(visible=False) for path in HIDDEN_BY_DEFAULT},
+        overrides={path: rrb.EntityBehavior(visible=False) for path in (
+            *HIDDEN_BY_DEFAULT, *([COLLISION_MESHES.format(robot=robot)] if robot else []))},
         eye_controls=eye)
     joint_names = list(joint_names)
     corners = corners or {}
@@ -429,6 +434,7 @@ class RerunRecorder:
         self._joints = []
         self._root = None
         self._root_index = None
+        self._robot = None
         if Path(info.urdf_path).is_file():
             rec.log_file_from_path(info.urdf_path, entity_path_prefix="/world", static=True)
             tree = _urdf_tree(info.urdf_path)
@@ -436,7 +442,7 @@ class RerunRecorder:
             if any(j is None for j in self._joints):
                 missing = [n for n, j in zip(info.joint_names, self._joints) if j is None]
                 raise ValueError(f"joints {missing} not in {info.urdf_path}")
-            self._root = tree.root_link().name
+            self._root, self._robot = tree.root_link().name, tree.name
             if self._root in info.link_names:
                 self._root_index = info.link_names.index(self._root)
             else:  # no pose for the root link: base at the world origin
@@ -536,7 +542,8 @@ class RerunRecorder:
         camera = frame_camera(np.vstack(self._points)) if self._points else None
         return replay_blueprint(self._scalar_names, info.joint_names, camera,
                                 speed_limits=len(info.velocity_limits) > 0,
-                                corners=self._legend_corners())
+                                corners=self._legend_corners(),
+                                robot=getattr(self, "_robot", None))
 
     def _legend_corners(self) -> dict[str, rrb.Corner2D]:
         """Each plot's legend corner (:func:`legend_corner`) from the samples kept so far (every
