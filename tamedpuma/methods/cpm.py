@@ -5,7 +5,7 @@ Theorem III.5):
     γ = −(q̇ q̇ᵀ / (q̇ᵀ M q̇ + ε)) ∂ψ/∂q − β q̇,                                     [rad/s²]
 
 with the compatible potential ψ(x) = k_ψ ‖ρ_θ(x_g, 0) − ρ_θ(x, 0)‖² at the *current* state and
-∂ψ/∂q = (∂ψ/∂x) J. The scale k_ψ > 0 (``potential_scale``) keeps ψ compatible; with β it sets
+∂ψ/∂q = (∂ψ/∂x) J. The scale k_ψ > 0 (:data:`POTENTIAL_SCALE`) keeps ψ compatible; with β it sets
 the speed along the path: energization removes f_θ^C's component along q̇, so the speed comes from
 ψ alone (steady speed ≈ k_ψ |∂ψ/∂q · u| / (β uᵀMu) along the direction u), while f_θ^C's normal
 component steers. PUMA's path is reproduced when that speed is close to PUMA's own.
@@ -20,31 +20,18 @@ arm brakes along q̇ otherwise. dH/dt = −β(q, q̇) q̇ᵀMq̇ ≤ −β q̇�
 argument; the speed along the path is then PUMA's own wherever the potential is strong enough
 (k_ψ large), so CPM follows PUMA's paths. ``damping: constant`` is the paper's literal β.
 
-``damping: matched_forcing`` (an option) matches the damping to the forcing only: with
-``α = α_h + α_f``, ``α_h = q̇ᵀ(M h + f_e)/(q̇ᵀMq̇ + ε)`` (the avoidance geometry's energization,
-bounded below as FPM's) and ``α_f = q̇ᵀM f_θ^C/(q̇ᵀMq̇ + ε)``, it takes β = max(β_min, r − α_f).
-Then ``q̈ = energize[h] + f_θ^C + min(r − α_f − β_min, 0) q̇``: in free space (h = 0) exactly the
-matched form (PUMA's path), near obstacles the geometry stays energized, so the arm keeps its
-speed and slides around the obstacle as a fabric does. Why: with ``matched`` the braking of the
-barrier geometry (α < 0, which energization would give back as speed along the obstacle) was
-cancelled by β = r − α, so where PUMA pushed into an obstacle the arm came to rest beside it
-with ψ constant (random scenarios: stalls 6-64 cm short, β up to 170 /s, speed < 0.01 rad/s).
-Guarantee: dH_{L_e}/dt = (α_h + α_f + c) q̇ᵀMq̇ + … gives ``dH/dt = −β q̇ᵀMq̇ ≤ −β_min q̇ᵀMq̇``
-exactly as the other forms (static obstacles; ≤ with the α_h bound), so the convergence argument
-of Theorem III.5 is unchanged.
-
 ``energy`` and ``forcing`` as FPM's (:mod:`tamedpuma.methods.fpm`). With ``energy: execution``
 the metric of energization and of γ is M = I: it is bounded and strictly positive definite
 everywhere and does not degenerate as q̇ → 0, which is exactly the assumption on M_{L_e} under
 which eq. 10 converges (paper, section 4.2; the barrier metric 0.2/x does not meet it). Then
 dH/dt = −β ‖q̇‖² with H = ½‖q̇‖² + ψ (static obstacles).
-With ``forcing: metric`` f_θ^C is PUMA pulled through the avoidance fabric's metric
+With ``forcing.mode: metric`` f_θ^C is PUMA pulled through the avoidance fabric's metric
 (:class:`~tamedpuma.methods._tamed.Forcing`), so near an obstacle PUMA's push into it is
 suppressed and the regulator's energy goes into sliding along it. f_θ^C keeps its zero set; ψ
 stays compatible with it wherever ``P = wJA⁻¹Jᵀ ≈ I`` (free space: −∂ψᵀf_θ^C = −∂ψ_xᵀ P ẍ_d);
 near an obstacle P bends f_θ^C away from PUMA's direction and compatibility is no longer
 guaranteed there, where the barrier already keeps ψ from decreasing along PUMA's path.
-With ``forcing.geometry: task_metric`` (CPM's default; FPM keeps ``fabric``)
+With ``forcing.mode: task_metric`` (CPM's default; FPM keeps ``metric``)
 h = −(M + JᵀwJ)⁻¹f: PUMA's task metric is one more leaf of the fabric (ẍ = 0, metric w), so
 the geometry no longer drives the hand against PUMA near barriers
 (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`); the sum is still a fabric,
@@ -54,25 +41,27 @@ energized as before, so dH/dt = −β‖q̇‖² holds unchanged.
 attractor added to PUMA's position rows while the hand has stopped approaching the goal. It is
 part of f_θ^C, whose power along q̇ energization takes away, so dH/dt = −β q̇ᵀMq̇ holds with it as
 without it: the pull steers CPM out of the direction it was pressing into a barrier.
-``forcing.stall_configuration`` (:mod:`tamedpuma.methods._configuration_pull`): the joint-space
+``forcing.configuration_pull`` (:mod:`tamedpuma.methods._configuration_pull`): the joint-space
 attractor that replaces PUMA's rows after such a stall (CPM's default ``always``: at every
 arming farther than 0.15 m from the goal; ``limits``: only with a joint at a limit) is part of
-f_θ^C too. With ``configuration_potential: puma`` it only steers CPM where ψ's energy lets it
-(the way out climbs ψ: CPM crawls); with ``attractor`` the regulator watches the attractor's own
+f_θ^C too. Were the regulator to watch ψ meanwhile, the pull would only steer CPM where ψ's
+energy lets it (the way out climbs ψ: CPM crawls); so the regulator watches the attractor's own
 potential φ(q) = g ρ_ℓ(‖q − q_g‖) while it acts (−∂φ is its pull: compatible), so
 dH/dt ≤ −β q̇ᵀq̇ holds with H = ½‖q̇‖² + φ then and with ψ elsewhere; the argument holds on
 every interval on one potential and, after the last engagement, ψ's (scalar
 ``potential_attractor``: 1 while φ is used).
 
-``eps`` ε [(rad/s)²]: the regulariser of the energization and regulator denominators
-``q̇ᵀMq̇ + ε``. Below the speed √ε both fade out and the law becomes ``h + f_θ^C − β q̇``, PUMA's
-own start from rest. It must exceed the square of the joint controller's velocity noise: in
+ε [(rad/s)²] (the fabric's ``energization_eps``, as FPM's energization; conf/method/cpm.yaml
+sets 1e-3, cpm_literal the fabric's 1e-6): the regulariser of the energization and regulator
+denominators ``q̇ᵀMq̇ + ε``. Below the speed √ε both fade out and the law becomes
+``h + f_θ^C − β q̇``, PUMA's own start from rest. It must exceed the square of the joint
+controller's velocity noise: in
 PyBullet the velocity motors sag under gravity by ~1e-3 rad/s, and with ε = 1e-6 that sag set
 the direction of q̇ at rest: energization removed f_θ^C's push along it and the regulator saw ψ
 *rising* along it, so the arm never started (Table-1 tomato 8: 0.5 m from the goal for 40 s
 at 7e-4 rad/s, α ≈ 250 /s). Above √ε the law is eq. 10 exactly.
 
-Discretisation (``semi_implicit``, default): over one control period Δt the law is
+Discretisation (``control_rate.semi_implicit``, default): over one control period Δt the law is
 q̈ = a + c q̇ with a = h + f_θ^C and c = r − α − β ≤ 0 (the regulator, energization and damping
 all act along q̇); the velocity-proportional part is taken implicitly,
 q̇⁺ = (q̇ + Δt a)/(1 − Δt c), a first-order step like the explicit one, which instead flips q̇
@@ -85,7 +74,7 @@ obstacle that is only passed by first moving away from the goal (random scenario
 stalls happened where FPM, from the same state, went round). The tank holds κ k_ψ ψ(q₀) at the
 start; wherever CPM's regulator would brake FPM's law ``energize[h] + f_θ^C`` the tank pays the
 energy that law needs, and CPM's law takes over where the tank is empty; a share σ
-(``tank_refill``) of the energy CPM dissipates beyond β q̇ᵀq̇ refills it. W = H + T still falls
+(:data:`TANK_REFILL`) of the energy CPM dissipates beyond β q̇ᵀq̇ refills it. W = H + T still falls
 at least at β q̇ᵀq̇ and T is bounded, so the convergence argument above is unchanged; only the
 basin CPM ends in changes.
 
@@ -124,9 +113,6 @@ from tamedpuma.types import Command, Observation, Scenario
 
 VARIANTS = ("paper", "original")
 DAMPINGS = ("constant", "matched")
-#: ε [(rad/s)²] of the energization and regulator denominators: above the joint controller's
-#: velocity noise squared, so that the regulator's q̇q̇ᵀ/(q̇ᵀMq̇ + ε) does not amplify that noise
-EPS = 1.0e-3
 #: k_ψ [1]: the regulator watches k_ψ ψ (still a compatible potential); with β it sets the speed
 #: along the path, about k_ψ|∂ψ/∂q·u|/(β uᵀMu)
 POTENTIAL_SCALE = 0.3
@@ -197,7 +183,8 @@ class EnergyTank:
 
 class CpmController(TamedController):
     """CPM on one robot. beta: damping β [1/s] (> 0 for the convergence guarantee);
-    eps: ε [(rad/s)²] of the regulator's denominator; variant: 'paper' or 'original';
+    eps: ε [(rad/s)²] of the energization and regulator denominators (None: the fabric's
+    ``energization_eps``, as FPM's energization uses it); variant: 'paper' or 'original';
     potential_scale: k_ψ on ψ; damping: ``constant`` β or ``matched`` β(q, q̇) = max(β, r − α);
     regulator_scale: factor on the ψ term (1 in the paper, 0.05 in the original code). While
     the configuration pull acts the regulator watches that pull's own potential (the potential
@@ -206,7 +193,8 @@ class CpmController(TamedController):
     creep_fraction = CREEP_FRACTION
 
     def __init__(self, puma: PumaController, fabric: Fabric, *, beta: float, variant: str,
-                 damping: str, eps: float = EPS, potential_scale: float = POTENTIAL_SCALE,
+                 damping: str, eps: float | None = None,
+                 potential_scale: float = POTENTIAL_SCALE,
                  regulator_scale: float = 1.0, alpha_min: float | None = None,
                  rate: ControlRate | None = None, energy: str = "fabric",
                  forcing: Forcing | None = None, tank: EnergyTank | None = None):
@@ -215,7 +203,8 @@ class CpmController(TamedController):
         if variant == "paper" and not beta > 0:
             raise ConfigError(f"cpm needs beta > 0 for convergence, got {beta}")
         super().__init__(puma, fabric, alpha_min, rate, energy, forcing)
-        self.beta, self.eps, self.variant = beta, eps, variant
+        self.beta, self.variant = beta, variant
+        self.eps = fabric.gains.energization_eps if eps is None else eps
         self.regulator_scale = regulator_scale
         if not potential_scale > 0:
             raise ConfigError(f"cpm potential_scale must be positive, got {potential_scale}")
