@@ -48,6 +48,7 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from tamedpuma.app import callbacks
 from tamedpuma.app.cli import fail, precheck_overrides, shell_completion, with_plugin_configs
 from tamedpuma.app.config import CONF_DIR
 from tamedpuma.errors import ConfigError, DiskFullError, TamedPumaError
@@ -721,6 +722,7 @@ def main(argv: list[str] | None = None) -> None:
     _OUTCOMES.clear()
     _INTERRUPT_SAID.clear()
     _KEPT.clear()
+    callbacks.forget_progress()
     Sweeper.validate_batch_is_legal = _validate_representatives
     hydra.core.utils._save_config = _save_config_or_stop
     try:
