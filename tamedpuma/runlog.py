@@ -16,14 +16,17 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_protobuf.decoder import DecoderFactory
 
 from tamedpuma.errors import LogError
+
+if TYPE_CHECKING:  # pandas is imported where a log is read: a run writing its summary needs
+    import pandas as pd  # only SUMMARY_SCHEMA_VERSION (pandas: 0.9 s CPU of a process start)
 
 ACTIVE_SUFFIX = ".active"  # a log still being written (or left by a killed run)
 #: the version of a run's ``summary.json`` layout: 2 added ``schema_version``, ``suite``
@@ -160,6 +163,8 @@ def read_mcap(path: str | os.PathLike) -> RunLog:
     Steps are kept only if all their per-step messages were read. Raises :class:`LogError` if the
     file is missing, is not MCAP, or holds no readable run data.
     """
+    import pandas as pd
+
     path = existing_log(path, "run log")
     scan = _scan(path)
     if META_RUN_INFO not in scan.metadata and not scan.messages:
@@ -213,6 +218,8 @@ def read_mcap(path: str | os.PathLike) -> RunLog:
 
 
 def _joints_frame(topics, factory, step_of: dict, t_of: dict, n: int = 7) -> pd.DataFrame:
+    import pandas as pd
+
     cols = (["t"] + [f"q_{i}" for i in range(n)] + [f"qd_{i}" for i in range(n)]
             + [f"qdd_cmd_{i}" for i in range(n)])
     if "/joint_states" not in topics:
@@ -230,6 +237,8 @@ def _joints_frame(topics, factory, step_of: dict, t_of: dict, n: int = 7) -> pd.
 
 
 def _ee_frame(topics, factory, step_of: dict, t_of: dict) -> pd.DataFrame:
+    import pandas as pd
+
     cols = ["t", "x", "y", "z", "qx", "qy", "qz", "qw"]
     if "/ee_pose" not in topics:
         return pd.DataFrame(columns=cols, index=pd.Index([], name="step", dtype=int))
@@ -245,6 +254,8 @@ def _ee_frame(topics, factory, step_of: dict, t_of: dict) -> pd.DataFrame:
 
 
 def _obstacles_frame(topics, factory, step_of: dict, t_of: dict) -> pd.DataFrame:
+    import pandas as pd
+
     cols = ["step", "t", "id", "x", "y", "z", "radius"]
     if "/scene" not in topics:
         return pd.DataFrame(columns=cols)
