@@ -1,5 +1,6 @@
 """A run that records MCAP alone (the suites) or nothing does not import the log readers'
-pandas nor Rerun at its start; the names stay where they were."""
+pandas nor Rerun at its start, nor does a sweep job's progress line; the names stay where they
+were."""
 
 import subprocess
 import sys
@@ -9,6 +10,11 @@ def test_a_run_process_loads_neither_pandas_nor_rerun_until_asked(tmp_path):
     code = ("import sys, tamedpuma.app.sweep, tamedpuma.runlog, tamedpuma.recording as r\n"
             f"recs = r.make_recorders(['mcap'], {str(tmp_path)!r})\n"
             "assert type(recs[0]).__name__ == 'McapRecorder'\n"
+            "from omegaconf import OmegaConf\n"
+            "from tamedpuma.app.callbacks import progress_line\n"
+            f"d = {str(tmp_path)!r}\n"
+            "progress_line(OmegaConf.create({'hydra': {'sweep': {'dir': d}, "
+            "'runtime': {'output_dir': d + '/run'}}}), None)\n"
             "print(sorted(m for m in ('pandas', 'rerun', 'pyarrow') if m in sys.modules))\n"
             "r.read_mcap\n"
             "print('pandas' in sys.modules)\n")

@@ -20,6 +20,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from tamedpuma.analysis import sweep_values
+from tamedpuma.paths import set_aside
 
 
 def sweep_size(config: DictConfig) -> int | None:
@@ -134,7 +135,6 @@ class DoneRuns:
     it writes a new one). The same count as a walk of the folder, without walking it."""
 
     def __init__(self, root: Path):
-        from tamedpuma.analysis.runs import set_aside
         from tamedpuma.app.sweep import OUTCOMES_FILE
 
         self.outcomes = Path(root) / OUTCOMES_FILE
