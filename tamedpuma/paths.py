@@ -118,3 +118,13 @@ def resolve(path: str | os.PathLike, *, must_exist: bool = False, what: str = "p
         raise ConfigError(f"{what} not found: {path} (looked in "
                           f"{', '.join(str(c) for c in found)})")
     return found[0]
+
+
+#: the folder in which a resumed sweep keeps a run's interrupted earlier attempt
+#: (``tamedpuma.app.sweep``): kept for inspection, not a run of the sweep
+SET_ASIDE = "previous_attempt"
+
+
+def set_aside(path: str | os.PathLike) -> bool:
+    """True for a file inside a run's :data:`SET_ASIDE` folder."""
+    return SET_ASIDE in Path(path).parts

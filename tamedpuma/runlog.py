@@ -16,14 +16,17 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_protobuf.decoder import DecoderFactory
 
 from tamedpuma.errors import LogError
+
+if TYPE_CHECKING:  # pandas is imported where a log is read: a run writing its summary needs
+    import pandas as pd  # only SUMMARY_SCHEMA_VERSION (pandas: 0.9 s CPU of a process start)
 
 ACTIVE_SUFFIX = ".active"  # a log still being written (or left by a killed run)
 #: the version of a run's ``summary.json`` layout: 2 added ``schema_version``, ``suite``
@@ -160,6 +163,8 @@ def read_mcap(path: str | os.PathLike) -> RunLog:
     Steps are kept only if all their per-step messages were read. Raises :class:`LogError` if the
     file is missing, is not MCAP, or holds no readable run data.
     """
+    import pandas as pd
+
     path = existing_log(path, "run log")
     scan = _scan(path)
     if META_RUN_INFO not in scan.metadata and not scan.messages:
@@ -220,6 +225,8 @@ def _joint_columns(n: int) -> list[str]:
 def _joints_frame(topics, factory, step_of: dict, t_of: dict, n: int = 0) -> pd.DataFrame:
     """Per step: t, q_i, qd_i, qdd_cmd_i for each of the robot's joints (``n``: the run's
     joint count from its names; 0 for a log that names none: the messages' own count)."""
+    import pandas as pd
+
     empty = pd.DataFrame(columns=_joint_columns(n), index=pd.Index([], name="step", dtype=int))
     if "/joint_states" not in topics:
         return empty
@@ -238,6 +245,8 @@ def _joints_frame(topics, factory, step_of: dict, t_of: dict, n: int = 0) -> pd.
 
 
 def _ee_frame(topics, factory, step_of: dict, t_of: dict) -> pd.DataFrame:
+    import pandas as pd
+
     cols = ["t", "x", "y", "z", "qx", "qy", "qz", "qw"]
     if "/ee_pose" not in topics:
         return pd.DataFrame(columns=cols, index=pd.Index([], name="step", dtype=int))
@@ -253,6 +262,8 @@ def _ee_frame(topics, factory, step_of: dict, t_of: dict) -> pd.DataFrame:
 
 
 def _obstacles_frame(topics, factory, step_of: dict, t_of: dict) -> pd.DataFrame:
+    import pandas as pd
+
     cols = ["step", "t", "id", "x", "y", "z", "radius"]
     if "/scene" not in topics:
         return pd.DataFrame(columns=cols)

@@ -32,3 +32,25 @@ def test_the_link_hulls_are_built_once_per_model_and_read_only(robot_spec):
     other = link_hulls(Kinematics(robot_spec.controller_body()))
     if robot_spec.controller_body().spheres != robot_spec.spheres:  # other frames: its own
         assert other is not first
+
+
+def test_the_schema_node_is_built_once_and_every_typing_starts_from_its_defaults():
+    import dataclasses
+
+    from omegaconf import OmegaConf
+
+    from tamedpuma.app import schema
+    from tamedpuma.errors import ConfigError
+
+    method = schema.METHODS["fpm"]
+    fresh = dataclasses.asdict(schema.typed(method, {"name": "fpm"}))
+    node = schema._schema_node(method)
+    before = OmegaConf.to_yaml(node)
+    assert schema.typed(method, {"name": "fpm", "label": "mine"}).label == "mine"
+    with pytest.raises(ConfigError):
+        schema.typed(method, {"name": "fpm", "no_such_key": 1})
+    assert schema._schema_node(method) is node and OmegaConf.to_yaml(node) == before
+    assert dataclasses.asdict(schema.typed(method, {"name": "fpm"})) == fresh
+    built = OmegaConf.structured(method)  # the node as a fresh build makes it
+    schema._writable(built)
+    assert OmegaConf.to_yaml(built) == before

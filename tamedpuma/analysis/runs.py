@@ -18,6 +18,7 @@ import yaml
 
 from tamedpuma.errors import LogError
 from tamedpuma.metrics import ERROR_VECTOR_FIELDS, ROTATION_VECTOR_FIELDS, run_metrics
+from tamedpuma.paths import SET_ASIDE, set_aside  # noqa: F401 - re-exported
 from tamedpuma.recording import read_mcap
 
 log = logging.getLogger(__name__)
@@ -147,15 +148,6 @@ def write_table(table: pd.DataFrame, out: Path, stem: str) -> str:
     (out / f"{stem}.md").write_text(text)
     return text
 
-
-#: the folder in which a resumed sweep keeps a run's interrupted earlier attempt
-#: (``tamedpuma.app.sweep``): kept for inspection, not a run of the sweep
-SET_ASIDE = "previous_attempt"
-
-
-def set_aside(path: Path) -> bool:
-    """True for a file inside a run's :data:`SET_ASIDE` folder."""
-    return SET_ASIDE in Path(path).parts
 
 
 def find_logs(root: str | Path) -> list[Path]:

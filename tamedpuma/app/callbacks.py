@@ -20,6 +20,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from tamedpuma.analysis import sweep_values
+from tamedpuma.paths import set_aside
 
 
 def sweep_size(config: DictConfig) -> int | None:
@@ -79,15 +80,12 @@ class SweepOutcomes(Callback):
 def progress_line(config: DictConfig, job_return: Any) -> str:
     """``[done/total] <run folder>: <outcome>`` after a job: done counts the run folders of
     the sweep with a ``summary.json`` (not the earlier attempts a resumed sweep set aside),
-    total the sweep's jobs (``multirun.yaml``)."""
-    from tamedpuma.analysis.runs import set_aside
-
+    total the sweep's jobs (``multirun.yaml``). Both are kept by the worker between its jobs
+    (:func:`sweep_total`, :class:`DoneRuns`): a job costs what is new since the last one, not a
+    walk of the whole sweep folder and a parse of its manifest."""
     root = Path(str(config.hydra.sweep.dir))
-    done = sum(1 for p in root.rglob("summary.json") if not set_aside(p))
-    try:
-        total = sweep_size(OmegaConf.load(root / "multirun.yaml")) or "?"
-    except Exception:  # noqa: BLE001 - an unreadable manifest: progress without a total
-        total = "?"
+    done = done_runs(root).count()
+    total = sweep_total(root / "multirun.yaml")
     run_dir = Path(str(config.hydra.runtime.output_dir))
     outcome = "?"
     summary = run_dir / "summary.json"
@@ -107,6 +105,84 @@ def progress_line(config: DictConfig, job_return: Any) -> str:
     except ValueError:
         shown = run_dir
     return f"[{done}/{total}] {shown}: {outcome}"
+
+
+_TOTALS: dict = {}  # (manifest path, mtime [ns], size [B]) -> the sweep's job count or "?"
+
+
+def sweep_total(manifest: Path) -> int | str:
+    """The job count of the sweep whose ``multirun.yaml`` is ``manifest`` (:func:`sweep_size`;
+    "?" when unreadable or unknown), parsed once per process and version of the file (a
+    manifest parse costs 0.1 s, every job of the sweep asks)."""
+    try:
+        stat = manifest.stat()
+    except OSError:
+        return "?"
+    key = (str(manifest.resolve()), stat.st_mtime_ns, stat.st_size)
+    if key not in _TOTALS:
+        try:
+            _TOTALS[key] = sweep_size(OmegaConf.load(manifest)) or "?"
+        except Exception:  # noqa: BLE001 - an unreadable manifest: progress without a total
+            _TOTALS[key] = "?"
+    return _TOTALS[key]
+
+
+class DoneRuns:
+    """The run folders of the sweep folder ``root`` that hold a ``summary.json`` (not set aside),
+    kept by a worker between its jobs: the folder is walked once, at the first count; later the
+    runs the sweep's jobs (any process's) appended to its outcomes file since then are added,
+    and each known folder's ``summary.json`` is checked (a rerun sets its summary aside until
+    it writes a new one). The same count as a walk of the folder, without walking it."""
+
+    def __init__(self, root: Path):
+        from tamedpuma.app.sweep import OUTCOMES_FILE
+
+        self.outcomes = Path(root) / OUTCOMES_FILE
+        self.offset = self._size()  # before the walk: a run written meanwhile is seen twice
+        self.runs = {p.parent.resolve() for p in Path(root).rglob("summary.json")
+                     if not set_aside(p)}
+
+    def _size(self) -> int:
+        try:
+            return self.outcomes.stat().st_size
+        except OSError:
+            return 0
+
+    def count(self) -> int:
+        """The number of run folders with a ``summary.json`` now."""
+        if self._size() < self.offset:  # the outcomes file was replaced: walk again
+            self.__init__(self.outcomes.parent)
+        try:
+            with open(self.outcomes, "rb") as fh:
+                fh.seek(self.offset)
+                data = fh.read()
+        except OSError:
+            data = b""
+        complete = data[:data.rfind(b"\n") + 1]  # a line still being written waits
+        self.offset += len(complete)
+        for line in complete.decode("utf-8", errors="replace").splitlines():
+            try:
+                self.runs.add(Path(json.loads(line)["run_dir"]).resolve())
+            except (ValueError, KeyError, TypeError):
+                continue
+        return sum(1 for run in self.runs if (run / "summary.json").is_file())
+
+
+_DONE: dict[str, DoneRuns] = {}  # sweep folder -> its DoneRuns in this process
+
+
+def forget_progress() -> None:
+    """Drop what this process kept of earlier sweeps (a new sweep starts)."""
+    _TOTALS.clear()
+    _DONE.clear()
+
+
+def done_runs(root: Path) -> DoneRuns:
+    """This process's :class:`DoneRuns` of the sweep folder ``root``."""
+    key = str(Path(root).resolve())
+    if key not in _DONE:
+        _DONE[key] = DoneRuns(Path(root))
+    return _DONE[key]
 
 
 class Table1(Callback):

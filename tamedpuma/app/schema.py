@@ -630,6 +630,21 @@ def _writable(node) -> None:
                 _writable(child)
 
 
+_SCHEMA_NODES: dict[type, DictConfig] = {}  # schema -> its writable structured node
+
+
+def _schema_node(schema: type) -> DictConfig:
+    """``schema``'s structured node, writable (:func:`_writable`), built once per process: a
+    run's typing merges into a deep copy of it (``OmegaConf.merge``), never into the node
+    itself, so every run starts from the same defaults (building it costs a quarter of the
+    typing, once per job of a sweep without this)."""
+    if schema not in _SCHEMA_NODES:
+        node = OmegaConf.structured(schema)
+        _writable(node)
+        _SCHEMA_NODES[schema] = node
+    return _SCHEMA_NODES[schema]
+
+
 def _one_line(exc: Exception) -> str:
     return " ".join(str(exc).splitlines()[0].split())
 
@@ -638,10 +653,8 @@ def typed(schema: type, cfg, where: str = ""):
     """``cfg`` (a mapping or DictConfig) merged into ``schema`` and built: an instance of
     ``schema``. A wrong type, unknown key, missing value or out-of-range value raises
     :class:`ConfigError` naming the key (prefixed by ``where``)."""
-    base = OmegaConf.structured(schema)
-    _writable(base)
     try:
-        merged = OmegaConf.merge(base, cfg)
+        merged = OmegaConf.merge(_schema_node(schema), cfg)  # merges into a deep copy
         return OmegaConf.to_object(merged)
     except ConfigError:
         raise

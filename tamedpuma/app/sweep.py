@@ -48,10 +48,11 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from tamedpuma.app import callbacks
 from tamedpuma.app.cli import fail, precheck_overrides, shell_completion, with_plugin_configs
 from tamedpuma.app.config import CONF_DIR
 from tamedpuma.errors import ConfigError, DiskFullError, TamedPumaError
-from tamedpuma.paths import free_bytes, no_space, write_atomic
+from tamedpuma.paths import SET_ASIDE, free_bytes, no_space, write_atomic
 from tamedpuma.runlog import SUMMARY_SCHEMA_VERSION
 
 log = logging.getLogger("tamedpuma.sweep")
@@ -369,7 +370,7 @@ def _set_aside(run_dir: Path) -> None:
            if p.exists()]
     if not old:
         return
-    keep = run_dir / "previous_attempt"
+    keep = run_dir / SET_ASIDE
     shutil.rmtree(keep, ignore_errors=True)
     keep.mkdir()
     for p in old:
@@ -721,6 +722,7 @@ def main(argv: list[str] | None = None) -> None:
     _OUTCOMES.clear()
     _INTERRUPT_SAID.clear()
     _KEPT.clear()
+    callbacks.forget_progress()
     Sweeper.validate_batch_is_legal = _validate_representatives
     hydra.core.utils._save_config = _save_config_or_stop
     try:

@@ -16,33 +16,44 @@ Readers: :func:`read_mcap` (-> :class:`RunLog` of DataFrames, also for a killed 
 
 from __future__ import annotations
 
+import importlib
 import os
 from collections.abc import Iterable
 from pathlib import Path
 
 from .mcap_writer import McapRecorder, active_path
-from .reader import (
-    RunLog,
-    read_mcap,
-    read_rrd_joints,
-    read_rrd_scalars,
-    read_rrd_series,
-    recover_mcap,
-)
 from .records import Recorder, RunInfo, StepRecord
-from .rerun_writer import RerunRecorder
 
-#: recorder kind -> (class, file name inside the run directory)
-RECORDERS = {"mcap": (McapRecorder, "episode.mcap"), "rerun": (RerunRecorder, "episode.rrd")}
+#: names imported on first use: the readers need pandas, the Rerun recorder rerun and pyarrow
+#: (2 s CPU of a process's start together), which a run that records MCAP alone never uses
+_LAZY = {"RunLog": ".reader", "read_mcap": ".reader", "read_rrd_joints": ".reader",
+         "read_rrd_scalars": ".reader", "read_rrd_series": ".reader",
+         "recover_mcap": ".reader", "RerunRecorder": ".rerun_writer"}
+#: recorder kind -> file name inside the run directory
+_FILES = {"mcap": "episode.mcap", "rerun": "episode.rrd"}
+
+
+def __getattr__(name: str):
+    """The lazily imported names (:data:`_LAZY`) and ``RECORDERS``: recorder kind -> (class,
+    file name inside the run directory)."""
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    if name == "RECORDERS":
+        return {kind: (_recorder_class(kind), file) for kind, file in _FILES.items()}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _recorder_class(kind: str) -> type:
+    return McapRecorder if kind == "mcap" else __getattr__("RerunRecorder")
 
 
 def recorder_files(kinds: Iterable[str], run_dir: str | os.PathLike) -> dict[str, Path]:
     """The file each recorder kind writes: ``{"mcap": run_dir/episode.mcap, "rrd": ...}``."""
     out = {}
     for kind in kinds:
-        if kind not in RECORDERS:
-            raise ValueError(f"unknown recorder {kind!r}; choose from {sorted(RECORDERS)}")
-        name = RECORDERS[kind][1]
+        if kind not in _FILES:
+            raise ValueError(f"unknown recorder {kind!r}; choose from {sorted(_FILES)}")
+        name = _FILES[kind]
         out[Path(name).suffix[1:]] = Path(run_dir) / name
     return out
 
@@ -55,7 +66,7 @@ def make_recorders(kinds: Iterable[str], run_dir: str | os.PathLike,
     kinds = list(kinds)
     out = []
     for kind, path in zip(kinds, recorder_files(kinds, run_dir).values()):
-        cls = RECORDERS[kind][0]
+        cls = _recorder_class(kind)
         out.append(cls(path, flush_every=flush_every) if kind == "mcap" else cls(path))
     return out
 
