@@ -61,6 +61,45 @@ def test_import_rules(path):
         assert top <= allowed, f"{rel} must stay numpy-only: {top}"
 
 
+#: Hydra's compose API and its global state: only app/compose.py uses them (the sweep's own
+#: ``@hydra.main`` initializes Hydra itself)
+COMPOSE_API = {"compose", "initialize", "initialize_config_dir", "initialize_config_module"}
+COMPOSER = "app/compose.py"
+
+
+def _compose_api_uses(path: Path, text: str | None = None) -> set[str]:
+    """The uses of Hydra's compose/initialize API and of its global state in a file: imports
+    (``from hydra import compose``, ``import hydra.core.global_hydra``) and attributes of an
+    imported ``hydra`` (``hydra.compose(...)``)."""
+    names = {n for n in _imports(path, text)
+             if n in {f"hydra.{a}" for a in COMPOSE_API} or n.startswith("hydra.core.global_hydra")}
+    for node in ast.walk(ast.parse(path.read_text() if text is None else text)):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) \
+                and node.value.id == "hydra" and node.attr in COMPOSE_API:
+            names.add(f"hydra.{node.attr}")
+    return names
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PKG)))
+def test_only_one_module_composes_the_config(path):
+    rel = path.relative_to(PKG).as_posix()
+    uses = _compose_api_uses(path)
+    if rel == COMPOSER:
+        assert "hydra.compose" in uses and "hydra.initialize_config_dir" in uses
+    else:
+        assert not uses, f"{rel} uses {sorted(uses)}: compose through tamedpuma.app.compose"
+
+
+def test_the_compose_scan_sees_every_form():
+    source = ("import hydra\nfrom hydra import compose as c\n"
+              "def f():\n    from hydra.core.global_hydra import GlobalHydra\n"
+              "    hydra.initialize(config_path='x')\n    return hydra.main\n")
+    assert _compose_api_uses(PKG / "app" / "sweep.py", source) == {
+        "hydra.compose", "hydra.core.global_hydra", "hydra.core.global_hydra.GlobalHydra",
+        "hydra.initialize"}
+    assert _compose_api_uses(PKG / "app" / "sweep.py", "import hydra\nhydra.main()\n") == set()
+
+
 #: the layers, lowest first: a module imports only from its own package or lower layers
 LAYERS = [{"errors", "startup"}, {"types", "paths", "runlog"}, {"robot"},
           {"fabrics", "puma", "ik_solvers"},
