@@ -100,6 +100,47 @@ def test_the_compose_scan_sees_every_form():
     assert _compose_api_uses(PKG / "app" / "sweep.py", "import hydra\nhydra.main()\n") == set()
 
 
+#: modules below the entry points that still read a config YAML themselves (to be handed the
+#: values by the app layer instead): listed here, each checked to still do so
+READS_CONFIG_PENDING = {"puma/pipeline.py"}
+
+
+def _reads_config_yaml(path: Path, text: str | None = None) -> list[str]:
+    """Where a file reaches the config files itself: the config folder (``CONF_DIR``) or a YAML
+    file loaded by OmegaConf (``OmegaConf.load``)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text() if text is None else text)):
+        if isinstance(node, ast.Name) and node.id == "CONF_DIR" \
+                or isinstance(node, ast.alias) and node.name == "CONF_DIR":
+            found.append(f"CONF_DIR (line {getattr(node, 'lineno', '?')})")
+        elif isinstance(node, ast.Attribute) and node.attr == "load" \
+                and isinstance(node.value, ast.Name) and node.value.id == "OmegaConf":
+            found.append(f"OmegaConf.load (line {node.lineno})")
+    return found
+
+
+@pytest.mark.parametrize("path", [p for p in _modules() if p.relative_to(PKG).parts[0] != "app"
+                                  and p.relative_to(PKG).as_posix() != "paths.py"],
+                         ids=lambda p: str(p.relative_to(PKG)))
+def test_only_the_entry_points_read_config_files(path):
+    """Below the entry points (``app/``) modules receive config values; none reads a config
+    YAML (``paths.py`` only names the folder)."""
+    rel = path.relative_to(PKG).as_posix()
+    found = _reads_config_yaml(path)
+    if rel in READS_CONFIG_PENDING:
+        assert found, f"{rel} reads no config file any more: drop it from READS_CONFIG_PENDING"
+    else:
+        assert not found, f"{rel} reads config files itself: {found}; pass the values down"
+
+
+def test_the_config_read_scan_sees_every_form():
+    source = ("from tamedpuma.paths import CONF_DIR\nfrom omegaconf import OmegaConf\n"
+              "def f():\n    return OmegaConf.load(CONF_DIR / 'x.yaml')\n")
+    assert len(_reads_config_yaml(PKG / "worlds" / "scenarios.py", source)) == 3
+    assert _reads_config_yaml(PKG / "worlds" / "scenarios.py",
+                              "import yaml\nyaml.safe_load(log_text)\n") == []
+
+
 #: the layers, lowest first: a module imports only from its own package or lower layers
 LAYERS = [{"errors", "startup"}, {"types", "paths", "runlog"}, {"robot"},
           {"fabrics", "puma", "ik_solvers"},
