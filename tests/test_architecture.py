@@ -61,6 +61,86 @@ def test_import_rules(path):
         assert top <= allowed, f"{rel} must stay numpy-only: {top}"
 
 
+#: Hydra's compose API and its global state: only app/compose.py uses them (the sweep's own
+#: ``@hydra.main`` initializes Hydra itself)
+COMPOSE_API = {"compose", "initialize", "initialize_config_dir", "initialize_config_module"}
+COMPOSER = "app/compose.py"
+
+
+def _compose_api_uses(path: Path, text: str | None = None) -> set[str]:
+    """The uses of Hydra's compose/initialize API and of its global state in a file: imports
+    (``from hydra import compose``, ``import hydra.core.global_hydra``) and attributes of an
+    imported ``hydra`` (``hydra.compose(...)``)."""
+    names = {n for n in _imports(path, text)
+             if n in {f"hydra.{a}" for a in COMPOSE_API} or n.startswith("hydra.core.global_hydra")}
+    for node in ast.walk(ast.parse(path.read_text() if text is None else text)):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) \
+                and node.value.id == "hydra" and node.attr in COMPOSE_API:
+            names.add(f"hydra.{node.attr}")
+    return names
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PKG)))
+def test_only_one_module_composes_the_config(path):
+    rel = path.relative_to(PKG).as_posix()
+    uses = _compose_api_uses(path)
+    if rel == COMPOSER:
+        assert "hydra.compose" in uses and "hydra.initialize_config_dir" in uses
+    else:
+        assert not uses, f"{rel} uses {sorted(uses)}: compose through tamedpuma.app.compose"
+
+
+def test_the_compose_scan_sees_every_form():
+    source = ("import hydra\nfrom hydra import compose as c\n"
+              "def f():\n    from hydra.core.global_hydra import GlobalHydra\n"
+              "    hydra.initialize(config_path='x')\n    return hydra.main\n")
+    assert _compose_api_uses(PKG / "app" / "sweep.py", source) == {
+        "hydra.compose", "hydra.core.global_hydra", "hydra.core.global_hydra.GlobalHydra",
+        "hydra.initialize"}
+    assert _compose_api_uses(PKG / "app" / "sweep.py", "import hydra\nhydra.main()\n") == set()
+
+
+#: modules below the entry points that still read a config YAML themselves (to be handed the
+#: values by the app layer instead): listed here, each checked to still do so
+READS_CONFIG_PENDING = {"puma/pipeline.py"}
+
+
+def _reads_config_yaml(path: Path, text: str | None = None) -> list[str]:
+    """Where a file reaches the config files itself: the config folder (``CONF_DIR``) or a YAML
+    file loaded by OmegaConf (``OmegaConf.load``)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text() if text is None else text)):
+        if isinstance(node, ast.Name) and node.id == "CONF_DIR" \
+                or isinstance(node, ast.alias) and node.name == "CONF_DIR":
+            found.append(f"CONF_DIR (line {getattr(node, 'lineno', '?')})")
+        elif isinstance(node, ast.Attribute) and node.attr == "load" \
+                and isinstance(node.value, ast.Name) and node.value.id == "OmegaConf":
+            found.append(f"OmegaConf.load (line {node.lineno})")
+    return found
+
+
+@pytest.mark.parametrize("path", [p for p in _modules() if p.relative_to(PKG).parts[0] != "app"
+                                  and p.relative_to(PKG).as_posix() != "paths.py"],
+                         ids=lambda p: str(p.relative_to(PKG)))
+def test_only_the_entry_points_read_config_files(path):
+    """Below the entry points (``app/``) modules receive config values; none reads a config
+    YAML (``paths.py`` only names the folder)."""
+    rel = path.relative_to(PKG).as_posix()
+    found = _reads_config_yaml(path)
+    if rel in READS_CONFIG_PENDING:
+        assert found, f"{rel} reads no config file any more: drop it from READS_CONFIG_PENDING"
+    else:
+        assert not found, f"{rel} reads config files itself: {found}; pass the values down"
+
+
+def test_the_config_read_scan_sees_every_form():
+    source = ("from tamedpuma.paths import CONF_DIR\nfrom omegaconf import OmegaConf\n"
+              "def f():\n    return OmegaConf.load(CONF_DIR / 'x.yaml')\n")
+    assert len(_reads_config_yaml(PKG / "worlds" / "scenarios.py", source)) == 3
+    assert _reads_config_yaml(PKG / "worlds" / "scenarios.py",
+                              "import yaml\nyaml.safe_load(log_text)\n") == []
+
+
 #: the layers, lowest first: a module imports only from its own package or lower layers
 LAYERS = [{"errors", "startup"}, {"types", "paths", "runlog"}, {"robot"},
           {"fabrics", "puma", "ik_solvers"},

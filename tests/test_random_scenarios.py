@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tamedpuma.app.config import load_group, robot_config
+from tamedpuma.app.config import load_group, robot_config, table1_starts
 from tamedpuma.app.schema import ScenarioSchema
 from tamedpuma.errors import ScenarioError
 from tamedpuma.worlds.random_scenarios import (
@@ -17,7 +17,7 @@ from tamedpuma.worlds.random_scenarios import (
     generate,
     scenario_config,
 )
-from tamedpuma.worlds.scenarios import build_scenario, table1_starts
+from tamedpuma.worlds.scenarios import build_scenario
 
 
 def _region(task):
@@ -116,3 +116,24 @@ def test_scenario_random_config_builds_the_generated_scenario(kinematics):
                    **EPISODE)
     np.testing.assert_array_equal(sc.q0, ref.scenario.q0)
     np.testing.assert_array_equal(sc.obstacles.centers, ref.scenario.obstacles.centers)
+
+
+def test_near_table1_draws_around_the_starts_the_app_layer_hands_down(kinematics):
+    """worlds reads no config file: the Table-1 starts come from the caller (the sweep passes
+    :func:`tamedpuma.app.config.table1_starts`); without them near_table1 is refused."""
+    from omegaconf import OmegaConf
+
+    cfg = {"robot": robot_config("iiwa14"), "task": load_group("task", "pouring"),
+           "scenario": load_group("scenario", "random"), "seed": 0,
+           "without_obstacles": False, "clutter": {"count": 0, "total": None}}
+    cfg["scenario"].update(random_seed=1003, start_kind="near_table1")
+    plain = OmegaConf.to_container(OmegaConf.create(cfg), resolve=True)
+    asked = []
+    sc = build_scenario(plain, kinematics.spec, kinematics,
+                        table1_starts=lambda task: asked.append(task) or table1_starts(task))
+    assert asked == ["pouring"] and len(table1_starts("pouring")) > 0
+    ref = generate(_region("pouring"), kinematics, 1003, RandomParams(), table1_starts("pouring"),
+                   start_kind="near_table1", **EPISODE)
+    np.testing.assert_array_equal(sc.q0, ref.scenario.q0)
+    with pytest.raises(ScenarioError, match="Table-1 starts"):
+        build_scenario(plain, kinematics.spec, kinematics)

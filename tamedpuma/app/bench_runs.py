@@ -219,18 +219,17 @@ def job_overheads(repeats: int = 7) -> dict:
     ``build`` does, inside the run's set-up)."""
     from statistics import median
 
-    from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from tamedpuma.app.config import CONF_DIR
+    from tamedpuma.app.compose import compose, session
     from tamedpuma.app.schema import run_config
 
     overrides = ["+experiment=table1", "case=pouring_03", "method=cpm", "without_obstacles=true"]
     composing, typing = [], []
-    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+    with session():
         for _ in range(repeats):
             t0 = time.perf_counter()
-            cfg = compose("sweep", overrides=overrides, return_hydra_config=True)
+            cfg = compose("sweep", overrides, hydra_config=True)
             t1 = time.perf_counter()
             with_hydra = OmegaConf.to_container(cfg, resolve=False)
             with_hydra.pop("hydra", None)

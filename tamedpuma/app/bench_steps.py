@@ -83,10 +83,10 @@ def run_case(method: str, overrides: list[str], extra=()) -> dict:
     """One episode of ``method`` with ``overrides`` through the sweep's ``run_one`` (no
     recorders) in a temporary folder: its outcome and the statistics of the per-step
     controller times its ``summary.json`` records, checked against the summary's own figures."""
-    from tamedpuma.app.bench_timing import compose
+    from tamedpuma.app.compose import compose
     from tamedpuma.app.sweep import run_one
 
-    cfg = compose([*overrides, f"method={method}", "recorder=none", *extra])
+    cfg = compose("sweep", [*overrides, f"method={method}", "recorder=none", *extra])
     with tempfile.TemporaryDirectory(prefix="tamedpuma-steps-") as tmp:
         run_dir = Path(tmp) / "run"
         run_dir.mkdir()

@@ -41,19 +41,6 @@ def method_overrides(label: str) -> tuple[str, list[str]]:
     return method, list(VARIANTS[variant])
 
 
-def compose(overrides: list[str]):
-    """The sweep's config with ``overrides`` (Hydra's compose API; entry points only)."""
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    from tamedpuma.app.config import CONF_DIR
-
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-        return hydra_compose("sweep", overrides=overrides, return_hydra_config=False)
-
-
 def observation(scenario, q, qd, obstacles, t: float = 0.0, step: int = 0):
     """The :class:`~tamedpuma.types.Observation` of joint state (q, q̇) in ``scenario``."""
     from tamedpuma.types import Observation
@@ -107,11 +94,12 @@ def model_label(model) -> str | None:
 def prepare(method: str, overrides=(), seed: int = 0) -> Bench:
     """``method`` (a label such as ``fpm+numba``) built as the sweep builds it, without
     recorders, and its seeded states."""
+    from tamedpuma.app.compose import compose
     from tamedpuma.app.sweep import build
     from tamedpuma.robot.kinematics import Kinematics
 
     method, extra = method_overrides(method)
-    built = build(compose([f"method={method}", "recorder=none", *extra, *overrides]))
+    built = build(compose("sweep", [f"method={method}", "recorder=none", *extra, *overrides]))
     spec, scenario = built.spec, built.scenario
     rng = np.random.default_rng(seed)
     q0 = np.asarray(scenario.q0, dtype=float)

@@ -130,10 +130,10 @@ def one_episode(config, run_dir: Path) -> dict:
 
 def episode(setup: dict, channel: Channel, stream) -> None:
     """The ``episode`` worker: whole episodes of one method, per recorder setting."""
-    from tamedpuma.app.bench_timing import compose
+    from tamedpuma.app.compose import compose
 
     _count_recorders()
-    configs = {name: compose([f"method={setup['method']}", *extra, *setup["overrides"]])
+    configs = {name: compose("sweep", [f"method={setup['method']}", *extra, *setup["overrides"]])
                for name, extra in setup["recorders"].items()}
     tmp = Path(tempfile.mkdtemp(prefix="bench_episode_"))
     channel.send({"ok": True})

@@ -140,13 +140,13 @@ def run(cfg: dict, argv: list[str], log=print) -> dict:
 @command(__doc__)
 def main(argv: list[str]) -> int:
     from tamedpuma.app.cli import split_argv, with_search_path
-    from tamedpuma.app.train import compose
+    from tamedpuma.app.compose import compose_dict
 
     overrides, search, flags = split_argv(argv)
     unknown = sorted(set(flags) - {"--config-dir", "-cd"})
     if unknown:
         raise ConfigError(f"unknown option(s) {', '.join(unknown)}")
-    cfg = compose("body_model", with_search_path(overrides, search))
+    cfg = compose_dict("body_model", with_search_path(overrides, search))
     run(cfg, argv)
     return 0
 

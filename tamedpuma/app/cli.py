@@ -18,7 +18,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from tamedpuma.app.config import CONF_DIR, group_options
+from tamedpuma.app.compose import hydra_error_line, one_line
 from tamedpuma.errors import TamedPumaError
 from tamedpuma.paths import writable_problem
 
@@ -53,55 +53,6 @@ def command(doc: str) -> Callable[[Callable[[list[str]], int]], Callable[..., in
                 return 130
         return main
     return wrap
-
-
-_NOISE = ("full_key:", "object_type", "reference_type", "Config search path",
-          "Set the environment variable HYDRA_FULL_ERROR")
-
-
-def _one_line(exc: BaseException) -> str:
-    """A Hydra/OmegaConf error (often several lines) folded into one line, noise removed."""
-    lines = []
-    for raw in str(exc).splitlines():
-        text = raw.strip()
-        if not text:
-            continue
-        if text.startswith(_NOISE):
-            if text.startswith("Config search path"):
-                break
-            continue
-        if raw[:1].isspace() and lines and lines[-1].endswith(":"):
-            lines[-1] += " " + text  # first item of an indented list
-        elif raw[:1].isspace() and lines:
-            lines[-1] += ", " + text
-        else:
-            lines.append(text)
-    return " ".join(lines) or type(exc).__name__
-
-
-def hydra_error_line(exc: BaseException, search: list[str] = ()) -> str:
-    """A Hydra composition error as one line; an unknown group option lists every option, and
-    "Error merging override k=v" says why (its cause: e.g. "'abc' ... could not be converted to
-    Float")."""
-    line = _all_options(_one_line(exc), list(search))
-    cause = exc.__cause__
-    if line.startswith("Error merging override") and cause is not None:
-        line = f"{line}: {_one_line(cause)}"
-    return line
-
-
-def _all_options(message: str, search: list[str]) -> str:
-    """Hydra's "Could not find 'scenario/x' Available options in 'scenario': default, ..." lists
-    only a group's top level; this lists every option, nested ones (``tomato/00``) included."""
-    missing = re.search(r"Could not find '([^']+)'", message)
-    listed = re.search(r"Available options in '([^']+)':", message)
-    if not (missing and listed):
-        return message
-    group = listed.group(1)
-    extra = tuple(Path(s.removeprefix("file://")) for s in search if s.startswith("file://"))
-    options = group_options(group, extra)
-    return (f"{message[:listed.start()].rstrip()} Available options in '{group}': "
-            f"{', '.join(options)}")
 
 
 # Hydra's command-line flags that take a value (the value is the next argument or after "=")
@@ -236,10 +187,10 @@ def _schema_problem(config_name: str, cfg) -> str | None:
 
 def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
     """Compose ``config_name`` with the command line's overrides; the first problem, or None."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from omegaconf import OmegaConf
+
+    from tamedpuma.app.compose import compose, session
 
     if any(a.split("=", 1)[0] in _NO_CHECK for a in argv):
         return None
@@ -251,7 +202,7 @@ def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
     try:
         parsed = OverridesParser.create().parse_overrides(args)
     except Exception as exc:  # Hydra's OverrideParseException and friends
-        return f"malformed override: {_one_line(exc)}"
+        return f"malformed override: {one_line(exc)}"
     base, sweeps = with_search_path([ov.input_line for ov in parsed
                                      if ov.key_or_group == "hydra.searchpath"], search), []
     for ov in parsed:
@@ -271,22 +222,18 @@ def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
         key = ov.get_key_element()
         for value in values[1:]:
             variants.append([a for a in base if not a.startswith(f"{key}=")] + [f"{key}={value}"])
-    GlobalHydra.instance().clear()
-    try:
-        with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-            for overrides in variants:
-                try:
-                    cfg = compose(config_name, overrides=overrides)
-                    OmegaConf.to_container(cfg, resolve=True)
-                except Exception as exc:  # composition and interpolation errors
-                    return hydra_error_line(exc, search)
-                problem = _schema_problem(config_name, cfg)
+    with session():
+        for overrides in variants:
+            try:
+                cfg = compose(config_name, overrides)
+                OmegaConf.to_container(cfg, resolve=True)
+            except Exception as exc:  # composition and interpolation errors
+                return hydra_error_line(exc, search)
+            problem = _schema_problem(config_name, cfg)
+            if problem:
+                return problem
+            if "output_root" in cfg:
+                problem = writable_problem(str(cfg.output_root))
                 if problem:
                     return problem
-                if "output_root" in cfg:
-                    problem = writable_problem(str(cfg.output_root))
-                    if problem:
-                        return problem
-    finally:
-        GlobalHydra.instance().clear()
     return None

@@ -68,6 +68,14 @@ def start_options(robot: str = "iiwa14") -> dict:
             "limit_margin": cfg["limit_margin"]}
 
 
+def table1_starts(task: str) -> list[list[float]]:
+    """The start configurations q0 [rad] of the task's Table-1 scenarios
+    (``conf/scenario/<task>/NN.yaml``); empty for a task without them."""
+    folder = CONF_DIR / "scenario" / task
+    return [[float(v) for v in OmegaConf.load(p)["q0"]]
+            for p in sorted(folder.glob("[0-9][0-9].yaml"))]
+
+
 def default_kinematics():
     """A :class:`~tamedpuma.robot.kinematics.Kinematics` of the default robot (iiwa14)."""
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config

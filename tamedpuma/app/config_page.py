@@ -31,6 +31,7 @@ from pathlib import Path
 from omegaconf import MISSING, OmegaConf
 
 from tamedpuma.app import schema
+from tamedpuma.app.compose import compose
 from tamedpuma.app.config import group_options
 from tamedpuma.paths import CONF_DIR
 
@@ -342,19 +343,6 @@ def _default(f: dataclasses.Field, key: str, composed, many: bool, parent=None) 
 
 
 # ----------------------------------------------------------------------------- page
-
-
-def compose(config: str, overrides: list[str]):
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    GlobalHydra.instance().clear()
-    try:
-        with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-            return hydra_compose(config, overrides=overrides)
-    finally:
-        GlobalHydra.instance().clear()
 
 
 def table(title: str, intro: str, body: list[list[str]]) -> list[str]:

@@ -11,14 +11,14 @@ from __future__ import annotations
 import sys
 
 from tamedpuma.app.cli import command
-from tamedpuma.app.train import compose
+from tamedpuma.app.compose import compose_dict
 
 
 @command(__doc__)
 def main(argv: list[str]) -> int:
-    cfg = compose("train", ["task=lasa", "puma=lasa", "out_dir=runs/lasa", "progress=false",
-                            "overwrite=true",  # the benchmark retrains every shape
-                            *argv])
+    cfg = compose_dict("train", ["task=lasa", "puma=lasa", "out_dir=runs/lasa", "progress=false",
+                                 "overwrite=true",  # the benchmark retrains every shape
+                                 *argv])
     from tamedpuma.puma import lasa_benchmark
 
     rows = lasa_benchmark.run(cfg, log=lambda m: print(m, file=sys.stderr))

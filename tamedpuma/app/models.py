@@ -66,9 +66,9 @@ def _train_overrides(task: str, order: int, demos: str | None) -> list[str]:
 
 
 def _compose(overrides: list[str]) -> dict:
-    from tamedpuma.app.train import compose
+    from tamedpuma.app.compose import compose_dict
 
-    return compose("train", list(overrides))
+    return compose_dict("train", list(overrides))
 
 
 def _data_of(cfg: dict) -> tuple[str, str]:

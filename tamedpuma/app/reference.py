@@ -29,18 +29,11 @@ _CACHE: dict[str, np.ndarray] = {}
 
 
 def _method_node(name: str) -> dict:
-    """``conf/method/<name>.yaml`` composed with its defaults (interpolations unresolved)."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
+    """``conf/method/<name>.yaml`` composed with its defaults (interpolations unresolved); in a
+    sweep's job, on the job's config search path."""
+    from tamedpuma.app.compose import compose
 
-    from tamedpuma.app.config import CONF_DIR
-
-    overrides = [f"method={name}"]
-    if GlobalHydra.instance().is_initialized():  # inside a sweep's job
-        cfg = compose("sweep", overrides=overrides)
-    else:
-        with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-            cfg = compose("sweep", overrides=overrides)
+    cfg = compose("sweep", [f"method={name}"])
     return OmegaConf.to_container(cfg.method, resolve=False)
 
 

@@ -102,10 +102,10 @@ def build_run(spec: dict):
     """The sweep's build of one run (with ``--models``: the method's checkpoint there)."""
     from omegaconf import OmegaConf
 
+    from tamedpuma.app.compose import compose_dict
     from tamedpuma.app.sweep import build
-    from tamedpuma.app.train import compose
 
-    cfg = OmegaConf.create(compose("sweep", overrides(spec)))
+    cfg = OmegaConf.create(compose_dict("sweep", overrides(spec)))
     if spec["models"] and "checkpoint" in cfg.method:  # Fabrics has no model
         cfg.method.checkpoint = model_path(spec["models"], spec["task"], str(cfg.method.name))
     return build(cfg)

@@ -77,6 +77,7 @@ def build(cfg: DictConfig) -> Built:
     ranges checked) -> robot, scenario, controller, simulator settings. Any invalid value becomes
     a :class:`ConfigError` with a one-line message."""
     from tamedpuma import methods
+    from tamedpuma.app.config import table1_starts
     from tamedpuma.app.schema import as_dict, run_config
     from tamedpuma.puma import store
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
@@ -99,7 +100,7 @@ def build(cfg: DictConfig) -> Built:
 
             return reference_motion(cfg, build)
 
-        scenario = build_scenario(plain, spec, kinematics, reference)
+        scenario = build_scenario(plain, spec, kinematics, reference, table1_starts)
         model = store.resolve_for_method(plain["method"])
         if model is not None:  # the method loads exactly the file that is recorded
             plain["method"]["checkpoint"] = str(model.path)

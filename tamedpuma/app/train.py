@@ -20,39 +20,8 @@ import sys
 from pathlib import Path
 
 from tamedpuma.app.cli import command
-from tamedpuma.app.config import CONF_DIR
+from tamedpuma.app.compose import compose_dict as compose
 from tamedpuma.errors import ConfigError
-
-
-def compose(config_name: str, overrides: list[str]) -> dict:
-    """Hydra compose of ``conf/<config_name>.yaml`` → plain dict; Hydra errors → ConfigError.
-    ``train`` and ``body_model`` are checked against their schema (types, unknown keys, ranges)
-    and come back complete (every key, schema defaults filled in); ``sweep`` comes back as
-    composed (:func:`tamedpuma.app.sweep.build` types it)."""
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.errors import HydraException
-    from omegaconf import OmegaConf
-    from omegaconf.errors import OmegaConfBaseException
-
-    from tamedpuma.app import schema
-
-    if not CONF_DIR.is_dir():
-        raise ConfigError(f"config folder not found: {CONF_DIR}")
-    GlobalHydra.instance().clear()
-    try:
-        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-            cfg = hydra_compose(config_name=config_name, overrides=overrides)
-            if config_name in schema.CONFIGS and config_name != "sweep":  # typed: complete
-                return schema.as_dict(schema.CONFIGS[config_name](cfg))  # (build types a sweep's)
-            return OmegaConf.to_container(cfg, resolve=True)
-    except (HydraException, OmegaConfBaseException) as exc:
-        from tamedpuma.app.cli import hydra_error_line
-
-        raise ConfigError(hydra_error_line(exc)) from None
-    finally:
-        GlobalHydra.instance().clear()
 
 
 def _summary(report: dict) -> str:

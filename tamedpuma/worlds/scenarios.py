@@ -17,7 +17,7 @@ receive complete configs.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -199,22 +199,16 @@ def clutter_count(clutter: Mapping, own: int) -> int:
     return int(clutter["count"])
 
 
-def table1_starts(task: str) -> list[list[float]]:
-    """The start configurations q0 [rad] of the task's Table-1 scenarios
-    (``conf/scenario/<task>/NN.yaml``); empty for a task without them."""
-    from omegaconf import OmegaConf
-
-    from tamedpuma.paths import CONF_DIR
-
-    folder = CONF_DIR / "scenario" / task
-    return [[float(v) for v in OmegaConf.load(p)["q0"]]
-            for p in sorted(folder.glob("[0-9][0-9].yaml"))]
+#: a task's Table-1 start configurations q0 (n, dof) [rad] by task name (empty for a task
+#: without them); the app layer reads them from the configs (``tamedpuma.app.config``)
+StartsOf = Callable[[str], Sequence[Sequence[float]]]
 
 
-def random_scenario(cfg: Mapping, kinematics) -> Scenario:
+def random_scenario(cfg: Mapping, kinematics, table1_starts: StartsOf | None = None) -> Scenario:
     """The ``scenario=random`` scenario of a whole resolved run config: drawn by
     :func:`tamedpuma.worlds.random_scenarios.generate` from ``scenario.random_seed``,
-    ``scenario.start_kind`` and ``scenario.random`` (the task's goal and workspace)."""
+    ``scenario.start_kind`` and ``scenario.random`` (the task's goal and workspace);
+    ``near_table1`` starts near ``table1_starts(task)``, else near the task's ``demo_starts``."""
     from tamedpuma.worlds.random_scenarios import RandomParams, TaskRegion, generate
 
     sc_cfg, task_cfg = cfg["scenario"], cfg["task"]
@@ -232,7 +226,8 @@ def random_scenario(cfg: Mapping, kinematics) -> Scenario:
     region = TaskRegion.from_task_config(task_cfg)
     region = replace(region, goal_position=np.asarray(sc_cfg["goal"]["position"], dtype=float),
                      goal_quaternion=np.asarray(sc_cfg["goal"]["quaternion"], dtype=float))
-    starts = ((table1_starts(region.name) or task_cfg.get("demo_starts") or [])
+    known = table1_starts(region.name) if table1_starts is not None else []
+    starts = ((known or task_cfg.get("demo_starts") or [])
               if kind == "near_table1" else [])  # demo_starts: worlds/demo_scenarios
     generated = generate(region, kinematics, seed, params, starts, start_kind=kind,
                          dt=float(sc_cfg["dt"]), max_steps=int(sc_cfg["max_steps"]),
@@ -243,21 +238,23 @@ def random_scenario(cfg: Mapping, kinematics) -> Scenario:
 
 
 def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics,
-                   reference: np.ndarray | Callable[[], np.ndarray] | None = None) -> Scenario:
+                   reference: np.ndarray | Callable[[], np.ndarray] | None = None,
+                   table1_starts: StartsOf | None = None) -> Scenario:
     """The run's scenario from a whole resolved run config (plain mapping): the ``scenario``
     group checked against the ``task`` group, then ``without_obstacles`` and ``clutter``, seeded
     by ``seed`` and kept clear of (``clutter.keep_clear``) the arm at the start
     (:func:`arm_points`) and the goal ('start_goal'), or of the swept volume of ``reference``, a
     collision-free joint path (T, dof) [rad] to the goal in the scenario's own world (or a
     function returning it, called only when clutter is added), by
-    ``clutter.margin`` [m] ('path': :mod:`tamedpuma.worlds.clutter`; the scene stays feasible)."""
+    ``clutter.margin`` [m] ('path': :mod:`tamedpuma.worlds.clutter`; the scene stays feasible).
+    ``table1_starts``: a random scenario's ``near_table1`` starts (:func:`random_scenario`)."""
     sc_cfg, task = cfg["scenario"], cfg["task"]["name"]
     if sc_cfg.get("task") not in (None, task):
         raise ScenarioError(f"scenario {sc_cfg['name']!r} belongs to task {sc_cfg['task']!r}, "
                             f"not {task!r}: add task={sc_cfg['task']}")
     robot = cfg["robot"]
     if sc_cfg.get("random_seed") is not None:  # optional key: absent from fixed scenarios
-        scenario = random_scenario(cfg, kinematics)
+        scenario = random_scenario(cfg, kinematics, table1_starts)
     else:
         scenario = scenario_from_config(sc_cfg, spec, task=task, seed=int(cfg["seed"]),
                                         limit_tolerance=float(robot["limit_tolerance"]),
