@@ -123,6 +123,18 @@ def test_the_plateau_counts_validations_without_a_relative_improvement():
     assert not any(evaluation._Plateau(0, 0.1).update(1.0) for _ in range(5))
 
 
+def test_a_smoothed_plateau_ignores_one_noisy_dip_and_still_finds_a_flat_run():
+    trend = (2.0, 1.8, 1.2, 1.6, 1.5, 1.4, 1.3, 1.2)  # falling, with one dip at the third
+    raw = evaluation._Plateau(patience=2, min_delta=0.03)
+    assert [raw.update(d) for d in trend][4]  # the dip alone declares a plateau
+    smoothed = evaluation._Plateau(patience=2, min_delta=0.03, smooth=3)
+    assert not any(smoothed.update(d) for d in trend)
+    rise = evaluation._Plateau(patience=2, min_delta=0.03, smooth=3)
+    assert not any(rise.update(d) for d in (2.0, 1.8, 1.6, 2.4, 1.4, 1.3, 1.2))  # one spike
+    flat = evaluation._Plateau(patience=2, min_delta=0.03, smooth=3)
+    assert [flat.update(d) for d in (2.0, 1.5, 1.0, 1.01, 0.99, 1.0, 1.02)][-1]
+
+
 def _train(folder: Path, out: Path, *extra):
     return subprocess.run(
         [sys.executable, "-m", "tamedpuma.train", "task=from_demos", f"task.demos={folder}",

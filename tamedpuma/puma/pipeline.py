@@ -321,7 +321,7 @@ def validator_of(p: Prepared):
                                 stop_dtw=t.stop_dtw, stop_compat=t.stop_compat,
                                 keep_dtw=t.keep_dtw, target=stop_target(p),
                                 patience=t.patience, min_delta=t.min_delta,
-                                plateau_stops=t.anneal == 0)
+                                plateau_stops=t.anneal == 0, smooth=t.plateau_smooth)
 
 
 def stop_target(p: Prepared) -> float:
