@@ -129,10 +129,13 @@ def test_a_smoothed_plateau_ignores_one_noisy_dip_and_still_finds_a_flat_run():
     assert [raw.update(d) for d in trend][4]  # the dip alone declares a plateau
     smoothed = evaluation._Plateau(patience=2, min_delta=0.03, smooth=3)
     assert not any(smoothed.update(d) for d in trend)
-    rise = evaluation._Plateau(patience=2, min_delta=0.03, smooth=3)
-    assert not any(rise.update(d) for d in (2.0, 1.8, 1.6, 2.4, 1.4, 1.3, 1.2))  # one spike
+    # a rise then a real drop (the median alone would lag behind the drop: a plateau at 1.30)
+    falling = evaluation._Plateau(patience=2, min_delta=0.03, smooth=3)
+    assert not any(falling.update(d) for d in (1.575, 1.635, 1.301, 1.195, 1.131, 1.062))
     flat = evaluation._Plateau(patience=2, min_delta=0.03, smooth=3)
-    assert [flat.update(d) for d in (2.0, 1.5, 1.0, 1.01, 0.99, 1.0, 1.02)][-1]
+    assert [flat.update(d) for d in (2.0, 1.5, 1.0, 1.01, 0.99, 1.0, 1.02)][-2:] == [True, True]
+    one = evaluation._Plateau(2, 0.03, 1)
+    assert [one.update(d) for d in (1.0, 1.01, 0.99)] == [False, False, True]  # the raw count
 
 
 def _train(folder: Path, out: Path, *extra):

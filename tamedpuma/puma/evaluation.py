@@ -246,26 +246,30 @@ def _psi(net: PumaNet, ws: Workspace, cfg: EvalConfig, info: dict) -> float:
 class _Plateau:
     """Validations since the mean DTW last improved on its best by a relative ``min_delta``.
 
-    The DTW compared is the median of the last ``smooth`` validations (1: each one alone), so one
-    noisy dip does not set a best that the trend must first beat (a plateau declared too early)
-    and one noisy rise does not count as a validation without improvement."""
+    With ``smooth`` > 1 the count must also hold for the median of the last ``smooth``
+    validations: one noisy dip sets a best that later validations cannot beat (the raw count
+    grows) but moves the median little, and a noisy rise counts against the raw best only; a
+    plateau is where both stopped improving (``stale`` is the smaller count)."""
 
     patience: int
     min_delta: float
     smooth: int = 1
     best: float = float("inf")
     stale: int = 0
+    stale_raw: int = 0
+    best_level: float = float("inf")
+    stale_level: int = 0
     recent: list = field(default_factory=list)
 
     def update(self, dtw: float) -> bool:
         """Record one validation's DTW; True once ``patience`` (> 0) passed without improving."""
         self.recent = [*self.recent, dtw][-max(1, self.smooth):]
         level = float(np.median(self.recent))
-        if level < self.best * (1.0 - self.min_delta):
-            self.stale = 0
-        else:
-            self.stale += 1
-        self.best = min(self.best, level)
+        raw = 0 if dtw < self.best * (1.0 - self.min_delta) else self.stale_raw + 1
+        smooth = 0 if level < self.best_level * (1.0 - self.min_delta) else self.stale_level + 1
+        self.stale_raw, self.stale_level = raw, smooth
+        self.best, self.best_level = min(self.best, dtw), min(self.best_level, level)
+        self.stale = min(raw, smooth)
         return self.patience > 0 and self.stale >= self.patience
 
 
