@@ -192,8 +192,8 @@ def _imitation(im: dict, spread, names, cfg: EvalConfig, unit: str, nearest=None
                 f"demonstrations' own spread ({_fmt(float(np.median(spread)), unit)}) = "
                 f"{_fmt(limit, unit)}; worst: "
                 + ", ".join(f"{names[k]} ({_fmt(dtw[k], unit)})" for k in worst)
-                + "; try a longer schedule (puma.train.iterations, puma.train.patience) or a "
-                "wider network (puma.network.width=256)")))
+                + "; try a longer schedule (puma.train.iterations, puma.train.patience; a "
+                "wider network learnt slower per iteration on pouring_v2)")))
     return out
 
 
