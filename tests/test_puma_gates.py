@@ -89,12 +89,53 @@ def test_each_gate_fails_alone_and_names_its_demonstrations():
     assert gates.check(_evaluation([0.0049, 0.0, 0.0, 0.0]), np.zeros(4), names, cfg) == []
 
 
+def test_a_rollout_on_another_demonstrations_route_is_the_datas_conflict_not_the_learners():
+    d = _prepared(_demos([0.0, 0.2, 0.0, 0.0]))
+    routes = [d.trimmed(i)[0] for i in range(4)]
+    # from d0's start the rollout takes d1's route (they share the start); d2, d3 their own
+    rollouts = [routes[1], routes[1] + 0.001, routes[2] + 0.003, routes[3]]
+    follows = gates.followed_routes(rollouts, d)
+    assert list(follows) == [0] and follows[0].other == 1
+    assert follows[0].start_gap == pytest.approx(0.0, abs=1e-9)
+    assert follows[0].to_other < 0.002 < follows[0].to_own and follows[0].route_gap > 0.1
+    # d2 on d3's route: d3 starts farther from d2 than the two routes ever come apart
+    far = gates.followed_routes([routes[0], routes[1], routes[3], routes[3]], d)
+    assert 2 not in far and 3 not in far
+    spread, names = np.array([0.1, 0.1, 0.2, 0.05]), gates.demo_names(d)
+    dtws = [0.05, 0.001, 0.003, 0.03]  # d0 (conflict) and d3 (not learnt) over their limits
+    failures = {f.gate: f for f in gates.check(_evaluation(dtws), spread, names, EvalConfig(),
+                                                follows=follows)}
+    assert set(failures) == {"conflicting_demos", "worst_demo"}
+    assert failures["conflicting_demos"].demos == ("d0.csv", "d1.csv")
+    assert "d0.csv follows d1.csv (starts 0.00 cm apart, routes up to" in failures[
+        "conflicting_demos"].line
+    assert "mean DTW/point of the other 3: 1.13 cm" in failures["conflicting_demos"].line
+    assert failures["worst_demo"].demos == ("d3.csv",)
+    without = gates.check(_evaluation(dtws), spread, names, EvalConfig())
+    assert [f.demos for f in without] == [("d0.csv", "d3.csv")]  # no rollouts: one line
+
+
 def test_the_plateau_counts_validations_without_a_relative_improvement():
     p = evaluation._Plateau(patience=2, min_delta=0.1)
     assert [p.update(d) for d in (1.0, 0.8, 0.75, 0.74, 0.5, 0.49)] == [
         False, False, False, True, False, False]
     assert p.best == 0.49 and p.stale == 1
     assert not any(evaluation._Plateau(0, 0.1).update(1.0) for _ in range(5))
+
+
+def test_a_smoothed_plateau_ignores_one_noisy_dip_and_still_finds_a_flat_run():
+    trend = (2.0, 1.8, 1.2, 1.6, 1.5, 1.4, 1.3, 1.2)  # falling, with one dip at the third
+    raw = evaluation._Plateau(patience=2, min_delta=0.03)
+    assert [raw.update(d) for d in trend][4]  # the dip alone declares a plateau
+    smoothed = evaluation._Plateau(patience=2, min_delta=0.03, smooth=3)
+    assert not any(smoothed.update(d) for d in trend)
+    # a rise then a real drop (the median alone would lag behind the drop: a plateau at 1.30)
+    falling = evaluation._Plateau(patience=2, min_delta=0.03, smooth=3)
+    assert not any(falling.update(d) for d in (1.575, 1.635, 1.301, 1.195, 1.131, 1.062))
+    flat = evaluation._Plateau(patience=2, min_delta=0.03, smooth=3)
+    assert [flat.update(d) for d in (2.0, 1.5, 1.0, 1.01, 0.99, 1.0, 1.02)][-2:] == [True, True]
+    one = evaluation._Plateau(2, 0.03, 1)
+    assert [one.update(d) for d in (1.0, 1.01, 0.99)] == [False, False, True]  # the raw count
 
 
 def _train(folder: Path, out: Path, *extra):
@@ -114,10 +155,12 @@ def test_demonstrations_the_network_cannot_follow_are_named_and_strict_refuses(t
     assert proc.returncode == 0, proc.stderr[-2000:]
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     failures = {f["gate"]: f for f in report["gates"]["failures"]}
-    named = set(failures["worst_demo"]["demos"])
+    named = {n for g in ("worst_demo", "conflicting_demos") for n in failures.get(g, {}).get(
+        "demos", ())}
     assert not report["gates"]["passed"] and named and named <= {"d0.csv", "d1.csv"}
-    warned = [ln for ln in proc.stderr.splitlines() if ln.startswith("warning: gate worst_demo")]
-    assert len(warned) == 1 and "d0.csv" in warned[0] and "d1.csv" in warned[0]  # the pair
+    warned = [ln for ln in proc.stderr.splitlines()
+              if ln.startswith(("warning: gate worst_demo", "warning: gate conflicting_demos"))]
+    assert warned and all("d0.csv" in ln and "d1.csv" in ln for ln in warned)  # the pair
     assert (tmp_path / "out" / "puma.pt").is_file()
     strict = _train(folder, tmp_path / "strict", "puma.train.strict=true")
     assert strict.returncode == 2 and "Traceback" not in strict.stderr

@@ -64,6 +64,21 @@ def test_stability_weight_ramp():
     assert [training.stability_weight(ramp, i) for i in (0, 50, 75, 100)] == [1.0, 1.0, 2.0, 3.0]
 
 
+def test_window_curriculum_grows_to_the_full_window_and_slices_the_same_samples():
+    from tamedpuma.puma.settings import TrainConfig
+
+    assert {training.window_at(TrainConfig(window=25), i) for i in (0, 500, 2999)} == {25}
+    ramp = TrainConfig(iterations=100, window=25, window_start=5, window_ramp=0.5)
+    assert [training.window_at(ramp, i) for i in (0, 25, 50, 99)] == [5, 15, 25, 25]
+    p = _tiny()
+    sampler = training._Sampler.of(p.demos, 8, p.spec.orientation)
+    full = sampler.batch(np.random.default_rng(3), 6)
+    short = sampler.batch(np.random.default_rng(3), 6, 3)
+    assert full[0].shape[1] == 9 and short[0].shape[1] == 4
+    for a, b in zip(full, short):
+        assert a is None and b is None or torch.equal(a[:, :4], b)
+
+
 def _net(seed=0):
     torch.manual_seed(seed)
     spec = StateSpec(3, True, 2)

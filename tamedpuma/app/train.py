@@ -67,7 +67,8 @@ def evaluate_checkpoint(path: str, overrides: list[str]) -> dict:
 
     spread, nearest = gates.nearest_demos(demos)
     failures = gates.check(report["evaluation"], spread, gates.demo_names(demos), eval_cfg,
-                           demos.unit, nearest, gates.demo_extent(demos))
+                           demos.unit, nearest, gates.demo_extent(demos),
+                           gates.routes_followed_by(net, demos))
     report["gates"] = gates.as_report(failures, spread, eval_cfg)
     for f in failures:
         print(f"warning: gate {f.gate}: {f.line}", file=sys.stderr)

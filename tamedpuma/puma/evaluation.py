@@ -11,7 +11,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -177,7 +177,8 @@ def imitation_dtw(net: PumaNet, demos: Demonstrations) -> float:
 def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int = 300,
               confirm: int = 0, horizon: float | None = None, stop_dtw: float = 0.0,
               stop_compat: float = 0.0, keep_dtw: float = 0.0, target: float = 0.0,
-              patience: int = 0, min_delta: float = 0.03, plateau_stops: bool = True):
+              patience: int = 0, min_delta: float = 0.03, plateau_stops: bool = True,
+              smooth: int = 1):
     """Validation for checkpoint selection and early stopping, on its own random starts (seed
     ``cfg.seed + 1000``, not the evaluation's) and ψ samples (``cfg.seed + 1001``).
 
@@ -187,8 +188,8 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
 
     - the DTW is ≤ ``target`` or ≤ ``stop_dtw`` (good enough: ``target`` is set from the
       demonstrations' own spread), or
-    - the DTW has not improved on the best so far by a relative ``min_delta`` for ``patience``
-      validations (more iterations stop helping) and is within ``min_delta`` of that best
+    - the DTW (median of the last ``smooth`` validations) has not improved on the best so far
+      by a relative ``min_delta`` for ``patience`` validations and is within ``min_delta`` of it
       (``plateau_stops``; else ``info["plateau"]`` tells the caller, which anneals), or
     - it is the ``final`` validation;
 
@@ -215,7 +216,7 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
             frac = conv(net, 0, starts)
             return (frac, -dtw), {"converged_fraction": frac, "dtw": dtw}
         dtw = imitation_dtw(net, demos)
-        plateau = _Plateau(patience, min_delta)
+        plateau = _Plateau(patience, min_delta, smooth)
         stale = [plateau.update(d) for d in (*previous, dtw)][-1]
         good = any(0 < t and dtw <= t for t in (target, stop_dtw))
         candidate = good or final or (plateau_stops and stale
@@ -243,20 +244,32 @@ def _psi(net: PumaNet, ws: Workspace, cfg: EvalConfig, info: dict) -> float:
 
 @dataclass
 class _Plateau:
-    """Validations since the mean DTW last improved on its best by a relative ``min_delta``."""
+    """Validations since the mean DTW last improved on its best by a relative ``min_delta``.
+
+    With ``smooth`` > 1 the count must also hold for the median of the last ``smooth``
+    validations: one noisy dip sets a best that later validations cannot beat (the raw count
+    grows) but moves the median little, and a noisy rise counts against the raw best only; a
+    plateau is where both stopped improving (``stale`` is the smaller count)."""
 
     patience: int
     min_delta: float
+    smooth: int = 1
     best: float = float("inf")
     stale: int = 0
+    stale_raw: int = 0
+    best_level: float = float("inf")
+    stale_level: int = 0
+    recent: list = field(default_factory=list)
 
     def update(self, dtw: float) -> bool:
         """Record one validation's DTW; True once ``patience`` (> 0) passed without improving."""
-        if dtw < self.best * (1.0 - self.min_delta):
-            self.stale = 0
-        else:
-            self.stale += 1
-        self.best = min(self.best, dtw)
+        self.recent = [*self.recent, dtw][-max(1, self.smooth):]
+        level = float(np.median(self.recent))
+        raw = 0 if dtw < self.best * (1.0 - self.min_delta) else self.stale_raw + 1
+        smooth = 0 if level < self.best_level * (1.0 - self.min_delta) else self.stale_level + 1
+        self.stale_raw, self.stale_level = raw, smooth
+        self.best, self.best_level = min(self.best, dtw), min(self.best_level, level)
+        self.stale = min(raw, smooth)
         return self.patience > 0 and self.stale >= self.patience
 
 

@@ -16,6 +16,14 @@ with e_i the largest distance of demonstration i from its goal (for nearly coinc
 demonstrations the spread alone is no scale) and floor = ``gate_floor`` × ``pos_tol``
 (differences below it are within the convergence tolerance). Each failed gate is one line
 naming the demonstration(s) and what to try.
+
+A demonstration that fails the worst-demonstration gate because the data contradicts itself is
+told apart from one the network has not learnt yet (:func:`followed_routes`): the rollout from
+its start is closer (DTW per point) to another demonstration's route than to its own. Two
+demonstrations from nearby starts on routes farther apart than the starts ask a smooth field to
+take both; it takes one of them or their middle. Those are the ``conflicting_demos`` line (the
+data's cause: remove one, or record demonstrations between them), the others stay in
+``worst_demo`` (the learner's: train longer or wider).
 """
 
 from __future__ import annotations
@@ -26,7 +34,7 @@ import numpy as np
 
 from ..errors import TamedPumaError
 from .data import Demonstrations
-from .evaluation import dtw_per_point_batch
+from .evaluation import dtw_per_point_batch, frechet, rollout_paths
 from .settings import EvalConfig
 
 
@@ -46,6 +54,47 @@ class Failure:
 def _resampled(p: np.ndarray, max_points: int) -> np.ndarray:
     idx = np.unique(np.linspace(0, len(p) - 1, min(len(p), max_points)).round().astype(int))
     return p[idx]
+
+
+@dataclass(frozen=True)
+class Follow:
+    """The rollout from demonstration i's start follows demonstration ``other``'s route."""
+
+    other: int
+    to_other: float  # DTW/point of the rollout to ``other``'s route [unit]
+    to_own: float    # ... and to its own [unit]
+    start_gap: float  # distance between the two starts [unit]
+    route_gap: float  # the two routes' largest separation (discrete Fréchet) [unit]
+
+
+def followed_routes(paths: list[np.ndarray], demos: Demonstrations,
+                    max_points: int = 120) -> dict[int, Follow]:
+    """The demonstrations i whose rollout ``paths[i]`` (positions from its start, its length)
+    is at least as close (DTW/point) to another demonstration j's route as to its own, where j
+    starts closer to i than their routes come apart (so no smooth field takes both): i → j.
+    Paths and routes are resampled to at most ``max_points`` samples."""
+    refs = [_resampled(demos.trimmed(i)[0], max_points) for i in range(len(demos))]
+    out = {}
+    if len(refs) < 2:
+        return out
+    for i, path in enumerate(paths):
+        d = dtw_per_point_batch([_resampled(np.asarray(path, float), max_points)] * len(refs),
+                                refs)
+        others = np.delete(np.arange(len(refs)), i)
+        j = int(others[np.argmin(d[others])])
+        gap = float(np.linalg.norm(refs[i][0] - refs[j][0]))
+        if d[j] <= d[i] and gap < (route := frechet(refs[i], refs[j])):
+            out[i] = Follow(j, float(d[j]), float(d[i]), gap, float(route))
+    return out
+
+
+def routes_followed_by(net, demos: Demonstrations) -> dict[int, Follow]:
+    """:func:`followed_routes` of the network's rollouts from each demonstration's start."""
+    trimmed = [demos.trimmed(i) for i in range(len(demos))]
+    pos, _ = rollout_paths(net, np.stack([p[0] for p, _ in trimmed]),
+                           np.stack([q[0] for _, q in trimmed]) if demos.orientation else None,
+                           max(len(p) for p, _ in trimmed) - 1, demos.dt)
+    return followed_routes([pos[i, : len(p)] for i, (p, _) in enumerate(trimmed)], demos)
 
 
 def demo_spread(demos: Demonstrations, max_points: int = 120) -> np.ndarray:
@@ -91,8 +140,25 @@ def demo_extent(demos: Demonstrations) -> np.ndarray:
                      for i in range(len(demos))])
 
 
+def _conflicts(follows: dict, bad, dtw, names, unit: str) -> Failure:
+    """The line of the failing demonstrations whose rollout follows another's route."""
+    shown = [f"{names[i]} follows {names[follows[i].other]} (starts "
+             f"{_fmt(follows[i].start_gap, unit)} apart, routes up to "
+             f"{_fmt(follows[i].route_gap, unit)}; {_fmt(follows[i].to_other, unit)} to its "
+             f"route, {_fmt(follows[i].to_own, unit)} to its own)" for i in bad[:5]]
+    rest = np.setdiff1d(np.arange(len(dtw)), bad)
+    pairs = tuple(dict.fromkeys(n for i in bad for n in (names[i], names[follows[i].other])))
+    return Failure("conflicting_demos", pairs, (
+        f"{len(bad)} demonstration(s) not reproduced because the data contradicts itself: the "
+        "rollout from each one's start takes another demonstration's route, "
+        + ", ".join(shown) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
+        + "; a field cannot take two routes from nearly one start: remove one of each pair or "
+        "record demonstrations between their starts (mean DTW/point of the other "
+        f"{len(rest)}: {_fmt(float(np.mean(dtw[rest])) if len(rest) else 0.0, unit)})"))
+
+
 def _imitation(im: dict, spread, names, cfg: EvalConfig, unit: str, nearest=None,
-               extent=None) -> list[Failure]:
+               extent=None, follows=None) -> list[Failure]:
     extent = np.zeros_like(spread) if extent is None else np.asarray(extent, float)
     floor = cfg.gate_floor * cfg.pos_tol
     dtw = np.asarray(im.get("dtw_per_demo", [im["dtw"]]), float)
@@ -101,6 +167,10 @@ def _imitation(im: dict, spread, names, cfg: EvalConfig, unit: str, nearest=None
         limits = np.maximum(np.maximum(cfg.gate_worst * spread, cfg.gate_extent * extent),
                             floor)
         bad = np.flatnonzero(dtw > limits)
+        data = np.array([k for k in bad if k in (follows or {})], int)
+        if len(data):
+            out.append(_conflicts(follows, data, dtw, names, unit))
+            bad = np.setdiff1d(bad, data)
         if len(bad):
             out.append(Failure("worst_demo", tuple(names[k] for k in bad), (
                 f"{len(bad)} of {len(dtw)} demonstration(s) not reproduced (DTW/point > "
@@ -122,19 +192,21 @@ def _imitation(im: dict, spread, names, cfg: EvalConfig, unit: str, nearest=None
                 f"demonstrations' own spread ({_fmt(float(np.median(spread)), unit)}) = "
                 f"{_fmt(limit, unit)}; worst: "
                 + ", ".join(f"{names[k]} ({_fmt(dtw[k], unit)})" for k in worst)
-                + "; try a longer schedule (puma.train.iterations, puma.train.patience) or a "
-                "wider network (puma.network.width=256)")))
+                + "; try a longer schedule (puma.train.iterations, puma.train.patience; a "
+                "wider network learnt slower per iteration on pouring_v2)")))
     return out
 
 
 def check(evaluation: dict, spread: np.ndarray, names: list[str], cfg: EvalConfig,
           unit: str = "m", nearest: np.ndarray | None = None,
-          extent: np.ndarray | None = None) -> list[Failure]:
+          extent: np.ndarray | None = None,
+          follows: dict[int, Follow] | None = None) -> list[Failure]:
     """The failed gates of one evaluation (``evaluation.evaluate``'s dict); [] when all pass.
     ``nearest``: each demonstration's nearest other one (index), named in the messages;
-    ``extent``: e_i (None: 0)."""
+    ``extent``: e_i (None: 0); ``follows``: :func:`followed_routes` (the failing demonstrations
+    among them get the ``conflicting_demos`` line instead of ``worst_demo``)."""
     out = _imitation(evaluation["imitation"], np.asarray(spread, float), names, cfg, unit,
-                     nearest, extent)
+                     nearest, extent, follows)
     cv = evaluation["convergence"]
     if cv["converged_fraction"] < cfg.gate_converged:
         out.append(Failure("convergence", (), (

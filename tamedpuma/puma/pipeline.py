@@ -321,7 +321,7 @@ def validator_of(p: Prepared):
                                 stop_dtw=t.stop_dtw, stop_compat=t.stop_compat,
                                 keep_dtw=t.keep_dtw, target=stop_target(p),
                                 patience=t.patience, min_delta=t.min_delta,
-                                plateau_stops=t.anneal == 0)
+                                plateau_stops=t.anneal == 0, smooth=t.plateau_smooth)
 
 
 def stop_target(p: Prepared) -> float:
@@ -398,7 +398,7 @@ def _evaluate(p: Prepared, path: Path, net, meta, report: dict, log) -> None:
     report["evaluation"] = evaluation.evaluate(saved, p.demos, p.workspace, p.eval_cfg)
     report["evaluation_seconds"] = round(time.perf_counter() - t0, 2)
     report["inference"] = inference_timing(load_primitive(path, threads=1))
-    failures = _gate(p, report, log)
+    failures = _gate(p, report, log, gates.routes_followed_by(saved, p.demos))
     checkpoint.save(path, net, checkpoint.Meta(**{**meta.__dict__, "report": report}))
     if failures and p.train_cfg.strict:
         path.unlink()
@@ -408,11 +408,11 @@ def _evaluate(p: Prepared, path: Path, net, meta, report: dict, log) -> None:
                               f"failed, first: {failures[0].line} (all in {out})")
 
 
-def _gate(p: Prepared, report: dict, log) -> list[gates.Failure]:
-    """Judge the evaluation (:mod:`.gates`), store the verdict in ``report["gates"]`` and log one
-    warning line per failed gate."""
+def _gate(p: Prepared, report: dict, log, follows=None) -> list[gates.Failure]:
+    """Judge the evaluation (:mod:`.gates`; ``follows``: :func:`gates.routes_followed_by`), store
+    the verdict in ``report["gates"]`` and log one warning line per failed gate."""
     failures = gates.check(report["evaluation"], p.spread, gates.demo_names(p.demos), p.eval_cfg,
-                           p.demos.unit, p.nearest, gates.demo_extent(p.demos))
+                           p.demos.unit, p.nearest, gates.demo_extent(p.demos), follows)
     report["gates"] = gates.as_report(failures, p.spread, p.eval_cfg)
     report["stop_target"] = stop_target(p)
     for f in failures:

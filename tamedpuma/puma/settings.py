@@ -47,6 +47,8 @@ class TrainConfig:
     lr: float = 2e-3
     batch_windows: int = 48
     window: int = 25
+    window_start: int = 0
+    window_ramp: float = 0.5
     stability_batch: int = 64
     stability_horizon: int = 10
     stability_weight: float = 1.0
@@ -67,6 +69,7 @@ class TrainConfig:
     stop_spread: float = 0.0
     patience: int = 0
     min_delta: float = 0.03
+    plateau_smooth: int = 1
     anneal: int = 0
     strict: bool = False
     squared_hinge: bool = False
@@ -86,16 +89,16 @@ class TrainConfig:
     def __post_init__(self):
         _check(self, "puma.train",
                positive=("iterations", "lr", "batch_windows", "window", "stability_horizon",
-                         "compat_eps", "threads", "log_every"),
+                         "compat_eps", "threads", "log_every", "plateau_smooth"),
                nonneg=("stability_batch", "stability_weight", "stability_weight_end", "margin",
                        "decay_rate",
                        "val_starts", "val_confirm", "val_horizon", "stop_dtw", "keep_dtw",
-                       "stop_spread", "patience", "min_delta", "anneal",
+                       "stop_spread", "window_start", "patience", "min_delta", "anneal",
                        "select_every", "compat_weight", "path_weight", "path_windows",
                        "sample_pad",
                        "boundary_weight", "vel_weight", "pos_weight", "grad_clip"),
-               fraction=("persist", "near_goal_fraction", "select_from", "stop_compat",
-                         "stability_ramp_from"))
+               fraction=("persist", "window_ramp", "near_goal_fraction", "select_from",
+                         "stop_compat", "stability_ramp_from"))
         if not 0 <= self.ema < 1:
             raise ConfigError(f"puma.train.ema must be in [0, 1), got {self.ema!r}")
         if self.iterations > 1_000_000:

@@ -182,11 +182,13 @@ class _Sampler:
         return _Sampler(P, Q, V, np.repeat(np.arange(len(lengths)), lengths),
                         np.concatenate([np.arange(L) for L in lengths]), np.arange(window + 1))
 
-    def batch(self, rng, n: int):
-        """n windows of W+1 samples: (positions, quaternions or None, velocities)."""
+    def batch(self, rng, n: int, window: int | None = None):
+        """n windows of ``window`` + 1 samples (default: the full W + 1): (positions,
+        quaternions or None, velocities)."""
         pick = rng.integers(0, len(self.k), n)
         di = torch.as_tensor(self.demo[pick])[:, None]
-        ki = torch.as_tensor(self.k[pick][:, None] + self.offsets)
+        offsets = self.offsets if window is None else self.offsets[: window + 1]
+        ki = torch.as_tensor(self.k[pick][:, None] + offsets)
         return self.P[di, ki], self.Q[di, ki] if self.Q is not None else None, self.V[di, ki]
 
 
@@ -337,6 +339,18 @@ def stability_weight(cfg: TrainConfig, it: int) -> float:
     return w0 + (w1 - w0) * frac
 
 
+def window_at(cfg: TrainConfig, it: int) -> int:
+    """The imitation window [steps] at iteration ``it``: ``window``, or with ``window_start`` > 0
+    that many steps at first, growing linearly to ``window`` over the first ``window_ramp`` of
+    the run (an iteration's cost is set by its rollout steps: short windows fit the local motion
+    cheaply, the full window then corrects the drift of longer closed-loop rollouts)."""
+    w0, w1 = cfg.window_start, cfg.window
+    if w0 <= 0 or w0 >= w1:
+        return w1
+    frac = min(1.0, it / max(1.0, cfg.window_ramp * cfg.iterations))
+    return int(round(w0 + (w1 - w0) * frac))
+
+
 def _schedule(run: _Run, cfg: TrainConfig) -> None:
     """The learning rate for the next iteration: the cosine schedule over ``iterations``, or,
     once a plateau started the final decay (``anneal``), linear from where it was to 2% of
@@ -357,11 +371,12 @@ def _annealed(run: _Run, cfg: TrainConfig) -> bool:
 def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
     """One optimisation step; returns the loss terms (floats)."""
     net = run.net
-    target = run.sampler.batch(run.rng, cfg.batch_windows)
+    window = window_at(cfg, run.it)
+    target = run.sampler.batch(run.rng, cfg.batch_windows, window)
     pos0, quat0, vel0, rest = _stability_starts(run, spec, cfg)
     net.share_goal()
     try:
-        il, states, latents = _rollouts(net, target, (pos0, quat0, vel0), run.dt, cfg.window,
+        il, states, latents = _rollouts(net, target, (pos0, quat0, vel0), run.dt, window,
                                         cfg.stability_horizon)
         l_il = losses.imitation_error(net, tuple(None if x is None else x[:, 1:] for x in il),
                                       target, cfg.vel_weight, cfg.pos_weight)
