@@ -42,7 +42,8 @@ from tamedpuma.types import Obstacles
 from tamedpuma.worlds.bullet import Disturbance, SimConfig, Simulator
 from tamedpuma.worlds.scenarios import scenario_from_config
 
-PULL = ConfigurationPull(mode="limits", budget=0)  # the whole search in one step
+#: the whole search in one step; straight segments only, and not engaging near the goal
+PULL = ConfigurationPull(mode="limits", budget=0, near_release=0.0, waypoints=0)
 
 
 def test_the_goal_configuration_reaches_the_pose_inside_the_limits_clear_of_everything(
