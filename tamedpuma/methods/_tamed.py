@@ -527,11 +527,6 @@ class Forcing:
         return NULL_METRIC
 
     @property
-    def geometry(self) -> str:
-        """``task_metric`` (h = −(M + JᵀwJ)⁻¹f) or ``fabric`` (h = −M⁻¹f)."""
-        return "task_metric" if self.mode == "task_metric" else "fabric"
-
-    @property
     def metric(self) -> bool:
         """Whether PUMA's forcing is pulled through the avoidance fabric's metric."""
         return self.mode != "additive"
