@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 
 from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.schema import method_settings
 from tamedpuma.episode import run_episode
-from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.fabrics import Fabric
 from tamedpuma.methods import make
 from tamedpuma.methods._learned import null_objective
 from tamedpuma.methods._policy import PoseTask
@@ -62,14 +63,15 @@ def _fpm(kinematics, source):
     method = {**load_group("method", "puma"), **load_group("method", "fpm")}
     method.pop("defaults")
     method["fabric"] = load_group("fabric", "default")
+    method["task"] = "tomato"
     if source == "analytic":
+        settings = method_settings(method)
         puma = PumaController(PoseTask(StablePose()), kinematics,
-                              float(method["pinv_damping"]), null_objective(method["null_space"]))
+                              float(settings.pinv_damping), null_objective(settings.null_space))
         spec = kinematics.spec
-        return FpmController(puma, Fabric(FabricGains.from_mapping(method["fabric"]),
-                                          spec.q_min, spec.q_max))
+        return FpmController(puma, Fabric(settings.fabric, spec.q_min, spec.q_max))
     method["checkpoint"] = str(source)
-    return make("fpm", method, kinematics)
+    return make("fpm", method_settings(method), kinematics)
 
 
 def _sources(known_gap: str | None = None) -> list:
@@ -176,7 +178,8 @@ def test_impedance_control_tracks_the_velocity_controlled_motion(robot_spec, kin
     scenario = _scenario(robot_spec, dt=0.033, max_steps=400)
     runs = {}
     for mode in ("velocity", "impedance"):
-        controller = make("joint_attractor", load_group("method", "joint_attractor"), kinematics)
+        controller = make("joint_attractor",
+                          method_settings(load_group("method", "joint_attractor")), kinematics)
         with Simulator(robot_spec, SimConfig(control=mode)) as sim:
             runs[mode] = run_episode(scenario, controller, sim)
     assert all(r.metrics.success_whole_body for r in runs.values())
