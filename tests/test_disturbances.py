@@ -191,3 +191,29 @@ def test_bad_disturbance_and_control_settings_are_rejected():
         Disturbance(kind="earthquake")
     with pytest.raises(ValueError, match="control"):
         SimConfig(control="position")
+
+
+def test_the_impedance_gains_and_the_pushed_link_are_the_robot_s(robot_spec):
+    """The simulator's settings name no joint or link of a robot: the impedance controller's
+    gains are ``robot.impedance`` (the iiwa's datasheet torque limits), a push lands on the
+    robot's end-effector link unless a link is named, and a robot without gains is refused
+    impedance control in one line."""
+    from dataclasses import fields
+
+    from tamedpuma.app.compose import compose
+    from tamedpuma.app.config import robot_config
+    from tamedpuma.app.schema import run_config
+    from tamedpuma.errors import ConfigError
+    from tamedpuma.robot.kinematics import robot_spec_from_config
+
+    assert robot_spec.impedance.torque_limit == (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
+    assert not {"stiffness", "damping", "torque_limit"} & {f.name for f in fields(SimConfig)}
+    assert Disturbance().link is None and load_group("disturbance", "push")[
+        "disturbance"]["link"] is None
+    panda = robot_spec_from_config(robot_config("panda"))
+    assert panda.impedance is None
+    with pytest.raises(ConfigError, match=r"sim\.control .*robot panda.*robot\.impedance"):
+        run_config(compose("sweep", ["robot=panda", "disturbance=impedance"]))
+    with pytest.raises(ValueError, match=r"robot\.impedance"):
+        with Simulator(panda, SimConfig(control="impedance")):
+            pass

@@ -44,7 +44,7 @@ from tamedpuma.methods.fabrics import FabricsSettings
 from tamedpuma.methods.joint_attractor import JointAttractorSettings
 from tamedpuma.methods.modulation_ik import ModulationIkSettings
 from tamedpuma.puma.settings import EvalConfig, NetConfig, TrainConfig
-from tamedpuma.robot.kinematics import BodySphere
+from tamedpuma.robot.kinematics import BodySphere, JointImpedance
 from tamedpuma.worlds.demo_scenarios import DemoScenarioConfig
 from tamedpuma.worlds.random_scenarios import START_KINDS, RandomParams
 from tamedpuma.worlds.settings import Disturbance, SimConfig
@@ -106,6 +106,11 @@ def _with_fields_of(name: str, library: type, base: type | None = None) -> type:
 SphereSchema = _with_fields_of("SphereSchema", BodySphere)
 
 
+#: ``robot.impedance``: the fields and checks of
+#: :class:`~tamedpuma.robot.kinematics.JointImpedance` (one value per joint each)
+ImpedanceSchema = _with_fields_of("ImpedanceSchema", JointImpedance)
+
+
 @dataclass
 class RobotNullSpaceSchema:
     """The robot's "elbow up" point: replaces ``method.null_space``'s link and target."""
@@ -145,6 +150,8 @@ class RobotSchema:
     null_space: RobotNullSpaceSchema | None = None  # replaces the method's "elbow up" objective
     body_model: BodyModelOptions = field(default_factory=BodyModelOptions)
     body_model_tolerance: float | None = None  # [m], written by python -m tamedpuma.body_model
+    impedance: ImpedanceSchema | None = None  # the joint impedance controller (sim.control:
+    #                                           impedance; null: the robot has none)
 
     def __post_init__(self):
         n = len(self.joint_names)
@@ -155,6 +162,11 @@ class RobotSchema:
                "below q_max for every joint", self.q_min)
         _check(all(_finite(v) and v > 0 for v in self.qd_max), "robot.qd_max",
                "finite and > 0", self.qd_max)
+        if self.impedance is not None:
+            for key in ("stiffness", "damping", "torque_limit"):
+                value = getattr(self.impedance, key)
+                _check(len(value) == n, f"robot.impedance.{key}", f"{n} numbers (one per joint)",
+                       value)
         _nonneg("robot.limit_tolerance", self.limit_tolerance)
         _nonneg("robot.limit_margin", self.limit_margin)
 
@@ -431,6 +443,9 @@ class RunConfig:
         _positive("rest_distance", self.rest_distance)
         _positive("rest_angle", self.rest_angle)
         sim = self.sim
+        _check(sim.control != "impedance" or self.robot.impedance is not None, "sim.control",
+               f"velocity for robot {self.robot.name}: its config has no impedance gains "
+               "(robot.impedance)", sim.control)
         _check(_finite(sim.substep) and 0 < sim.substep <= 0.1, "sim.substep", "in (0, 0.1] s",
                sim.substep)
         _check(_finite(sim.gravity), "sim.gravity", "finite", sim.gravity)
