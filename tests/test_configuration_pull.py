@@ -13,10 +13,11 @@ import pytest
 
 import tamedpuma.methods._configuration_pull as cpull
 import tamedpuma.methods._tamed as tamed
+from tamedpuma import methods
 from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.schema import method_settings
 from tamedpuma.episode import run_episode
 from tamedpuma.errors import ConfigError
-from tamedpuma.methods import make
 from tamedpuma.methods._configuration_pull import (
     VIA_RADIUS,
     ConfigurationMonitor,
@@ -328,9 +329,7 @@ def test_the_controller_s_goal_configurations_keep_its_own_ground(kinematics, mo
     hulls at :data:`~tamedpuma.methods._tamed.GROUND_HEIGHT_M`, and the sphere clearance
     without the barrier step."""
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
-    method = {**load_group("method", "puma"), **load_group("method", name)}
-    method.pop("defaults", None)
-    method["fabric"] = load_group("fabric", "default")
+    method = _method_config(name)
     rate = method["control_rate"]
     ground = make(name, method, kinematics).configuration.ground
     assert ground.hulls is not None and ground.height == tamed.GROUND_HEIGHT_M
@@ -418,11 +417,19 @@ def _obstacle_free_scenario(robot_spec, task_name: str, **changes):
 
 
 def _method_config(name: str) -> dict:
-    """``conf/method/<name>.yaml`` over ``puma.yaml``, with the default fabric."""
+    """``conf/method/<name>.yaml`` over ``puma.yaml``, with the default fabric (the task's
+    model is the test's stand-in)."""
     method = {**load_group("method", "puma"), **load_group("method", name)}
     method.pop("defaults", None)
-    method["fabric"] = load_group("fabric", "default")
+    if name != "puma":
+        method["fabric"] = load_group("fabric", "default")
+    method["task"] = "tomato"
     return method
+
+
+def make(name: str, method: dict, kinematics):
+    """Method ``name``'s controller from a plain method config, typed by the schema."""
+    return methods.make(name, method_settings({**method, "name": name}), kinematics)
 
 
 @pytest.mark.slow

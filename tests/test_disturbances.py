@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 
 from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.schema import method_settings
 from tamedpuma.episode import run_episode
-from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.fabrics import Fabric
 from tamedpuma.methods import make
 from tamedpuma.methods._learned import null_objective
 from tamedpuma.methods._policy import PoseTask
@@ -62,14 +63,15 @@ def _fpm(kinematics, source):
     method = {**load_group("method", "puma"), **load_group("method", "fpm")}
     method.pop("defaults")
     method["fabric"] = load_group("fabric", "default")
+    method["task"] = "tomato"
     if source == "analytic":
+        settings = method_settings(method)
         puma = PumaController(PoseTask(StablePose()), kinematics,
-                              float(method["pinv_damping"]), null_objective(method["null_space"]))
+                              float(settings.pinv_damping), null_objective(settings.null_space))
         spec = kinematics.spec
-        return FpmController(puma, Fabric(FabricGains.from_mapping(method["fabric"]),
-                                          spec.q_min, spec.q_max))
+        return FpmController(puma, Fabric(settings.fabric, spec.q_min, spec.q_max))
     method["checkpoint"] = str(source)
-    return make("fpm", method, kinematics)
+    return make("fpm", method_settings(method), kinematics)
 
 
 def _sources(known_gap: str | None = None) -> list:
@@ -176,7 +178,8 @@ def test_impedance_control_tracks_the_velocity_controlled_motion(robot_spec, kin
     scenario = _scenario(robot_spec, dt=0.033, max_steps=400)
     runs = {}
     for mode in ("velocity", "impedance"):
-        controller = make("joint_attractor", load_group("method", "joint_attractor"), kinematics)
+        controller = make("joint_attractor",
+                          method_settings(load_group("method", "joint_attractor")), kinematics)
         with Simulator(robot_spec, SimConfig(control=mode)) as sim:
             runs[mode] = run_episode(scenario, controller, sim)
     assert all(r.metrics.success_whole_body for r in runs.values())
@@ -188,3 +191,29 @@ def test_bad_disturbance_and_control_settings_are_rejected():
         Disturbance(kind="earthquake")
     with pytest.raises(ValueError, match="control"):
         SimConfig(control="position")
+
+
+def test_the_impedance_gains_and_the_pushed_link_are_the_robot_s(robot_spec):
+    """The simulator's settings name no joint or link of a robot: the impedance controller's
+    gains are ``robot.impedance`` (the iiwa's datasheet torque limits), a push lands on the
+    robot's end-effector link unless a link is named, and a robot without gains is refused
+    impedance control in one line."""
+    from dataclasses import fields
+
+    from tamedpuma.app.compose import compose
+    from tamedpuma.app.config import robot_config
+    from tamedpuma.app.schema import run_config
+    from tamedpuma.errors import ConfigError
+    from tamedpuma.robot.kinematics import robot_spec_from_config
+
+    assert robot_spec.impedance.torque_limit == (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
+    assert not {"stiffness", "damping", "torque_limit"} & {f.name for f in fields(SimConfig)}
+    assert Disturbance().link is None and load_group("disturbance", "push")[
+        "disturbance"]["link"] is None
+    panda = robot_spec_from_config(robot_config("panda"))
+    assert panda.impedance is None
+    with pytest.raises(ConfigError, match=r"sim\.control .*robot panda.*robot\.impedance"):
+        run_config(compose("sweep", ["robot=panda", "disturbance=impedance"]))
+    with pytest.raises(ValueError, match=r"robot\.impedance"):
+        with Simulator(panda, SimConfig(control="impedance")):
+            pass

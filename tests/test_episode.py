@@ -9,6 +9,7 @@ import pytest
 from mcap.reader import make_reader
 
 from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.schema import method_settings
 from tamedpuma.episode import run_episode
 from tamedpuma.methods import make
 from tamedpuma.recording import McapRecorder, RerunRecorder, RunInfo, read_mcap, read_rrd_joints
@@ -25,7 +26,8 @@ def _scenario(robot_spec, **changes):
 
 
 def _run(robot_spec, kinematics, scenario, recorders=(), info=None):
-    controller = make("joint_attractor", load_group("method", "joint_attractor"), kinematics)
+    controller = make("joint_attractor", method_settings(load_group("method", "joint_attractor")),
+                      kinematics)
     with Simulator(robot_spec) as sim:
         return run_episode(scenario, controller, sim, recorders, info)
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.schema import method_settings
 from tamedpuma.episode import run_episode
 from tamedpuma.methods import make
 from tamedpuma.worlds.bullet import Simulator
@@ -28,7 +29,7 @@ def test_fabrics_reaches_the_tomato_goal_without_collision(robot_spec, kinematic
                                [[0.5, -0.30, 0.5], [0.24355761, 0.45252747, 0.2]])
     assert np.all(scenario.obstacles.velocities == 0)
     np.testing.assert_allclose(scenario.goal.position, [0.58, -0.214, 0.115])
-    controller = make("fabrics", load_group("method", "fabrics"), kinematics)
+    controller = make("fabrics", method_settings({"name": "fabrics"}), kinematics)
     with Simulator(robot_spec) as sim:
         result = run_episode(scenario, controller, sim)
     m = result.metrics

@@ -9,11 +9,19 @@ import numpy as np
 import pytest
 
 from tamedpuma.app.config import load_group
+from tamedpuma.app.schema import method_settings
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import FabricGains
 from tamedpuma.fabrics.gains import LIMIT_REFERENCE
-from tamedpuma.methods.fabrics import make
+from tamedpuma.methods import fabrics
 from tamedpuma.types import Goal, Observation, Obstacles, Scenario
+
+
+def make(cfg, kinematics):
+    """The Fabrics controller of a plain method config (Hydra's ``defaults`` list left out),
+    typed by the schema."""
+    return fabrics.make(method_settings({k: v for k, v in cfg.items() if k != "defaults"}),
+                        kinematics)
 
 Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
 GOAL = Goal(position=[0.58, -0.214, 0.115], quaternion=[-0.5459, 0.5806, -0.4112, 0.4426])

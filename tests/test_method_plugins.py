@@ -41,8 +41,8 @@ class Hold:
         return Command(qdd=-self.gain * np.asarray(obs.qd))
 
 
-def _make(cfg, kinematics):
-    return Hold(float(cfg["gain"]))
+def _make(settings, kinematics):
+    return Hold(float(settings.gain))
 
 
 def _conf(tmp_path: Path, name: str = "hold") -> Path:
@@ -77,7 +77,11 @@ def test_a_plugin_is_a_method_like_the_built_in_ones(installed, tmp_path, kinema
     plugin = methods.MethodPlugin("hold", _make, HoldSettings, _conf(tmp_path))
     installed(_EntryPoint("hold", plugin))
     assert "hold" in methods.available() and set(methods.builtin()) < set(methods.available())
-    controller = methods.make("hold", {"name": "hold", "gain": 3.0, "label": "x"}, kinematics)
+    typed = schema.typed(schema._plugin_schemas()["hold"],
+                         {"name": "hold", "gain": 3.0, "label": "x"}, "method")
+    settings = schema.method_settings(typed)  # what the plugin's make takes
+    assert settings == HoldSettings(gain=3.0)
+    controller = methods.make("hold", settings, kinematics)
     command = controller.step(type("Obs", (), {"qd": np.ones(7)})())
     np.testing.assert_allclose(command.qdd, -3.0 * np.ones(7))
     assert methods.config_dirs() == [tmp_path]

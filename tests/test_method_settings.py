@@ -44,3 +44,34 @@ def test_the_methods_own_settings_do_not_grow(name):
     own = own_settings(getattr(schema, name))
     assert len(own) <= BUDGET[name], own
     assert not any(k.startswith(("checkpoint", "pinv_", "null_space")) for k in own)
+
+
+@pytest.mark.parametrize("name", sorted(schema.METHODS))
+def test_each_method_takes_its_own_frozen_settings(name, kinematics):
+    """One definition per setting: the schema's method class is the method's own settings
+    dataclass plus ``name`` and ``label``; ``make`` takes that frozen dataclass, never a
+    plain mapping."""
+    from tamedpuma import methods
+
+    settings = methods.settings_type(name)
+    assert dataclasses.is_dataclass(settings) and settings.__dataclass_params__.frozen
+    own = [f.name for f in dataclasses.fields(settings)]
+    assert [f.name for f in dataclasses.fields(schema.METHODS[name])] == ["name", "label", *own]
+    with pytest.raises(TypeError, match=settings.__qualname__):
+        methods.make(name, {"name": name}, kinematics)
+
+
+def test_the_sweep_hands_the_typed_settings_down(kinematics):
+    """``method_settings`` of a composed run config is the method's frozen settings with the
+    YAML's values (cpm_literal's constant damping) and the robot's "elbow up" link on the
+    Panda (sweep.build replaces the method's iiwa link)."""
+    from tamedpuma.app.compose import compose
+    from tamedpuma.app.sweep import with_robot_null_space
+    from tamedpuma.methods.cpm import CpmSettings
+
+    run = schema.run_config(compose("sweep", ["method=cpm_literal", "robot=panda"]))
+    settings = schema.method_settings(run.method)
+    assert type(settings) is CpmSettings and settings.damping == "constant"
+    assert settings.null_space.link == "lbr_iiwa_link_3"
+    panda = with_robot_null_space(settings, run.robot.null_space)
+    assert panda.null_space.link == "panda_link4" and panda.null_space.stiffness == 1.0

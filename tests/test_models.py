@@ -150,13 +150,17 @@ def test_cache_key_follows_data_config_and_code_not_bookkeeping():
 
 
 def test_every_method_using_a_model_records_which(isolated, kinematics):
+    from tamedpuma.app.schema import method_settings, run_config
     from tamedpuma.app.train import compose
 
+    def model(overrides):
+        method = run_config(compose("sweep", overrides)).method
+        return store.resolve_for_method(method.name, method_settings(method))
+
     for method in ("puma", "fpm", "cpm", "modulation_ik"):
-        cfg = compose("sweep", [f"method={method}", "task=pouring"])["method"]
-        c = store.resolve_for_method(cfg)
+        c = model([f"method={method}", "task=pouring"])
         assert c.name == ("pouring_position" if method == "modulation_ik" else "pouring")
-    assert store.resolve_for_method(compose("sweep", ["method=fabrics"])["method"]) is None
+    assert model(["method=fabrics"]) is None
 
 
 # -- what is committed and packaged -----------------------------------------------------------

@@ -9,6 +9,7 @@ import pytest
 
 from tamedpuma import ik_solvers
 from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.schema import method_settings, run_config
 from tamedpuma.errors import CheckpointError, ConfigError
 from tamedpuma.ik_solvers import (
     IKProblem,
@@ -20,7 +21,8 @@ from tamedpuma.ik_solvers import (
     solve_ik,
     violation,
 )
-from tamedpuma.methods.modulation_ik import LinearVelocityField, make
+from tamedpuma.methods import modulation_ik
+from tamedpuma.methods.modulation_ik import LinearVelocityField
 from tamedpuma.robot.ik import quat_to_matrix
 from tamedpuma.types import Observation
 
@@ -222,6 +224,11 @@ def test_backends_agree_on_a_simple_problem(kinematics):
 
 # -- controller ----------------------------------------------------------------------------
 
+def make(cfg, kinematics, primitive=None):
+    """The controller of a plain method config, typed by the schema."""
+    return modulation_ik.make(method_settings(cfg), kinematics, primitive)
+
+
 def _method_cfg(**changes):
     cfg = load_group("method", "modulation_ik")
     cfg.update(task="tomato", checkpoint="runs/puma/tomato_position/puma.pt",
@@ -246,7 +253,9 @@ def test_config_resolves_the_checkpoint_from_the_task():
     cfg = compose("sweep", ["method=modulation_ik", "task=pouring", "method.model=shipped"])
     assert cfg["method"]["checkpoint"] is None  # the best model at hand (tamedpuma.puma.store)
     assert cfg["method"]["task"] == "pouring" and cfg["method"]["name"] == "modulation_ik"
-    assert store.resolve_for_method(cfg["method"]).name == "pouring_position"
+    method = run_config(cfg).method
+    assert store.resolve_for_method(method.name, method_settings(method)).name == \
+        "pouring_position"
 
 
 def test_missing_checkpoint_names_the_train_command(kinematics, tmp_path):
@@ -269,7 +278,7 @@ def test_corrupt_checkpoint_is_a_checkpoint_error(kinematics, tmp_path):
     ({"bogus": 1}, "unknown key"),
     ({"d_min": -1.0}, "d_min"),
     ({"ik_backend": "nope"}, "ik_backend"),
-    ({"trust": "abc"}, "trust must be float"),
+    ({"trust": "abc"}, r"method\.trust: .*abc"),
 ])
 def test_bad_method_config_is_a_config_error(kinematics, changes, match):
     with pytest.raises(ConfigError, match=match):
@@ -470,5 +479,5 @@ def test_an_arm_that_starts_within_d_min_backs_out(kinematics, backend):
 
 
 def test_hold_clearance_must_be_a_boolean(kinematics):
-    with pytest.raises(ConfigError, match="hold_clearance must be true or false"):
-        make(_method_cfg(hold_clearance="yes"), kinematics, primitive=LinearVelocityField(1.0))
+    with pytest.raises(ConfigError, match=r"method\.hold_clearance: .*maybe"):
+        make(_method_cfg(hold_clearance="maybe"), kinematics, primitive=LinearVelocityField(1.0))

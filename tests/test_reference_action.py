@@ -54,9 +54,18 @@ import pytest
 
 import tamedpuma.app
 from tamedpuma.app.config import load_group
+from tamedpuma.app.schema import method_settings
 from tamedpuma.fabrics.speed import speed_terms
-from tamedpuma.methods.fabrics import make
+from tamedpuma.methods import fabrics
 from tamedpuma.types import Observation
+
+
+def make(cfg, kinematics):
+    """The Fabrics controller of a plain method config (Hydra's ``defaults`` list left out),
+    typed by the schema."""
+    return fabrics.make(method_settings({k: v for k, v in cfg.items() if k != "defaults"}),
+                        kinematics)
+
 
 SCRIPT = Path(tamedpuma.app.__file__).resolve().parent / "reference_actions.py"
 ENV = "TAMEDPUMA_REFERENCE_PYTHON"

@@ -50,8 +50,10 @@ def _method_cfg(name, task, model):
 
     explicit = _model(task) if model == "real" else None
     choice = f"method.checkpoint={explicit}" if explicit else f"method.model={model}"
+    from tamedpuma.app.schema import method_settings, run_config
+
     cfg = compose("sweep", [f"method={name}", f"task={task}", choice])
-    return cfg["method"]
+    return method_settings(run_config(cfg).method)
 
 
 def _scenario(spec, task, obstacles):

@@ -208,12 +208,14 @@ def test_a_hand_set_box_that_misses_the_data_warns_or_refuses(csv_folder):
 def test_the_shipped_tasks_hold_their_scenario_starts():
     """tomato and pouring: every Table-1 start lies in the hand-set workspace (no warning)."""
     for name in ("tomato", "pouring"):
-        from tamedpuma.app.config import load_group
+        from tamedpuma.app.config import load_group, workspace_starts
 
         task = load_group("task", name)
-        starts = pipeline.scenario_starts(task)
+        starts = workspace_starts(task)
         assert len(starts) == 15
         for sname, p, q, gp, gq in starts:
+            gp = task["goal_position"] if gp is None else gp  # None: the task's goal
+            gq = task["goal_quaternion"] if gq is None else gq
             ws = pipeline.workspace_of(task, None)
             assert task_from_demos.start_excursions([(sname, p, q)], gp, gq, ws) == []
 

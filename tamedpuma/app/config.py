@@ -68,6 +68,46 @@ def start_options(robot: str = "iiwa14") -> dict:
             "limit_margin": cfg["limit_margin"]}
 
 
+def workspace_starts(task: dict) -> list[tuple[str, object, object, list | None, list | None]]:
+    """The end-effector poses of the scenario starts a training checks against the task's
+    workspace (:func:`tamedpuma.puma.pipeline.check_workspace`): ``task.workspace_check.scenarios``
+    (``auto``: every ``conf/scenario/<task>/*.yaml``; or a list of scenario names / yaml paths)
+    on the robot ``task.workspace_check.robot`` (:func:`robot_config`). Per start: (name,
+    position [m], quaternion (x, y, z, w), the scenario's goal position and quaternion, or None
+    where it leaves them to the task). None with ``action: off``; scenarios that generate their
+    starts are left out (checked where the starts are made)."""
+    import numpy as np
+
+    from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
+
+    wc = task["workspace_check"]
+    if wc["action"] == "off":
+        return []
+    names = wc["scenarios"]
+    if names == "auto":
+        files = sorted((CONF_DIR / "scenario" / str(task["name"])).glob("*.yaml"))
+    else:
+        files = [Path(n) if str(n).endswith(".yaml") else CONF_DIR / "scenario" / f"{n}.yaml"
+                 for n in (names or [])]
+    if not files:
+        return []
+    kin = Kinematics(robot_spec_from_config(robot_config(str(wc["robot"]))))
+    out = []
+    for f in files:
+        if not f.is_file():
+            raise ConfigError(f"task.workspace_check.scenarios: no scenario file {f}")
+        sc = OmegaConf.to_container(OmegaConf.load(f), resolve=False)
+        goal = sc.get("goal") or {}
+        gp, gq = goal.get("position"), goal.get("quaternion")
+        if sc.get("generator") or (sc.get("q0") is None and kin.spec.home is None):
+            continue
+        p, q = kin.ee_pose(np.asarray(sc["q0"] if sc.get("q0") is not None else kin.spec.home,
+                                      float))
+        out.append((str(sc.get("name", f.stem)), p, q, gp if isinstance(gp, list) else None,
+                    gq if isinstance(gq, list) else None))
+    return out
+
+
 def table1_starts(task: str) -> list[list[float]]:
     """The start configurations q0 [rad] of the task's Table-1 scenarios
     (``conf/scenario/<task>/NN.yaml``); empty for a task without them."""

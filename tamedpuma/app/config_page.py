@@ -37,7 +37,7 @@ from tamedpuma.paths import CONF_DIR
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "configuration.md"
-RULE_CALLS = {"_positive": "a finite number > 0", "_nonneg": "a finite number >= 0"}
+RULE_CALLS = {"positive": "a finite number > 0", "nonneg": "a finite number >= 0"}
 MUST = re.compile(r"^([\w.\[\]{}* /]+?) must be (.+?)(?:[,;] got\b.*)?$", re.S)
 
 
@@ -178,11 +178,11 @@ def _loop_names(loop: ast.For, function: ast.AST, names: dict) -> list[str]:
 
 
 def _call_rules(call: ast.Call, names: dict) -> list[tuple[str, str]]:
-    """(key, rule) of one ``_check(ok, key, rule, value)``, ``_positive(key, v)`` or
-    ``_nonneg(key, v)`` call of the schema."""
-    func = getattr(call.func, "id", "")
+    """(key, rule) of one ``check(ok, key, rule, value)``, ``positive(key, v)`` or
+    ``nonneg(key, v)`` call (``_check`` etc. in the schema) of a settings class."""
+    func = getattr(call.func, "id", "").lstrip("_")
     try:
-        if func == "_check" and len(call.args) >= 3:
+        if func == "check" and len(call.args) >= 3:
             return [(str(_evaluate(call.args[1], names)), str(_evaluate(call.args[2], names)))]
         if func in RULE_CALLS and call.args:
             return [(str(_evaluate(call.args[0], names)), RULE_CALLS[func])]

@@ -3,8 +3,8 @@
 This module is the only place config defaults live. Settings the library owns are the library's
 frozen dataclasses, used here as field types (their defaults are the defaults):
 :class:`~tamedpuma.worlds.settings.SimConfig`, :class:`~tamedpuma.worlds.settings.Disturbance`,
-:class:`~tamedpuma.fabrics.FabricGains`,
-:class:`~tamedpuma.methods.modulation_ik.ModulationIKParams`,
+:class:`~tamedpuma.fabrics.FabricGains`, each method's settings (``SETTINGS`` of
+``tamedpuma/methods/<name>.py``, e.g. :class:`~tamedpuma.methods.cpm.CpmSettings`),
 :class:`~tamedpuma.worlds.random_scenarios.RandomParams`,
 :class:`~tamedpuma.worlds.demo_scenarios.DemoScenarioConfig`,
 :class:`~tamedpuma.robot.kinematics.BodySphere`, and PUMA's
@@ -14,8 +14,10 @@ files under ``conf/`` override these values; a YAML key the schema does not know
 (``tests/test_schema.py`` loads every YAML against it).
 
 **Adding a key** is one line in one dataclass (name, type, default, and a range check in its
-``__post_init__`` if it has one). A method's options are the dataclass in :data:`METHODS`; a
-method plugin's are its own settings dataclass (:class:`tamedpuma.methods.MethodPlugin`).
+``__post_init__`` if it has one). A method's options are its module's ``SETTINGS`` dataclass
+(typed here with ``name`` and ``label``: :data:`METHODS`; :func:`method_settings` gives the
+frozen settings its ``make`` takes); a method plugin's are its own settings dataclass
+(:class:`tamedpuma.methods.MethodPlugin`).
 
 ``run_config(cfg)`` and ``train_config(cfg)`` merge a composed config into the schema (wrong types
 and unknown keys are :class:`ConfigError` naming the key), build the typed objects (ranges
@@ -36,13 +38,13 @@ from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from tamedpuma.errors import ConfigError
-from tamedpuma.fabrics.gains import FabricGains
-from tamedpuma.methods._tamed import ENERGIES, ControlRate, Forcing
-from tamedpuma.methods.cpm import DAMPINGS as CPM_DAMPINGS
-from tamedpuma.methods.cpm import VARIANTS as CPM_VARIANTS
-from tamedpuma.methods.modulation_ik import ModulationIKParams
+from tamedpuma.methods._settings import FpmSettings, PumaSettings
+from tamedpuma.methods.cpm import CpmSettings
+from tamedpuma.methods.fabrics import FabricsSettings
+from tamedpuma.methods.joint_attractor import JointAttractorSettings
+from tamedpuma.methods.modulation_ik import ModulationIkSettings
 from tamedpuma.puma.settings import EvalConfig, NetConfig, TrainConfig
-from tamedpuma.robot.kinematics import BodySphere
+from tamedpuma.robot.kinematics import BodySphere, JointImpedance
 from tamedpuma.worlds.demo_scenarios import DemoScenarioConfig
 from tamedpuma.worlds.random_scenarios import START_KINDS, RandomParams
 from tamedpuma.worlds.settings import Disturbance, SimConfig
@@ -104,6 +106,11 @@ def _with_fields_of(name: str, library: type, base: type | None = None) -> type:
 SphereSchema = _with_fields_of("SphereSchema", BodySphere)
 
 
+#: ``robot.impedance``: the fields and checks of
+#: :class:`~tamedpuma.robot.kinematics.JointImpedance` (one value per joint each)
+ImpedanceSchema = _with_fields_of("ImpedanceSchema", JointImpedance)
+
+
 @dataclass
 class RobotNullSpaceSchema:
     """The robot's "elbow up" point: replaces ``method.null_space``'s link and target."""
@@ -143,6 +150,8 @@ class RobotSchema:
     null_space: RobotNullSpaceSchema | None = None  # replaces the method's "elbow up" objective
     body_model: BodyModelOptions = field(default_factory=BodyModelOptions)
     body_model_tolerance: float | None = None  # [m], written by python -m tamedpuma.body_model
+    impedance: ImpedanceSchema | None = None  # the joint impedance controller (sim.control:
+    #                                           impedance; null: the robot has none)
 
     def __post_init__(self):
         n = len(self.joint_names)
@@ -153,6 +162,11 @@ class RobotSchema:
                "below q_max for every joint", self.q_min)
         _check(all(_finite(v) and v > 0 for v in self.qd_max), "robot.qd_max",
                "finite and > 0", self.qd_max)
+        if self.impedance is not None:
+            for key in ("stiffness", "damping", "torque_limit"):
+                value = getattr(self.impedance, key)
+                _check(len(value) == n, f"robot.impedance.{key}", f"{n} numbers (one per joint)",
+                       value)
         _nonneg("robot.limit_tolerance", self.limit_tolerance)
         _nonneg("robot.limit_margin", self.limit_margin)
 
@@ -364,125 +378,15 @@ class MethodSchema:
     label: str | None = None      # the name its runs carry in tables (default: name)
 
 
-@dataclass
-class JointAttractorMethod(MethodSchema):
-    stiffness: float = 4.0           # k [1/s²]
-    damping: float = 4.0             # d [1/s]; 2√k = critically damped
-
-    def __post_init__(self):
-        _positive("method.stiffness", self.stiffness)
-        _nonneg("method.damping", self.damping)
-
-
-@dataclass
-class NullSpaceSchema:
-    link: str | None = "lbr_iiwa_link_3"  # null: no null-space objective
-    target: list[float] = field(default_factory=lambda: [0.2, 0.0, 0.45])  # [m]
-    stiffness: float = 1.0           # [1/s²]
-    damping: float = 1.0             # [1/s]
-
-    def __post_init__(self):
-        _check(len(self.target) == 3, "method.null_space.target", "3 numbers [m]", self.target)
-        _nonneg("method.null_space.stiffness", self.stiffness)
-        _nonneg("method.null_space.damping", self.damping)
-
-
-MODEL_CHOICES = ("auto", "real", "shipped")
-
-
-@dataclass
-class PumaMethod(MethodSchema):
-    task: str | None = None        # whose model to use (conf: ${task.name})
-    checkpoint: str | None = None  # a puma.pt; null: the best model at hand (puma/store.py)
-    model: str = "auto"            # with checkpoint null: auto | real (error if none) | shipped
-    pinv_damping: float = 0.01        # λ₀ of J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹
-    pinv_damping_max: float = 0.0     # λ_max of the singularity-robust inverse (0: constant λ₀)
-    manipulability_threshold: float = 0.02  # w₀: λ grows below this manipulability
-    goal_velocity: str = "ignore"     # feedforward: the primitive sees ṗ − v_g | ignore
-    orientation: str = "feedback"     # feedback: the primitive sees the hand's orientation |
-    #                                   reference: a reference it moves itself, which the hand
-    #                                   tracks (methods/_policy.py OrientationReference)
-    orientation_stiffness: float = 16.0  # k_p [1/s²] of the tracking (reference only)
-    orientation_damping: float = 8.0     # k_d [1/s]
-    orientation_max_acc: float = 3.0     # [rad/s²] the tracking term's largest norm
-    orientation_clearance: float = 0.0   # [m] and while every body sphere is this clear
-    orientation_leash: float = math.inf  # [rad] the reference stays this close to the hand's
-    #                                      orientation (inf: free)
-    orientation_radius: float = 0.2      # [m] the reference runs on its own within this
-    #                                      distance of the goal (the hand's beyond)
-    null_space: NullSpaceSchema | None = field(default_factory=NullSpaceSchema)
-
-    def __post_init__(self):
-        _check(self.model in MODEL_CHOICES, "method.model", " | ".join(MODEL_CHOICES), self.model)
-        _nonneg("method.pinv_damping", self.pinv_damping)
-        _nonneg("method.pinv_damping_max", self.pinv_damping_max)
-        _positive("method.manipulability_threshold", self.manipulability_threshold)
-        _check(self.goal_velocity in ("feedforward", "ignore"), "method.goal_velocity",
-               "feedforward or ignore", self.goal_velocity)
-        _check(self.orientation in ("feedback", "reference"), "method.orientation",
-               "feedback or reference", self.orientation)
-        _nonneg("method.orientation_stiffness", self.orientation_stiffness)
-        _nonneg("method.orientation_damping", self.orientation_damping)
-        _positive("method.orientation_max_acc", self.orientation_max_acc)
-        _nonneg("method.orientation_clearance", self.orientation_clearance)
-        _positive("method.orientation_radius", self.orientation_radius)
-        _check(isinstance(self.orientation_leash, (int, float)) and self.orientation_leash > 0,
-               "method.orientation_leash", "> 0 [rad] (.inf: no leash)", self.orientation_leash)
-
-
-@dataclass
-class FabricsMethod(MethodSchema):
-    fabric: FabricGains = field(default_factory=FabricGains)
-
-
-@dataclass
-class FpmMethod(PumaMethod):
-    fabric: FabricGains = field(default_factory=FabricGains)
-    alpha_bound: float = math.inf     # [1/s] α ≥ −alpha_bound (.inf: unbounded, eq. 9 as written)
-    energy: str = "fabric"            # the energy energized: fabric (H_{L_e} of the leaves) |
-    #                                   execution (½‖q̇‖²: M_e = I; methods/_tamed.py)
-    control_rate: ControlRate = field(default_factory=ControlRate)  # safety at the control rate
-    forcing: Forcing = field(default_factory=Forcing)  # how PUMA's forcing meets the fabric
-    limit_margin: float = 0.0         # [rad] the fabric's joint limits sit this far inside
-
-    def __post_init__(self):
-        super().__post_init__()
-        _check(isinstance(self.alpha_bound, (int, float)) and self.alpha_bound >= 0,
-               "method.alpha_bound", ">= 0 [1/s] (.inf: unbounded)", self.alpha_bound)
-        _check(self.energy in ENERGIES, "method.energy", " or ".join(ENERGIES), self.energy)
-        Forcing.from_mapping(dataclasses.asdict(self.forcing)
-                             if dataclasses.is_dataclass(self.forcing) else self.forcing)
-
-
-@dataclass
-class CpmMethod(FpmMethod):
-    variant: str = "paper"           # paper | original (the authors' code)
-    beta: float = 0.5                # β [1/s] > 0: the damping (its floor with damping: matched)
-    damping: str = "matched"         # matched: β(q, q̇) = max(β, r − α) | constant: the paper's β
-    tank: float = 0.0                # energy tank capacity [1] × k_ψ ψ(q₀) (0: off;
-    #                                  methods/cpm.py EnergyTank): FPM's law where it pays
-
-    def __post_init__(self):
-        super().__post_init__()
-        _check(self.variant in CPM_VARIANTS, "method.variant", " or ".join(CPM_VARIANTS),
-               self.variant)
-        _check(self.damping in CPM_DAMPINGS, "method.damping", " or ".join(CPM_DAMPINGS),
-               self.damping)
-        _nonneg("method.beta", self.beta)
-        _nonneg("method.tank", self.tank)
-
-
-@dataclass
-class _ModulationBase(MethodSchema):
-    task: str | None = None        # the task whose position primitive drives it
-    checkpoint: str | None = None  # a first-order position PUMA (puma=position); null: best at hand
-    model: str = "auto"            # with checkpoint null: auto | real (error if none) | shipped
-
-    def __post_init__(self):
-        _check(self.model in MODEL_CHOICES, "method.model", " | ".join(MODEL_CHOICES), self.model)
-
-
-ModulationIkMethod = _with_fields_of("ModulationIkMethod", ModulationIKParams, _ModulationBase)
+# Each method's settings are its own frozen dataclass (``SETTINGS`` of its module, a plugin's
+# ``settings``): here they gain ``name`` and ``label`` and become writable for the YAML merge.
+JointAttractorMethod = _with_fields_of("JointAttractorMethod", JointAttractorSettings,
+                                       MethodSchema)
+PumaMethod = _with_fields_of("PumaMethod", PumaSettings, MethodSchema)
+FabricsMethod = _with_fields_of("FabricsMethod", FabricsSettings, MethodSchema)
+FpmMethod = _with_fields_of("FpmMethod", FpmSettings, MethodSchema)
+CpmMethod = _with_fields_of("CpmMethod", CpmSettings, MethodSchema)
+ModulationIkMethod = _with_fields_of("ModulationIkMethod", ModulationIkSettings, MethodSchema)
 
 #: method name -> the dataclass of its options (a method without one cannot be configured)
 METHODS: dict[str, type] = {
@@ -539,6 +443,9 @@ class RunConfig:
         _positive("rest_distance", self.rest_distance)
         _positive("rest_angle", self.rest_angle)
         sim = self.sim
+        _check(sim.control != "impedance" or self.robot.impedance is not None, "sim.control",
+               f"velocity for robot {self.robot.name}: its config has no impedance gains "
+               "(robot.impedance)", sim.control)
         _check(_finite(sim.substep) and 0 < sim.substep <= 0.1, "sim.substep", "in (0, 0.1] s",
                sim.substep)
         _check(_finite(sim.gravity), "sim.gravity", "finite", sim.gravity)
@@ -683,6 +590,18 @@ def method_options(cfg) -> MethodSchema:
     if name not in METHODS:
         raise ConfigError(f"unknown method {name!r}; choose one of {sorted(METHODS)}")
     return typed(METHODS[name], cfg, "method")
+
+
+def method_settings(method) -> Any:
+    """The frozen settings a method's ``make`` takes
+    (:func:`tamedpuma.methods.settings_type`), from a typed method config (``RunConfig.method``)
+    or a method config mapping (typed first by :func:`method_options`)."""
+    from tamedpuma.methods import settings_type
+
+    if not isinstance(method, MethodSchema):
+        method = method_options(method)
+    library = settings_type(method.name)
+    return library(**{f.name: getattr(method, f.name) for f in dataclasses.fields(library)})
 
 
 def run_config(cfg) -> RunConfig:

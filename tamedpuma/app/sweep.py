@@ -28,6 +28,7 @@ the logs written so far keep their ``.active`` names (readable, incomplete).
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import functools
 import json
 import logging
@@ -78,7 +79,7 @@ def build(cfg: DictConfig) -> Built:
     a :class:`ConfigError` with a one-line message."""
     from tamedpuma import methods
     from tamedpuma.app.config import table1_starts
-    from tamedpuma.app.schema import as_dict, run_config
+    from tamedpuma.app.schema import as_dict, method_settings, run_config
     from tamedpuma.puma import store
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
     from tamedpuma.worlds import demo_scenarios
@@ -86,27 +87,24 @@ def build(cfg: DictConfig) -> Built:
 
     run = run_config(cfg)
     try:
-        plain = as_dict(run)
+        plain = {k: v for k, v in as_dict(run).items() if k != "method"}  # for worlds/
         spec = robot_spec_from_config(plain["robot"])
         kinematics = Kinematics(spec)
         plain = demo_scenarios.apply(plain, kinematics)  # derived goal, generated scenario
-        if plain["robot"]["null_space"] and isinstance(plain["method"].get("null_space"),
-                                                           dict):
-            # the robot config's "elbow up" link and target replace the method's (iiwa) ones
-            plain["method"]["null_space"] = {**plain["method"]["null_space"],
-                                             **plain["robot"]["null_space"]}
+
         def reference():  # clutter.keep_clear=path: the collision-free run to keep clear of
             from tamedpuma.app.reference import reference_motion
 
             return reference_motion(cfg, build)
 
         scenario = build_scenario(plain, spec, kinematics, reference, table1_starts)
-        model = store.resolve_for_method(plain["method"])
+        settings = with_robot_null_space(method_settings(run.method), run.robot.null_space)
+        model = store.resolve_for_method(run.method.name, settings)
         if model is not None:  # the method loads exactly the file that is recorded
-            plain["method"]["checkpoint"] = str(model.path)
-        controller = methods.make(run.method.name, plain["method"], kinematics)
+            settings = dataclasses.replace(settings, checkpoint=str(model.path))
+        controller = methods.make(run.method.name, settings, kinematics)
         sim_config, disturbance = run.sim, run.disturbance
-        for line in run_warnings(plain, scenario, kinematics, model):
+        for line in run_warnings(run.task.name, scenario, kinematics, model):
             print(f"warning: {line}", file=sys.stderr)
     except TamedPumaError:
         raise
@@ -115,7 +113,17 @@ def build(cfg: DictConfig) -> Built:
     return Built(run, spec, scenario, controller, sim_config, disturbance, model)
 
 
-def run_warnings(plain: dict, scenario, kinematics, model) -> list[str]:
+def with_robot_null_space(settings, robot_null_space):
+    """``settings`` with the robot config's "elbow up" link and target in place of the method's
+    (iiwa) ones, where both have one (``robot.null_space``, ``method.null_space``)."""
+    own = getattr(settings, "null_space", None)
+    if robot_null_space is None or not dataclasses.is_dataclass(own):
+        return settings
+    return dataclasses.replace(settings, null_space=dataclasses.replace(
+        own, link=robot_null_space.link, target=list(robot_null_space.target)))
+
+
+def run_warnings(task: str, scenario, kinematics, model) -> list[str]:
     """What makes a run pointless although its config is valid: a goal beyond the arm's reach
     (:func:`tamedpuma.worlds.scenarios.reach_problem`), a model trained on another task than
     the run's (its folder's manifest or report names the task)."""
@@ -128,7 +136,6 @@ def run_warnings(plain: dict, scenario, kinematics, model) -> list[str]:
         trained = manifest.get("task")
         if not isinstance(trained, str):
             trained = ((manifest.get("config") or {}).get("task") or {}).get("name")
-        task = plain["task"]["name"]
         if isinstance(trained, str) and trained != task:
             out.append(f"the model {model.path} was trained on task {trained}, this run is "
                        f"task {task}")
@@ -257,13 +264,14 @@ def _kept_model(run_dir: Path, models: dict):
 def _model_for(cfg: DictConfig, models: dict):
     """The trained model a run of ``cfg`` loads (None: its method loads none); ``models``
     caches it by the method config. Raises for a config the schema does not read."""
-    from tamedpuma.app.schema import as_dict, run_config
+    from tamedpuma.app.schema import method_settings, run_config
     from tamedpuma.puma import store
 
     key = json.dumps(OmegaConf.to_container(cfg.method, resolve=True), sort_keys=True,
                      default=str)
     if key not in models:
-        models[key] = store.resolve_for_method(as_dict(run_config(cfg))["method"])
+        method = run_config(cfg).method
+        models[key] = store.resolve_for_method(method.name, method_settings(method))
     return models[key]
 
 

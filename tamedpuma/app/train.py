@@ -21,6 +21,7 @@ from pathlib import Path
 
 from tamedpuma.app.cli import command
 from tamedpuma.app.compose import compose_dict as compose
+from tamedpuma.app.config import workspace_starts
 from tamedpuma.errors import ConfigError
 
 
@@ -134,7 +135,8 @@ def table_main(argv: list[str]) -> int:
                 cfg = compose("train", [*_table_overrides(name, order, root), f"seed={seed}",
                                         f"out_dir={run_dir}", "overwrite=true",
                                         "progress=false", *rest])
-                jobs.append(learner_table.Job(name, order, seed, cfg))
+                jobs.append(learner_table.Job(name, order, seed, cfg,
+                                              tuple(workspace_starts(cfg["task"]))))
     rows = learner_table.run(jobs, resolve(str(out)), log=lambda m: print(m, file=sys.stderr))
     print(learner_table.markdown(rows))
     return 0
@@ -185,7 +187,8 @@ def main(argv: list[str]) -> int:
     out_dir = resolve(str(cfg["out_dir"]))
     created = not out_dir.exists()
     try:
-        report = pipeline.run(cfg, log=lambda m: print(m, file=sys.stderr))
+        report = pipeline.run(cfg, log=lambda m: print(m, file=sys.stderr),
+                              starts=workspace_starts(cfg["task"]))
     except (KeyboardInterrupt, SystemExit) as exc:
         _remove_if_empty(out_dir, created)
         if isinstance(exc, SystemExit) and exc.code in (0, None):

@@ -1,11 +1,14 @@
 """The control methods. Each lives in ``tamedpuma/methods/<name>.py`` and exposes
 
-    make(cfg: Mapping, kinematics: Kinematics) -> Controller
+    SETTINGS: a frozen dataclass of the method's settings (their defaults the only defaults,
+              their ranges checked in its constructor)
+    make(settings: SETTINGS, kinematics: Kinematics) -> Controller
 
-where ``cfg`` is the plain content of ``conf/method/<name>.yaml`` (without the optional
-``label``, the name a configured variant carries in tables, e.g. ``conf/method/cpm_literal.yaml``).
-Methods never import the simulator; they see only :class:`~tamedpuma.types.Observation` and return
-:class:`~tamedpuma.types.Command`.
+``conf/method/<name>.yaml`` overrides the settings' defaults; ``tamedpuma.app.schema`` types a
+composed config into them (besides the method's ``name`` and ``label``, the name a configured
+variant carries in tables, e.g. ``conf/method/cpm_literal.yaml``), and the entry points pass
+them down. Methods never import the simulator; they see only
+:class:`~tamedpuma.types.Observation` and return :class:`~tamedpuma.types.Command`.
 
 A method from another package registers the same way through the entry point group
 ``tamedpuma.methods`` (docs/extending.md, "A method from outside the package"): the entry point
@@ -21,7 +24,7 @@ import functools
 import importlib
 import logging
 import pkgutil
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -40,17 +43,19 @@ class MethodPlugin:
     """A method from another package, as its entry point names it.
 
     name: the method's name (``method=<name>`` on the command line; its runs' ``method``);
-    make: ``make(cfg, kinematics) -> Controller``, cfg the plain method config (every key of
-    ``settings`` plus ``name``; ``task``, ``checkpoint`` and ``model`` make the sweep resolve and
-    record a second-order PUMA model, as for the built-in learned methods);
-    settings: a dataclass of the method's options, their types and defaults (its
-    ``__post_init__`` checks the ranges; a ``ValueError`` there is a one-line config error);
+    make: ``make(settings, kinematics) -> Controller``, settings an instance of ``settings``
+    (fields ``task``, ``checkpoint`` and ``model`` make the sweep resolve and record a
+    second-order PUMA model, as for the built-in learned methods, and pass its path as
+    ``checkpoint``);
+    settings: a (preferably frozen) dataclass of the method's options, their types and defaults
+    (its ``__post_init__`` checks the ranges; a ``ValueError`` there is a one-line config
+    error);
     config_dir: the folder holding ``method/<name>.yaml`` (added to Hydra's config search path
     by the entry points).
     """
 
     name: str
-    make: Callable[[Mapping, Kinematics], Controller]
+    make: Callable[[object, Kinematics], Controller]
     settings: type
     config_dir: Path
 
@@ -109,28 +114,39 @@ def config_dirs() -> list[Path]:
     return [plugins()[name].config_dir for name in sorted(plugins())]
 
 
-def make(name: str, cfg: Mapping, kinematics: Kinematics) -> Controller:
-    """Build the controller of method ``name`` from its config, on the robot's controller body
-    (its ``spheres`` and ``guard_spheres``: :meth:`RobotSpec.controller_body`)."""
+def settings_type(name: str) -> type:
+    """The settings dataclass of method ``name`` (a plugin's ``settings``, else the module's
+    ``SETTINGS``)."""
     if name not in available():
         raise ConfigError(f"unknown method {name!r}; choose one of {available()}")
+    if name in plugins():
+        return plugins()[name].settings
+    return importlib.import_module(f"tamedpuma.methods.{name}").SETTINGS
+
+
+def make(name: str, settings, kinematics: Kinematics) -> Controller:
+    """Build the controller of method ``name`` from its settings (an instance of
+    :func:`settings_type`), on the robot's controller body (its ``spheres`` and
+    ``guard_spheres``: :meth:`RobotSpec.controller_body`)."""
+    expected = settings_type(name)
+    if not isinstance(settings, expected):
+        raise TypeError(f"method {name} takes {expected.__qualname__} settings, got "
+                        f"{type(settings).__qualname__}")
     body = kinematics.spec.controller_body()
     if body is not kinematics.spec:
         kinematics = Kinematics(body)
-    options = {k: v for k, v in cfg.items() if k != "label"}
     if name in plugins():
-        return plugins()[name].make(options, kinematics)
-    module = importlib.import_module(f"tamedpuma.methods.{name}")
-    return module.make(options, kinematics)
+        return plugins()[name].make(settings, kinematics)
+    return importlib.import_module(f"tamedpuma.methods.{name}").make(settings, kinematics)
 
 
-def puma_task(cfg: Mapping):
+def puma_task(settings):
     """PUMA's task for a plugin driven by the trained primitive: the second-order model that
-    ``cfg['checkpoint']`` names (the sweep sets it to the model it resolved and records) in its
+    ``settings.checkpoint`` names (the sweep sets it to the model it resolved and records) in its
     task adapter, :class:`~tamedpuma.methods._policy.PoseTask` for the arm. Its
     ``acceleration(state, qd, goal_position, goal_quaternion)`` gives PUMA's
     :class:`~tamedpuma.methods._policy.TaskAcceleration` ``(ẍ_d [m/s², rad/s²], J, J̇q̇)`` at a
     :class:`~tamedpuma.robot.kinematics.KinematicState`."""
     from tamedpuma.methods._learned import load_task
 
-    return load_task(cfg)
+    return load_task(settings)

@@ -3,46 +3,45 @@ checkpoint named in the method config (or the best model at hand) and choosing t
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
 from tamedpuma.errors import CheckpointError, ConfigError
 from tamedpuma.methods._policy import NullSpaceObjective, PlanarTask, PoseTask
 
 
-def model_path(cfg: Mapping, order: int) -> Path:
-    """The checkpoint a method config names, or, with ``checkpoint`` null, the best model at hand
-    for ``cfg['task']`` (cache, user-trained, shipped): :func:`tamedpuma.puma.store.resolve`, the
-    one place a model is found."""
+def model_path(settings, order: int) -> Path:
+    """The checkpoint a method's settings name, or, with ``checkpoint`` null, the best model at
+    hand for ``settings.task`` (cache, user-trained, shipped):
+    :func:`tamedpuma.puma.store.resolve`, the one place a model is found. A plugin's settings
+    without ``task``, ``checkpoint`` or ``model`` count as null there."""
     from tamedpuma.puma import store
 
-    checkpoint = cfg.get("checkpoint") or None
-    if not checkpoint and not cfg.get("task"):
+    checkpoint = getattr(settings, "checkpoint", None) or None
+    task = getattr(settings, "task", None)
+    if not checkpoint and not task:
         raise ConfigError("method.checkpoint and method.task are not set")
-    model = "auto" if checkpoint else str(cfg["model"])  # an explicit checkpoint is used as is
-    return store.resolve(str(cfg.get("task") or "<task>"), order, checkpoint, model).path
+    model = "auto" if checkpoint else str(settings.model)  # an explicit checkpoint is used as is
+    return store.resolve(str(task or "<task>"), order, checkpoint, model).path
 
 
-def load_task(cfg: Mapping):
-    """Load ``cfg['checkpoint']`` and wrap it in the task adapter of its kind."""
+def load_task(settings):
+    """Load the checkpoint ``settings`` name and wrap it in the task adapter of its kind."""
     from tamedpuma.puma.primitive import PosePrimitive, load_primitive
 
-    primitive = load_primitive(model_path(cfg, order=2))
+    primitive = load_primitive(model_path(settings, order=2))
     if isinstance(primitive, PosePrimitive):
         return PoseTask(primitive)
     if primitive.spec.order != 2:
-        raise CheckpointError(f"{cfg['checkpoint']} is a first-order model; this method needs a "
-                              "second-order PUMA")
+        raise CheckpointError(f"{settings.checkpoint} is a first-order model; this method needs "
+                              "a second-order PUMA")
     return PlanarTask(primitive, dims=primitive.spec.n_pos)
 
 
-def null_objective(cfg: Mapping | None) -> NullSpaceObjective | None:
-    """The optional null-space objective of a ``null_space`` config block (None if disabled)."""
-    if not cfg or not cfg.get("link"):
+def null_objective(settings) -> NullSpaceObjective | None:
+    """The optional null-space objective of
+    :class:`~tamedpuma.methods._settings.NullSpaceSettings` (None if absent or without a link)."""
+    if settings is None or not settings.link:
         return None
-    target = tuple(float(v) for v in cfg["target"])
-    if len(target) != 3:
-        raise ConfigError("null_space.target must be 3 numbers [m]")
-    return NullSpaceObjective(str(cfg["link"]), target, float(cfg["stiffness"]),
-                              float(cfg["damping"]))
-
+    target = tuple(float(v) for v in settings.target)
+    return NullSpaceObjective(str(settings.link), target, float(settings.stiffness),
+                              float(settings.damping))

@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 
 from tamedpuma.errors import ConfigError
-from tamedpuma.fabrics import Fabric, FabricGains, solve_acceleration
+from tamedpuma.fabrics import Fabric, solve_acceleration
 from tamedpuma.fabrics.discrete import (
     barrier_step,
     limit_speed,
@@ -325,51 +325,43 @@ def restore_approached(av, receding: np.ndarray | None, W: np.ndarray, qdd_c: np
     return qdd_c, out
 
 
-def damping_rule(cfg: Mapping) -> Damping:
-    """The pseudo-inverse damping of a method config: ``pinv_damping`` λ₀, ``pinv_damping_max``
+def damping_rule(settings) -> Damping:
+    """The pseudo-inverse damping of PUMA's settings: ``pinv_damping`` λ₀, ``pinv_damping_max``
     λ_max (0: constant λ₀), ``manipulability_threshold`` w₀ (see :mod:`tamedpuma.methods.puma`)."""
-    return Damping(float(cfg["pinv_damping"]), float(cfg["pinv_damping_max"]),
-                   float(cfg["manipulability_threshold"]))
+    return Damping(float(settings.pinv_damping), float(settings.pinv_damping_max),
+                   float(settings.manipulability_threshold))
 
 
-def feed_goal_velocity(cfg: Mapping) -> bool:
-    """``goal_velocity: feedforward`` (True) or ``ignore`` (False) of a method config."""
-    mode = str(cfg["goal_velocity"])
-    if mode not in ("feedforward", "ignore"):
-        raise ConfigError(f"method.goal_velocity must be 'feedforward' or 'ignore', got {mode!r}")
-    return mode == "feedforward"
+def pulled_puma(settings, kinematics) -> PumaController:
+    """The pulled PUMA policy of puma/fpm/cpm settings
+    (:class:`~tamedpuma.methods._settings.PumaSettings`: checkpoint, pinv_damping and the
+    singularity-robust rule, null_space, goal_velocity, orientation)."""
+    task = load_task(settings)
+    if settings.orientation == "reference" and isinstance(task, PoseTask):
+        task.reference = OrientationReference(float(settings.orientation_stiffness),
+                                              float(settings.orientation_damping),
+                                              float(settings.orientation_max_acc),
+                                              float(settings.orientation_radius),
+                                              float(settings.orientation_clearance),
+                                              float(settings.orientation_leash))
+    return PumaController(task, kinematics, damping_rule(settings),
+                          null_objective(settings.null_space),
+                          settings.goal_velocity == "feedforward")
 
 
-def pulled_puma(cfg: Mapping, kinematics) -> PumaController:
-    """The pulled PUMA policy of a puma/fpm/cpm method config (checkpoint, pinv_damping and the
-    singularity-robust rule, null_space, goal_velocity)."""
-    task = load_task(cfg)
-    mode = str(cfg["orientation"])
-    if mode not in ("feedback", "reference"):
-        raise ConfigError(f"method.orientation must be 'feedback' or 'reference', got {mode!r}")
-    if mode == "reference" and isinstance(task, PoseTask):
-        task.reference = OrientationReference(float(cfg["orientation_stiffness"]),
-                                              float(cfg["orientation_damping"]),
-                                              float(cfg["orientation_max_acc"]),
-                                              float(cfg["orientation_radius"]),
-                                              float(cfg["orientation_clearance"]),
-                                              float(cfg["orientation_leash"]))
-    return PumaController(task, kinematics, damping_rule(cfg),
-                          null_objective(cfg.get("null_space")), feed_goal_velocity(cfg))
-
-
-def puma_and_fabric(cfg: Mapping, kinematics) -> tuple[PumaController, Fabric]:
-    """The pulled PUMA policy and the avoidance fabric of an fpm/cpm config; the fabric's
-    joint-limit leaves (and barrier rows) sit ``limit_margin`` [rad] inside the robot's limits,
-    so the tracking error of the joint controller (PyBullet's velocity motors sag by ~1e-3 rad/s
-    under gravity) cannot carry a joint past the real limit while its barrier holds."""
-    gains = FabricGains.from_mapping(cfg.get("fabric"))
-    margin = float(cfg["limit_margin"])
+def puma_and_fabric(settings, kinematics) -> tuple[PumaController, Fabric]:
+    """The pulled PUMA policy and the avoidance fabric of fpm/cpm settings
+    (:class:`~tamedpuma.methods._settings.FpmSettings`); the fabric's joint-limit leaves (and
+    barrier rows) sit ``limit_margin`` [rad] inside the robot's limits, so the tracking error of
+    the joint controller (PyBullet's velocity motors sag by ~1e-3 rad/s under gravity) cannot
+    carry a joint past the real limit while its barrier holds."""
+    margin = float(settings.limit_margin)
     q_min, q_max = np.asarray(kinematics.spec.q_min), np.asarray(kinematics.spec.q_max)
     if not 0.0 <= margin < 0.25 * float(np.min(q_max - q_min)):
         raise ConfigError(f"method.limit_margin must be in [0, a quarter of the smallest joint "
                           f"range), got {margin}")
-    return pulled_puma(cfg, kinematics), Fabric(gains, q_min + margin, q_max - margin)
+    return pulled_puma(settings, kinematics), Fabric(settings.fabric, q_min + margin,
+                                                     q_max - margin)
 
 
 def avoidance_at(kinematics, fabric: Fabric, obs: Observation):
@@ -568,26 +560,27 @@ class Forcing:
             return None
         return StallMonitor(StallPull(gain=self.stall_pull, progress_fraction=progress_fraction))
 
+    def __post_init__(self):
+        if self.mode not in FORCING_MODES:
+            raise ConfigError(f"method.forcing.mode must be one of {FORCING_MODES}, got "
+                              f"{self.mode!r}")
+        if self.priority not in ("none", "position"):
+            raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
+                              f"got {self.priority!r}")
+        if self.configuration_pull not in CONFIGURATION_MODES:
+            raise ConfigError(f"method.forcing.configuration_pull must be one of "
+                              f"{CONFIGURATION_MODES}, got {self.configuration_pull!r}")
+        if not (self.circulation >= 0 and self.stall_pull >= 0):
+            raise ConfigError(f"method.forcing.circulation [m] and stall_pull [m/s²] must be "
+                              f"≥ 0, got {self.circulation}, {self.stall_pull}")
+
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
         cfg = dict(cfg or {})
         unknown = sorted(set(cfg) - {field.name for field in fields(Forcing)})
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
-        f = Forcing(**cfg)
-        if f.mode not in FORCING_MODES:
-            raise ConfigError(f"method.forcing.mode must be one of {FORCING_MODES}, got "
-                              f"{f.mode!r}")
-        if f.priority not in ("none", "position"):
-            raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
-                              f"got {f.priority!r}")
-        if f.configuration_pull not in CONFIGURATION_MODES:
-            raise ConfigError(f"method.forcing.configuration_pull must be one of "
-                              f"{CONFIGURATION_MODES}, got {f.configuration_pull!r}")
-        if not (f.circulation >= 0 and f.stall_pull >= 0):
-            raise ConfigError(f"method.forcing.circulation [m] and stall_pull [m/s²] must be "
-                              f"≥ 0, got {f.circulation}, {f.stall_pull}")
-        return f
+        return Forcing(**cfg)  # checked in __post_init__
 
 
 #: the energies a TamedPUMA method may energize (``method.energy``)
@@ -652,10 +645,8 @@ def braking_split(a: np.ndarray, c: float, qd: np.ndarray, alpha_raw: float, alp
     return a - kappa * qd, c + kappa
 
 
-def alpha_floor(cfg: Mapping) -> float | None:
-    """α_min [1/s] of a method config: −``alpha_bound``, or None (energization exact, α
+def alpha_floor(settings) -> float | None:
+    """α_min [1/s] of fpm/cpm settings: −``alpha_bound``, or None (energization exact, α
     unbounded) for ``alpha_bound: .inf``."""
-    bound = float(cfg["alpha_bound"])
-    if not bound >= 0.0:
-        raise ConfigError(f"method.alpha_bound must be ≥ 0 [1/s] (.inf: unbounded), got {bound}")
+    bound = float(settings.alpha_bound)
     return None if bound == np.inf else -bound

@@ -89,13 +89,13 @@ H_{L_e}, or ½‖q̇‖² with ``energy: execution``), ``alpha``, ``beta``, ``mi
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric
+from tamedpuma.methods._settings import FpmSettings, check, nonneg
 from tamedpuma.methods._tamed import (
     ControlRate,
     Forcing,
@@ -299,14 +299,36 @@ class CpmController(TamedController):
         return float(av.energy) if self.energy == "fabric" else 0.5 * float(qd @ Mqd)
 
 
-def make(cfg: Mapping, kinematics) -> CpmController:
-    """``cfg``: a complete cpm config (every key of ``CpmMethod`` in ``app/schema.py``)."""
-    puma, fabric = puma_and_fabric(cfg, kinematics)
-    rate = ControlRate.from_mapping(cfg["control_rate"])
-    if cfg["variant"] == "original":  # the authors' code: no energization, β = 0, ψ × 0.05
+@dataclass(frozen=True)
+class CpmSettings(FpmSettings):
+    """method=cpm: FPM's settings (:class:`~tamedpuma.methods._settings.FpmSettings`) and the
+    regulator's."""
+
+    variant: str = "paper"           # paper | original (the authors' code)
+    beta: float = 0.5                # β [1/s] > 0: the damping (its floor with damping: matched)
+    damping: str = "matched"         # matched: β(q, q̇) = max(β, r − α) | constant: the paper's β
+    tank: float = 0.0                # energy tank capacity [1] × k_ψ ψ(q₀) (0: off;
+    #                                  EnergyTank): FPM's law where it pays
+
+    def __post_init__(self):
+        super().__post_init__()
+        check(self.variant in VARIANTS, "method.variant", " or ".join(VARIANTS), self.variant)
+        check(self.damping in DAMPINGS, "method.damping", " or ".join(DAMPINGS), self.damping)
+        nonneg("method.beta", self.beta)
+        nonneg("method.tank", self.tank)
+
+
+#: the settings ``make`` takes (``conf/method/cpm.yaml`` overrides their defaults)
+SETTINGS = CpmSettings
+
+
+def make(settings: CpmSettings, kinematics) -> CpmController:
+    puma, fabric = puma_and_fabric(settings, kinematics)
+    rate = settings.control_rate
+    if settings.variant == "original":  # the authors' code: no energization, β = 0, ψ × 0.05
         return CpmController(puma, fabric, beta=0.0, variant="original", regulator_scale=0.05,
                              potential_scale=1.0, damping="constant", rate=rate)
-    return CpmController(puma, fabric, beta=float(cfg["beta"]), variant=str(cfg["variant"]),
-                         damping=str(cfg["damping"]), alpha_min=alpha_floor(cfg), rate=rate,
-                         energy=str(cfg["energy"]), forcing=Forcing.from_mapping(cfg["forcing"]),
-                         tank=EnergyTank(float(cfg["tank"])))
+    return CpmController(puma, fabric, beta=float(settings.beta), variant=settings.variant,
+                         damping=settings.damping, alpha_min=alpha_floor(settings), rate=rate,
+                         energy=settings.energy, forcing=settings.forcing,
+                         tank=EnergyTank(float(settings.tank)))

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -99,6 +100,17 @@ def gains_from_config(cfg: Mapping | None) -> FabricGains:
     return FabricGains.from_mapping(cfg.get("fabric"))
 
 
-def make(cfg: Mapping, kinematics) -> FabricsController:
-    """The method registry's constructor: ``cfg`` is the plain-dict ``conf/method/fabrics.yaml``."""
-    return FabricsController(gains_from_config(cfg), kinematics)
+@dataclass(frozen=True)
+class FabricsSettings:
+    """method=fabrics: the fabric's gains (``conf/fabric/default.yaml``)."""
+
+    fabric: FabricGains = field(default_factory=FabricGains)
+
+
+#: the settings ``make`` takes
+SETTINGS = FabricsSettings
+
+
+def make(settings: FabricsSettings, kinematics) -> FabricsController:
+    """The method registry's constructor."""
+    return FabricsController(settings.fabric, kinematics)

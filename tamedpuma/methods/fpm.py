@@ -86,13 +86,10 @@ spheres vs obstacles, 1e3 without obstacles), ``n_clamped``, ``n_limit_clamped``
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 import numpy as np
 
+from tamedpuma.methods._settings import FpmSettings
 from tamedpuma.methods._tamed import (
-    ControlRate,
-    Forcing,
     TamedController,
     alpha_floor,
     bounded_alpha,
@@ -128,7 +125,10 @@ class FpmController(TamedController):
                        else self.puma.psi_later(state, obs))
 
 
-def make(cfg: Mapping, kinematics) -> FpmController:
-    return FpmController(*puma_and_fabric(cfg, kinematics), alpha_floor(cfg),
-                         ControlRate.from_mapping(cfg["control_rate"]), str(cfg["energy"]),
-                         Forcing.from_mapping(cfg["forcing"]))
+#: the settings ``make`` takes (``conf/method/fpm.yaml`` overrides their defaults)
+SETTINGS = FpmSettings
+
+
+def make(settings: FpmSettings, kinematics) -> FpmController:
+    return FpmController(*puma_and_fabric(settings, kinematics), alpha_floor(settings),
+                         settings.control_rate, settings.energy, settings.forcing)

@@ -11,10 +11,11 @@ with stiffness k [1/s²] and damping d [1/s] (critically damped for d = 2√k). 
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
+from tamedpuma.methods._settings import nonneg, positive
 from tamedpuma.robot.ik import solve_pose_ik
 from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.types import Command, Observation, Scenario
@@ -48,5 +49,21 @@ class JointAttractor:
         return Command(qdd=qdd, scalars={"joint_error_rad": float(np.linalg.norm(error))})
 
 
-def make(cfg: Mapping, kinematics: Kinematics) -> JointAttractor:
-    return JointAttractor(kinematics, float(cfg["stiffness"]), float(cfg["damping"]))
+@dataclass(frozen=True)
+class JointAttractorSettings:
+    """method=joint_attractor (``conf/method/joint_attractor.yaml``)."""
+
+    stiffness: float = 4.0           # k [1/s²]
+    damping: float = 4.0             # d [1/s]; 2√k = critically damped
+
+    def __post_init__(self):
+        positive("method.stiffness", self.stiffness)
+        nonneg("method.damping", self.damping)
+
+
+#: the settings ``make`` takes
+SETTINGS = JointAttractorSettings
+
+
+def make(settings: JointAttractorSettings, kinematics: Kinematics) -> JointAttractor:
+    return JointAttractor(kinematics, float(settings.stiffness), float(settings.damping))

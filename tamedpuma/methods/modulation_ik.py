@@ -54,7 +54,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Protocol
@@ -64,6 +63,7 @@ import numpy as np
 from tamedpuma.errors import CheckpointError, ConfigError
 from tamedpuma.ik_solvers import BACKENDS, IKProblem, solve_ik, warm_up
 from tamedpuma.methods._modulation import modulate
+from tamedpuma.methods._settings import MODEL_CHOICES, check
 from tamedpuma.paths import resolve
 from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.robot.rotations import exp_so3, quat_to_matrix, rotation_error
@@ -250,26 +250,26 @@ def _clearance(problem: IKProblem, q: np.ndarray) -> float:
     return violation(problem, q)[1]
 
 
-def _train_hint(cfg: Mapping, path: str) -> str:
-    task = cfg.get("task") or "<task>"
+def _train_hint(settings, path: str) -> str:
+    task = settings.task or "<task>"
     out = Path(path).parent if Path(path).name == "puma.pt" else Path(path)
     return (f"train it with: python -m tamedpuma.train task={task} puma=position "
             f"out_dir={out}" + ("" if Path(path).name == "puma.pt" else " (and point "
                                 "method.checkpoint at <out_dir>/puma.pt)"))
 
 
-def load_position_primitive(cfg: Mapping) -> VelocityField:
-    """The first-order R³ primitive of ``cfg['checkpoint']``; a CheckpointError (one line, with the
-    train command) if it is missing, corrupt or not a first-order 3-D position model."""
-    path = cfg.get("checkpoint")
+def load_position_primitive(settings: ModulationIkSettings) -> VelocityField:
+    """The first-order R³ primitive of ``settings.checkpoint``; a CheckpointError (one line,
+    with the train command) if it is missing, corrupt or not a first-order 3-D position model."""
+    path = settings.checkpoint
     from tamedpuma.puma.primitive import VectorPrimitive, load_primitive
 
     if path:
         resolved = resolve(str(path))
-    elif cfg.get("task"):
+    elif settings.task:
         from tamedpuma.puma import store
 
-        resolved = store.resolve(str(cfg["task"]), 1, None, str(cfg["model"])).path
+        resolved = store.resolve(str(settings.task), 1, None, str(settings.model)).path
         path = str(resolved)
     else:
         raise ConfigError("method.checkpoint and method.task are not set; name a first-order "
@@ -277,46 +277,44 @@ def load_position_primitive(cfg: Mapping) -> VelocityField:
     try:
         primitive = load_primitive(resolved)
     except CheckpointError as exc:
-        raise CheckpointError(f"{exc}; {_train_hint(cfg, str(path))}") from None
+        raise CheckpointError(f"{exc}; {_train_hint(settings, str(path))}") from None
     spec = getattr(primitive, "spec", None)
     if (not isinstance(primitive, VectorPrimitive) or spec.order != 1
             or getattr(spec, "n_pos", 3) != 3):
         raise CheckpointError(f"checkpoint {resolved}: modulation_ik needs a first-order 3-D "
-                              f"position primitive, got {spec}; {_train_hint(cfg, str(path))}")
+                              f"position primitive, got {spec}; "
+                              f"{_train_hint(settings, str(path))}")
     return primitive
 
 
-def params_from_config(cfg: Mapping) -> ModulationIKParams:
-    """:class:`ModulationIKParams` from the method config (unknown keys are errors)."""
-    known = {f.name for f in fields(ModulationIKParams)}
-    reserved = {"name", "checkpoint", "task", "model"}
-    unknown = sorted(set(cfg) - known - reserved)
-    if unknown:
-        raise ConfigError(f"method: unknown key(s) {unknown} for modulation_ik; "
-                          f"known: {sorted(known | reserved)}")
-    kwargs = {}
-    for f in fields(ModulationIKParams):
-        if f.name in cfg:
-            if f.type == "bool":
-                if not isinstance(cfg[f.name], bool):
-                    raise ConfigError(f"method.{f.name} must be true or false, got "
-                                      f"{cfg[f.name]!r}")
-                kwargs[f.name] = cfg[f.name]
-                continue
-            kind = str if f.type == "str" else int if f.type == "int" else float
-            try:
-                kwargs[f.name] = kind(cfg[f.name])
-            except (TypeError, ValueError):
-                raise ConfigError(f"method.{f.name} must be {kind.__name__}, got "
-                                  f"{cfg[f.name]!r}") from None
-    return ModulationIKParams(**kwargs)
+@dataclass(frozen=True)
+class ModulationIkSettings(ModulationIKParams):
+    """method=modulation_ik (``conf/method/modulation_ik.yaml``): the controller's gains and
+    which first-order position PUMA drives it."""
+
+    task: str | None = None        # the task whose position primitive drives it
+    checkpoint: str | None = None  # a first-order position PUMA (puma=position); null: best at hand
+    model: str = "auto"            # with checkpoint null: auto | real (error if none) | shipped
+
+    def __post_init__(self):
+        super().__post_init__()
+        check(self.model in MODEL_CHOICES, "method.model", " | ".join(MODEL_CHOICES), self.model)
+
+    def params(self) -> ModulationIKParams:
+        """The controller's gains alone."""
+        return ModulationIKParams(**{f.name: getattr(self, f.name)
+                                     for f in fields(ModulationIKParams)})
 
 
-def make(cfg: Mapping, kinematics: Kinematics, primitive: VelocityField | None = None
-         ) -> ModulationIK:
-    """Build the controller from ``conf/method/modulation_ik.yaml``; ``primitive`` overrides the
-    checkpoint (any object with ``velocity(x, goal)``, e.g. :class:`LinearVelocityField`)."""
-    params = params_from_config(cfg)
+#: the settings ``make`` takes
+SETTINGS = ModulationIkSettings
+
+
+def make(settings: ModulationIkSettings, kinematics: Kinematics,
+         primitive: VelocityField | None = None) -> ModulationIK:
+    """The controller of ``settings``; ``primitive`` overrides the checkpoint (any object with
+    ``velocity(x, goal)``, e.g. :class:`LinearVelocityField`)."""
+    params = settings.params()
     if params.ik_backend == "drake":
         from tamedpuma.ik_solvers import drake
 
@@ -324,5 +322,5 @@ def make(cfg: Mapping, kinematics: Kinematics, primitive: VelocityField | None =
             raise ConfigError("method.ik_backend=drake needs Drake: pip install drake "
                               "(or set method.ik_backend=slsqp)")
     if primitive is None:
-        primitive = load_position_primitive(cfg)
+        primitive = load_position_primitive(settings)
     return ModulationIK(kinematics, primitive, params)

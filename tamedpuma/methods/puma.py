@@ -9,12 +9,14 @@ Scalars: ``task_acc_norm`` ‖ẍ_d‖ and ``joint_acc_norm`` ‖q̈‖.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
+from tamedpuma.methods._settings import PumaSettings
 from tamedpuma.methods._tamed import PumaController, pulled_puma
 
-__all__ = ["PumaController", "make"]
+__all__ = ["SETTINGS", "PumaController", "PumaSettings", "make"]
+
+#: the settings ``make`` takes (``conf/method/puma.yaml`` overrides their defaults)
+SETTINGS = PumaSettings
 
 
-def make(cfg: Mapping, kinematics) -> PumaController:
-    return pulled_puma(cfg, kinematics)
+def make(settings: PumaSettings, kinematics) -> PumaController:
+    return pulled_puma(settings, kinematics)

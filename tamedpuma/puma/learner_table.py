@@ -23,12 +23,14 @@ from . import pipeline
 
 @dataclass(frozen=True)
 class Job:
-    """One training: a demonstration set's name, the model order, the seed and the config."""
+    """One training: a demonstration set's name, the model order, the seed, the config and the
+    scenario starts its workspace check covers (:func:`pipeline.check_workspace`)."""
 
     name: str
     order: int
     seed: int
     cfg: dict
+    starts: tuple = ()
 
 
 def row(job: Job, report: dict) -> dict:
@@ -81,7 +83,7 @@ def run(jobs: list[Job], table: Path, log=print) -> list[dict]:
         log(f"[{i + 1}/{len(jobs)}] {job.name} order {job.order} seed {job.seed}")
         t0 = time.perf_counter()
         try:
-            report = pipeline.run(job.cfg, log=log)
+            report = pipeline.run(job.cfg, log=log, starts=job.starts)
         except TamedPumaError as exc:
             log(f"failed: {job.name} seed {job.seed}: {exc}")
             continue

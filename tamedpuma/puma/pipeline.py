@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from ..paths import CONF_DIR, resolve, writable_problem, write_atomic
+from ..paths import resolve, writable_problem, write_atomic
 from . import checkpoint, data, demo_formats, demos_synthetic, evaluation, gates, task_from_demos
 from .network import NetConfig, StateSpec
 from .training import TrainConfig, Workspace, train
@@ -107,51 +107,14 @@ def workspace_of(task: dict, demos: data.Demonstrations) -> Workspace:
 
 
 
-def scenario_starts(task: dict) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray, object]]:
-    """The end-effector poses of the scenario starts to check against the workspace:
-    ``task.workspace_check.scenarios`` (``auto``: every ``conf/scenario/<task>/*.yaml``; or a list
-    of scenario names / yaml paths) on ``task.workspace_check.robot``.
-    Returns (name, position, quaternion, goal position, goal quaternion) per start."""
-    from omegaconf import OmegaConf
-
-    from ..robot.kinematics import Kinematics, robot_spec_from_config
-
-    wc = task["workspace_check"]
-    names = wc["scenarios"]
-    if names == "auto":
-        files = sorted((CONF_DIR / "scenario" / str(task.get("name"))).glob("*.yaml"))
-    else:
-        files = [Path(n) if str(n).endswith(".yaml") else CONF_DIR / "scenario" / f"{n}.yaml"
-                 for n in (names or [])]
-    if not files:
-        return []
-    robot_file = CONF_DIR / "robot" / f"{wc['robot']}.yaml"
-    try:
-        kin = Kinematics(robot_spec_from_config(OmegaConf.to_container(OmegaConf.load(robot_file))))
-    except OSError as exc:
-        raise ConfigError(f"task.workspace_check.robot: {exc}") from None
-    out = []
-    for f in files:
-        if not f.is_file():
-            raise ConfigError(f"task.workspace_check.scenarios: no scenario file {f}")
-        sc = OmegaConf.to_container(OmegaConf.load(f), resolve=False)
-        goal = sc.get("goal") or {}
-        gp, gq = goal.get("position"), goal.get("quaternion")
-        gp = task.get("goal_position") if not isinstance(gp, list) else gp
-        gq = task.get("goal_quaternion") if not isinstance(gq, list) else gq
-        if sc.get("generator") or (sc.get("q0") is None and kin.spec.home is None):
-            continue  # generated starts are checked where they are made
-        p, q = kin.ee_pose(np.asarray(sc["q0"] if sc.get("q0") is not None else kin.spec.home,
-                                      float))
-        out.append((str(sc.get("name", f.stem)), p, q, gp, gq))
-    return out
-
-
 def check_workspace(task: dict, raws: list[data.RawDemo], ws: Workspace,
-                    log=print) -> list[str]:
+                    log=print, starts=()) -> list[str]:
     """Warn (``task.workspace_check.action: warn``), refuse (``error``) or skip
     (``off``) when a demonstration (relative to its own final pose) or a scenario start
-    (relative to its goal) leaves the workspace; returns the problems, each naming how far."""
+    (relative to its goal) leaves the workspace; returns the problems, each naming how far.
+    starts: the scenario starts to check, ``(name, position, quaternion, goal position, goal
+    quaternion)`` each (the app layer reads them: ``tamedpuma.app.config.workspace_starts``); a
+    goal of None is the task's."""
     action = str(task["workspace_check"]["action"])
     if action not in ("warn", "error", "off"):
         raise ConfigError(f"task.workspace_check.action must be warn, error or off, not {action!r}")
@@ -159,7 +122,9 @@ def check_workspace(task: dict, raws: list[data.RawDemo], ws: Workspace,
         return []
     found = task_from_demos.demo_excursions(raws, ws)
     if len(ws.low) == 3:
-        for name, p, q, gp, gq in scenario_starts(task):
+        for name, p, q, gp, gq in starts:
+            gp = task.get("goal_position") if gp is None else gp
+            gq = task.get("goal_quaternion") if gq is None else gq
             if gp is None:
                 continue
             found += task_from_demos.start_excursions(
@@ -270,9 +235,10 @@ class Prepared:
     nearest: np.ndarray  # per demonstration: the index of that nearest one
 
 
-def prepare(cfg: dict, log=print) -> Prepared:
-    """Demonstrations → (derived task,) workspace, its check, state spec and evaluation settings
-    (tolerances scaled to the workspace for non-metric data)."""
+def prepare(cfg: dict, log=print, starts=()) -> Prepared:
+    """Demonstrations → (derived task,) workspace, its check (with the scenario ``starts``:
+    :func:`check_workspace`), state spec and evaluation settings (tolerances scaled to the
+    workspace for non-metric data)."""
     task, puma = cfg["task"], cfg["puma"]
     train_cfg = _dataclass(TrainConfig, puma.get("train"), "puma.train")
     net_cfg = _dataclass(NetConfig, puma.get("network"), "puma.network")
@@ -291,7 +257,7 @@ def prepare(cfg: dict, log=print) -> Prepared:
                 "learned relative to its own final pose)")
     demos = prepare_demos(task, puma, raws, source, unit)
     ws = derived.workspace if derived is not None else workspace_of(task, demos)
-    problems = check_workspace(task, raws, ws, log)
+    problems = check_workspace(task, raws, ws, log, starts)
     if task.get("workspace") is None and demos.unit != "m":
         # tolerances scale with the workspace for non-metric data (e.g. LASA in mm)
         size = float(np.max(np.subtract(ws.high, ws.low)))
@@ -346,7 +312,7 @@ def _training_report(p: Prepared, result, seed: int) -> dict:
     return report
 
 
-def run(cfg: dict, log=print) -> dict:
+def run(cfg: dict, log=print, starts=()) -> dict:
     """Train, save, (re)load and evaluate as configured; returns the report (also on disk).
 
     Before the first iteration: an existing checkpoint is refused unless ``overwrite``, the output
@@ -357,7 +323,7 @@ def run(cfg: dict, log=print) -> dict:
     seed = int(cfg["seed"])
     out_dir = resolve(str(cfg["out_dir"]))
     ckpt_path = prepare_out_dir(out_dir, bool(cfg["overwrite"]))
-    p = prepare(cfg, log)
+    p = prepare(cfg, log, starts)
     if p.train_cfg.strict and not cfg["evaluate"]:
         raise ConfigError("puma.train.strict=true needs evaluate=true (the gates judge the "
                           "evaluation)")

@@ -238,12 +238,13 @@ def resolve(task: str, order: int, checkpoint: str | None = None,
     return choice(path, "shipped", model_name(task, order))
 
 
-def resolve_for_method(method_cfg: dict) -> ModelChoice | None:
-    """The model of a method config (None for methods without a ``checkpoint`` key)."""
-    if "checkpoint" not in method_cfg:
+def resolve_for_method(name: str, settings) -> ModelChoice | None:
+    """The model of method ``name`` with ``settings`` (its settings dataclass; None for methods
+    without a ``checkpoint`` setting)."""
+    if not hasattr(settings, "checkpoint"):
         return None
-    task = method_cfg["task"]
+    task = settings.task
     if not task:
         raise ConfigError("method.task is not set (it names the task whose model to use)")
-    order = 1 if method_cfg["name"] in POSITION_METHODS else 2
-    return resolve(str(task), order, method_cfg["checkpoint"], str(method_cfg["model"]))
+    order = 1 if name in POSITION_METHODS else 2
+    return resolve(str(task), order, settings.checkpoint, str(settings.model))

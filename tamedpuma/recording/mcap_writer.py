@@ -25,6 +25,7 @@ leaves a ``.active`` file that :func:`tamedpuma.recording.read_mcap` reads up to
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import time
@@ -63,6 +64,8 @@ from ..runlog import ACTIVE_SUFFIX, ATTACH_URDF, META_CONFIG, META_RUN_INFO, MET
 from .records import RunInfo, StepRecord
 
 WORLD_FRAME = "world"
+#: the logger the SDK reports a failed write of a logged message to (it does not raise)
+SDK_SINK_LOGGER = "foxglove.log_sink_set"
 ATTACH_CONFIG = "config.yaml"
 GOAL_MARKER_RADIUS = 0.03  # [m], display only
 
@@ -228,12 +231,19 @@ class McapRecorder:
         self._pending.append(rec)
         self._count += 1
         if self._count % self.flush_every == 0:
+            held = _HeldWriteErrors()
+            sink = logging.getLogger(SDK_SINK_LOGGER)
+            sink.addFilter(held)
             try:
                 self._log_pending()
                 self._writer.flush()
+                if held.first is not None:
+                    raise RuntimeError(held.first)
             except (OSError, RuntimeError) as exc:
                 self._failed = True
                 raise write_error(self.active_path, exc, self._count) from exc
+            finally:
+                sink.removeFilter(held)
 
     def _log_pending(self) -> None:
         self._in_chunk = True
@@ -337,6 +347,21 @@ class McapRecorder:
             ch.close()
         if not self._failed:
             os.replace(self.active_path, self.path)
+
+
+class _HeldWriteErrors(logging.Filter):
+    """Holds back the SDK's warning for each message it could not write (a full disk fails
+    every message after the first: one warning each, written to a log file on the same full
+    disk); the batch's flush raises the failure, or the first warning becomes the error."""
+
+    def __init__(self):
+        super().__init__()
+        self.first: str | None = None
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if self.first is None:
+            self.first = record.getMessage()
+        return False
 
 
 def write_error(path: Path, exc: BaseException, steps: int) -> TamedPumaError:

@@ -71,6 +71,28 @@ class BodySphere:
 
 
 @dataclass(frozen=True)
+class JointImpedance:
+    """The robot's joint impedance controller (``robot.impedance``; the simulator's
+    ``sim.control: impedance``): per joint the stiffness K [N·m/rad], the damping D [N·m·s/rad]
+    and the torque limit [N·m] the commanded torque is clipped to."""
+
+    stiffness: tuple[float, ...]
+    damping: tuple[float, ...]
+    torque_limit: tuple[float, ...]
+
+    def __post_init__(self):
+        for key in ("stiffness", "damping", "torque_limit"):
+            values = tuple(float(v) for v in getattr(self, key))
+            if not all(np.isfinite(values)) or min(values, default=0.0) < 0:
+                raise ValueError(f"robot.impedance.{key} must be finite numbers >= 0, "
+                                 f"got {values}")
+            object.__setattr__(self, key, values)
+        if not len(self.stiffness) == len(self.damping) == len(self.torque_limit):
+            raise ValueError("robot.impedance: stiffness, damping and torque_limit need one "
+                             "value per joint each")
+
+
+@dataclass(frozen=True)
 class RobotSpec:
     """Robot data from config.
 
@@ -92,6 +114,8 @@ class RobotSpec:
     spheres: tuple[BodySphere, ...]
     home: tuple[float, ...] | None = None  # default start [rad] (a scenario with q0: null)
     guard_spheres: tuple[BodySphere, ...] = ()
+    impedance: JointImpedance | None = None  # the joint impedance controller's gains (None:
+    #                                          the robot config gives none)
 
     def __post_init__(self):
         n = len(self.joint_names)
@@ -154,6 +178,8 @@ def robot_spec_from_config(cfg) -> RobotSpec:
         spheres=spheres,
         home=None if cfg["home"] is None else tuple(float(v) for v in cfg["home"]),
         guard_spheres=guards,
+        impedance=None if cfg.get("impedance") is None else JointImpedance(
+            **{k: tuple(v) for k, v in cfg["impedance"].items()}),
     )
 
 

@@ -10,7 +10,8 @@ acceleration ``a = (q̇_cmd − q̇_k)/Δt``, and is then tracked over the Δt /
 
 - ``velocity`` (default): PyBullet's velocity motors hold q̇_cmd (force limit ``max_joint_force``);
 - ``impedance``: a 1 kHz joint impedance (torque) controller with gravity compensation, as on the
-  real iiwa: at each substep, τ after the period start,
+  real iiwa, with the robot's gains K, D and torque limits (``robot.impedance``,
+  :class:`~tamedpuma.robot.kinematics.JointImpedance`): at each substep, τ after the period start,
   ``q_d = q_k + q̇_k τ + ½ a τ²``, ``q̇_d = q̇_k + a τ`` and the torque [N·m]
   ``u = g(q) + K (q_d − q) + D (q̇_d − q̇)`` (+ ``M(q) a + c(q, q̇)`` when ``feedforward``: the
   inverse dynamics of a at the measured state, which contains g), clipped to ``torque_limit``.
@@ -54,6 +55,9 @@ class Simulator:
 
     def __init__(self, spec: RobotSpec, config: SimConfig = SimConfig(),  # noqa: B008 (frozen)
                  disturbance: Disturbance = Disturbance()):  # noqa: B008
+        if config.control == "impedance" and spec.impedance is None:
+            raise ValueError("impedance control needs the robot's joint impedance gains "
+                             "(robot.impedance)")
         self.spec = spec
         self.config = config
         self.disturbance = disturbance
@@ -144,10 +148,11 @@ class Simulator:
         dist = self.disturbance
         self._push_link = -1
         if dist.kind == "push":
-            if dist.link not in self.spec.link_names:
-                raise ValueError(f"disturbance.link {dist.link!r} is not one of "
+            link = self.spec.ee_link if dist.link is None else dist.link
+            if link not in self.spec.link_names:
+                raise ValueError(f"disturbance.link {link!r} is not one of "
                                  f"{list(self.spec.link_names)}")
-            self._push_link = self._link_idx[self.spec.link_names.index(dist.link)]
+            self._push_link = self._link_idx[self.spec.link_names.index(link)]
         self._noise_rng = np.random.default_rng([int(seed), 4243])
         self._sensor_sample = -1
         self._sensed_centers = None
@@ -265,9 +270,10 @@ class Simulator:
             zeros = [0.0] * self.spec.dof
             base = pb.calculateInverseDynamics(self._robot, q.tolist(), zeros, zeros,
                                                physicsClientId=c)
-        torque = (np.asarray(base) + np.asarray(cfg.stiffness) * (q_d - q)
-                  + np.asarray(cfg.damping) * (qd_d - qd))
-        limit = np.asarray(cfg.torque_limit, dtype=float)
+        gains = self.spec.impedance
+        torque = (np.asarray(base) + np.asarray(gains.stiffness) * (q_d - q)
+                  + np.asarray(gains.damping) * (qd_d - qd))
+        limit = np.asarray(gains.torque_limit, dtype=float)
         pb.setJointMotorControlArray(self._robot, self._joint_idx, pb.TORQUE_CONTROL,
                                      forces=np.clip(torque, -limit, limit).tolist(),
                                      physicsClientId=c)

@@ -12,7 +12,10 @@ from dataclasses import dataclass
 @dataclass(frozen=True)
 class SimConfig:
     """gui: open a window; substep: physics step [s]; gravity [m/s²] along −z;
-    max_joint_force: motor force limit [N·m] of the velocity controller; ground: add a plane."""
+    max_joint_force: motor force limit [N·m] of the velocity controller; ground: add a plane;
+    control: ``velocity`` or ``impedance`` (the robot's joint impedance gains,
+    ``robot.impedance``); feedforward: the impedance controller adds the inverse dynamics of the
+    commanded acceleration (else gravity compensation only)."""
 
     gui: bool = False
     substep: float = 0.001
@@ -20,9 +23,6 @@ class SimConfig:
     max_joint_force: float = 500.0
     ground: bool = True
     control: str = "velocity"
-    stiffness: tuple[float, ...] = (600.0, 600.0, 300.0, 300.0, 100.0, 50.0, 20.0)  # [N·m/rad]
-    damping: tuple[float, ...] = (30.0, 30.0, 15.0, 15.0, 5.0, 2.0, 0.5)        # [N·m·s/rad]
-    torque_limit: tuple[float, ...] = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)  # [N·m]
     feedforward: bool = True
 
     def __post_init__(self):
@@ -38,7 +38,8 @@ DISTURBANCE_KINDS = ("none", "goal_change", "push", "obstacle_noise")
 class Disturbance:
     """What perturbs an episode (see the module docstring). name: the behaviour's name in run
     folders and tables (``impedance`` has kind ``none``); onset [s]; duration [s] (push);
-    force (3,) [N] in the world frame (push); link: the pushed link; goal_offset (3,) [m]
+    force (3,) [N] in the world frame (push); link: the pushed link (None: the robot's
+    end-effector link, ``robot.ee_link``); goal_offset (3,) [m]
     (goal_change); noise_std [m] and sensor_rate [Hz] (obstacle_noise)."""
 
     kind: str = "none"
@@ -46,7 +47,7 @@ class Disturbance:
     onset: float = 3.0
     duration: float = 0.2
     force: tuple[float, ...] = (0.0, 0.0, 0.0)
-    link: str = "lbr_iiwa_link_7"
+    link: str | None = None
     goal_offset: tuple[float, ...] = (0.0, 0.0, 0.0)
     noise_std: float = 0.0
     sensor_rate: float = 30.0

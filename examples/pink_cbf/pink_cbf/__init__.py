@@ -48,13 +48,12 @@ class PinkCbfSettings:
                              f"{self.speed_headroom!r}")
 
 
-def make(cfg, kinematics):
-    """The controller of a method config (the sweep passes the resolved ``checkpoint``)."""
+def make(settings: PinkCbfSettings, kinematics):
+    """The controller of its settings (the sweep passes the resolved ``checkpoint``)."""
     from pink_cbf.controller import PinkCbf
     from tamedpuma.methods import puma_task
 
-    settings = PinkCbfSettings(**{k: v for k, v in cfg.items() if k != "name"})
-    return PinkCbf(kinematics, puma_task(cfg), settings)
+    return PinkCbf(kinematics, puma_task(settings), settings)
 
 
 PLUGIN = MethodPlugin(name="pink_cbf", make=make, settings=PinkCbfSettings,

@@ -1,0 +1,118 @@
+"""The settings of the methods driven by a trained PUMA primitive (puma, fpm, cpm, modulation_ik):
+frozen dataclasses, their defaults the only defaults (``conf/method/*.yaml`` override them),
+their ranges checked in ``__post_init__`` (a :class:`~tamedpuma.errors.ConfigError` naming the
+key). Each method's ``make(settings, kinematics)`` takes one of them; ``app/schema.py`` types a
+composed config into them (with the method's ``name`` and ``label``).
+
+The shared ones live here because methods never import each other: :class:`PumaSettings`
+(method=puma) and :class:`FpmSettings` (method=fpm, PUMA's plus the avoidance fabric's), which
+CPM's settings extend in :mod:`tamedpuma.methods.cpm`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from tamedpuma.errors import ConfigError
+from tamedpuma.fabrics.gains import FabricGains
+from tamedpuma.methods._tamed import ENERGIES, ControlRate, Forcing
+
+#: how a learned method finds its model with ``checkpoint`` null (:mod:`tamedpuma.puma.store`)
+MODEL_CHOICES = ("auto", "real", "shipped")
+
+
+def check(ok: bool, key: str, rule: str, value) -> None:
+    """A :class:`ConfigError` ``"<key> must be <rule>, got <value>"`` unless ``ok``."""
+    if not ok:
+        raise ConfigError(f"{key} must be {rule}, got {value!r}")
+
+
+def finite(x) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def positive(key: str, value) -> None:
+    check(finite(value) and value > 0, key, "a finite number > 0", value)
+
+
+def nonneg(key: str, value) -> None:
+    check(finite(value) and value >= 0, key, "a finite number >= 0", value)
+
+
+@dataclass(frozen=True)
+class NullSpaceSettings:
+    """The secondary "elbow up" objective in the null space of J (``method.null_space``; a
+    robot config's ``null_space`` replaces link and target)."""
+
+    link: str | None = "lbr_iiwa_link_3"  # null: no null-space objective
+    target: list[float] = field(default_factory=lambda: [0.2, 0.0, 0.45])  # [m]
+    stiffness: float = 1.0           # [1/s²]
+    damping: float = 1.0             # [1/s]
+
+    def __post_init__(self):
+        check(len(self.target) == 3, "method.null_space.target", "3 numbers [m]", self.target)
+        nonneg("method.null_space.stiffness", self.stiffness)
+        nonneg("method.null_space.damping", self.damping)
+
+
+@dataclass(frozen=True)
+class PumaSettings:
+    """method=puma: the pulled PUMA policy (:func:`tamedpuma.methods._tamed.pulled_puma`)."""
+
+    task: str | None = None        # whose model to use (conf: ${task.name})
+    checkpoint: str | None = None  # a puma.pt; null: the best model at hand (puma/store.py)
+    model: str = "auto"            # with checkpoint null: auto | real (error if none) | shipped
+    pinv_damping: float = 0.01        # λ₀ of J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹
+    pinv_damping_max: float = 0.0     # λ_max of the singularity-robust inverse (0: constant λ₀)
+    manipulability_threshold: float = 0.02  # w₀: λ grows below this manipulability
+    goal_velocity: str = "ignore"     # feedforward: the primitive sees ṗ − v_g | ignore
+    orientation: str = "feedback"     # feedback: the primitive sees the hand's orientation |
+    #                                   reference: a reference it moves itself, which the hand
+    #                                   tracks (methods/_policy.py OrientationReference)
+    orientation_stiffness: float = 16.0  # k_p [1/s²] of the tracking (reference only)
+    orientation_damping: float = 8.0     # k_d [1/s]
+    orientation_max_acc: float = 3.0     # [rad/s²] the tracking term's largest norm
+    orientation_clearance: float = 0.0   # [m] and while every body sphere is this clear
+    orientation_leash: float = math.inf  # [rad] the reference stays this close to the hand's
+    #                                      orientation (inf: free)
+    orientation_radius: float = 0.2      # [m] the reference runs on its own within this
+    #                                      distance of the goal (the hand's beyond)
+    null_space: NullSpaceSettings | None = field(default_factory=NullSpaceSettings)
+
+    def __post_init__(self):
+        check(self.model in MODEL_CHOICES, "method.model", " | ".join(MODEL_CHOICES), self.model)
+        nonneg("method.pinv_damping", self.pinv_damping)
+        nonneg("method.pinv_damping_max", self.pinv_damping_max)
+        positive("method.manipulability_threshold", self.manipulability_threshold)
+        check(self.goal_velocity in ("feedforward", "ignore"), "method.goal_velocity",
+              "feedforward or ignore", self.goal_velocity)
+        check(self.orientation in ("feedback", "reference"), "method.orientation",
+              "feedback or reference", self.orientation)
+        nonneg("method.orientation_stiffness", self.orientation_stiffness)
+        nonneg("method.orientation_damping", self.orientation_damping)
+        positive("method.orientation_max_acc", self.orientation_max_acc)
+        nonneg("method.orientation_clearance", self.orientation_clearance)
+        positive("method.orientation_radius", self.orientation_radius)
+        check(isinstance(self.orientation_leash, (int, float)) and self.orientation_leash > 0,
+              "method.orientation_leash", "> 0 [rad] (.inf: no leash)", self.orientation_leash)
+
+
+@dataclass(frozen=True)
+class FpmSettings(PumaSettings):
+    """method=fpm: PUMA's settings, the avoidance fabric and how they meet
+    (:mod:`tamedpuma.methods.fpm`)."""
+
+    fabric: FabricGains = field(default_factory=FabricGains)
+    alpha_bound: float = math.inf     # [1/s] α ≥ −alpha_bound (.inf: unbounded, eq. 9 as written)
+    energy: str = "fabric"            # the energy energized: fabric (H_{L_e} of the leaves) |
+    #                                   execution (½‖q̇‖²: M_e = I; methods/_tamed.py)
+    control_rate: ControlRate = field(default_factory=ControlRate)  # safety at the control rate
+    forcing: Forcing = field(default_factory=Forcing)  # how PUMA's forcing meets the fabric
+    limit_margin: float = 0.0         # [rad] the fabric's joint limits sit this far inside
+
+    def __post_init__(self):
+        super().__post_init__()
+        check(isinstance(self.alpha_bound, (int, float)) and self.alpha_bound >= 0,
+              "method.alpha_bound", ">= 0 [1/s] (.inf: unbounded)", self.alpha_bound)
+        check(self.energy in ENERGIES, "method.energy", " or ".join(ENERGIES), self.energy)
