@@ -497,7 +497,7 @@ class ConfigurationMonitor:
         if not self.engaged and self.search is None and self._engages(q, distance,
                                                                       stall.t_armed, obs.t):
             self.served = stall.t_armed
-            self.release_at = p.release if distance > p.release else p.near_release
+            self.release_at = p.near_release if p.near_release > 0.0 else p.release
             self._start(q, obs)
         if self.engaged and self.search is None and np.linalg.norm(
                 np.asarray(obs.goal_position) - self.goal_for) > REPLAN_DISTANCE_M:
