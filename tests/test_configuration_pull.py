@@ -156,11 +156,18 @@ def test_near_the_goal_the_monitor_engages_only_with_a_near_release_and_lets_go_
     # armed within near_release: nothing to do
     inside = ConfigurationMonitor(pull, spec)
     assert inside.applied(q, qd, 0.02, _stall(3.0, 0.02), obs, task) is task
-    # armed far away it lets go at the release distance, as before
-    far = ConfigurationMonitor(pull, spec)  # farther: any time while armed, as before
+    # armed far away it engages any time while armed, and it too lets go only within
+    # near_release (the arm nearly at rest), not at the release distance
+    far = ConfigurationMonitor(pull, spec)
     assert far.applied(q, qd, 0.5, _stall(1.0, 0.5), obs, task) is not task
-    assert far.release_at == pull.release
-    assert far.applied(q, qd, PULL.release, _stall(1.0, PULL.release), obs, task) is task
+    assert far.release_at == pull.near_release
+    assert far.applied(q, qd, pull.release, _stall(1.0, pull.release), obs, task) is not task
+    assert far.applied(q, qd, pull.near_release, _stall(1.0, 0.03), obs, task) is task
+    # without a near_release it lets go at the release distance
+    plain = ConfigurationMonitor(PULL, spec)
+    assert plain.applied(q, qd, 0.5, _stall(1.0, 0.5), obs, task) is not task
+    assert plain.release_at == PULL.release
+    assert plain.applied(q, qd, PULL.release, _stall(1.0, PULL.release), obs, task) is task
     # ``always`` asks for no limit far away, but near the goal it does, as ``limits``
     free = np.array([1.0, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])  # no joint within 0.1 rad of a limit
     always = replace(pull, mode="always")
