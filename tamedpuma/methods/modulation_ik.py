@@ -136,9 +136,6 @@ class ModulationIKParams:
         if self.ik_backend not in BACKENDS:
             raise ConfigError(f"method.ik_backend {self.ik_backend!r}: choose one of "
                               f"{sorted(BACKENDS)}")
-        if self.trust > 1.0:
-            log.warning("method.trust %.3g > 1: IK steps can exceed the velocity limits and be "
-                        "clipped by the simulator", self.trust)
 
 
 class ModulationIK:
@@ -315,6 +312,9 @@ def make(settings: ModulationIkSettings, kinematics: Kinematics,
     """The controller of ``settings``; ``primitive`` overrides the checkpoint (any object with
     ``velocity(x, goal)``, e.g. :class:`LinearVelocityField`)."""
     params = settings.params()
+    if params.trust > 1.0:  # here, not in the settings: they are built more than once per run
+        log.warning("method.trust %.3g > 1: IK steps can exceed the velocity limits and be "
+                    "clipped by the simulator", params.trust)
     if params.ik_backend == "drake":
         from tamedpuma.ik_solvers import drake
 
