@@ -327,6 +327,27 @@ def test_the_results_page_block_is_rewritten_from_the_analysis_with_its_provenan
     assert text.count("<!-- /result -->") == 2
 
 
+def test_the_results_page_names_the_revision_and_machine_the_runs_record(tmp_path):
+    """Runs that record their code revision and machine (summary.json, schema 2) are named by
+    those, not by the host that writes the page."""
+    from tamedpuma.app import results_page
+
+    runs = _fake_runs(tmp_path)
+    machine = {"cpu": "Test CPU 9000", "cores": 64, "python": "3.99.0",
+               "packages": {"torch": "9.9.9+cpu"}}
+    for i, rev in enumerate(("1234567" + "0" * 33, "89abcde" + "f" * 33)):
+        path = runs / f"run{i}" / "summary.json"
+        path.write_text(json.dumps({**json.loads(path.read_text()), "code_revision": rev,
+                                    "machine": machine}))
+    page = tmp_path / "results.md"
+    page.write_text("# Results\n")
+    assert results_page.main(["table1", str(runs), "--page", str(page)]) == 0
+    text = page.read_text()
+    assert "- code: `1234567`, `89abcde`\n" in text
+    assert "- machine: Test CPU 9000, 64 cores, Python 3.99.0, torch 9.9.9+cpu\n" in text
+    assert results_page.HOST not in text
+
+
 def test_the_results_page_refuses_a_folder_without_the_analysis_in_one_line(tmp_path, capsys):
     from tamedpuma.app import results_page
 

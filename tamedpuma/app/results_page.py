@@ -14,8 +14,8 @@ left as they are.
     python -m tamedpuma.app.results_page scaling runs/scaling
     python -m analysis.report runs/look && python -m tamedpuma.app.results_page figures runs/look
 
-The machine and the code revision are those of the host that writes the page (the run logs do
-not record them): write it where the experiment ran, from the revision that ran it.
+The machine and the code revision are those the runs' ``summary.json`` record (schema 2); for
+runs that do not record them, those of the host that writes the page, marked so.
 """
 
 from __future__ import annotations
@@ -67,6 +67,7 @@ EXPERIMENTS = {
                            "figures/success_timing.png")),
 }
 MARKERS = ("<!-- result: {} -->", "<!-- /result -->")
+HOST = " (the host writing the page: the runs record none)"
 
 
 class PageError(Exception):
@@ -125,6 +126,26 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}{torch}"
 
 
+def run_revisions(found: list[dict]) -> str | None:
+    """The code revisions the runs record (``summary.json``'s ``code_revision``, short; a
+    ``-dirty`` one kept as recorded), or None where no run records one (layout 1)."""
+    revs = sorted({str(s["code_revision"])[:7] + ("-dirty" if "dirty" in str(
+        s["code_revision"]) else "") for s in found if s.get("code_revision")})
+    return ", ".join(f"`{r}`" for r in revs) if revs else None
+
+
+def run_machines(found: list[dict]) -> str | None:
+    """The machines the runs record (``summary.json``'s ``machine``), or None."""
+    seen = set()
+    for s in found:
+        m = s.get("machine")
+        if isinstance(m, dict) and m.get("cpu"):
+            torch = (m.get("packages") or {}).get("torch")
+            seen.add(f"{m['cpu']}, {m.get('cores', '?')} cores, Python {m.get('python', '?')}"
+                     + (f", torch {torch}" if torch else ""))
+    return "; ".join(sorted(seen)) or None
+
+
 def revision() -> str:
     """The checkout's short revision (``-dirty`` with uncommitted changes), else the version."""
     try:
@@ -147,7 +168,8 @@ def block(name: str, runs: Path, command: str | None, img: Path) -> str:
     lines = [MARKERS[0].format(name), f"## {exp.title}", "",
              f"- command: `{command or exp.command}`, analysed from `{runs}`",
              f"- date: {run_dates(found)} ({len(found)} runs)",
-             f"- machine: {machine()}", f"- code: `{revision()}`",
+             f"- machine: {run_machines(found) or machine() + HOST}",
+             f"- code: {run_revisions(found) or '`' + revision() + '`' + HOST}",
              f"- models (sha256): {models(found)}", ""]
     for table in exp.tables:
         path = runs / table
