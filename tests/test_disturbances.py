@@ -125,8 +125,7 @@ def test_a_push_moves_the_arm_10_cm_off_its_path_and_fpm_still_reaches_the_goal(
     assert m.recovery_time_s == pytest.approx(m.time_to_success_s - dist.onset)
 
 
-# the real model reaches the moved goal with forcing.priority=position (without it FPM stops
-# 7.6 cm short with joints 2 and 5 at their limit barriers: 5 joints for PUMA's 6 task rows)
+# the analytic stand-in, and the real tomato model where it is at hand
 GOAL_CHANGE_SOURCES = _sources()
 
 
