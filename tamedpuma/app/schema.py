@@ -29,7 +29,6 @@ The schemas are also registered in Hydra's ConfigStore (``tamedpuma_sweep``, ``t
 from __future__ import annotations
 
 import dataclasses
-import math
 import typing
 from dataclasses import dataclass, field
 from typing import Any
@@ -39,6 +38,10 @@ from omegaconf.errors import OmegaConfBaseException
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.methods._settings import FpmSettings, PumaSettings
+from tamedpuma.methods._settings import check as _check
+from tamedpuma.methods._settings import finite as _finite
+from tamedpuma.methods._settings import nonneg as _nonneg
+from tamedpuma.methods._settings import positive as _positive
 from tamedpuma.methods.cpm import CpmSettings
 from tamedpuma.methods.fabrics import FabricsSettings
 from tamedpuma.methods.joint_attractor import JointAttractorSettings
@@ -58,22 +61,6 @@ KEEP_CLEAR = ("start_goal", "path")  # what clutter is kept clear of
 CLUTTER_REGIONS = ("box", "shell")  # where clutter.keep_clear=path draws its spheres
 MAX_TRAIN_ITERATIONS = 1_000_000
 
-
-def _check(ok: bool, key: str, rule: str, value) -> None:
-    if not ok:
-        raise ConfigError(f"{key} must be {rule}, got {value!r}")
-
-
-def _finite(x) -> bool:
-    return isinstance(x, (int, float)) and math.isfinite(x)
-
-
-def _positive(key: str, value) -> None:
-    _check(_finite(value) and value > 0, key, "a finite number > 0", value)
-
-
-def _nonneg(key: str, value) -> None:
-    _check(_finite(value) and value >= 0, key, "a finite number >= 0", value)
 
 
 def _with_fields_of(name: str, library: type, base: type | None = None) -> type:
