@@ -179,6 +179,21 @@ def test_without_validation_the_average_is_returned():
     assert not torch.equal(_flat(res.net.state_dict()), _flat(run.net.state_dict()))
 
 
+def test_the_output_scale_is_a_quantile_that_one_spike_does_not_set():
+    p = _tiny()
+    spiked = copy.deepcopy(p.demos)
+    v = spiked.vel[0]
+    v[len(v) // 2:, 0] += 0.5  # a jump in one component of one demonstration: one spike
+    spec = p.spec
+    top = training.scales(spiked, p.workspace, spec.order)[2]
+    q99 = training.scales(spiked, p.workspace, spec.order, 0.99)[2]
+    clean = training.scales(p.demos, p.workspace, spec.order, 0.99)[2]
+    assert top[0] > 5 * q99[0]  # the maximum is the spike's
+    assert np.allclose(q99, clean, rtol=0.1)  # the quantile is the demonstrations'
+    assert np.array_equal(training.scales(p.demos, p.workspace, spec.order, 1.0)[2],
+                          training.scales(p.demos, p.workspace, spec.order)[2])
+
+
 def test_the_default_config_stops_on_the_data_not_on_a_fixed_line():
     t = compose("train", ["task=tomato"])["puma"]["train"]
     assert t["stop_dtw"] == 0 and t["keep_dtw"] == 0  # no absolute DTW line

@@ -28,15 +28,19 @@ def _check(obj, where: str, positive=(), nonneg=(), fraction=()) -> None:
 
 @dataclass(frozen=True)
 class NetConfig:
-    """Widths of the network: hidden ``width``, latent ``latent_dim``."""
+    """Widths of the network: hidden ``width``, latent ``latent_dim``; ``out_quantile``: the
+    quantile of the data's |acceleration| (first order: |velocity|) that scales the output
+    (1: the maximum)."""
 
     width: int = 128
     latent_dim: int = 64
     pin_goal: bool = True
     skip: float = 1.0
+    out_quantile: float = 1.0
 
     def __post_init__(self):
-        _check(self, "puma.network", positive=("width", "latent_dim"), nonneg=("skip",))
+        _check(self, "puma.network", positive=("width", "latent_dim", "out_quantile"),
+               nonneg=("skip",), fraction=("out_quantile",))
 
 
 @dataclass(frozen=True)
