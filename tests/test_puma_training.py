@@ -194,6 +194,27 @@ def test_the_output_scale_is_a_quantile_that_one_spike_does_not_set():
                           training.scales(p.demos, p.workspace, spec.order)[2])
 
 
+def test_the_stop_target_is_the_smallest_of_the_gate_the_spread_and_the_absolute_line():
+    import dataclasses
+
+    from tamedpuma.puma import gates
+
+    p = _tiny()
+    limit = gates.imitation_limit(p.spread, gates.demo_extent(p.demos), p.eval_cfg)
+
+    def target(**kw):
+        return pipeline.stop_target(dataclasses.replace(
+            p, train_cfg=dataclasses.replace(p.train_cfg, **{
+                "stop_gate": 0.0, "stop_spread": 0.0, "stop_dtw": 0.0, **kw})))
+
+    assert target() == 0.0
+    assert target(stop_gate=0.5) == pytest.approx(0.5 * min(limit, p.eval_cfg.pos_tol))
+    assert target(stop_spread=0.1) == pytest.approx(0.1 * float(np.median(p.spread)))
+    assert target(stop_gate=0.5, stop_dtw=1e-4) == pytest.approx(1e-4)
+    assert target(stop_gate=0.5, stop_spread=0.1) == pytest.approx(
+        min(0.5 * min(limit, p.eval_cfg.pos_tol), 0.1 * float(np.median(p.spread))))
+
+
 def test_the_default_config_stops_on_the_data_not_on_a_fixed_line():
     t = compose("train", ["task=tomato"])["puma"]["train"]
     assert t["stop_dtw"] == 0 and t["keep_dtw"] == 0  # no absolute DTW line

@@ -157,6 +157,13 @@ def _conflicts(follows: dict, bad, dtw, names, unit: str) -> Failure:
         f"{len(rest)}: {_fmt(float(np.mean(dtw[rest])) if len(rest) else 0.0, unit)})"))
 
 
+def imitation_limit(spread, extent, cfg: EvalConfig) -> float:
+    """The imitation gate's largest mean DTW/point [unit]: max(``gate_spread`` × median s_i,
+    ½ ``gate_extent`` × median e_i, ``gate_floor`` × ``pos_tol``)."""
+    return max(cfg.gate_spread * float(np.median(spread)),
+               0.5 * cfg.gate_extent * float(np.median(extent)), cfg.gate_floor * cfg.pos_tol)
+
+
 def _imitation(im: dict, spread, names, cfg: EvalConfig, unit: str, nearest=None,
                extent=None, follows=None) -> list[Failure]:
     extent = np.zeros_like(spread) if extent is None else np.asarray(extent, float)
@@ -183,8 +190,7 @@ def _imitation(im: dict, spread, names, cfg: EvalConfig, unit: str, nearest=None
                 "contradicts a neighbour from a close start (remove or re-record them), else "
                 "train longer (puma.train.iterations, puma.train.patience)")))
     if cfg.gate_spread > 0:
-        limit = max(cfg.gate_spread * float(np.median(spread)),
-                    0.5 * cfg.gate_extent * float(np.median(extent)), floor)
+        limit = imitation_limit(spread, extent, cfg)
         if im["dtw"] > limit:
             worst = np.argsort(-dtw)[:3] if len(dtw) == len(names) else []
             out.append(Failure("imitation", tuple(names[k] for k in worst), (

@@ -279,20 +279,29 @@ def prepare(cfg: dict, log=print, starts=()) -> Prepared:
 
 def validator_of(p: Prepared):
     """The training's validation (checkpoint selection, early stopping: ``puma.train.val_*``,
-    ``stop_*``, ``patience``, ``min_delta``); ``stop_spread`` × the demonstrations' median
-    spread is the DTW that is good enough to stop at."""
+    ``stop_*``, ``patience``, ``min_delta``); :func:`stop_target` is the DTW that is good
+    enough to stop at."""
     t = p.train_cfg
     return evaluation.validator(p.demos, p.workspace, p.eval_cfg, starts=t.val_starts,
                                 confirm=t.val_confirm, horizon=t.val_horizon or None,
-                                stop_dtw=t.stop_dtw, stop_compat=t.stop_compat,
+                                stop_dtw=0.0, stop_compat=t.stop_compat,
                                 keep_dtw=t.keep_dtw, target=stop_target(p),
                                 patience=t.patience, min_delta=t.min_delta,
                                 plateau_stops=t.anneal == 0, smooth=t.plateau_smooth)
 
 
 def stop_target(p: Prepared) -> float:
-    """The mean DTW [unit] at which training may stop: ``stop_spread`` × median spread (0: off)."""
-    return float(p.train_cfg.stop_spread * np.median(p.spread))
+    """The mean DTW [unit] at which training may stop (0: off): the smallest of those set of
+    ``stop_gate`` × min(the imitation gate's limit (:func:`gates.imitation_limit`), ``pos_tol``)
+    (what the gates ask, with a margin for the evaluation's other starts; at most the
+    convergence tolerance however far apart the demonstrations are), ``stop_spread`` × the
+    demonstrations' median spread, and ``stop_dtw``."""
+    t = p.train_cfg
+    gate = min(gates.imitation_limit(p.spread, gates.demo_extent(p.demos), p.eval_cfg),
+               p.eval_cfg.pos_tol)
+    found = [x for x in (t.stop_gate * gate, t.stop_spread * float(np.median(p.spread)),
+                         t.stop_dtw) if x > 0]
+    return float(min(found)) if found else 0.0
 
 
 def _training_report(p: Prepared, result, seed: int) -> dict:

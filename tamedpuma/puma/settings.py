@@ -71,6 +71,7 @@ class TrainConfig:
     keep_dtw: float = 0.0
     stop_compat: float = 0.0
     stop_spread: float = 0.0
+    stop_gate: float = 0.0
     patience: int = 0
     min_delta: float = 0.03
     plateau_smooth: int = 1
@@ -97,7 +98,8 @@ class TrainConfig:
                nonneg=("stability_batch", "stability_weight", "stability_weight_end", "margin",
                        "decay_rate",
                        "val_starts", "val_confirm", "val_horizon", "stop_dtw", "keep_dtw",
-                       "stop_spread", "window_start", "patience", "min_delta", "anneal",
+                       "stop_spread", "stop_gate", "window_start", "patience", "min_delta",
+                       "anneal",
                        "select_every", "compat_weight", "path_weight", "path_windows",
                        "sample_pad",
                        "boundary_weight", "vel_weight", "pos_weight", "grad_clip"),
