@@ -29,8 +29,8 @@ def _check(obj, where: str, positive=(), nonneg=(), fraction=()) -> None:
 @dataclass(frozen=True)
 class NetConfig:
     """Widths of the network: hidden ``width``, latent ``latent_dim``; ``out_quantile``: the
-    quantile of the data's |acceleration| (first order: |velocity|) that scales the output
-    (1: the maximum)."""
+    quantile over the demonstrations of each one's peak |acceleration| (first order:
+    |velocity|) that scales the output (1: the largest, 0.5: a typical demonstration's)."""
 
     width: int = 128
     latent_dim: int = 64
