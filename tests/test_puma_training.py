@@ -220,7 +220,7 @@ def test_the_stop_target_is_the_smallest_of_the_gate_the_spread_and_the_absolute
 def test_the_default_config_stops_on_the_data_not_on_a_fixed_line():
     t = compose("train", ["task=tomato"])["puma"]["train"]
     assert t["stop_dtw"] == 0 and t["keep_dtw"] == 0  # no absolute DTW line
-    assert 0 < t["stop_spread"] < 0.5 and t["patience"] >= 2 and 0 < t["min_delta"] < 0.2
+    assert 0 < t["stop_gate"] < 1 and t["patience"] >= 2 and 0 < t["min_delta"] < 0.2
     assert t["path_weight"] > 0 and t["ema"] > 0 and t["val_confirm"] + t["val_starts"] >= 1000
 
 
