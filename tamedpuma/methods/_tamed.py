@@ -29,7 +29,6 @@ from tamedpuma.methods._policy import (
     NullSpaceObjective,
     OrientationReference,
     PoseTask,
-    SecondaryDamping,
     TaskAcceleration,
     pull_through_metric,
     pull_to_joints,
@@ -119,11 +118,9 @@ class PumaController:
                                           lambda: self.pull_at_rest(state, obs),
                                           av.min_clearance)
             weights = forcing.weight
-            secondary = forcing.secondary_damping()
 
             def solve(W: np.ndarray) -> np.ndarray:
-                return pull_through_metric(task, W, weights, forcing.null_metric, null, extra,
-                                           forcing.priority_rows(len(task.xdd)), secondary)
+                return pull_through_metric(task, W, weights, forcing.null_metric, null, extra)
 
             if forcing.directional:
                 receding = receding_rows(av, qdd_free)
@@ -459,10 +456,6 @@ NULL_METRIC = 0.05
 CIRCULATION_GAIN = 1.0
 #: c₀ [1]: only a push within arccos(c₀) of head-on is turned (about 46°)
 CIRCULATION_ONSET = 0.7
-#: μ_max [1] and σ₀ [1] of the orientation rows' singularity-robust damping under position
-#: priority (:class:`~tamedpuma.methods._policy.SecondaryDamping`)
-SINGULAR_DAMPING = 100.0
-SINGULAR_THRESHOLD = 3.0
 #: how PUMA's forcing may meet the avoidance fabric (``method.forcing.mode``)
 FORCING_MODES = ("additive", "metric", "task_metric")
 
@@ -491,10 +484,6 @@ class Forcing:
     directional: leave out of the metric the barrier rows the forcing recedes from
     (:func:`approached_metric`, settled on q̈_C itself: rows q̈_C approaches are put back and
     q̈_C solved again, :func:`restore_approached`; not with ``additive``);
-    priority: ``position`` applies the orientation rows' force only in the dynamically
-    consistent null space of the position rows, damped where that null space leaves them
-    nearly singular (:func:`~tamedpuma.methods._policy.prioritized_solve`,
-    :class:`~tamedpuma.methods._policy.SecondaryDamping`), ``none``: one weighted solve;
     stall_pull: g [m/s²] of the goal attractor added to PUMA's position rows once the hand
     stops making progress (0: off; :mod:`tamedpuma.methods._stall`); configuration_pull:
     ``off``, ``limits`` or ``always``, when a joint-space attractor to a clear goal
@@ -504,7 +493,6 @@ class Forcing:
     mode: str = "additive"
     circulation: float = 0.0
     directional: bool = False
-    priority: str = "none"
     stall_pull: float = 0.0
     configuration_pull: str = "off"
 
@@ -522,19 +510,6 @@ class Forcing:
     def metric(self) -> bool:
         """Whether PUMA's forcing is pulled through the avoidance fabric's metric."""
         return self.mode != "additive"
-
-    def priority_rows(self, m: int) -> int:
-        """How many leading task rows take precedence (``priority: position``: the 3 position
-        rows of a pose task, m = 6; :func:`~tamedpuma.methods._policy.prioritized_solve`),
-        else 0."""
-        return 3 if self.priority == "position" and m == 6 else 0
-
-    def secondary_damping(self) -> SecondaryDamping | None:
-        """The orientation rows' singularity-robust damping under ``priority: position``
-        (:data:`SINGULAR_DAMPING`, :data:`SINGULAR_THRESHOLD`), else None."""
-        if self.priority != "position":
-            return None
-        return SecondaryDamping(SINGULAR_DAMPING, SINGULAR_THRESHOLD)
 
     def make_circulation(self) -> Circulation | None:
         """The stateful :class:`~tamedpuma.methods._circulation.Circulation` of this forcing
@@ -564,9 +539,6 @@ class Forcing:
         if self.mode not in FORCING_MODES:
             raise ConfigError(f"method.forcing.mode must be one of {FORCING_MODES}, got "
                               f"{self.mode!r}")
-        if self.priority not in ("none", "position"):
-            raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
-                              f"got {self.priority!r}")
         if self.configuration_pull not in CONFIGURATION_MODES:
             raise ConfigError(f"method.forcing.configuration_pull must be one of "
                               f"{CONFIGURATION_MODES}, got {self.configuration_pull!r}")
