@@ -37,6 +37,7 @@ from tamedpuma.errors import ConfigError
 from tamedpuma.robot.body_model import urdf_collision_geometry
 
 _WORLD = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+_min = np.minimum.reduce  # np.min without its Python wrapper
 
 
 @dataclass(frozen=True)
@@ -212,10 +213,17 @@ def hull_heights_and_spheres(kinematics, hulls: LinkHulls, q: np.ndarray):
     pass (the same numbers as ``kinematics.sphere_centers(q)``)."""
     pin.framesForwardKinematics(kinematics.model, kinematics.data, np.asarray(q, dtype=float))
     oMf = kinematics.data.oMf
-    heights = np.array([oMf[f].translation[2] + float(np.min(v @ oMf[f].rotation[2]))
-                        for f, v in zip(hulls.frame_ids, hulls.vertices)])
+    heights = np.array([_lowest_height(oMf[f], v) for f, v in zip(hulls.frame_ids,
+                                                                   hulls.vertices)])
     spheres = np.array([oMf[i].translation for i in kinematics.sphere_ids]).reshape(-1, 3)
     return heights, spheres
+
+
+def _lowest_height(placement, vertices: np.ndarray) -> float:
+    """The lowest point [m] of a hull (vertices (V, 3) in its link frame) at its link's
+    placement: one read of the placement, the minimum as the bare ufunc reduction (the numbers
+    of ``np.min``)."""
+    return placement.translation[2] + float(_min(vertices @ placement.rotation[2]))
 
 
 def hull_heights_from_poses(hulls: LinkHulls, link_names, positions: np.ndarray,
