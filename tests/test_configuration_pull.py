@@ -338,10 +338,10 @@ def test_the_controller_s_goal_configurations_keep_its_own_ground(kinematics, mo
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
     method = _method_config(name)
     rate = method["control_rate"]
-    ground = make(name, method, kinematics).configuration.ground
+    ground = make(name, method, kinematics).episode.configuration.ground
     assert ground.hulls is not None and ground.height == tamed.GROUND_HEIGHT_M
     method["control_rate"] = {**rate, "barrier_step": False}
-    assert make(name, method, kinematics).configuration.ground is None
+    assert make(name, method, kinematics).episode.configuration.ground is None
 
 
 def test_the_monitor_lets_go_when_the_attractor_makes_no_progress(kinematics):
