@@ -169,7 +169,9 @@ class Contacts:
 
 
 class Controller(Protocol):
-    """A method: ``reset`` once per episode, then ``step`` once per control period."""
+    """A method: ``reset`` once per episode, then ``step`` once per control period. The
+    built-in methods keep everything ``step`` writes in an ``episode`` attribute that ``reset``
+    makes afresh (docs/extending.md, "Episode state")."""
 
     def reset(self, scenario: Scenario) -> None: ...
 

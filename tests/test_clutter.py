@@ -3,6 +3,8 @@ volume, so the reference stays a collision-free path of the cluttered scene."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -128,9 +130,8 @@ def test_build_scenario_keeps_path_clutter_clear_and_needs_a_reference(robot_spe
 
     from tamedpuma.worlds.scenarios import build_scenario
 
-    cfg = _run_cfg()
-    cfg["clutter"].update(total=100, keep_clear="path", margin=MARGIN, region="shell",
-                          shell=0.3, arm_radius=ARM)
+    cfg = _run_cfg(clutter=dict(total=100, keep_clear="path", margin=MARGIN, region="shell",
+                                shell=0.3, arm_radius=ARM))
     path = Q0 + np.linspace(0.0, 1.0, 40)[:, None] * (Q1 - Q0)
     calls = []
 
@@ -145,10 +146,11 @@ def test_build_scenario_keeps_path_clutter_clear_and_needs_a_reference(robot_spe
     np.testing.assert_allclose(a.obstacles.centers[:2], OWN_CENTERS)  # the scenario's own first
     vol = swept_volume(kinematics, path, ARM)
     assert vol.clearance(a.obstacles.centers[2:], RADIUS).min() >= MARGIN
-    cfg["clutter"]["total"] = 2  # the scenario's own two: no clutter, no reference run
+    cfg = replace(cfg, clutter=replace(cfg.clutter, total=2))  # the scenario's own two:
+    #                                                          no clutter, no reference run
     assert len(build_scenario(cfg, robot_spec, kinematics, reference).obstacles) == 2
     assert len(calls) == 1
-    cfg["clutter"]["total"] = 10
+    cfg = replace(cfg, clutter=replace(cfg.clutter, total=10))
     with pytest.raises(ScenarioError, match="needs a reference motion"):
         build_scenario(cfg, robot_spec, kinematics, None)
     with pytest.raises(ScenarioError, match="does not start at the scenario's q0"):

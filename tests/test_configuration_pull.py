@@ -14,7 +14,7 @@ import pytest
 import tamedpuma.methods._configuration_pull as cpull
 import tamedpuma.methods._tamed as tamed
 from tamedpuma import methods
-from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.config import load_group, start_options, typed_scenario
 from tamedpuma.app.schema import method_settings
 from tamedpuma.episode import run_episode
 from tamedpuma.errors import ConfigError
@@ -338,10 +338,10 @@ def test_the_controller_s_goal_configurations_keep_its_own_ground(kinematics, mo
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
     method = _method_config(name)
     rate = method["control_rate"]
-    ground = make(name, method, kinematics).configuration.ground
+    ground = make(name, method, kinematics).episode.configuration.ground
     assert ground.hulls is not None and ground.height == tamed.GROUND_HEIGHT_M
     method["control_rate"] = {**rate, "barrier_step": False}
-    assert make(name, method, kinematics).configuration.ground is None
+    assert make(name, method, kinematics).episode.configuration.ground is None
 
 
 def test_the_monitor_lets_go_when_the_attractor_makes_no_progress(kinematics):
@@ -418,7 +418,8 @@ def _obstacle_free_scenario(robot_spec, task_name: str, **changes):
     task = load_group("task", task_name)
     cfg = load_group("scenario", "default")
     cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
-    scenario = scenario_from_config(cfg, robot_spec, task=task_name, **start_options())
+    scenario = scenario_from_config(typed_scenario(cfg), robot_spec,
+                                    task=task_name, **start_options())
     return replace(scenario, obstacles=Obstacles(np.zeros((0, 3)), np.zeros(0),
                                                  np.zeros((0, 3))), **changes)
 

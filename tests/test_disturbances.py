@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.config import load_group, start_options, typed_scenario
 from tamedpuma.app.schema import method_settings
 from tamedpuma.episode import run_episode
 from tamedpuma.fabrics import Fabric
@@ -55,7 +55,8 @@ def _scenario(robot_spec, **changes):
     cfg = load_group("scenario", "default")
     task = load_group("task", "tomato")
     cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
-    scenario = scenario_from_config(cfg, robot_spec, task="tomato", **start_options())
+    scenario = scenario_from_config(typed_scenario(cfg), robot_spec,
+                                    task="tomato", **start_options())
     return replace(scenario, **changes)
 
 

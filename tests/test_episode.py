@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.config import load_group, start_options, typed_scenario
 from tamedpuma.app.schema import method_settings
 from tamedpuma.episode import run_episode
 from tamedpuma.methods import make
@@ -22,7 +22,7 @@ def _scenario(robot_spec, **changes):
     task = load_group("task", "tomato")
     cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
     cfg.update(changes)
-    return scenario_from_config(cfg, robot_spec, task="tomato", **start_options())
+    return scenario_from_config(typed_scenario(cfg), robot_spec, task="tomato", **start_options())
 
 
 def _run(robot_spec, kinematics, scenario, recorders=(), info=None):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.config import load_group, start_options, typed_scenario
 from tamedpuma.app.schema import method_settings
 from tamedpuma.episode import run_episode
 from tamedpuma.methods import make
@@ -17,7 +17,7 @@ def _tomato_default(robot_spec):
     cfg = load_group("scenario", "default")
     task = load_group("task", "tomato")
     cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
-    return scenario_from_config(cfg, robot_spec, task="tomato", **start_options())
+    return scenario_from_config(typed_scenario(cfg), robot_spec, task="tomato", **start_options())
 
 
 @pytest.mark.slow

@@ -13,9 +13,7 @@ from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.methods._policy import (
     LinearTaskPrimitive,
     PlanarTask,
-    SecondaryDamping,
     TaskAcceleration,
-    prioritized_solve,
     pull_through_metric,
     pull_to_joints,
 )
@@ -119,7 +117,7 @@ def test_the_geometry_with_the_task_metric_is_the_spec_sum_and_leaves_the_hand_t
 
 
 @pytest.mark.parametrize("bad", [{"mode": "sum"}, {"weight": 100.0}, {"circulation": -1.0},
-                                 {"wieght": 3.0}, {"priority": "orientation"},
+                                 {"wieght": 3.0}, {"priority": "position"},
                                  {"configuration_pull": "sometimes"}])
 def test_bad_forcing_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="method.forcing"):
@@ -240,88 +238,20 @@ def test_per_row_task_weights_give_the_position_rows_priority_where_barriers_hol
 
 
 
-def test_position_priority_solves_the_position_rows_first(kinematics, monkeypatch):
-    """``forcing.priority: position`` (:func:`prioritized_solve`): undamped (δ = 0), the hand's
-    acceleration is the one the position rows alone give (J₁q̈ = J₁A₁⁻¹f₁, whatever the
-    orientation spec), and q̈ minimises the summed cost under that constraint (the KKT
-    conditions hold). In free space it changes q̈_C by little (7 joints meet all 6 rows); with
-    two joints held by barrier metrics and an orientation pull that one weighted solve balances
-    against the position pull in the five free joints (the arm at rest short of the goal), the
-    hand accelerates along PUMA's position pull (with the committed damping δ, at 0.2-1 times
-    the rate of a position-only spec: the constraint yields where J₁A⁻¹J₁ᵀ is ill-conditioned)."""
-    import tamedpuma.methods._policy as policy
-
-    rng = np.random.default_rng(5)
-    monkeypatch.setattr(policy, "PRIORITY_DAMPING", 0.0)  # the exact lexicographic solve
-    for _ in range(5):
-        A1, A2 = rng.normal(size=(7, 7)), rng.normal(size=(3, 7))
-        A1, A2 = A1 @ A1.T + 0.1 * np.eye(7), A2.T @ A2
-        J1, f1, f2 = rng.normal(size=(3, 7)), rng.normal(size=7), rng.normal(size=7)
-        qdd = prioritized_solve(A1, f1, J1, A2, f2)
-        assert np.allclose(J1 @ qdd, J1 @ np.linalg.solve(A1, f1), atol=1e-9)
-        # stationarity: (A1 + A2) q̈ − (f1 + f2) lies in the row space of J1
-        g = (A1 + A2) @ qdd - (f1 + f2)
-        lam = np.linalg.lstsq(J1.T, g, rcond=None)[0]
-        assert np.allclose(J1.T @ lam, g, atol=1e-8)
-    monkeypatch.undo()  # the committed damping δ from here on
-    assert policy.PRIORITY_DAMPING == 1e-2
-    stalled = 0
-    for _ in range(20):
-        q = Q0 + rng.normal(scale=0.3, size=7)
-        _, task = _task(kinematics, q, np.zeros(7), rng)
-        small = 1e-6 * np.eye(7)
-        one = pull_through_metric(task, small, 100.0, 0.0)
-        two = pull_through_metric(task, small, 100.0, 0.0, priority=3)
-        assert np.linalg.norm(two - one) < 1e-3 * np.linalg.norm(one)
-        held = small.copy()
-        held[[1, 4], [1, 4]] = 1e8  # joints 2 and 5 at their limit barriers
-        free = [0, 2, 3, 5, 6]
-        pull = np.linalg.svd(task.J[:, free].T)[2][-1]  # J_freeᵀ pull = 0: pulls that cancel
-        if np.linalg.norm(pull[:3]) < 0.1:
-            continue
-        at_rest = TaskAcceleration(pull + task.jdqd, task.J, task.jdqd)
-        one = pull_through_metric(at_rest, held, 100.0, 0.0)
-        two = pull_through_metric(at_rest, held, 100.0, 0.0, priority=3)
-        position_only = pull_through_metric(
-            TaskAcceleration(pull[:3] + task.jdqd[:3], task.J[:3], task.jdqd[:3]), held,
-            100.0, 0.0)
-        stalled += np.linalg.norm(task.J[:3] @ one) < 1e-6 * np.linalg.norm(pull[:3])
-        # progress along the position pull (a position-only spec: ≈ 1; damped δ: 0.2-1 here)
-        assert pull[:3] @ (task.J[:3] @ position_only) > 0.9 * np.linalg.norm(pull[:3]) ** 2
-        assert pull[:3] @ (task.J[:3] @ two) > 0.1 * np.linalg.norm(pull[:3]) ** 2
-    assert stalled >= 10
-    assert Forcing(priority="position").priority_rows(6) == 3
-    assert Forcing(priority="position").priority_rows(3) == 0
-    assert Forcing().priority_rows(6) == 0
-    with pytest.raises(ConfigError, match="priority"):
-        Forcing.from_mapping({"mode": "metric", "priority": "orientation"})
-
-
-def _pull_through_metric_as_written(task, W, weight, m_null, qdd_null, priority):
-    """pull_through_metric and prioritized_solve as first written (np.linalg.solve, broadcast
-    weights, column_stack): the reference the streamlined path must match bit for bit."""
+def _pull_through_metric_as_written(task, W, weight, m_null, qdd_null):
+    """pull_through_metric as first written (np.linalg.solve, broadcast weights): the
+    reference the streamlined path must match bit for bit."""
     J = task.J
-    k = priority if priority > 0 else J.shape[0]
     wJ = np.multiply(np.reshape(weight, (-1, 1)), J)
-    target = task.xdd - task.jdqd
-    A = W + J[:k].T @ wJ[:k]
-    rhs = wJ[:k].T @ target[:k]
+    A = W + J.T @ wJ
+    rhs = wJ.T @ (task.xdd - task.jdqd)
     if qdd_null is not None and m_null > 0.0:
         A.flat[::A.shape[0] + 1] += m_null
         rhs = rhs + m_null * qdd_null
-    if k == J.shape[0]:
-        return np.linalg.solve(A, rhs)
-    A1, f1, J1, A2, f2 = A, rhs, J[:k], J[k:].T @ wJ[k:], wJ[k:].T @ target[k:]
-    qdd1 = np.linalg.solve(A1, f1)
-    X = np.linalg.solve(A1 + A2, np.column_stack((J1.T, f1 + f2)))
-    AJ = X[:, :k]
-    S = J1 @ AJ
-    S[np.diag_indices(k)] += 1e-2 * max(float(np.trace(S)), 1e-300) / k
-    return X[:, k] - AJ @ np.linalg.solve(S, J1 @ (X[:, k] - qdd1))
+    return np.linalg.solve(A, rhs)
 
 
-@pytest.mark.parametrize("priority", [0, 3])
-def test_the_pullback_through_the_metric_is_bit_for_bit_the_written_one(kinematics, priority):
+def test_the_pullback_through_the_metric_is_bit_for_bit_the_written_one(kinematics):
     """The control loop's pullback (LAPACK's gesv without numpy's wrapper, no per-call weight
     array) gives the same numbers, bit for bit, as the formulas written out with
     np.linalg.solve, on arm states with barrier-sized metrics, scalar and per-row weights."""
@@ -333,8 +263,8 @@ def test_the_pullback_through_the_metric_is_bit_for_bit_the_written_one(kinemati
         W = 0.02 * np.eye(7) + (rows.T * 10.0 ** rng.uniform(-2, 5, size=4)) @ rows
         weight = 100.0 if i % 2 else np.array([100.0] * 3 + [30.0] * 3)
         null = rng.normal(size=7) if i % 3 else None
-        fast = pull_through_metric(task, W, weight, 0.05, null, None, priority)
-        ref = _pull_through_metric_as_written(task, W.copy(), weight, 0.05, null, priority)
+        fast = pull_through_metric(task, W, weight, 0.05, null, None)
+        ref = _pull_through_metric_as_written(task, W.copy(), weight, 0.05, null)
         np.testing.assert_array_equal(fast, ref)
 
 
@@ -414,121 +344,3 @@ def test_the_directional_metric_leaves_out_no_barrier_the_forcing_approaches(kin
         else:
             assert np.array_equal(got, by_pull)
     assert pulled_into >= 5 and changed == pulled_into
-
-
-def _secondary_problem(rng, n=7, k=3, m2=3):
-    """A random first-stage metric A₁ (SPD, with position rows), J₁ (k, n) and secondary rows
-    A₂ = J₂ᵀwJ₂ (rank m₂), some of whose directions left to them are near-singular."""
-    B = rng.normal(size=(n, n))
-    J1 = rng.normal(size=(k, n))
-    A1 = B @ B.T + 0.1 * np.eye(n) + 100.0 * J1.T @ J1
-    J2 = 0.05 * rng.normal(size=(m2, n))
-    J2[0] *= 1e-2  # one orientation row nearly singular in the joints left to it
-    return A1, J1, 100.0 * J2.T @ J2, J2
-
-
-def test_secondary_damping_with_a_factor_of_its_rows_gives_the_same_metric():
-    """The small problem (``rows2``, A₂ = rows2ᵀrows2) returns None where the (n, n)
-    eigenproblem finds no direction below σ₀, and otherwise the same D bit for bit, for
-    thresholds on both sides of each σ̂ᵢ (and right at one)."""
-    rng = np.random.default_rng(5)
-    decided = {"none": 0, "D": 0}
-    for _ in range(30):
-        A1, J1, _, J2 = _secondary_problem(rng)
-        w = rng.uniform(50.0, 150.0, size=3)
-        rows2 = np.sqrt(w)[:, None] * J2
-        A2 = J2.T @ (w[:, None] * J2)
-        L = np.linalg.cholesky(A1)
-        Ju = np.linalg.solve(L, J1.T).T
-        N = np.eye(7) - Ju.T @ np.linalg.solve(Ju @ Ju.T, Ju)
-        X = np.linalg.solve(L, np.linalg.solve(L, A2).T)
-        sig = np.sqrt(np.maximum(np.linalg.eigvalsh(N @ X @ N)[-3:], 0.0))
-        for threshold in (*(0.5 * sig), *(2.0 * sig), sig[0], 1e-9, 1e9):
-            damping = SecondaryDamping(gain=100.0, threshold=float(threshold))
-            full = damping.metric(A1, J1, A2, 3)
-            short = damping.metric(A1, J1, A2, 3, rows2)
-            if full is None:
-                assert short is None
-                decided["none"] += 1
-            else:
-                assert short is not None and np.array_equal(full, short)
-                decided["D"] += 1
-    assert decided["none"] >= 30 and decided["D"] >= 30
-
-
-def test_secondary_damping_acts_only_on_near_singular_directions_left_to_the_orientation(
-        monkeypatch):
-    """:class:`SecondaryDamping`: D is symmetric PSD of rank ≤ m₂ and invisible to the first
-    rows (J₁A₁⁻¹D = 0), so the position rows' acceleration is unchanged (undamped constraint);
-    with f₁ = 0 the orientation's share along each direction vᵢ left to it is exactly
-    vᵢ·L⁻¹f₂/(1 + σ̂ᵢ² + μᵢ), μᵢ = μ_max(1 − σ̂ᵢ/σ₀)² below σ₀, 0 above; directions all above σ₀
-    leave q̈ bit for bit; it is on only under ``priority: position`` and refused when negative."""
-    import tamedpuma.methods._policy as policy
-
-    monkeypatch.setattr(policy, "PRIORITY_DAMPING", 0.0)  # the exact lexicographic solve
-    rng = np.random.default_rng(11)
-    damping = SecondaryDamping(gain=100.0, threshold=3.0)
-    n_damped = 0
-    for _ in range(20):
-        A1, J1, A2, _ = _secondary_problem(rng)
-        D = damping.metric(A1, J1, A2, 3)
-        assert np.allclose(D, D.T, atol=1e-9 * np.abs(D).max(initial=1.0))
-        eig = np.linalg.eigvalsh(D)
-        assert eig.min() > -1e-9 * max(eig.max(), 1.0) and np.sum(eig > 1e-9 * eig.max()) <= 3
-        assert np.allclose(J1 @ np.linalg.solve(A1, D), 0.0, atol=1e-8 * np.abs(D).max())
-        f1, f2 = rng.normal(size=7), rng.normal(size=7)
-        plain = prioritized_solve(A1, f1, J1, A2, f2)
-        damped = prioritized_solve(A1, f1, J1, A2 + D, f2)
-        assert np.allclose(J1 @ damped, J1 @ plain, atol=1e-9)
-        # the exact share with f₁ = 0, in u = Lᵀq̈
-        L = np.linalg.cholesky(A1)
-        Ju = np.linalg.solve(L, J1.T).T
-        N = np.eye(7) - Ju.T @ np.linalg.solve(Ju @ Ju.T, Ju)
-        X = np.linalg.solve(L, np.linalg.solve(L, A2).T)
-        lam, V = np.linalg.eigh(N @ X @ N)
-        sig, V = np.sqrt(np.maximum(lam[-3:], 0.0)), V[:, -3:]
-        mu = np.where(sig < 3.0, 100.0 * (1.0 - sig / 3.0) ** 2, 0.0)
-        n_damped += int(np.sum(mu > 0))
-        u = L.T @ prioritized_solve(A1, np.zeros(7), J1, A2 + D, f2)
-        assert np.allclose(V.T @ u, (V.T @ np.linalg.solve(L, f2)) / (1.0 + sig**2 + mu),
-                           atol=1e-8)
-        # every direction above σ₀: nothing changes
-        assert SecondaryDamping(100.0, 1e-9).metric(A1, J1, A2, 3) is None
-        assert SecondaryDamping(0.0, 3.0).metric(A1, J1, A2, 3) is None
-    assert n_damped >= 20  # the near-singular row was damped in every draw
-    # position rows of rank 1 (a singular arm): finite, still invisible to them
-    J1 = np.zeros((3, 7))
-    J1[0] = rng.normal(size=7)
-    A1 = np.eye(7) + 100.0 * J1.T @ J1
-    J2 = 0.05 * rng.normal(size=(3, 7))
-    D = damping.metric(A1, J1, 100.0 * J2.T @ J2, 3)
-    assert np.all(np.isfinite(D)) and np.abs(D).max() > 0
-    assert np.allclose(J1 @ np.linalg.solve(A1, D), 0.0, atol=1e-8 * np.abs(D).max())
-    assert Forcing(priority="position").secondary_damping() == damping
-    assert Forcing(priority="none").secondary_damping() is None
-
-
-def test_secondary_damping_calms_the_orientation_rows_at_the_wrist_singularity(kinematics):
-    """On the iiwa with the wrist at q₆ ≈ 0 and the shoulder joints held by barrier metrics
-    (where the default tomato scenario's hand swung away), PUMA's orientation pull
-    drives the remaining joints hard; with the damping the joint acceleration falls in most
-    such states (median ≤ 0.9 of it), while with the wrist away from the singularity and no
-    barrier metric it is unchanged in most states."""
-    rng = np.random.default_rng(3)
-    damping = SecondaryDamping(gain=100.0, threshold=3.0)
-    ratio = {0.005: [], 0.8: []}
-    for _ in range(120):
-        q6 = float(rng.choice([0.005, 0.8]))
-        q = Q0 + rng.normal(scale=0.5, size=7)
-        q[5] = q6
-        state = kinematics.evaluate(q, np.zeros(7))
-        xdd = np.r_[rng.normal(scale=0.2, size=3), 2.0 * rng.normal(size=3)]
-        task = TaskAcceleration(xdd, state.ee_jacobian, np.zeros(6))
-        held = q6 < 0.1
-        W = np.diag(np.r_[(300.0 if held else 0.2) * np.ones(3), 1.0, 0.2, 0.2, 0.2])
-        plain = pull_through_metric(task, W, 100.0, 0.05, None, None, 3)
-        damped = pull_through_metric(task, W, 100.0, 0.05, None, None, 3, damping)
-        ratio[q6].append(np.linalg.norm(damped) / np.linalg.norm(plain))
-    assert np.median(ratio[0.005]) <= 0.9
-    assert np.mean(np.array(ratio[0.005]) < 0.75) >= 0.3
-    assert np.mean(np.abs(np.array(ratio[0.8]) - 1.0) < 1e-12) >= 0.5

@@ -91,6 +91,45 @@ def test_rows_and_curvature_match_finite_differences(kinematics, hulls):
         assert np.allclose(g.jdqd, second, atol=1e-3 * (1 + np.abs(g.jdqd)))
 
 
+def _rows_link_by_link(kinematics, hulls, qd, below):
+    """The ground rows written out link by link (the reference the batched
+    :func:`hull_ground_rows` must equal bit for bit)."""
+    import pinocchio as pin
+
+    world = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+    model, data = kinematics.model, kinematics.data
+    heights, rows, jdqd = [], [], []
+    for fid, v in zip(hulls.frame_ids, hulls.vertices):
+        placement = data.oMf[fid]
+        R = placement.rotation
+        z = v @ R[2]
+        j = int(np.argmin(z))
+        height = float(placement.translation[2] + z[j])
+        if height >= below:
+            continue
+        r = R @ v[j]
+        J = pin.getFrameJacobian(model, data, fid, world)
+        acc = pin.getFrameClassicalAcceleration(model, data, fid, world)
+        lin, ang, w = acc.linear, acc.angular, J[3:] @ qd
+        heights.append(height)
+        rows.append(J[2] + J[3] * r[1] - J[4] * r[0])
+        jdqd.append(lin[2] + ang[0] * r[1] - ang[1] * r[0]
+                    + w[2] * float(w @ r) - r[2] * float(w @ w))
+    return np.array(heights), np.array(rows).reshape(-1, model.nv), np.array(jdqd)
+
+
+def test_the_batched_rows_are_the_link_by_link_formula_bit_for_bit(kinematics, hulls):
+    rng = np.random.default_rng(5)
+    lo, hi = kinematics.spec.q_min, kinematics.spec.q_max
+    for i in range(200):
+        q, qd = rng.uniform(lo, hi), rng.normal(size=7) * 2.0
+        below = (np.inf, 0.377, 0.2)[i % 3]
+        got = _rows_at(kinematics, hulls, q, qd, below)
+        want = _rows_link_by_link(kinematics, hulls, qd, below)
+        for ours, theirs in zip((got.heights, got.rows, got.jdqd), want):
+            np.testing.assert_array_equal(ours, theirs)
+
+
 def test_the_sphere_rows_are_the_body_spheres(kinematics):
     state = kinematics.evaluate(Q0, np.ones(7))
     g = sphere_ground_rows(state)

@@ -121,3 +121,20 @@ def test_the_placement_only_calls_give_evaluates_numbers_bit_for_bit(robot_spec,
         np.testing.assert_array_equal(rot, state.ee_rotation)
         np.testing.assert_array_equal(kinematics.sphere_centers(q), state.sphere_centers)
     np.testing.assert_array_equal(kinematics.sphere_radii, robot_spec.sphere_radii)
+
+
+def test_the_ik_pass_gives_evaluates_pose_and_jacobian_bit_for_bit(robot_spec, kinematics):
+    """ee_pose_jacobian (the IK iteration's pass: placements and joint Jacobians only) returns
+    exactly evaluate()'s end-effector position, rotation and Jacobian at any q̇, and leaves the
+    data at q as evaluate does (link_position_jacobian reads the same numbers)."""
+    rng = np.random.default_rng(4)
+    for _ in range(300):
+        q = rng.uniform(robot_spec.q_min, robot_spec.q_max)
+        state = kinematics.evaluate(q, rng.normal(size=q.size))
+        link = kinematics.link_position_jacobian("lbr_iiwa_link_4")
+        p, rot, jac = kinematics.ee_pose_jacobian(q)
+        np.testing.assert_array_equal(p, state.ee_position)
+        np.testing.assert_array_equal(rot, state.ee_rotation)
+        np.testing.assert_array_equal(jac, state.ee_jacobian)
+        for ours, theirs in zip(kinematics.link_position_jacobian("lbr_iiwa_link_4"), link):
+            np.testing.assert_array_equal(ours, theirs)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tamedpuma import ik_solvers
-from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.config import load_group, start_options, typed_scenario
 from tamedpuma.app.schema import method_settings, run_config
 from tamedpuma.errors import CheckpointError, ConfigError
 from tamedpuma.ik_solvers import (
@@ -399,7 +399,7 @@ def _default_scenario(robot_spec):
     cfg = load_group("scenario", "default")
     task = load_group("task", "tomato")
     cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
-    return scenario_from_config(cfg, robot_spec, task="tomato", **start_options())
+    return scenario_from_config(typed_scenario(cfg), robot_spec, task="tomato", **start_options())
 
 
 def test_episode_with_an_obstacle_moving_into_the_arm(robot_spec, kinematics):
@@ -428,7 +428,8 @@ def test_episode_reaches_the_tomato_goal_without_penetration(robot_spec, kinemat
     cfg = load_group("scenario", "default")
     task = load_group("task", "tomato")
     cfg["goal"].update(position=task["goal_position"], quaternion=task["goal_quaternion"])
-    scenario = scenario_from_config(cfg, robot_spec, task="tomato", **start_options())
+    scenario = scenario_from_config(typed_scenario(cfg), robot_spec,
+                                    task="tomato", **start_options())
     ctrl = make(_method_cfg(ik_backend=backend), kinematics, primitive=LinearVelocityField(1.0))
     scalars = []
     step = ctrl.step

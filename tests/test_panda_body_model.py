@@ -111,8 +111,8 @@ def test_generated_body_model_holds_every_collision_vertex_within_its_tolerance(
     the config match a recomputation (excess > 0, missed hull volume ~ 0)."""
     cfg, spec = _spec(robot)
     kin = Kinematics(spec)
-    tol = float(cfg["body_model_tolerance"])
-    links = sorted({s.link for s in spec.spheres} | set(cfg["body_model"]["merge"]))
+    tol = float(cfg.body_model_tolerance)
+    links = sorted({s.link for s in spec.spheres} | set(cfg.body_model.merge))
     spheres = [(s.link, s.offset, s.radius) for s in spec.spheres]
     rng = np.random.default_rng(2)
     for q in rng.uniform(spec.q_min, spec.q_max, size=(5, spec.dof)):
@@ -128,7 +128,7 @@ def test_generated_body_model_holds_every_collision_vertex_within_its_tolerance(
     for link, (hull, union, excess) in stated.items():
         assert excess > 0
         mine = [s for s in spec.spheres if s.link == link]
-        merged_into = link in cfg["body_model"]["merge"].values()
+        merged_into = link in cfg.body_model.merge.values()
         vol = None if merged_into else bm.volumes(
             geoms[link].vertices, [s.offset for s in mine], [s.radius for s in mine],
             samples=40_000)

@@ -21,7 +21,9 @@ from tamedpuma.worlds.scenarios import build_scenario
 
 
 def _region(task):
-    return TaskRegion.from_task_config(load_group("task", task))
+    from tamedpuma.app.schema import TaskSchema, typed
+
+    return TaskRegion.from_task_config(typed(TaskSchema, load_group("task", task), "task"))
 
 
 #: the scenario's own settings, as the schema's defaults give them to a random scenario
@@ -105,11 +107,14 @@ def test_impossible_parameters_raise_with_the_counted_reasons(kinematics):
 def test_scenario_random_config_builds_the_generated_scenario(kinematics):
     from omegaconf import OmegaConf
 
+    from tamedpuma.app.schema import run_config
+
     cfg = {"robot": robot_config("iiwa14"), "task": load_group("task", "pouring"),
            "scenario": load_group("scenario", "random"), "seed": 0,
            "without_obstacles": False, "clutter": {"count": 0, "total": None}}
     cfg["scenario"].update(random_seed=1003, start_kind="anywhere")
-    plain = OmegaConf.to_container(OmegaConf.create(cfg), resolve=True)
+    plain = run_config({**OmegaConf.to_container(OmegaConf.create(cfg), resolve=True),
+                        "method": {"name": "fpm"}})
     sc = build_scenario(plain, kinematics.spec, kinematics)
     assert sc.name == "random_pouring_anywhere_1003"
     ref = generate(_region("pouring"), kinematics, 1003, RandomParams(), start_kind="anywhere",
@@ -123,11 +128,14 @@ def test_near_table1_draws_around_the_starts_the_app_layer_hands_down(kinematics
     :func:`tamedpuma.app.config.table1_starts`); without them near_table1 is refused."""
     from omegaconf import OmegaConf
 
+    from tamedpuma.app.schema import run_config
+
     cfg = {"robot": robot_config("iiwa14"), "task": load_group("task", "pouring"),
            "scenario": load_group("scenario", "random"), "seed": 0,
            "without_obstacles": False, "clutter": {"count": 0, "total": None}}
     cfg["scenario"].update(random_seed=1003, start_kind="near_table1")
-    plain = OmegaConf.to_container(OmegaConf.create(cfg), resolve=True)
+    plain = run_config({**OmegaConf.to_container(OmegaConf.create(cfg), resolve=True),
+                        "method": {"name": "fpm"}})
     asked = []
     sc = build_scenario(plain, kinematics.spec, kinematics,
                         table1_starts=lambda task: asked.append(task) or table1_starts(task))

@@ -7,8 +7,8 @@ import logging
 import numpy as np
 import pytest
 
-from tamedpuma.app.config import load_group, robot_config, start_options
-from tamedpuma.errors import ScenarioError
+from tamedpuma.app.config import load_group, robot_config, start_options, typed_scenario
+from tamedpuma.errors import ConfigError, ScenarioError
 from tamedpuma.worlds.scenarios import clamp_start, scenario_from_config
 
 POURING_STARTS_PAST_LIMIT = [  # experiments.md: pouring #2, #3 (also #7, #8)
@@ -26,7 +26,8 @@ def _default_cfg():
 
 
 def test_default_scenario_parses(robot_spec):
-    sc = scenario_from_config(_default_cfg(), robot_spec, task="tomato", **start_options())
+    sc = scenario_from_config(typed_scenario(_default_cfg()), robot_spec,
+                              task="tomato", **start_options())
     assert sc.q0.shape == (7,) and len(sc.obstacles) == 2
     np.testing.assert_allclose(sc.obstacles.at(1.0), sc.obstacles.centers)
     assert abs(np.linalg.norm(sc.goal.quaternion) - 1) < 1e-12
@@ -58,28 +59,28 @@ def test_start_far_outside_the_limits_is_an_error(robot_spec):
 ])
 def test_invalid_scenarios_raise_scenario_error(robot_spec, bad):
     cfg = {**_default_cfg(), **bad}
-    with pytest.raises(ScenarioError):
-        scenario_from_config(cfg, robot_spec, task="tomato", **start_options())
+    with pytest.raises((ScenarioError, ConfigError)):  # the schema's checks or the world's
+        scenario_from_config(typed_scenario(cfg), robot_spec, task="tomato", **start_options())
 
 
-def _run_cfg(**top):
+def _run_cfg(clutter=None, scenario=None, **top):
+    """The typed run config of the default scenario on tomato (iiwa14, FPM), with ``clutter``
+    and ``scenario`` keys and top-level keys changed."""
+    from tamedpuma.app.schema import run_config
+
     cfg = {"robot": robot_config("iiwa14"), "task": load_group("task", "tomato"),
-           "scenario": _default_cfg(), "seed": 0, "without_obstacles": False,
-           "clutter": {"count": 0, "total": None, "radius": 0.05, "low": [-1.2, -1.2, 0.05],
-                       "high": [1.2, 1.2, 1.4], "min_distance": 0.1,
-                       "keep_clear": "start_goal", "margin": 0.05, "region": "box", "shell": 0.3}}
-    cfg.update(top)
-    return cfg
+           "scenario": {**_default_cfg(), **(scenario or {})}, "method": {"name": "fpm"},
+           "clutter": clutter or {}, **top}
+    return run_config(cfg)
 
 
 def test_clutter_is_seeded_and_keeps_clear_of_start_and_goal(robot_spec, kinematics):
     from tamedpuma.worlds.scenarios import build_scenario
 
-    cfg = _run_cfg()
-    cfg["clutter"]["count"] = 300
+    cfg = _run_cfg(clutter={"count": 300})
     a = build_scenario(cfg, robot_spec, kinematics)
     b = build_scenario(cfg, robot_spec, kinematics)
-    c = build_scenario({**cfg, "seed": 1}, robot_spec, kinematics)
+    c = build_scenario(_run_cfg(clutter={"count": 300}, seed=1), robot_spec, kinematics)
     assert len(a.obstacles) == 302
     np.testing.assert_array_equal(a.obstacles.centers, b.obstacles.centers)
     assert not np.array_equal(a.obstacles.centers, c.obstacles.centers)
@@ -94,8 +95,7 @@ def test_without_obstacles_and_task_mismatch(robot_spec, kinematics):
 
     assert len(build_scenario(_run_cfg(without_obstacles=True), robot_spec, kinematics)
                .obstacles) == 0
-    cfg = _run_cfg()
-    cfg["scenario"] = {**cfg["scenario"], "task": "pouring"}
+    cfg = _run_cfg(scenario={"task": "pouring"})
     with pytest.raises(ScenarioError, match="belongs to task 'pouring'"):
         build_scenario(cfg, robot_spec, kinematics)
 
@@ -108,7 +108,7 @@ def test_all_table1_scenarios_load(robot_spec, task):
     assert len(files) == 15
     for f in files:
         cfg = load_group("scenario", f"{task}/{f.stem}")
-        sc = scenario_from_config(cfg, robot_spec, task=task, **start_options())
+        sc = scenario_from_config(typed_scenario(cfg), robot_spec, task=task, **start_options())
         assert 1 <= len(sc.obstacles) <= 2 and sc.name == f"{task}_{f.stem}"
 
 
@@ -126,7 +126,7 @@ def test_task_workspace_covers_every_scenario_start(robot_spec, kinematics, task
         if name == "default":
             t = load_group("task", task)
             cfg["goal"].update(position=t["goal_position"], quaternion=t["goal_quaternion"])
-        sc = scenario_from_config(cfg, robot_spec, task=task, **start_options())
+        sc = scenario_from_config(typed_scenario(cfg), robot_spec, task=task, **start_options())
         state = kinematics.evaluate(sc.q0, np.zeros(robot_spec.dof))
         e = state.ee_position - sc.goal.position
         assert np.all(e > low) and np.all(e < high), (name, e)

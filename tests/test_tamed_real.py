@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tamedpuma.analysis.path_difference import path_difference
-from tamedpuma.app.config import load_group, start_options
+from tamedpuma.app.config import load_group, start_options, typed_scenario
 from tamedpuma.episode import run_episode
 from tamedpuma.methods import make
 from tamedpuma.worlds.bullet import Simulator
@@ -62,7 +62,7 @@ def _scenario(spec, task, obstacles):
     cfg["goal"].update(position=t["goal_position"], quaternion=t["goal_quaternion"])
     if not obstacles:
         cfg["obstacles"] = []
-    return scenario_from_config(cfg, spec, task=task, **start_options())
+    return scenario_from_config(typed_scenario(cfg), spec, task=task, **start_options())
 
 
 CASES = [("tomato", "shipped"),

@@ -27,8 +27,7 @@ WHY = {
                "`fabrics+numba` compiles that pass, the kernel and the products.",
     "fpm": "Kinematics, fabric and network are the vanilla costs above; the rest is FPM's "
            "forcing (PUMA's obstacle-free pull, the directional metric, the "
-           "weighted pullback with the position priority: three LAPACK "
-           "solves instead of one, the control-rate barrier step over the barrier rows "
+           "weighted pullback, the control-rate barrier step over the barrier rows "
            "within the activation distance, the far pairs bounded by `discrete.FarRows`), "
            "each a few small-array numpy calls; at 1000 obstacles the fabric's pass over the "
            "5000 pairs' distances. "

@@ -89,24 +89,26 @@ def write_block(path: Path, text: str, base_robot: str, name: str) -> str:
     return "created"
 
 
-def run(cfg: dict, argv: list[str], log=print) -> dict:
+def run(cfg, argv: list[str], log=print) -> dict:
+    """Fit the spheres of the typed ``cfg`` (:class:`tamedpuma.app.schema.BodyModelRunConfig`),
+    report their coverage and write them into the robot's config (or ``cfg.out``)."""
     from tamedpuma.robot import body_model as bm
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
 
-    robot = cfg["robot"]
+    robot = cfg.robot
     spec = robot_spec_from_config(robot)
     kin = Kinematics(spec)
     frames = _link_frames(kin)
-    opts = robot["body_model"]  # complete: the schema's BodyModelOptions
+    opts = robot.body_model  # complete: the schema's BodyModelOptions
     merge = {}
-    for link, target in opts["merge"].items():
+    for link, target in opts.merge.items():
         (rl, pl), (rt, pt) = frames(link), frames(target)
         merge[link] = (target, rt.T @ rl, rt.T @ (pl - pt))
-    skip = tuple(opts["skip"]) if opts["skip"] is not None else (spec.link_names[0],)
-    tol = float(cfg["tolerance"])
-    fits = bm.fit_body(spec.urdf_path, tolerance=tol, max_spheres=int(cfg["max_spheres"]),
-                       k_penalty=float(cfg["k_penalty"]), skip=skip, merge=merge,
-                       samples=int(cfg["samples"]))
+    skip = tuple(opts.skip) if opts.skip is not None else (spec.link_names[0],)
+    tol = float(cfg.tolerance)
+    fits = bm.fit_body(spec.urdf_path, tolerance=tol, max_spheres=int(cfg.max_spheres),
+                       k_penalty=float(cfg.k_penalty), skip=skip, merge=merge,
+                       samples=int(cfg.samples))
     covered = [(link, off, r) for link, off, r in
                ((s.link, s.offset, s.radius) for s in spec.spheres) if frames(link) is not None]
     links = [f.link for f in fits] + list(merge)
@@ -114,7 +116,7 @@ def run(cfg: dict, argv: list[str], log=print) -> dict:
     generated = bm.coverage_of(spec.urdf_path, [(f.link, c, r) for f in fits
                                                 for c, r in zip(f.centers, f.radii)],
                                frames, links)
-    log(f"robot {robot['name']}: {sum(len(f.radii) for f in fits)} spheres on {len(fits)} links "
+    log(f"robot {robot.name}: {sum(len(f.radii) for f in fits)} spheres on {len(fits)} links "
         f"(tolerance {tol:g} m)")
     for f in fits:
         log(f"  {f.link}: radii {np.round(f.radii, 3).tolist()} m, worst vertex "
@@ -128,11 +130,11 @@ def run(cfg: dict, argv: list[str], log=print) -> dict:
     log(f"the generated spheres hold {100 * generated['inside_fraction']:.1f}% "
         f"(worst {generated['max_outside_m']:.4f} m outside)")
     command = " ".join(["python -m tamedpuma.body_model", *argv])
-    text = block(robot["name"], fits, tol, command)
-    out = cfg["out"]
-    path = Path(out) if out else CONF_DIR / "robot" / f"{robot['name']}.yaml"
+    text = block(robot.name, fits, tol, command)
+    out = cfg.out
+    path = Path(out) if out else CONF_DIR / "robot" / f"{robot.name}.yaml"
     name = path.stem
-    what = write_block(path, text, robot["name"], name)
+    what = write_block(path, text, robot.name, name)
     log(f"{what} {path}")
     return {"fits": fits, "current": current, "generated": generated, "path": str(path)}
 
@@ -140,13 +142,13 @@ def run(cfg: dict, argv: list[str], log=print) -> dict:
 @command(__doc__)
 def main(argv: list[str]) -> int:
     from tamedpuma.app.cli import split_argv, with_search_path
-    from tamedpuma.app.compose import compose_dict
+    from tamedpuma.app.compose import compose_typed
 
     overrides, search, flags = split_argv(argv)
     unknown = sorted(set(flags) - {"--config-dir", "-cd"})
     if unknown:
         raise ConfigError(f"unknown option(s) {', '.join(unknown)}")
-    cfg = compose_dict("body_model", with_search_path(overrides, search))
+    cfg = compose_typed("body_model", with_search_path(overrides, search))
     run(cfg, argv)
     return 0
 

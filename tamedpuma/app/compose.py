@@ -8,9 +8,13 @@ its config here: ``conf/<name>.yaml`` (:data:`tamedpuma.paths.CONF_DIR`) with Hy
 - :func:`compose`: one composition as a ``DictConfig``, inside the Hydra already initialized (an
   open :func:`session`, or the sweep's own app inside one of its jobs: its search path, a user's
   ``--config-dir`` included), else in a session of its own.
+- :func:`compose_typed`: one composition typed by its schema (``sweep``, ``train``,
+  ``body_model``: :data:`tamedpuma.app.schema.CONFIGS`), what library code receives.
 - :func:`compose_dict`: one composition as a plain dict, ``train`` and ``body_model`` typed by
-  their schema (every key, the schema's defaults filled in); a Hydra error becomes one line
-  (:func:`hydra_error_line`) in a :class:`~tamedpuma.errors.ConfigError`.
+  their schema first (every key, the schema's defaults filled in): for what is stored or passed
+  on as data (a checkpoint's recorded config, a sweep config the sweep's ``build`` types).
+  In both a Hydra error becomes one line (:func:`hydra_error_line`) in a
+  :class:`~tamedpuma.errors.ConfigError`.
 
 A test (``tests/test_architecture.py``) keeps Hydra's compose and initialize API out of every
 other module.
@@ -59,6 +63,21 @@ def compose(config_name: str, overrides: Sequence[str] = (), *, hydra_config: bo
     with session():
         return hydra_compose(config_name, overrides=list(overrides),
                              return_hydra_config=hydra_config)
+
+
+def compose_typed(config_name: str, overrides: Sequence[str] = ()):
+    """:func:`compose` typed by the schema (:data:`tamedpuma.app.schema.CONFIGS`: types, unknown
+    keys and ranges checked, every default filled in); Hydra errors → ConfigError (one line)."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from tamedpuma.app import schema
+
+    try:
+        with session():
+            return schema.CONFIGS[config_name](compose(config_name, overrides))
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise ConfigError(hydra_error_line(exc)) from None
 
 
 def compose_dict(config_name: str, overrides: Sequence[str] = ()) -> dict:

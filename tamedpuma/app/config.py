@@ -1,7 +1,9 @@
 """Read the project's YAML config groups without Hydra (for tests, benchmarks and library use).
 
-Entry points compose configs with Hydra; library code receives plain mappings. This module loads
-one group option of the package's ``conf/`` (:data:`tamedpuma.paths.CONF_DIR`) as a plain dict.
+Entry points compose configs with Hydra; library code receives the schema's typed objects
+(``tamedpuma/app/schema.py``). This module loads one group option of the package's ``conf/``
+(:data:`tamedpuma.paths.CONF_DIR`) as a plain dict (:func:`load_group`) and types the robot and
+scenario groups (:func:`robot_config`, :func:`typed_scenario`).
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ def load_group(group: str, name: str) -> dict:
     return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
 
 
-def robot_config(name: str) -> dict:
+def robot_config(name: str) -> _schema.RobotSchema:
     """The robot option ``conf/robot/<name>.yaml`` as the sweep sees it: its ``defaults`` (a
     derived option's base robot) merged under its own keys, then typed by the schema
     (:class:`~tamedpuma.app.schema.RobotSchema`: checked, every default filled in)."""
@@ -57,15 +59,22 @@ def robot_config(name: str) -> dict:
         if base != "_self_":
             merged = OmegaConf.merge(merged, robot_config(str(base)))
     merged = OmegaConf.merge(merged, own)
-    return _schema.as_dict(_schema.typed(_schema.RobotSchema, merged, "robot"))
+    return _schema.typed(_schema.RobotSchema, merged, "robot")
+
+
+def typed_scenario(cfg):
+    """A scenario mapping (e.g. :func:`load_group` ``("scenario", name)`` with its goal filled
+    in) typed by the schema (:class:`~tamedpuma.app.schema.ScenarioSchema`), as
+    :func:`tamedpuma.worlds.scenarios.scenario_from_config` takes it."""
+    return _schema.typed(_schema.ScenarioSchema, cfg, "scenario")
 
 
 def start_options(robot: str = "iiwa14") -> dict:
     """The keyword arguments of :func:`tamedpuma.worlds.scenarios.scenario_from_config` that a
     run of the default config passes for ``robot``: seed 0 and the robot's start clamp."""
     cfg = robot_config(robot)
-    return {"seed": _schema.RunConfig.seed, "limit_tolerance": cfg["limit_tolerance"],
-            "limit_margin": cfg["limit_margin"]}
+    return {"seed": _schema.RunConfig.seed, "limit_tolerance": cfg.limit_tolerance,
+            "limit_margin": cfg.limit_margin}
 
 
 def workspace_starts(task: dict) -> list[tuple[str, object, object, list | None, list | None]]:

@@ -79,7 +79,7 @@ def build(cfg: DictConfig) -> Built:
     a :class:`ConfigError` with a one-line message."""
     from tamedpuma import methods
     from tamedpuma.app.config import table1_starts
-    from tamedpuma.app.schema import as_dict, method_settings, run_config
+    from tamedpuma.app.schema import method_settings, run_config
     from tamedpuma.puma import store
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
     from tamedpuma.worlds import demo_scenarios
@@ -87,17 +87,20 @@ def build(cfg: DictConfig) -> Built:
 
     run = run_config(cfg)
     try:
-        plain = {k: v for k, v in as_dict(run).items() if k != "method"}  # for worlds/
-        spec = robot_spec_from_config(plain["robot"])
+        spec = robot_spec_from_config(run.robot)
         kinematics = Kinematics(spec)
-        plain = demo_scenarios.apply(plain, kinematics)  # derived goal, generated scenario
+        # derived goal, generated scenario; a task without Table-1 starts: its demonstrations'
+        world, demo_starts = demo_scenarios.apply(run, kinematics)
 
         def reference():  # clutter.keep_clear=path: the collision-free run to keep clear of
             from tamedpuma.app.reference import reference_motion
 
             return reference_motion(cfg, build)
 
-        scenario = build_scenario(plain, spec, kinematics, reference, table1_starts)
+        def starts(task: str) -> list:  # scenario=random, start_kind=near_table1
+            return table1_starts(task) or demo_starts
+
+        scenario = build_scenario(world, spec, kinematics, reference, starts)
         settings = with_robot_null_space(method_settings(run.method), run.robot.null_space)
         model = store.resolve_for_method(run.method.name, settings)
         if model is not None:  # the method loads exactly the file that is recorded

@@ -39,6 +39,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tamedpuma.fabrics.spec import linear_solve
+
+# the reductions without their Python wrappers (np.any, np.all, np.min, np.max on 1-d arrays:
+# the same ufunc reductions, the same results)
+_any, _all = np.logical_or.reduce, np.logical_and.reduce
+_min, _max = np.minimum.reduce, np.maximum.reduce
+
 
 @dataclass(frozen=True)
 class FarRows:
@@ -81,7 +88,7 @@ class FarRows:
 
 def limit_speed(qd_next: np.ndarray, qd_max: np.ndarray) -> tuple[np.ndarray, float]:
     """``(s q̇⁺, s)`` with ``s = min(1, min_j q̇_max,j/|q̇⁺_j|)`` (direction kept) [rad/s], [1]."""
-    ratio = float(np.max(np.abs(qd_next) / qd_max))
+    ratio = float(_max(np.abs(qd_next) / qd_max))
     if ratio <= 1.0:
         return qd_next, 1.0
     s = 1.0 / ratio
@@ -145,9 +152,9 @@ def _step(v, rows, x, dt, kappa, M, jdqd, drift, standoff=0.0):
     # must not approach further but is not asked to jump out: w = 0 stays admissible (always
     # feasible)
     past = x <= standoff
-    b_static = np.where(past, np.minimum(b, 0.0), b) if past.any() else b
+    b_static = np.where(past, np.minimum(b, 0.0), b) if _any(past) else b
     Av = rows @ v
-    free = bool((Av >= b_static).all())  # the common case: nothing to project (one product)
+    free = bool(_all(Av >= b_static))  # the common case: nothing to project (one product)
     if drift is None:
         if free:
             return v, 0
@@ -157,11 +164,11 @@ def _step(v, rows, x, dt, kappa, M, jdqd, drift, standoff=0.0):
     # (feasible: w = 0 admissible), kept if it also meets the drifting rows
     if free:
         w, active = v, 0
-        closes = not bool((Av >= b - drift).all())
+        closes = not bool(_all(Av >= b - drift))
     else:
         w, active = _project(v, rows, b_static, M) or (
             np.zeros_like(v), int(np.count_nonzero(b_static == 0.0)))
-        closes = not bool((rows @ w >= b - drift).all())
+        closes = not bool(_all(rows @ w >= b - drift))
     if not closes:
         return w, active
     # an approaching obstacle asks the arm to move away: keep that if it can be met with
@@ -174,10 +181,10 @@ def _project(v: np.ndarray, rows: np.ndarray, b: np.ndarray, M: np.ndarray):
     """``argmin ½‖w − v‖²_M s.t. rows w ≥ b`` and its number of active rows (see
     :func:`barrier_step`); None when no w meets every row."""
     Av = rows @ v
-    if np.all(Av >= b):
+    if _all(Av >= b):
         return v, 0
     L = np.linalg.cholesky(M)  # M = L Lᵀ
-    G = np.linalg.solve(L, rows.T).T  # A L⁻ᵀ (R, n)
+    G = linear_solve(L, rows.T).T  # A L⁻ᵀ (R, n)
     h = b - Av
     n = v.shape[0]
     E = np.vstack((G.T, h[None]))
@@ -188,7 +195,7 @@ def _project(v: np.ndarray, rows: np.ndarray, b: np.ndarray, M: np.ndarray):
     if not r[n] < -1e-12:  # ‖r‖ = 0: the constraints have no common point
         return None
     u = -r[:n] / r[n]
-    w = v + np.linalg.solve(L.T, u)  # L⁻ᵀ u
+    w = v + linear_solve(L.T, u)  # L⁻ᵀ u
     return w, int(np.count_nonzero(z > 0))
 
 
@@ -201,19 +208,19 @@ def nnls(E: np.ndarray, f: np.ndarray, max_iter: int | None = None) -> np.ndarra
     for _ in range(max_iter or 3 * k + 10):
         w = E.T @ (f - E @ z)
         w[passive] = -np.inf
-        j = int(np.argmax(w))
+        j = int(w.argmax())
         if w[j] <= tol:
             break
         passive[j] = True
         while True:
             idx = np.flatnonzero(passive)
             sol = np.linalg.lstsq(E[:, idx], f, rcond=None)[0]
-            if np.all(sol > 0):
+            if _all(sol > 0):
                 z[:] = 0.0
                 z[idx] = sol
                 break
             neg = sol <= 0
-            step = np.min(z[idx][neg] / (z[idx][neg] - sol[neg]))
+            step = _min(z[idx][neg] / (z[idx][neg] - sol[neg]))
             z[idx] += step * (sol - z[idx])
             passive[idx[z[idx] <= tol]] = False
             z[~passive] = 0.0

@@ -268,35 +268,25 @@ def weighted_rows(weight: float | np.ndarray, J: np.ndarray) -> np.ndarray:
 
 def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | np.ndarray,
                         m_null: float, qdd_null: np.ndarray | None = None,
-                        extra=None, priority: int = 0,
-                        secondary: SecondaryDamping | None = None) -> np.ndarray:
+                        extra=None) -> np.ndarray:
     """PUMA's task acceleration pulled to the joints through a metric (a weighted
     pseudo-inverse): the task spec ``(w I, −w ẍ_d)`` pulled back and summed with a joint-space
     spec ``(W, 0)`` and the secondary objective's ``(m_null I, −m_null q̈_null)``::
 
         q̈_C = (W + w JᵀJ + m_null I)⁻¹ (w Jᵀ(ẍ_d − J̇q̇) + m_null q̈_null)        [rad/s²]
 
-    W (n, n) SPD [1]; w [1], or one weight per task row (m,) (the task metric diag(w), e.g.
-    position rows before orientation rows: :meth:`~tamedpuma.methods._tamed.Forcing.task_weights`);
+    W (n, n) SPD [1]; w [1], or one weight per task row (m,) (the task metric diag(w));
     m_null [1]. Where W ≪ w JᵀJ q̈_C realises ẍ_d as the damped
     least-squares inverse with λ² = W/w does (W = m_b I: exactly that); along a direction in
     which W is large (an obstacle barrier's metric) q̈_C's component falls like 1/W. At ẍ_d = 0
     and q̇ = 0 (PUMA's zero set) q̈_C = (…)⁻¹ m_null q̈_null, the damped elbow attractor.
     extra: more acceleration specs summed in, rows R (K, n) with targets a and weights w_k (a
     :class:`~tamedpuma.methods._circulation.TangentSpecs`): ``+ Σ w_k R_kᵀR_k`` in the metric,
-    ``+ Σ w_k R_kᵀ a_k`` on the right.
-    priority: the first ``priority`` task rows (J₁, the position rows of a pose task) take
-    precedence over the rest (J₂): see :func:`prioritized_solve`. 0: one weighted solve.
-    secondary: the singularity-robust damping of the rest (J₂) under a priority
-    (:class:`SecondaryDamping`; None: none)."""
+    ``+ Σ w_k R_kᵀ a_k`` on the right."""
     J = task.J
-    m = J.shape[0]
-    k = priority if priority > 0 else m
     wJ = weighted_rows(weight, J)
-    target = task.xdd - task.jdqd
-    J1, wJ1 = (J, wJ) if k == m else (J[:k], wJ[:k])  # (views of all rows: the same numbers)
-    A = W + J1.T @ wJ1
-    rhs = wJ1.T @ (target if k == m else target[:k])
+    A = W + J.T @ wJ
+    rhs = wJ.T @ (task.xdd - task.jdqd)
     if qdd_null is not None and m_null > 0.0:
         A.flat[::A.shape[0] + 1] += m_null  # A is a fresh array
         rhs = rhs + m_null * qdd_null
@@ -304,150 +294,7 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
         wr = extra.weights[:, None] * extra.rows
         A += extra.rows.T @ wr
         rhs = rhs + wr.T @ extra.targets
-    if k == m:
-        return linear_solve(A, rhs)
-    A2 = J[k:].T @ wJ[k:]
-    D = None if secondary is None else secondary.metric(
-        A, J1, A2, m - k, weighted_rows(math.sqrt(weight) if type(weight) is float
-                                        else np.sqrt(np.asarray(weight)[k:]), J[k:]))
-    if D is not None:
-        A2 = A2 + D
-    return prioritized_solve(A, rhs, J1, A2, wJ[k:].T @ target[k:])
-
-
-@dataclass(frozen=True)
-class SecondaryDamping:
-    """Singularity-robust damping of the secondary (orientation) rows of a prioritized pullback
-    (μ_max [1], σ₀ [1]; with ``method.forcing.priority: position``; Chiaverini
-    1997's singularity-robust task priority, in the metric of the first stage).
-
-    The second stage of :func:`prioritized_solve` minimises ``½q̈ᵀ(A₁ + A₂)q̈ − (f₁ + f₂)ᵀq̈``
-    under the position constraint, A₁ = LLᵀ the first stage's metric (the avoidance metric, the
-    position rows' wJ₁ᵀJ₁, the elbow objective's), A₂ = J₂ᵀdiag(w)J₂. In u = Lᵀq̈ the secondary
-    rows are ``Ĵ₂ = diag(√w) J₂ L⁻ᵀ`` and the position constraint fixes u's component in
-    the row space of ``Ĵ₁ = J₁L⁻ᵀ``; what is left to the secondary rows is ``Ĵ₂N₁``, N₁ the
-    orthogonal projector onto Ĵ₁'s null space, with singular values σ̂ᵢ (σ̂ᵢ² the eigenvalues
-    of N₁L⁻¹A₂L⁻ᵀN₁, at most m₂ non-zero) and right singular vectors vᵢ ∈ range(N₁): the
-    target's share along vᵢ is realised as the fraction σ̂ᵢ²/(σ̂ᵢ² + 1), with a joint
-    acceleration per unit of target ∝ σ̂ᵢ/(σ̂ᵢ² + 1), largest at σ̂ᵢ = 1: where the joints that
-    could turn the hand are held by barrier metrics or at a singularity of their own (the wrist
-    at q₆ ≈ 0), the orientation rows drive the rest hard. Each direction with σ̂ᵢ < σ₀ gets the
-    extra metric
-
-        D = Σ_{σ̂ᵢ<σ₀} μᵢ (Lvᵢ)(Lvᵢ)ᵀ,   μᵢ = μ_max (1 − σ̂ᵢ/σ₀)²                  [1]
-
-    in the second stage only (gain σ̂ᵢ/(σ̂ᵢ² + 1 + μᵢ)); directions at or above σ₀ and the
-    position rows' acceleration J₁q̈ = J₁q̈₁ are unchanged (vᵢ ⊥ Ĵ₁'s rows: damping them never
-    shifts the position rows onto other joints, which the unprojected σ̂ of Ĵ₂ did, raising ‖q̈‖
-    up to 5× at random wrist-singular states). With the first rows asking nothing (f₁ = 0,
-    undamped constraint) the orientation's share is exactly ``vᵢ·Lᵀq̈ = vᵢ·L⁻¹f₂/(1 + σ̂ᵢ² +
-    μᵢ)``. D is PSD and depends only on the configuration and the metrics, so q̈_C is still a
-    weighted pseudo-inverse of PUMA's spec through a PSD metric: at ẍ_d = 0 and q̇ = 0 it is
-    the damped elbow objective (with more damping along the vᵢ), 0 without one, so the zero set
-    of the forcing and the statements resting on it are unchanged.
-
-    Why: the default tomato scenario (shipped models), FPM: at 6.5-7.0 s the orientation rows
-    asked 1.4-4 rad/s² with σ̂_min 0.2-1 (the wrist through q₆ ≈ 0, joints 1-3 held by obstacle
-    metrics of 130-480), q̈_C reached 14 rad/s², joints 5 and 7 spun at 2.2 rad/s in opposite
-    directions, joint 7 ran into its limit and the hand swung out to 0.85 m from the goal"""
-
-    gain: float = 0.0
-    threshold: float = 3.0
-
-    def metric(self, A1: np.ndarray, J1: np.ndarray, A2: np.ndarray,
-               rank: int, rows2: np.ndarray | None = None) -> np.ndarray | None:
-        """D (n, n) [1] for the first stage's metric A₁ (SPD), the first rows J₁ (k, n) and the
-        secondary rows' A₂ (PSD, rank ≤ ``rank``); None (nothing to add: the common case in
-        free space) when no direction is below σ₀ or μ_max = 0.
-
-        rows2: a factor of A₂ (``A₂ = rows2ᵀ rows2``, i.e. diag(√w) J₂, (m₂, n)), when known:
-        where the small (m₂, m₂) problem of :meth:`_small` finds every σ̂ᵢ clearly (10⁻⁶
-        relative) above σ₀, None without the (n, n) eigenproblem; otherwise D from it, the
-        same numbers as without rows2."""
-        n = A1.shape[0]
-        if self.gain <= 0.0 or rank <= 0:
-            return None
-        L = np.linalg.cholesky(A1)
-        if rows2 is not None and self._clearly_above(L, J1, rows2):
-            return None
-        X = np.linalg.solve(L, np.linalg.solve(L, A2).T)  # L⁻¹A₂L⁻ᵀ (A₂ symmetric)
-        J1u = np.linalg.solve(L, J1.T).T  # J₁L⁻ᵀ: the first rows in u
-        try:
-            N1 = np.eye(n) - J1u.T @ np.linalg.solve(J1u @ J1u.T, J1u)
-        except np.linalg.LinAlgError:  # the position rows singular (e.g. the arm straight up)
-            N1 = np.eye(n) - np.linalg.pinv(J1u) @ J1u
-        lam, V = np.linalg.eigh(N1 @ (0.5 * (X + X.T)) @ N1)
-        lam = lam[-rank:]
-        sigma = np.sqrt(np.maximum(lam, 0.0))
-        # only directions the secondary rows reach (σ̂ > 0): an eigenvector of a zero eigenvalue
-        # may lie along the position rows (where the whole Jacobian is singular)
-        low = (sigma < self.threshold) & (lam > 1e-12 * max(float(lam[-1]), 1.0))
-        if not low.any():
-            return None
-        mu = self.gain * (1.0 - sigma[low] / self.threshold) ** 2
-        LV = L @ V[:, -rank:][:, low]
-        return (LV * mu) @ LV.T
-
-    def _clearly_above(self, L: np.ndarray, J1: np.ndarray, rows2: np.ndarray) -> bool:
-        """Whether every σ̂ᵢ is above σ₀ by 10⁻⁶ relative (far beyond the rounding in which the
-        two problems differ). With Ĵ₁ᵀ = L⁻¹J₁ᵀ and Ĵ₂ᵀ = L⁻¹rows2ᵀ, ``G = Ĵ₂N₁Ĵ₂ᵀ =
-        Ĵ₂Ĵ₂ᵀ − Ĵ₂Ĵ₁ᵀ(Ĵ₁Ĵ₁ᵀ)⁻¹Ĵ₁Ĵ₂ᵀ`` has the non-zero eigenvalues σ̂ᵢ² of ``N₁L⁻¹A₂L⁻ᵀN₁``
-        (N₁ a projector)."""
-        k = J1.shape[0]
-        Y = np.linalg.solve(L, np.concatenate((J1, rows2)).T)  # [Ĵ₁ᵀ, Ĵ₂ᵀ]
-        Y1, Y2 = Y[:, :k], Y[:, k:]
-        C = Y1.T @ Y2
-        try:
-            G = Y2.T @ Y2 - C.T @ np.linalg.solve(Y1.T @ Y1, C)
-        except np.linalg.LinAlgError:  # the position rows singular: the (n, n) problem decides
-            return False
-        lam = np.linalg.eigvalsh(0.5 * (G + G.T))
-        return bool(lam[0] >= (self.threshold * (1.0 + 1e-6)) ** 2)
-
-
-#: δ [1] of :func:`prioritized_solve`: the priority constraint's damping relative to tr(S)/k
-PRIORITY_DAMPING = 1e-2
-
-
-def prioritized_solve(A1: np.ndarray, f1: np.ndarray, J1: np.ndarray, A2: np.ndarray,
-                      f2: np.ndarray) -> np.ndarray:
-    """Two specs solved in order [rad/s²]: first ``q̈₁ = A₁⁻¹f₁`` (the high-priority spec alone:
-    PUMA's position rows with the avoidance metric and the rest), then the low-priority spec
-    (A₂, f₂) (the orientation rows, ``wJ₂ᵀJ₂`` and ``wJ₂ᵀ(ẍ₂ − J̇₂q̇)``) added without changing
-    the high-priority task acceleration J₁q̈₁: the minimiser of
-    ``½q̈ᵀ(A₁ + A₂)q̈ − (f₁ + f₂)ᵀq̈`` subject to ``J₁q̈ = J₁q̈₁`` (a lexicographic least-squares
-    solve, as in task-priority control, Nakamura et al. 1987; Siciliano & Slotine 1991)::
-
-        q̈ = A⁻¹(f₁ + f₂ − J₁ᵀλ),  λ = (J₁A⁻¹J₁ᵀ)⁻¹(J₁A⁻¹(f₁ + f₂) − J₁q̈₁),  A = A₁ + A₂
-
-    A₁ (n, n) SPD [1]; f₁, f₂ (n,); J₁ (k, n); A₂ (n, n) PSD [1].
-
-    Why (``forcing.priority: position``). With one weighted solve, where barriers hold joints
-    (two joints at their limit barriers leave 5 for PUMA's 6 pose rows) the arm comes to rest
-    wherever the position and orientation pulls cancel in the free joints, short of the goal
-    (the stall of the online goal change and of random starts at the joint limits). Here the
-    hand's acceleration is the one PUMA's position pull alone would give,
-    ``J₁q̈ = J₁A₁⁻¹J₁ᵀ w ẍ₁`` at rest, positive definite while the free joints span the
-    position rows: the hand moves along PUMA's position pull until ẍ₁ = 0 or an obstacle's
-    metric takes that direction away; the orientation uses the joints left over. In free space
-    (7 joints for 6 rows, small metric) both specs are met, as with one solve. ẍ_d = 0 gives
-    f₁ = f₂ = 0 besides the elbow objective in f₁: the zero set of the forcing, hence FPM's and
-    CPM's statements, are unchanged. S = J₁A⁻¹J₁ᵀ is damped by δ tr(S)/k,
-    δ = :data:`PRIORITY_DAMPING` (a singularity-robust task priority, Chiaverini 1997): where S
-    is ill-conditioned the constraint yields instead of driving the joints (with δ = 10⁻⁹, near
-    the shoulder singularity q₂ ≈ 0 the multiplier swung joints 1 and 3 through 2 rad in 2 s
-    and the hand left the goal by 1.4 m; random tomato scenario 103)."""
-    n, k = J1.shape[1], J1.shape[0]
-    qdd1 = linear_solve(A1, f1)
-    B = np.empty((n, k + 1))  # [J₁ᵀ, f₁ + f₂]
-    B[:, :k] = J1.T
-    np.add(f1, f2, out=B[:, k])
-    X = linear_solve(A1 + A2, B)
-    AJ = X[:, :k]  # A⁻¹J₁ᵀ
-    S = J1 @ AJ
-    S.flat[::k + 1] += PRIORITY_DAMPING * max(float(S.trace()), 1e-300) / k
-    x = X[:, k]
-    return x - AJ @ linear_solve(S, J1 @ (x - qdd1))
+    return linear_solve(A, rhs)
 
 
 @dataclass(frozen=True)

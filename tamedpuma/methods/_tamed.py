@@ -2,10 +2,17 @@
 policy, its construction from a method config, and the avoidance fabric FPM and CPM add to it.
 
 Methods never import each other; what two of them share lives here.
+
+Episode state. Everything a step writes lives in the controller's ``episode`` (made afresh by
+``reset``): :class:`PumaEpisode` (PUMA's task with this episode's orientation reference) and
+:class:`TamedEpisode` (the circulation's sides, the stall monitor, the configuration pull's
+monitor; CPM adds its energy tank). The rest of a controller is its configuration, fixed after
+construction; a step is a function of (episode, observation) (``tests/test_episode_state.py``).
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import NamedTuple
@@ -29,7 +36,6 @@ from tamedpuma.methods._policy import (
     NullSpaceObjective,
     OrientationReference,
     PoseTask,
-    SecondaryDamping,
     TaskAcceleration,
     pull_through_metric,
     pull_to_joints,
@@ -44,22 +50,43 @@ from tamedpuma.robot.ground import (
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
 
 
+def episode_task(task):
+    """``task`` for one episode: with an orientation reference, a copy holding its own
+    reference, reset (the primitive shared; ``task`` itself, the template, is never written);
+    without one, ``task`` itself (nothing in it changes during an episode)."""
+    if getattr(task, "reference", None) is None:
+        return task
+    own = copy.copy(task)
+    own.reference = copy.copy(task.reference)
+    own.reference.reset()
+    return own
+
+
+@dataclass
+class PumaEpisode:
+    """What :class:`PumaController`'s step writes (see the module docstring): ``task``, PUMA's
+    task with this episode's orientation reference (:func:`episode_task`)."""
+
+    task: object
+
+
 class PumaController:
     """PUMA pulled to joint space (see :mod:`tamedpuma.methods.puma`):
     ``q̈ = J⁺(ẍ_d − J̇q̇) + N q̈_null`` [rad/s²]. task: a
     :class:`~tamedpuma.methods._policy.PoseTask` or :class:`~tamedpuma.methods._policy.PlanarTask`;
     damping: λ of the pseudo-inverse, or a :class:`~tamedpuma.methods._policy.Damping` rule
-    (singularity-robust); feed_goal_velocity: the primitive sees ``ṗ − v_g`` (moving goals)."""
+    (singularity-robust); feed_goal_velocity: the primitive sees ``ṗ − v_g`` (moving goals).
+    ``episode``: the episode state (:class:`PumaEpisode`), made by :meth:`reset`."""
 
     def __init__(self, task, kinematics, damping: float | Damping = 0.01,
                  null_space: NullSpaceObjective | None = None, feed_goal_velocity: bool = True):
         self.task, self.kinematics = task, kinematics
         self.damping, self.null_space = damping, null_space
         self.feed_goal_velocity = feed_goal_velocity
+        self.episode = PumaEpisode(episode_task(task))
 
     def reset(self, scenario: Scenario) -> None:
-        if self.task.reference is not None:
-            self.task.reference.reset()
+        self.episode = PumaEpisode(episode_task(self.task))
 
     def joint_acceleration(self, state, obs: Observation, stall: StallMonitor | None = None
                            ) -> tuple[np.ndarray, np.ndarray]:
@@ -77,9 +104,10 @@ class PumaController:
         (:mod:`tamedpuma.methods._configuration_pull`), a joint-space spec (J = I) replacing the
         task rows while engaged."""
         vg = obs.goal_velocity if self.feed_goal_velocity else None
-        if self.task.reference is not None:
-            self.task.reference.sync(obs.t, state, obs.qd, obs.goal_position, clearance)
-        task = self.task.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
+        own = self.episode.task
+        if own.reference is not None:
+            own.reference.sync(obs.t, state, obs.qd, obs.goal_position, clearance)
+        task = own.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         if stall is not None:
             task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
                 self.task.potential(state, obs.goal_position, obs.goal_quaternion)[0]))
@@ -93,8 +121,8 @@ class PumaController:
         objective): its pull towards the goal without its damping [rad/s²]."""
         vg = obs.goal_velocity if self.feed_goal_velocity else None
         rest = np.zeros_like(obs.qd)
-        task = self.task.acceleration(state, rest, obs.goal_position, obs.goal_quaternion, vg,
-                                      at_rest=True)
+        task = self.episode.task.acceleration(state, rest, obs.goal_position,
+                                              obs.goal_quaternion, vg, at_rest=True)
         return pull_to_joints(TaskAcceleration(task.xdd, task.J, np.zeros_like(task.jdqd)),
                               self.damping)
 
@@ -119,11 +147,9 @@ class PumaController:
                                           lambda: self.pull_at_rest(state, obs),
                                           av.min_clearance)
             weights = forcing.weight
-            secondary = forcing.secondary_damping()
 
             def solve(W: np.ndarray) -> np.ndarray:
-                return pull_through_metric(task, W, weights, forcing.null_metric, null, extra,
-                                           forcing.priority_rows(len(task.xdd)), secondary)
+                return pull_through_metric(task, W, weights, forcing.null_metric, null, extra)
 
             if forcing.directional:
                 receding = receding_rows(av, qdd_free)
@@ -166,13 +192,27 @@ class Forced(NamedTuple):
     ground: GroundRows | None
 
 
+@dataclass
+class TamedEpisode:
+    """What FPM's and CPM's step writes (see the module docstring), None where off: the
+    circulation's chosen sides (:mod:`tamedpuma.methods._circulation`), the stall monitor
+    (:mod:`tamedpuma.methods._stall`) and the configuration pull's monitor
+    (:mod:`tamedpuma.methods._configuration_pull`)."""
+
+    circulation: Circulation | None
+    stall: StallMonitor | None
+    configuration: ConfigurationMonitor | None
+
+
 class TamedController:
     """What FPM and CPM share: PUMA pulled to the joints, the avoidance fabric, the energy
     energized, the forcing (with its circulation), the α floor and the control-rate filters.
     Subclasses implement ``step`` from :meth:`forced`; ``creep_fraction``: the stall pull's
-    creep criterion (0: off; :mod:`tamedpuma.methods._stall`)."""
+    creep criterion (0: off; :mod:`tamedpuma.methods._stall`). ``episode``: the episode state
+    (an ``Episode``, :class:`TamedEpisode` or a subclass's), made by :meth:`reset`."""
 
     creep_fraction = 0.0
+    Episode = TamedEpisode
 
     def __init__(self, puma: PumaController, fabric: Fabric, alpha_min: float | None = None,
                  rate: ControlRate | None = None, energy: str = "fabric",
@@ -182,22 +222,23 @@ class TamedController:
         self.energy, self.forcing = check_energy(energy), forcing or Forcing()
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
-        self.circulation = self.forcing.make_circulation()
-        self.stall = self.forcing.make_stall_monitor(self.creep_fraction)
         self.dt = float("nan")  # the scenario's, from reset
         self.hulls = link_hulls(self.kinematics) if self.rate.barrier_step else None
-        self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec,
-                                                                     self.ground())
+        self.episode = self.new_episode()
+
+    def new_episode(self) -> TamedEpisode:
+        """A fresh episode state (the monitors of the forcing's settings, nothing seen yet)."""
+        return self.Episode(self.forcing.make_circulation(),
+                            self.forcing.make_stall_monitor(self.creep_fraction),
+                            self.forcing.make_configuration_monitor(self.kinematics.spec,
+                                                                    self.ground()))
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
-        self.circulation = self.forcing.make_circulation()
-        self.stall = self.forcing.make_stall_monitor(self.creep_fraction)
-        self.configuration = self.forcing.make_configuration_monitor(self.kinematics.spec,
-                                                                     self.ground())
-        if self.configuration is not None:  # the goal's IK before the first step
-            self.configuration.prepare(scenario.goal.position, scenario.goal.quaternion,
-                                       scenario.q0)
+        self.episode = self.new_episode()
+        configuration = self.episode.configuration
+        if configuration is not None:  # the goal's IK before the first step
+            configuration.prepare(scenario.goal.position, scenario.goal.quaternion, scenario.q0)
         self.dt = float(scenario.dt)
 
     def ground(self) -> Ground | None:
@@ -211,8 +252,9 @@ class TamedController:
         """The fabric and PUMA's forcing at the observation (:class:`Forced`)."""
         state, av = avoidance_at(self.kinematics, self.fabric, obs)
         ground = self.ground_rows(state, obs.qd)  # from the pass that evaluated ``state``
-        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, self.circulation,
-                                                 self.stall, self.configuration)
+        ep = self.episode
+        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, ep.circulation,
+                                                 ep.stall, ep.configuration)
         return Forced(state, av, h, qdd_c, xdd, ground)
 
     def ground_rows(self, state, qd: np.ndarray) -> GroundRows | None:
@@ -230,11 +272,12 @@ class TamedController:
         on, ``configuration_pull``: 1 while it is engaged; ``psi``: PUMA's potential ψ as the
         stall monitor last sampled it (every 0.1 s; the step computes it anyway, so logging it
         costs nothing) (log scalars)."""
-        out = {"stall_pull": float(self.stall is not None and self.stall.armed)}
-        if self.stall is not None and np.isfinite(self.stall.psi):
-            out["psi"] = float(self.stall.psi)
-        if self.configuration is not None:
-            out["configuration_pull"] = float(self.configuration.engaged)
+        stall, configuration = self.episode.stall, self.episode.configuration
+        out = {"stall_pull": float(stall is not None and stall.armed)}
+        if stall is not None and np.isfinite(stall.psi):
+            out["psi"] = float(stall.psi)
+        if configuration is not None:
+            out["configuration_pull"] = float(configuration.engaged)
         return out
 
 
@@ -459,10 +502,6 @@ NULL_METRIC = 0.05
 CIRCULATION_GAIN = 1.0
 #: c₀ [1]: only a push within arccos(c₀) of head-on is turned (about 46°)
 CIRCULATION_ONSET = 0.7
-#: μ_max [1] and σ₀ [1] of the orientation rows' singularity-robust damping under position
-#: priority (:class:`~tamedpuma.methods._policy.SecondaryDamping`)
-SINGULAR_DAMPING = 100.0
-SINGULAR_THRESHOLD = 3.0
 #: how PUMA's forcing may meet the avoidance fabric (``method.forcing.mode``)
 FORCING_MODES = ("additive", "metric", "task_metric")
 
@@ -491,10 +530,6 @@ class Forcing:
     directional: leave out of the metric the barrier rows the forcing recedes from
     (:func:`approached_metric`, settled on q̈_C itself: rows q̈_C approaches are put back and
     q̈_C solved again, :func:`restore_approached`; not with ``additive``);
-    priority: ``position`` applies the orientation rows' force only in the dynamically
-    consistent null space of the position rows, damped where that null space leaves them
-    nearly singular (:func:`~tamedpuma.methods._policy.prioritized_solve`,
-    :class:`~tamedpuma.methods._policy.SecondaryDamping`), ``none``: one weighted solve;
     stall_pull: g [m/s²] of the goal attractor added to PUMA's position rows once the hand
     stops making progress (0: off; :mod:`tamedpuma.methods._stall`); configuration_pull:
     ``off``, ``limits`` or ``always``, when a joint-space attractor to a clear goal
@@ -504,7 +539,6 @@ class Forcing:
     mode: str = "additive"
     circulation: float = 0.0
     directional: bool = False
-    priority: str = "none"
     stall_pull: float = 0.0
     configuration_pull: str = "off"
 
@@ -522,19 +556,6 @@ class Forcing:
     def metric(self) -> bool:
         """Whether PUMA's forcing is pulled through the avoidance fabric's metric."""
         return self.mode != "additive"
-
-    def priority_rows(self, m: int) -> int:
-        """How many leading task rows take precedence (``priority: position``: the 3 position
-        rows of a pose task, m = 6; :func:`~tamedpuma.methods._policy.prioritized_solve`),
-        else 0."""
-        return 3 if self.priority == "position" and m == 6 else 0
-
-    def secondary_damping(self) -> SecondaryDamping | None:
-        """The orientation rows' singularity-robust damping under ``priority: position``
-        (:data:`SINGULAR_DAMPING`, :data:`SINGULAR_THRESHOLD`), else None."""
-        if self.priority != "position":
-            return None
-        return SecondaryDamping(SINGULAR_DAMPING, SINGULAR_THRESHOLD)
 
     def make_circulation(self) -> Circulation | None:
         """The stateful :class:`~tamedpuma.methods._circulation.Circulation` of this forcing
@@ -564,9 +585,6 @@ class Forcing:
         if self.mode not in FORCING_MODES:
             raise ConfigError(f"method.forcing.mode must be one of {FORCING_MODES}, got "
                               f"{self.mode!r}")
-        if self.priority not in ("none", "position"):
-            raise ConfigError(f"method.forcing.priority must be 'none' or 'position', "
-                              f"got {self.priority!r}")
         if self.configuration_pull not in CONFIGURATION_MODES:
             raise ConfigError(f"method.forcing.configuration_pull must be one of "
                               f"{CONFIGURATION_MODES}, got {self.configuration_pull!r}")

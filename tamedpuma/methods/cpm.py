@@ -101,6 +101,7 @@ from tamedpuma.methods._tamed import (
     Forcing,
     PumaController,
     TamedController,
+    TamedEpisode,
     alpha_floor,
     bounded_alpha,
     braking_split,
@@ -109,7 +110,7 @@ from tamedpuma.methods._tamed import (
     fabric_scalars,
     puma_and_fabric,
 )
-from tamedpuma.types import Command, Observation, Scenario
+from tamedpuma.types import Command, Observation
 
 VARIANTS = ("paper", "original")
 DAMPINGS = ("constant", "matched")
@@ -181,6 +182,15 @@ class EnergyTank:
         return max(c_cpm, c_fpm - (deficit - level / dt) / qn), 0.0
 
 
+@dataclass
+class CpmEpisode(TamedEpisode):
+    """CPM's episode state: FPM's and the energy tank's level and size [J], NaN until the first
+    step fills it (``EnergyTank``)."""
+
+    tank_level: float = float("nan")
+    tank_size: float = float("nan")
+
+
 class CpmController(TamedController):
     """CPM on one robot. beta: damping β [1/s] (> 0 for the convergence guarantee);
     eps: ε [(rad/s)²] of the energization and regulator denominators (None: the fabric's
@@ -191,6 +201,7 @@ class CpmController(TamedController):
     compatible with what then forces the arm)."""
 
     creep_fraction = CREEP_FRACTION
+    Episode = CpmEpisode
 
     def __init__(self, puma: PumaController, fabric: Fabric, *, beta: float, variant: str,
                  damping: str, eps: float | None = None,
@@ -215,18 +226,14 @@ class CpmController(TamedController):
         self.tank = tank or EnergyTank()
         if self.tank.capacity > 0.0 and energy != "execution":
             raise ConfigError("cpm's energy tank needs method.energy: execution")
-        self.tank_level = self.tank_size = float("nan")  # set at the first step of an episode
-
-    def reset(self, scenario: Scenario) -> None:
-        super().reset(scenario)
-        self.tank_level = self.tank_size = float("nan")
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av, h, qdd_c, xdd, ground = self.forced(obs)
-        attractor = self.configuration is not None and self.configuration.engaged
+        configuration = self.episode.configuration
+        attractor = configuration is not None and configuration.engaged
         if attractor:  # the configuration pull's own potential while it acts (see the module)
-            psi, dpsi = self.configuration.potential(obs.q)
+            psi, dpsi = configuration.potential(obs.q)
         else:
             psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
             psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
@@ -265,7 +272,7 @@ class CpmController(TamedController):
             "psi_rate": float(dpsi @ qd),
             "dissipation": float(beta * (qd @ Mqd)),
             "energy_total": float(self._kinetic(av, qd, Mqd) + psi), "alpha": float(alpha),
-            "beta": float(beta), "tank": float(self.tank_level),
+            "beta": float(beta), "tank": float(self.episode.tank_level),
             "potential_attractor": float(attractor),
             "task_acc_norm": float(np.linalg.norm(xdd))})
 
@@ -276,9 +283,9 @@ class CpmController(TamedController):
         Where the tank is engaged (near an obstacle or a joint limit) and holds energy, FPM's
         coefficient c = −α_h replaces CPM's; the tank is drained by what that adds to dH/dt.
         """
-        qd = obs.qd
-        if not self.tank_level >= 0.0:  # first step: κ times the potential energy
-            self.tank_level = self.tank_size = self.tank.capacity * psi
+        qd, ep = obs.qd, self.episode
+        if not ep.tank_level >= 0.0:  # first step: κ times the potential energy
+            ep.tank_level = ep.tank_size = self.tank.capacity * psi
         engaged = self.tank.engaged(av.min_clearance)
         # FPM's α only where the tank may pay (elsewhere c_fpm = −∞: CPM's law, the tank refills)
         alpha_raw_h = alpha_h = np.nan
@@ -287,9 +294,9 @@ class CpmController(TamedController):
             alpha_raw_h = energization_alpha(av, self.energy, qd, h, self.eps)
             alpha_h = bounded_alpha(alpha_raw_h, self.alpha_min)
             c_fpm = -alpha_h
-        c_tank, self.tank_level = self.tank.coefficient(
+        c_tank, ep.tank_level = self.tank.coefficient(
             c, c_fpm, float(qd @ h_plus_f + dpsi @ qd), float(qd @ Mqd), self.beta,
-            self.tank_level, self.tank_size, self.dt)
+            ep.tank_level, ep.tank_size, self.dt)
         if c_tank != c:
             return c_tank, alpha_raw_h, alpha_h
         return c, alpha_raw, alpha

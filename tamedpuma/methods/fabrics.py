@@ -30,11 +30,23 @@ from tamedpuma.types import Command, Observation, Scenario
 _KEYS = {"name", "fabric", "defaults"}  # defaults: Hydra's list, when loaded without Hydra
 
 
+@dataclass
+class FabricsEpisode:
+    """What the step writes (the controller's episode state, made afresh by ``reset``): the
+    warnings given (once each per episode) and the goal's rotation matrix for the goal
+    quaternion it was made from (``goal_key``: its bytes; None: none yet)."""
+
+    warned: set[str] = field(default_factory=set)
+    goal_key: bytes | None = None
+    goal_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+
 class FabricsController:
     """The vanilla Fabrics method on one robot (see the module docstring).
 
     gains: :class:`FabricGains`; kinematics: a :class:`~tamedpuma.robot.kinematics.Kinematics` whose
     ``spec`` supplies the joint limits; its body spheres are the avoidance spheres.
+    ``episode``: the episode state (:class:`FabricsEpisode`), made by :meth:`reset`.
     """
 
     def __init__(self, gains: FabricGains, kinematics):
@@ -42,14 +54,11 @@ class FabricsController:
         self.kinematics = kinematics
         spec = kinematics.spec
         self.fabric = Fabric(gains, spec.q_min, spec.q_max)
-        self._goal_key: bytes | None = None
-        self._goal_rotation = np.eye(3)
-        self._warned: set[str] = set()
+        self.episode = FabricsEpisode()
 
     def reset(self, scenario: Scenario) -> None:
         """Start an episode: forget warnings and the cached goal; warn if q0 is on/past a limit."""
-        self._warned.clear()
-        self._goal_key = None
+        self.episode = FabricsEpisode()
         spec = self.kinematics.spec
         q0 = np.asarray(scenario.q0, dtype=float)
         margin = self.gains.barrier_margin
@@ -58,16 +67,16 @@ class FabricsController:
                                 "joint limit: its barrier is clamped at the margin")
 
     def _warn(self, key: str, message: str) -> None:
-        if key not in self._warned:
-            self._warned.add(key)
+        if key not in self.episode.warned:
+            self.episode.warned.add(key)
             warnings.warn(f"fabrics: {message}", RuntimeWarning, stacklevel=3)
 
     def _rotation(self, quaternion: np.ndarray) -> np.ndarray:
-        key = np.asarray(quaternion, dtype=float).tobytes()
-        if key != self._goal_key:
-            self._goal_rotation = quaternion_to_rotation(quaternion)
-            self._goal_key = key
-        return self._goal_rotation
+        key, ep = np.asarray(quaternion, dtype=float).tobytes(), self.episode
+        if key != ep.goal_key:
+            ep.goal_rotation = quaternion_to_rotation(quaternion)
+            ep.goal_key = key
+        return ep.goal_rotation
 
     def step(self, obs: Observation) -> Command:
         """One control step: q̈ [rad/s²] from the observation (simulator truth)."""

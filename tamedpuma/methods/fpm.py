@@ -44,13 +44,6 @@ Table 1"), and which of the paper's statements still holds with it:
   it moved the hand away from the goal at 0.3-0.6 m/s² against PUMA's 0.1-0.2 m/s².
   CPM's default; FPM keeps ``metric`` (on 600 random scenarios 507 → 513 successes, within
   the churn, and Table-1 pouring 06 then fails).
-- ``forcing.priority: position`` solves PUMA's position rows first and adds the orientation
-  rows without changing the hand's acceleration (``prioritized_solve`` in
-  :mod:`tamedpuma.methods._policy`): where a goal orientation needs a joint past its limit from
-  the arm's configuration, one weighted solve trades position for orientation and rests short of the
-  goal; with the priority the hand goes on along PUMA's position pull. ẍ_d = 0 still gives
-  f_θ^C = the damped elbow term, so the statement above holds; the orientation is then left
-  where the joints cannot give it (``orientation_success_*`` in the summary reports it).
 - ``orientation: reference`` (FPM's default; puma and cpm keep ``feedback``): within
   ``orientation_radius`` of the goal, while every body sphere is ``orientation_clearance`` clear
   of the obstacles, the primitive sees a reference orientation it moves itself and the hand

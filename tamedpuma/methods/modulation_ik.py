@@ -138,8 +138,17 @@ class ModulationIKParams:
                               f"{sorted(BACKENDS)}")
 
 
+@dataclass
+class ModulationEpisode:
+    """What the step writes (the controller's episode state, made afresh by ``reset``): the
+    number of failed IK solves so far."""
+
+    failures: int = 0
+
+
 class ModulationIK:
-    """The Modulation-IK controller (module docstring)."""
+    """The Modulation-IK controller (module docstring). ``episode``: the episode state
+    (:class:`ModulationEpisode`), made by :meth:`reset`."""
 
     def __init__(self, kinematics: Kinematics, primitive: VelocityField,
                  params: ModulationIKParams = ModulationIKParams()):
@@ -149,13 +158,13 @@ class ModulationIK:
         self.primitive = primitive
         self.params = params
         self.dt = 0.02
-        self.failures = 0
+        self.episode = ModulationEpisode()
 
     def reset(self, scenario: Scenario) -> None:
         """New episode: Δt from the scenario; the IK backend's one-off set-up (Drake's plant for
         these obstacle radii) happens here, outside the timed steps."""
         self.dt = float(scenario.dt)
-        self.failures = 0
+        self.episode = ModulationEpisode()
         warm_up(self.kinematics, scenario.obstacles.radii, self.params.ik_backend)
 
     def _targets(self, obs: Observation, p: np.ndarray, rot: np.ndarray):
@@ -208,8 +217,8 @@ class ModulationIK:
         q_ik = result.q if safe else q
         brake = not safe or (not result.success and np.array_equal(result.q, q))
         if not result.success:
-            self.failures += 1
-            (log.warning if self.failures == 1 else log.debug)(
+            self.episode.failures += 1
+            (log.warning if self.episode.failures == 1 else log.debug)(
                 "step %d: IK failed (%s); %s", obs.step, result.message,
                 "holding the current configuration" if brake else "moving to its safe answer")
         qdd = (prm.tracking_gain * (q_ik - q) / dt - qd) / dt
@@ -222,7 +231,7 @@ class ModulationIK:
             "ik_solve_ms": float(result.solve_time_ms),
             "ik_brake": float(brake),
             "ik_d_min_m": float(problem.d_min),
-            "ik_failures": float(self.failures),
+            "ik_failures": float(self.episode.failures),
             "ik_position_error_m": float(np.linalg.norm(p_ik - p_target)),
             "modulation_gamma_min": min(mod.gamma_min, NO_OBSTACLE_CLEARANCE),
             "min_clearance_m": min(float(clearance), NO_OBSTACLE_CLEARANCE),

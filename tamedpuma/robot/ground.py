@@ -37,6 +37,7 @@ from tamedpuma.errors import ConfigError
 from tamedpuma.robot.body_model import urdf_collision_geometry
 
 _WORLD = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+_min = np.minimum.reduce  # np.min without its Python wrapper
 
 
 @dataclass(frozen=True)
@@ -151,33 +152,53 @@ def hull_ground_rows(kinematics, hulls: LinkHulls, qd: np.ndarray,
     ``evaluate(q, q̇)`` (its placements, joint Jacobians and q̈ = 0 accelerations, as
     :meth:`~tamedpuma.robot.kinematics.Kinematics.link_position_jacobian` reads them: no
     forward pass of its own); qd: that q̇ [rad/s]. Its height, the z row of its point Jacobian
-    and its ȧq̇ (see the module)."""
-    model, data = kinematics.model, kinematics.data
-    qd = np.asarray(qd, dtype=float)
-    lowest = []  # (link index, height, vertex relative to the origin in world axes)
+    and its ȧq̇ (see the module).
+
+    Per link only the pinocchio reads and the hull's support point (one product over its
+    vertices); the rows and curvature terms of all the lowest points are then a few array
+    operations over the links at once, each the same floating-point operation, in the same
+    order, as the link-by-link formula (the 3-vector dot products as ``(a₀b₀ + a₁b₁) + a₂b₂``,
+    which is what a length-3 ``np.dot`` computes): the same numbers, bit for bit."""
+    model, data, oMf = kinematics.model, kinematics.data, kinematics.data.oMf
+    found = _lowest_points(oMf, hulls, below)
+    k = len(found)
+    heights, rows, jdqd = np.empty(k), np.empty((k, model.nv)), np.empty(k)
+    if not k:
+        return GroundRows(heights, rows, jdqd)
+    J, acc, r = np.empty((k, 6, model.nv)), np.empty((k, 6)), np.empty((k, 3))
+    for n, (i, height, point) in enumerate(found):
+        fid = hulls.frame_ids[i]
+        J[n] = pin.getFrameJacobian(model, data, fid, _WORLD)  # [v; ω] of the origin
+        acc[n] = pin.getFrameClassicalAcceleration(model, data, fid, _WORLD).vector
+        heights[n] = height
+        r[n] = point
+    rx, ry, rz = r[:, 0], r[:, 1], r[:, 2]
+    np.subtract(J[:, 2] + J[:, 3] * ry[:, None], J[:, 4] * rx[:, None], out=rows)
+    w = J[:, 3:] @ np.asarray(qd, dtype=float)  # ω (k, 3)
+    wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
+    w_r = (wx * rx + wy * ry) + wz * rz
+    w_w = (wx * wx + wy * wy) + wz * wz
+    # z of a_o + α × r + ω × (ω × r), with ω × (ω × r) = ω (ω·r) − r ‖ω‖²
+    jdqd[:] = acc[:, 2] + acc[:, 3] * ry - acc[:, 4] * rx + wz * w_r - rz * w_w
+    return GroundRows(heights, rows, jdqd)
+
+
+def _lowest_points(oMf, hulls: LinkHulls, below: float) -> list:
+    """(link index, height [m], lowest vertex relative to the link origin in world axes (3,))
+    of each hull whose lowest point is below ``below``, at the placements ``oMf``."""
+    lowest = []
     for i, (fid, v, radius) in enumerate(zip(hulls.frame_ids, hulls.vertices, hulls.radii)):
-        placement = data.oMf[fid]
-        if placement.translation[2] - radius >= below:  # no vertex of this hull is lower
+        placement = oMf[fid]
+        tz = placement.translation[2]
+        if tz - radius >= below:  # no vertex of this hull is lower
             continue
         R = placement.rotation
         z = v @ R[2]
-        j = int(np.argmin(z))
-        height = float(placement.translation[2] + z[j])
+        j = z.argmin()
+        height = float(tz + z[j])
         if height < below:
             lowest.append((i, height, R @ v[j]))
-    k = len(lowest)
-    heights, rows, jdqd = np.empty(k), np.empty((k, model.nv)), np.empty(k)
-    for n, (i, height, r) in enumerate(lowest):
-        fid = hulls.frame_ids[i]
-        J = pin.getFrameJacobian(model, data, fid, _WORLD)  # [v; ω] of the origin
-        heights[n] = height
-        rows[n] = J[2] + J[3] * r[1] - J[4] * r[0]
-        acc = pin.getFrameClassicalAcceleration(model, data, fid, _WORLD)
-        lin, ang, w = acc.linear, acc.angular, J[3:] @ qd
-        # z of a_o + α × r + ω × (ω × r), with ω × (ω × r) = ω (ω·r) − r ‖ω‖²
-        jdqd[n] = (lin[2] + ang[0] * r[1] - ang[1] * r[0]
-                   + w[2] * float(w @ r) - r[2] * float(w @ w))
-    return GroundRows(heights, rows, jdqd)
+    return lowest
 
 
 def hull_heights(kinematics, hulls: LinkHulls, q: np.ndarray) -> np.ndarray:
@@ -192,10 +213,17 @@ def hull_heights_and_spheres(kinematics, hulls: LinkHulls, q: np.ndarray):
     pass (the same numbers as ``kinematics.sphere_centers(q)``)."""
     pin.framesForwardKinematics(kinematics.model, kinematics.data, np.asarray(q, dtype=float))
     oMf = kinematics.data.oMf
-    heights = np.array([oMf[f].translation[2] + float(np.min(v @ oMf[f].rotation[2]))
-                        for f, v in zip(hulls.frame_ids, hulls.vertices)])
+    heights = np.array([_lowest_height(oMf[f], v) for f, v in zip(hulls.frame_ids,
+                                                                   hulls.vertices)])
     spheres = np.array([oMf[i].translation for i in kinematics.sphere_ids]).reshape(-1, 3)
     return heights, spheres
+
+
+def _lowest_height(placement, vertices: np.ndarray) -> float:
+    """The lowest point [m] of a hull (vertices (V, 3) in its link frame) at its link's
+    placement: one read of the placement, the minimum as the bare ufunc reduction (the numbers
+    of ``np.min``)."""
+    return placement.translation[2] + float(_min(vertices @ placement.rotation[2]))
 
 
 def hull_heights_from_poses(hulls: LinkHulls, link_names, positions: np.ndarray,

@@ -6,6 +6,7 @@ Iterates ``q ← clip(q + Jᵀ(J Jᵀ + λ² I)⁻¹ e, q_min + m, q_max − m)`
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,17 +52,17 @@ def pose_dls_steps(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tole
     """:func:`pose_dls` one iteration at a time: a generator that yields before each kinematic
     pass and returns (q, e, iterations), so that a caller can spread the solve over control
     steps (an anytime computation with a bounded cost per step)."""
-    zeros = np.zeros(kin.spec.dof)
     rows = np.array([1.0, 1.0, 1.0] + [rotation_weight] * 3)
+    damped = damping**2 * np.eye(6)  # λ²I
     err = np.full(6, np.inf)
     best, since = np.inf, 0
     it = 0
     for it in range(1, max_iterations + 1):  # noqa: B007 (count returned)
         yield  # before the pass: its state is used before the next yield
-        state = kin.evaluate(q, zeros)
-        err = rows * np.concatenate([position - state.ee_position,
-                                     rotation_error(state.ee_rotation, goal_rot)])
-        norm = np.linalg.norm(err)
+        ee_position, ee_rotation, ee_jacobian = kin.ee_pose_jacobian(q)  # = evaluate's
+        err = rows * np.concatenate([position - ee_position,
+                                     rotation_error(ee_rotation, goal_rot)])
+        norm = math.sqrt(err.dot(err))  # = np.linalg.norm(err), without its wrapper
         if norm < tolerance:
             break
         if patience > 0:
@@ -71,9 +72,9 @@ def pose_dls_steps(kin: Kinematics, position, goal_rot, q, lo, hi, damping, tole
                 since += 1
                 if since >= patience:
                     break
-        jac = rows[:, None] * state.ee_jacobian
-        step = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(6), err)
-        q = np.clip(q + step, lo, hi)
+        jac = rows[:, None] * ee_jacobian
+        step = jac.T @ np.linalg.solve(jac @ jac.T + damped, err)
+        q = np.minimum(np.maximum(q + step, lo), hi)  # = np.clip(q + step, lo, hi)
     return q, err, it
 
 

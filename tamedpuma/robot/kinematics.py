@@ -19,7 +19,7 @@ numpy and pinocchio only.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import pinocchio as pin
@@ -151,35 +151,37 @@ class RobotSpec:
 
 
 def _body_spheres(entries, key: str) -> tuple[BodySphere, ...]:
-    """``robot.<key>`` as :class:`BodySphere` s; a bad entry is a one-line :class:`ConfigError`."""
+    """``robot.<key>`` (typed entries with :class:`BodySphere`'s attributes) as
+    :class:`BodySphere` s; a bad entry is a one-line :class:`ConfigError`."""
     try:
-        return tuple(BodySphere(**s) for s in entries)
-    except (TypeError, ValueError) as exc:
+        return tuple(BodySphere(**{f.name: getattr(s, f.name) for f in fields(BodySphere)})
+                     for s in entries)
+    except (AttributeError, TypeError, ValueError) as exc:
         raise ConfigError(f"robot.{key}: {exc}") from None
 
 
 def robot_spec_from_config(cfg) -> RobotSpec:
-    """Build a :class:`RobotSpec` from the ``robot`` config group: a complete mapping (every key
-    of the schema's ``RobotSchema``, e.g. :func:`tamedpuma.app.config.robot_config`); a sphere
-    without ``offset`` has :class:`BodySphere`'s."""
-    urdf = resolve_urdf(cfg["urdf"])
+    """Build a :class:`RobotSpec` from the typed ``robot`` config (the schema's ``RobotSchema``,
+    e.g. :func:`tamedpuma.app.config.robot_config`; read by attribute)."""
+    urdf = resolve_urdf(cfg.urdf)
     if not os.path.isfile(urdf):
         raise ConfigError(f"robot.urdf: no such file: {urdf}")
-    spheres = _body_spheres(cfg["spheres"], "spheres")
-    guards = _body_spheres(cfg.get("guard_spheres") or (), "guard_spheres")
+    spheres = _body_spheres(cfg.spheres, "spheres")
+    guards = _body_spheres(cfg.guard_spheres or (), "guard_spheres")
+    impedance = cfg.impedance
     return RobotSpec(
         urdf_path=urdf,
-        joint_names=tuple(cfg["joint_names"]),
-        link_names=tuple(cfg["link_names"]),
-        ee_link=str(cfg["ee_link"]),
-        q_min=np.array(cfg["q_min"], dtype=float),
-        q_max=np.array(cfg["q_max"], dtype=float),
-        qd_max=np.array(cfg["qd_max"], dtype=float),
+        joint_names=tuple(cfg.joint_names),
+        link_names=tuple(cfg.link_names),
+        ee_link=str(cfg.ee_link),
+        q_min=np.array(cfg.q_min, dtype=float),
+        q_max=np.array(cfg.q_max, dtype=float),
+        qd_max=np.array(cfg.qd_max, dtype=float),
         spheres=spheres,
-        home=None if cfg["home"] is None else tuple(float(v) for v in cfg["home"]),
+        home=None if cfg.home is None else tuple(float(v) for v in cfg.home),
         guard_spheres=guards,
-        impedance=None if cfg.get("impedance") is None else JointImpedance(
-            **{k: tuple(v) for k, v in cfg["impedance"].items()}),
+        impedance=None if impedance is None else JointImpedance(
+            **{f.name: tuple(getattr(impedance, f.name)) for f in fields(JointImpedance)}),
     )
 
 
@@ -287,6 +289,21 @@ class Kinematics:
             sphere_jdqd=jdqd,
             sphere_radii=self._radii,
         )
+
+    def ee_pose_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """End-effector position (3,) [m], rotation (3, 3) and world-aligned Jacobian (6, n) at
+        q, fresh arrays: the numbers :meth:`evaluate` gives as ``ee_position``,
+        ``ee_rotation`` and ``ee_jacobian`` (at any q̇), bit for bit, from the placement pass
+        and the joint Jacobians alone (no velocities, accelerations or body spheres: what an
+        IK iteration needs, at a fraction of the cost). Like :meth:`evaluate` it leaves the
+        placements and joint Jacobians of q in the data (:meth:`link_position_jacobian`)."""
+        model, data = self.model, self.data
+        pin.forwardKinematics(model, data, np.asarray(q, dtype=float))
+        pin.computeJointJacobians(model, data)  # from the placements just computed
+        ee = pin.updateFramePlacement(model, data, self.ee_id)
+        pose = pin.SE3ToXYZQUAT(ee)  # fresh, as evaluate's ee_position
+        return (pose[:3], ee.rotation.copy(),
+                pin.getFrameJacobian(model, data, self.ee_id, _WORLD))
 
     def link_position_jacobian(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         """Origin (3,) [m] and its 3×n position Jacobian of ``link`` at the q of the last

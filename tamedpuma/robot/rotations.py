@@ -132,7 +132,7 @@ def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
 def rotation_error(rot: np.ndarray, goal_rot: np.ndarray) -> np.ndarray:
     """World-frame rotation vector ω [rad] with exp([ω]×) R = R_g (the log map of R_g Rᵀ)."""
     rel = goal_rot @ rot.T
-    cos = np.clip((np.trace(rel) - 1.0) / 2.0, -1.0, 1.0)
+    cos = min(max((rel.trace() - 1.0) / 2.0, -1.0), 1.0)  # = np.clip(…, -1, 1), NaN kept
     angle = np.arccos(cos)
     axis = np.array([rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]])
     if angle < 1e-9:

@@ -13,18 +13,21 @@ Seeded by ``seed`` (the same seed gives the same scenario):
   point is kept only if the obstacle's surface stays ``min_clearance`` [m] from the start's body
   spheres and end effector and from the goal, and clear of the other obstacles.
 
-numpy only (kinematics and IK from :mod:`tamedpuma.robot`).
+numpy only (kinematics and IK from :mod:`tamedpuma.robot`). The configs are the schema's typed
+objects (``tamedpuma/app/schema.py``), read by attribute and never changed: :func:`apply` returns
+``dataclasses.replace`` copies.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tamedpuma.errors import ScenarioError
 from tamedpuma.robot.ik import solve_pose_ik
+from tamedpuma.worlds.scenarios import ObstacleConfig
 
 if TYPE_CHECKING:  # annotations only: the config schema imports this module without torch
     from tamedpuma.puma.data import RawDemo
@@ -43,6 +46,16 @@ class DemoScenarioConfig:
     path_offset: float = 0.03
     min_clearance: float = 0.1
     max_tries: int = 200
+
+
+@dataclass(frozen=True)
+class WorkspaceBox:
+    """A ``task.workspace`` derived from the demonstrations (the attributes of the schema's
+    ``WorkspaceSchema``): position box relative to the goal [m], max angle to it [rad]."""
+
+    position_low: tuple[float, ...]
+    position_high: tuple[float, ...]
+    max_angle: float
 
 
 def _arc_point(path: np.ndarray, u: float) -> tuple[np.ndarray, np.ndarray]:
@@ -115,19 +128,19 @@ def generate(raws: list[RawDemo], goal_position, kin, home, cfg: DemoScenarioCon
                         f"{cfg.min_clearance} m clear of the start and the goal)")
 
 
-def task_raws(task: dict) -> list[RawDemo]:
+def task_raws(task) -> list[RawDemo]:
     """The task's raw demonstrations without torch, exactly those its model is trained on
     (:func:`tamedpuma.puma.pipeline.load_raws`): synthetic (``demos: null``) or a folder/file
-    (relative paths: :func:`tamedpuma.paths.resolve`)."""
+    (relative paths: :func:`tamedpuma.paths.resolve`). ``task``: the typed task config."""
     from tamedpuma.paths import resolve
     from tamedpuma.puma import demo_formats, demos_synthetic
 
-    src = task["demos"]
+    src = task.demos
     if src is None:
-        syn = task["synthetic"]
-        return demos_synthetic.generate(str(syn["kind"] or task["name"]), task["goal_position"],
-                                        task["goal_quaternion"], int(syn["n_demos"]),
-                                        int(syn["seed"]), time_law=str(syn["time_law"]))
+        syn = task.synthetic
+        return demos_synthetic.generate(str(syn.kind or task.name), task.goal_position,
+                                        task.goal_quaternion, int(syn.n_demos),
+                                        int(syn.seed), time_law=str(syn.time_law))
     return demo_formats.load_any(resolve(str(src)))
 
 
@@ -141,74 +154,67 @@ def _demo_starts(raws: list[RawDemo], kinematics, home) -> list[list[float]]:
     return [q.tolist() for q in starts if q is not None]
 
 
-def _with_derived_goal(task: dict, raws: list[RawDemo]) -> dict:
+def _with_derived_goal(task, raws: list[RawDemo]):
     """``task`` with its goal (unless set by hand) and workspace (unless set) derived from the
     demonstrations (:mod:`tamedpuma.puma.task_from_demos`)."""
     from tamedpuma.puma.task_from_demos import derive_goal, workspace_numbers
 
-    task = dict(task)
-    gp, gq, _ = derive_goal(raws, float(task["spread_limit"]))
-    if task.get("goal_position") is not None:  # a derive task with its goal set by hand
-        gp = np.asarray(task["goal_position"], float)
-        gq = None if task.get("goal_quaternion") is None else np.asarray(
-            task["goal_quaternion"], float)
-    task["goal_position"] = gp.tolist()
-    task["goal_quaternion"] = None if gq is None else gq.tolist()
-    if task.get("workspace") is None:  # the derived one (scenario=random needs it)
-        lo, hi, ang = workspace_numbers(raws, gp, gq, float(task["margin"]),
-                                        float(task["angle_margin"]))
-        task["workspace"] = {"position_low": lo.tolist(), "position_high": hi.tolist(),
-                             "max_angle": ang}
-    return task
+    gp, gq, _ = derive_goal(raws, float(task.spread_limit))
+    if task.goal_position is not None:  # a derive task with its goal set by hand
+        gp = np.asarray(task.goal_position, float)
+        gq = None if task.goal_quaternion is None else np.asarray(task.goal_quaternion, float)
+    workspace = task.workspace
+    if workspace is None:  # the derived one (scenario=random needs it)
+        lo, hi, ang = workspace_numbers(raws, gp, gq, float(task.margin),
+                                        float(task.angle_margin))
+        workspace = WorkspaceBox(tuple(lo.tolist()), tuple(hi.tolist()), ang)
+    return replace(task, goal_position=gp.tolist(),
+                   goal_quaternion=None if gq is None else gq.tolist(), workspace=workspace)
 
 
-def _generated(sc: dict, gen: dict, raws: list[RawDemo], kinematics, home) -> dict:
+def _generated(sc, gen, raws: list[RawDemo], kinematics, home):
     """``sc`` with the start and obstacles of its ``generator: {kind: demos, ...}`` block (the
     obstacles added to any listed ones)."""
-    gen = dict(gen)
-    if gen.pop("kind") != "demos":
+    if gen.kind != "demos":
         raise ScenarioError("scenario.generator.kind must be 'demos'")
+    values = {f.name: getattr(gen, f.name) for f in fields(DemoScenarioConfig)}
     try:
         cfg = DemoScenarioConfig(**{k: tuple(v) if isinstance(v, list) else v
-                                    for k, v in gen.items()})
+                                    for k, v in values.items()})
     except TypeError as exc:
         raise ScenarioError(f"scenario.generator: {exc}") from None
-    q0, centers, radii, i = generate(raws, sc["goal"]["position"], kinematics, home, cfg)
-    return {**sc, "q0": q0.tolist(),
-            "obstacles": list(sc.get("obstacles") or []) + [
-                {"center": c.tolist(), "radius": float(r), "velocity": [0.0, 0.0, 0.0]}
-                for c, r in zip(centers, radii)],
-            "name": f"{sc['name']}_{cfg.seed}",
-            "generated_from": raws[i].source}
+    q0, centers, radii, _ = generate(raws, sc.goal.position, kinematics, home, cfg)
+    made = [ObstacleConfig(tuple(c.tolist()), float(r)) for c, r in zip(centers, radii)]
+    return replace(sc, q0=q0.tolist(), obstacles=[*(sc.obstacles or []), *made],
+                   name=f"{sc.name}_{cfg.seed}")
 
 
-def apply(plain: dict, kinematics) -> dict:
-    """A resolved run config with the demonstrations' part filled in: a task with ``derive`` and
-    no goal gets the derived goal (:func:`tamedpuma.puma.task_from_demos.derive_goal`), the
-    scenario its goal if unset, and a scenario with a ``generator: {kind: demos, ...}`` block its
-    generated start and obstacles (added to any listed ones)."""
-    task, sc = dict(plain["task"]), dict(plain["scenario"])
-    gen = sc.get("generator")
-    # scenario=random (worlds/random_scenarios.py) for a task without Table-1 starts: its
-    # near_table1 starts are then the IK solutions of the demonstrations' start poses
-    random_near = (sc.get("random_seed") is not None
-                   and sc["start_kind"] == "near_table1"
-                   and (task.get("derive") or task.get("demos") not in (None, "lasa")))
-    need_goal = bool(task.get("derive")) and (task.get("goal_position") is None
-                                              or task.get("workspace") is None)
+def apply(run, kinematics) -> tuple[object, list[list[float]]]:
+    """A typed run config with the demonstrations' part filled in, and the demonstrations'
+    start configurations [rad] (empty unless needed): a task with ``derive`` and no goal gets
+    the derived goal (:func:`tamedpuma.puma.task_from_demos.derive_goal`), the scenario its goal
+    if unset, and a scenario with a ``generator: {kind: demos, ...}`` block its generated start
+    and obstacles (added to any listed ones). The starts are for ``scenario=random`` with
+    ``near_table1`` on a task without Table-1 starts (the IK solutions of the demonstrations'
+    start poses): the caller hands them to
+    :func:`tamedpuma.worlds.scenarios.build_scenario` with the Table-1 starts."""
+    task, sc = run.task, run.scenario
+    gen = sc.generator
+    random_near = (sc.random_seed is not None and sc.start_kind == "near_table1"
+                   and (task.derive or task.demos not in (None, "lasa")))
+    need_goal = bool(task.derive) and (task.goal_position is None or task.workspace is None)
     if not need_goal and not gen and not random_near:
-        return plain
-    raws = task_raws(task) if task.get("demos") != "lasa" else []
-    if random_near:
-        task["demo_starts"] = _demo_starts(raws, kinematics, plain["robot"].get("home"))
+        return run, []
+    raws = task_raws(task) if task.demos != "lasa" else []
+    starts = _demo_starts(raws, kinematics, run.robot.home) if random_near else []
     if need_goal:
         task = _with_derived_goal(task, raws)
-    goal = dict(sc.get("goal") or {})
-    if goal.get("position") is None:
-        goal["position"] = task["goal_position"]
-    if goal.get("quaternion") is None:
-        goal["quaternion"] = task["goal_quaternion"] or [0.0, 0.0, 0.0, 1.0]
-    sc["goal"] = goal
+    goal = sc.goal
+    if goal.position is None:
+        goal = replace(goal, position=task.goal_position)
+    if goal.quaternion is None:
+        goal = replace(goal, quaternion=task.goal_quaternion or [0.0, 0.0, 0.0, 1.0])
+    sc = replace(sc, goal=goal)
     if gen:
-        sc = _generated(sc, gen, raws, kinematics, plain["robot"].get("home"))
-    return {**plain, "task": task, "scenario": sc}
+        sc = _generated(sc, gen, raws, kinematics, run.robot.home)
+    return replace(run, task=task, scenario=sc), starts

@@ -64,13 +64,13 @@ class TaskRegion:
     max_angle: float
 
     @staticmethod
-    def from_task_config(task: Mapping) -> TaskRegion:
-        """From a resolved ``task`` config group (``conf/task/*.yaml``)."""
-        ws = task["workspace"]
-        return TaskRegion(str(task["name"]), np.asarray(task["goal_position"], dtype=float),
-                          np.asarray(task["goal_quaternion"], dtype=float),
-                          np.asarray(ws["position_low"], dtype=float),
-                          np.asarray(ws["position_high"], dtype=float), float(ws["max_angle"]))
+    def from_task_config(task) -> TaskRegion:
+        """From a typed ``task`` config (the schema's ``TaskSchema``, ``conf/task/*.yaml``)."""
+        ws = task.workspace
+        return TaskRegion(str(task.name), np.asarray(task.goal_position, dtype=float),
+                          np.asarray(task.goal_quaternion, dtype=float),
+                          np.asarray(ws.position_low, dtype=float),
+                          np.asarray(ws.position_high, dtype=float), float(ws.max_angle))
 
 
 @dataclass(frozen=True)

@@ -11,14 +11,16 @@ A scenario config (``conf/scenario/*.yaml``, goal usually interpolated from ``co
     goal_tolerance: success radius [m]
 
 Defaults and ranges live in the config schema (``tamedpuma/app/schema.py``); these functions
-receive complete configs.
+receive its typed objects, complete and checked: the run config
+(:class:`tamedpuma.app.schema.RunConfig`) or its groups, read by attribute (any object with the
+same attributes will do, e.g. :class:`ObstacleConfig`). They never change what they are given.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -71,49 +73,60 @@ def _vec(value, n: int, what: str) -> np.ndarray:
     return arr
 
 
+@dataclass(frozen=True)
+class ObstacleConfig:
+    """One entry of ``scenario.obstacles`` made here (a generated obstacle): the attributes of
+    the schema's ``ObstacleSchema``. center (3,) [m], radius [m], velocity (3,) [m/s]."""
+
+    center: tuple[float, ...]
+    radius: float
+    velocity: tuple[float, ...] = (0.0, 0.0, 0.0)
+
+
 def obstacles_from_config(items) -> Obstacles:
-    """A list of ``{center, radius, velocity?}`` mappings -> :class:`Obstacles`."""
+    """A sequence of obstacle configs (``center``, ``radius``, ``velocity``) ->
+    :class:`Obstacles`."""
     items = list(items or [])
     if not items:
         return Obstacles.empty()
-    centers = [_vec(o["center"], 3, f"obstacles[{i}].center") for i, o in enumerate(items)]
-    radii = [float(o["radius"]) for o in items]
+    centers = [_vec(o.center, 3, f"obstacles[{i}].center") for i, o in enumerate(items)]
+    radii = [float(o.radius) for o in items]
     if any(not r > 0 for r in radii):
         raise ScenarioError("every obstacle radius must be positive")
-    vels = [_vec(o["velocity"], 3, f"obstacles[{i}].velocity")
+    vels = [_vec(o.velocity, 3, f"obstacles[{i}].velocity")
             for i, o in enumerate(items)]
     return Obstacles(np.array(centers), np.array(radii), np.array(vels))
 
 
-def scenario_from_config(cfg: Mapping, spec: RobotSpec, *, task: str, seed: int,
+def scenario_from_config(cfg, spec: RobotSpec, *, task: str, seed: int,
                          limit_tolerance: float, limit_margin: float) -> Scenario:
-    """Build a validated :class:`Scenario` from a (resolved) scenario config mapping; seed: the
-    run's; limit_tolerance, limit_margin [rad]: the robot's start clamp (:func:`clamp_start`,
-    ``robot.limit_tolerance`` and ``robot.limit_margin``)."""
+    """Build a validated :class:`Scenario` from a typed scenario config (the schema's
+    ``ScenarioSchema``); seed: the run's; limit_tolerance, limit_margin [rad]: the robot's start
+    clamp (:func:`clamp_start`, ``robot.limit_tolerance`` and ``robot.limit_margin``)."""
     try:
-        goal_cfg = cfg["goal"]
+        goal_cfg = cfg.goal
         goal = Goal(
-            position=_vec(goal_cfg["position"], 3, "goal.position"),
-            quaternion=_vec(goal_cfg["quaternion"], 4, "goal.quaternion"),
-            velocity=_vec(goal_cfg["velocity"], 3, "goal.velocity"),
+            position=_vec(goal_cfg.position, 3, "goal.position"),
+            quaternion=_vec(goal_cfg.quaternion, 4, "goal.quaternion"),
+            velocity=_vec(goal_cfg.velocity, 3, "goal.velocity"),
         )
-        q0_cfg = cfg["q0"] if cfg["q0"] is not None else spec.home  # null: the robot's home
+        q0_cfg = cfg.q0 if cfg.q0 is not None else spec.home  # null: the robot's home
         if q0_cfg is None:
             raise ScenarioError("scenario q0 is null and the robot config has no home")
         q0 = clamp_start(_vec(q0_cfg, spec.dof, "q0"), spec, limit_tolerance, limit_margin)
         return Scenario(
-            name=str(cfg["name"]),
+            name=str(cfg.name),
             task=task,
             q0=q0,
             goal=goal,
-            obstacles=obstacles_from_config(cfg["obstacles"]),
-            dt=float(cfg["dt"]),
-            max_steps=int(cfg["max_steps"]),
-            goal_tolerance=float(cfg["goal_tolerance"]),
+            obstacles=obstacles_from_config(cfg.obstacles),
+            dt=float(cfg.dt),
+            max_steps=int(cfg.max_steps),
+            goal_tolerance=float(cfg.goal_tolerance),
             seed=int(seed),
         )
-    except KeyError as exc:
-        raise ScenarioError(f"scenario config is missing the key {exc}") from exc
+    except AttributeError as exc:
+        raise ScenarioError(f"scenario config is missing a key: {exc}") from exc
     except ValueError as exc:
         raise ScenarioError(f"invalid scenario: {exc}") from exc
 
@@ -187,16 +200,16 @@ def reach_problem(scenario: Scenario, kinematics) -> str | None:
             f"arm's reach ({span:.2f} m): the run cannot succeed")
 
 
-def clutter_count(clutter: Mapping, own: int) -> int:
+def clutter_count(clutter, own: int) -> int:
     """How many clutter obstacles to add: ``clutter.total`` − the scenario's own ``own`` when a
     total is set (the obstacle-count sweep: 2, 10, 100, 1000 in all), else ``clutter.count``."""
-    total = clutter["total"]
+    total = clutter.total
     if total is not None:
         if int(total) < own:
             raise ScenarioError(f"clutter.total={total} is below the scenario's own {own} "
                                 f"obstacles")
         return int(total) - own
-    return int(clutter["count"])
+    return int(clutter.count)
 
 
 #: a task's Table-1 start configurations q0 (n, dof) [rad] by task name (empty for a task
@@ -204,43 +217,44 @@ def clutter_count(clutter: Mapping, own: int) -> int:
 StartsOf = Callable[[str], Sequence[Sequence[float]]]
 
 
-def random_scenario(cfg: Mapping, kinematics, table1_starts: StartsOf | None = None) -> Scenario:
-    """The ``scenario=random`` scenario of a whole resolved run config: drawn by
+def random_scenario(cfg, kinematics, table1_starts: StartsOf | None = None) -> Scenario:
+    """The ``scenario=random`` scenario of a whole typed run config: drawn by
     :func:`tamedpuma.worlds.random_scenarios.generate` from ``scenario.random_seed``,
     ``scenario.start_kind`` and ``scenario.random`` (the task's goal and workspace);
-    ``near_table1`` starts near ``table1_starts(task)``, else near the task's ``demo_starts``."""
+    ``near_table1`` starts near ``table1_starts(task)`` (for a task without Table-1 starts the
+    sweep hands down its demonstrations' starts: :func:`tamedpuma.worlds.demo_scenarios.apply`)."""
     from tamedpuma.worlds.random_scenarios import RandomParams, TaskRegion, generate
 
-    sc_cfg, task_cfg = cfg["scenario"], cfg["task"]
+    sc_cfg, task_cfg = cfg.scenario, cfg.task
     try:
-        seed = int(sc_cfg["random_seed"])
+        seed = int(sc_cfg.random_seed)
     except (TypeError, ValueError) as exc:
         raise ScenarioError(f"scenario.random_seed must be an integer, "
-                            f"got {sc_cfg['random_seed']!r}") from exc
-    if "workspace" not in task_cfg:
-        raise ScenarioError(f"task {task_cfg['name']!r} has no workspace: "
+                            f"got {sc_cfg.random_seed!r}") from exc
+    if task_cfg.workspace is None:
+        raise ScenarioError(f"task {task_cfg.name!r} has no workspace: "
                             "scenario=random needs one")
     # scenario.random: the schema's typed block (null when the YAML has none: RandomParams' own)
-    params = RandomParams(**(sc_cfg["random"] or {}))
-    kind = str(sc_cfg["start_kind"])
+    params = RandomParams() if sc_cfg.random is None else RandomParams(
+        **{f.name: getattr(sc_cfg.random, f.name) for f in fields(RandomParams)})
+    kind = str(sc_cfg.start_kind)
     region = TaskRegion.from_task_config(task_cfg)
-    region = replace(region, goal_position=np.asarray(sc_cfg["goal"]["position"], dtype=float),
-                     goal_quaternion=np.asarray(sc_cfg["goal"]["quaternion"], dtype=float))
+    region = replace(region, goal_position=np.asarray(sc_cfg.goal.position, dtype=float),
+                     goal_quaternion=np.asarray(sc_cfg.goal.quaternion, dtype=float))
     known = table1_starts(region.name) if table1_starts is not None else []
-    starts = ((known or task_cfg.get("demo_starts") or [])
-              if kind == "near_table1" else [])  # demo_starts: worlds/demo_scenarios
+    starts = (known or []) if kind == "near_table1" else []
     generated = generate(region, kinematics, seed, params, starts, start_kind=kind,
-                         dt=float(sc_cfg["dt"]), max_steps=int(sc_cfg["max_steps"]),
-                         goal_tolerance=float(sc_cfg["goal_tolerance"]))
+                         dt=float(sc_cfg.dt), max_steps=int(sc_cfg.max_steps),
+                         goal_tolerance=float(sc_cfg.goal_tolerance))
     log.info("random scenario %s after %d draws (rejected: %s)", generated.scenario.name,
              generated.tries, generated.rejected)
     return generated.scenario
 
 
-def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics,
+def build_scenario(cfg, spec: RobotSpec, kinematics,
                    reference: np.ndarray | Callable[[], np.ndarray] | None = None,
                    table1_starts: StartsOf | None = None) -> Scenario:
-    """The run's scenario from a whole resolved run config (plain mapping): the ``scenario``
+    """The run's scenario from a whole typed run config (``RunConfig``): the ``scenario``
     group checked against the ``task`` group, then ``without_obstacles`` and ``clutter``, seeded
     by ``seed`` and kept clear of (``clutter.keep_clear``) the arm at the start
     (:func:`arm_points`) and the goal ('start_goal'), or of the swept volume of ``reference``, a
@@ -248,34 +262,34 @@ def build_scenario(cfg: Mapping, spec: RobotSpec, kinematics,
     function returning it, called only when clutter is added), by
     ``clutter.margin`` [m] ('path': :mod:`tamedpuma.worlds.clutter`; the scene stays feasible).
     ``table1_starts``: a random scenario's ``near_table1`` starts (:func:`random_scenario`)."""
-    sc_cfg, task = cfg["scenario"], cfg["task"]["name"]
-    if sc_cfg.get("task") not in (None, task):
-        raise ScenarioError(f"scenario {sc_cfg['name']!r} belongs to task {sc_cfg['task']!r}, "
-                            f"not {task!r}: add task={sc_cfg['task']}")
-    robot = cfg["robot"]
-    if sc_cfg.get("random_seed") is not None:  # optional key: absent from fixed scenarios
+    sc_cfg, task = cfg.scenario, cfg.task.name
+    if sc_cfg.task not in (None, task):
+        raise ScenarioError(f"scenario {sc_cfg.name!r} belongs to task {sc_cfg.task!r}, "
+                            f"not {task!r}: add task={sc_cfg.task}")
+    robot = cfg.robot
+    if sc_cfg.random_seed is not None:  # null in fixed scenarios
         scenario = random_scenario(cfg, kinematics, table1_starts)
     else:
-        scenario = scenario_from_config(sc_cfg, spec, task=task, seed=int(cfg["seed"]),
-                                        limit_tolerance=float(robot["limit_tolerance"]),
-                                        limit_margin=float(robot["limit_margin"]))
-    if cfg["without_obstacles"]:
+        scenario = scenario_from_config(sc_cfg, spec, task=task, seed=int(cfg.seed),
+                                        limit_tolerance=float(robot.limit_tolerance),
+                                        limit_margin=float(robot.limit_margin))
+    if cfg.without_obstacles:
         scenario = without_obstacles(scenario)
-    clutter = cfg["clutter"]
+    clutter = cfg.clutter
     count = clutter_count(clutter, len(scenario.obstacles))
     if count <= 0:
         return scenario
-    rng = np.random.default_rng([int(cfg["seed"]), 7919])
-    if clutter["keep_clear"] == "path":
+    rng = np.random.default_rng([int(cfg.seed), 7919])
+    if clutter.keep_clear == "path":
         path = reference() if callable(reference) else reference
         return with_path_clutter(scenario, count, clutter, kinematics, path, rng)
     keep_out = np.concatenate([arm_points(kinematics, scenario.q0),
                                scenario.goal.position[None]])
-    return with_clutter(scenario, count, float(clutter["radius"]), clutter["low"],
-                        clutter["high"], keep_out, float(clutter["min_distance"]), rng)
+    return with_clutter(scenario, count, float(clutter.radius), clutter.low,
+                        clutter.high, keep_out, float(clutter.min_distance), rng)
 
 
-def with_path_clutter(scenario: Scenario, count: int, clutter: Mapping, kinematics,
+def with_path_clutter(scenario: Scenario, count: int, clutter, kinematics,
                       reference: np.ndarray | None, rng: np.random.Generator) -> Scenario:
     """``scenario`` plus ``count`` static spheres (``clutter.radius``, in the box
     ``clutter.low..high``, ``clutter.region``) kept ``clutter.margin`` [m] clear of the swept
@@ -290,12 +304,12 @@ def with_path_clutter(scenario: Scenario, count: int, clutter: Mapping, kinemati
     if not np.allclose(reference[0], scenario.q0, atol=1e-6):
         raise ScenarioError("clutter.keep_clear=path: the reference motion does not start at "
                             "the scenario's q0")
-    radius = float(clutter["radius"])
-    volume = swept_volume(kinematics, reference, arm_radius=float(clutter["arm_radius"]))
+    radius = float(clutter.radius)
+    volume = swept_volume(kinematics, reference, arm_radius=float(clutter.arm_radius))
     own = scenario.obstacles
-    centers = place_clutter(count, radius, clutter["low"], clutter["high"], volume,
-                            float(clutter["margin"]), own.centers, own.radii, rng,
-                            region=str(clutter["region"]), shell=float(clutter["shell"]))
+    centers = place_clutter(count, radius, clutter.low, clutter.high, volume,
+                            float(clutter.margin), own.centers, own.radii, rng,
+                            region=str(clutter.region), shell=float(clutter.shell))
     obstacles = Obstacles(np.concatenate([own.centers, centers]),
                           np.concatenate([own.radii, np.full(count, radius)]),
                           np.concatenate([own.velocities, np.zeros((count, 3))]))
