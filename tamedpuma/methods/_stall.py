@@ -154,7 +154,8 @@ class StallMonitor:
         return not self.armed_near and psi < (1.0 - self.pull.release) * self.psi_armed
 
     def acceleration(self, t: float, position: np.ndarray, goal: np.ndarray,
-                     potential: Callable[[], float]) -> np.ndarray | None:
+                     potential: Callable[[], float],
+                     velocity: np.ndarray | None = None) -> np.ndarray | None:
         """The attractor's task acceleration [m/s²] at time t [s] (hand ``position`` and
         ``goal`` [m]; ``potential()``: PUMA's ψ there, called at most every
         :data:`PSI_SAMPLE_S`), or None while disarmed. Updates the monitor's state."""
@@ -177,13 +178,17 @@ class StallMonitor:
         if self.t_armed is None:
             return None
         a = 1.0 if p.ramp <= 0.0 else min(1.0, (t - self.t_armed) / p.ramp)
-        return (a * p.gain / max(d, PULL_LENGTH_M)) * e
+        k = p.gain / max(d, PULL_LENGTH_M)
+        if velocity is None:
+            return (a * k) * e
+        return a * (k * e - 2.0 * np.sqrt(k) * np.asarray(velocity, dtype=float))
 
     def applied(self, t: float, position: np.ndarray, goal: np.ndarray, task: TaskAcceleration,
-                potential: Callable[[], float]) -> TaskAcceleration:
+                potential: Callable[[], float],
+                velocity: np.ndarray | None = None) -> TaskAcceleration:
         """``task`` with the attractor added to its position rows (the first three, or all of
         a planar task's)."""
-        extra = self.acceleration(t, position, goal, potential)
+        extra = self.acceleration(t, position, goal, potential, velocity)
         if extra is None:
             return task
         xdd = np.array(task.xdd, dtype=float)
