@@ -162,7 +162,7 @@ class StallMonitor:
 
     def acceleration(self, t: float, position: np.ndarray, goal: np.ndarray,
                      potential: Callable[[], float],
-                     velocity: np.ndarray | None = None) -> np.ndarray | None:
+                     velocity: Callable[[], np.ndarray] | None = None) -> np.ndarray | None:
         """The attractor's task acceleration [m/s²] at time t [s] (hand ``position`` and
         ``goal`` [m]; ``potential()``: PUMA's ψ there, called at most every
         :data:`PSI_SAMPLE_S`), or None while disarmed. Updates the monitor's state."""
@@ -188,11 +188,11 @@ class StallMonitor:
         k = p.gain / max(d, PULL_LENGTH_M)
         if velocity is None:
             return (a * k) * e
-        return a * (k * e - 2.0 * np.sqrt(k) * np.asarray(velocity, dtype=float))
+        return a * (k * e - 2.0 * np.sqrt(k) * np.asarray(velocity(), dtype=float))
 
     def applied(self, t: float, position: np.ndarray, goal: np.ndarray, task: TaskAcceleration,
                 potential: Callable[[], float],
-                velocity: np.ndarray | None = None) -> TaskAcceleration:
+                velocity: Callable[[], np.ndarray] | None = None) -> TaskAcceleration:
         """``task`` with the attractor added to its position rows (the first three, or all of
         a planar task's)."""
         extra = self.acceleration(t, position, goal, potential, velocity)

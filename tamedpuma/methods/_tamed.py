@@ -109,10 +109,9 @@ class PumaController:
             own.reference.sync(obs.t, state, obs.qd, obs.goal_position, clearance)
         task = own.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         if stall is not None:
-            relative = state.ee_jacobian[:3] @ obs.qd - np.asarray(obs.goal_velocity)[:3]
             task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
                 self.task.potential(state, obs.goal_position, obs.goal_quaternion)[0]),
-                relative)
+                lambda: state.ee_jacobian[:3] @ obs.qd - np.asarray(obs.goal_velocity)[:3])
             if configuration is not None:
                 task = configuration.applied(obs.q, obs.qd, stall.distance, stall, obs, task)
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
