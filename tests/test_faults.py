@@ -483,6 +483,17 @@ def test_a_control_period_below_the_substep_is_refused_at_the_config_check(dt):
                        f"per control period), got {float(dt):g}"), problem
 
 
+@pytest.mark.parametrize("argv", [["-m", "--cfg", "job"], ["--cfg=job", "--info"],
+                                  ["--multirun", "-c", "all", "method=fpm"]])
+def test_two_run_modes_at_once_are_one_line_before_hydra(argv):
+    from tamedpuma.app.cli import precheck_overrides
+
+    problem = precheck_overrides("sweep", argv)
+    assert problem is not None, argv
+    assert problem.startswith("use one of --cfg, --info, --multirun"), problem
+    assert precheck_overrides("sweep", ["--cfg", "job"]) is None
+
+
 # ---------------------------------------------------------- 7. a pickle that would run code
 
 

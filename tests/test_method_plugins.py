@@ -105,8 +105,15 @@ def test_the_sweep_searches_the_plugins_config_folders(installed, tmp_path):
     installed(_EntryPoint("hold", methods.MethodPlugin("hold", _make, HoldSettings,
                                                        _conf(tmp_path))))
     argv = cli.with_plugin_configs(["-m", "method=hold", "hydra.searchpath=[file:///x]"])
-    assert argv[-1] == f"hydra.searchpath=['file://{tmp_path.resolve()}','file:///x']"
-    assert argv[:-1] == ["-m", "method=hold"]
+    search = f"hydra.searchpath=['file://{tmp_path.resolve()}','file:///x']"
+    assert argv == ["-m", search, "method=hold"]
+    # Hydra's parser reads its overrides as one run of positionals: the search path joins that
+    # run, never after a trailing flag such as `--cfg job`
+    argv = cli.with_plugin_configs(["method=hold", "--cfg", "job"])
+    assert argv == [f"hydra.searchpath=['file://{tmp_path.resolve()}']", "method=hold",
+                    "--cfg", "job"]
+    argv = cli.with_plugin_configs(["-m", "--cfg", "job"])
+    assert argv == ["-m", "--cfg", "job", f"hydra.searchpath=['file://{tmp_path.resolve()}']"]
     installed()
     assert cli.with_plugin_configs(["method=fpm"]) == ["method=fpm"]
 

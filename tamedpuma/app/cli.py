@@ -58,6 +58,10 @@ def command(doc: str) -> Callable[[Callable[[list[str]], int]], Callable[..., in
 # Hydra's command-line flags that take a value (the value is the next argument or after "=")
 _VALUE_FLAGS = ("--config-dir", "-cd", "--config-path", "-cp", "--config-name", "-cn",
                 "--package", "-p", "--experimental-rerun", "--shell-completion", "-sc")
+#: Hydra's run modes, of which one command takes at most one
+_MODES = {"-m": "--multirun", "--multirun": "--multirun", "-r": "--run", "--run": "--run",
+          "-c": "--cfg", "--cfg": "--cfg", "-i": "--info", "--info": "--info",
+          "-sc": "--shell-completion", "--shell-completion": "--shell-completion"}
 _NO_CHECK = ("--help", "-h", "--hydra-help", "--info", "-i", "--cfg", "-c", "--resolve",
              "--shell-completion", "-sc", "--experimental-rerun")
 
@@ -167,7 +171,25 @@ def with_plugin_configs(argv: list[str]) -> list[str]:
         merged = with_search_path(list(argv), dirs)
     except Exception:  # noqa: BLE001 - a malformed override: precheck_overrides names it
         return list(argv)
-    return merged[1:] + merged[:1]  # last: Hydra's flags (-m) must come before its overrides
+    rest = merged[1:]
+    at = _first_override(rest)  # Hydra's parser takes its overrides as one run of positionals
+    return [*rest[:at], merged[0], *rest[at:]]
+
+
+def _first_override(argv: list[str]) -> int:
+    """Index of the first override (``key=value``) in ``argv``, skipping flags and their values
+    (``-m``, ``--cfg job``, ``--config-name X``), or len(argv)."""
+    skip = False
+    for i, arg in enumerate(argv):
+        if skip:
+            skip = False
+            continue
+        if arg.startswith("-"):
+            skip = "=" not in arg and arg in (*_VALUE_FLAGS, "--cfg", "-c")
+            continue
+        if "=" in arg or arg.startswith("~"):
+            return i
+    return len(argv)
 
 
 def _schema_problem(config_name: str, cfg) -> str | None:
@@ -192,6 +214,10 @@ def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
 
     from tamedpuma.app.compose import compose, session
 
+    modes = {_MODES[a.split("=", 1)[0]] for a in argv if a.split("=", 1)[0] in _MODES}
+    if len(modes) > 1:
+        return ("use one of " + ", ".join(sorted(set(_MODES.values()))) + " at a time (got "
+                + " and ".join(sorted(modes)) + ")")
     if any(a.split("=", 1)[0] in _NO_CHECK for a in argv):
         return None
     args, search, flags = split_argv(argv)
