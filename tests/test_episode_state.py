@@ -24,12 +24,6 @@ METHODS = ["puma", "fabrics", "fpm", "cpm", "fpm_literal", "cpm_literal", "cpm_o
 SCENARIO = ["task=tomato", "scenario=random", "scenario.random_seed=2002",
             "scenario.start_kind=anywhere", "recorder=none"]
 STEPS = 120  # control steps rolled before and between the checks (2.4 s)
-#: below the methods, the buffers a step overwrites before it reads them and the memo of a pure
-#: function (its hit gives the numbers a recomputation gives): no state, as the first test
-#: shows by stepping twice from one state. (class, attribute)
-SCRATCH = {("Fabric", "_layouts"), ("SingleState", "_rows"), ("SingleState", "_h"),
-           ("SingleState", "_t"), ("SingleState", "_rest_key"), ("SingleState", "_rest"),
-           ("SingleState", "want_rest")}
 
 
 @functools.cache
@@ -77,8 +71,7 @@ def _fingerprint(obj, seen=None):
         if hasattr(obj, name):
             attrs[name] = getattr(obj, name)
     kind = type(obj).__qualname__
-    return (kind, {k: _fingerprint(v, seen) for k, v in attrs.items()
-                   if k != "episode" and (kind, k) not in SCRATCH})
+    return (kind, {k: _fingerprint(v, seen) for k, v in attrs.items() if k != "episode"})
 
 
 def _holders(controller) -> list:

@@ -30,6 +30,7 @@ from tamedpuma.fabrics.energy import energization_coefficient, energize, executi
 from tamedpuma.fabrics.fabric import (
     AvoidanceFabric,
     Fabric,
+    FabricBuffers,
     FabricDiagnostics,
     Forcing,
     quaternion_to_rotation,
@@ -38,7 +39,7 @@ from tamedpuma.fabrics.gains import BarrierGains, FabricGains
 from tamedpuma.fabrics.spec import FabricError, Spec, pull_rows, pullback, solve_acceleration
 
 __all__ = [
-    "AvoidanceFabric", "BarrierGains", "Fabric", "FabricDiagnostics", "FabricError",
-    "FabricGains", "Forcing", "Spec", "energization_coefficient", "energize", "execution_alpha",
-    "pull_rows", "pullback", "quaternion_to_rotation", "solve_acceleration",
+    "AvoidanceFabric", "BarrierGains", "Fabric", "FabricBuffers", "FabricDiagnostics",
+    "FabricError", "FabricGains", "Forcing", "Spec", "energization_coefficient", "energize",
+    "execution_alpha", "pull_rows", "pullback", "quaternion_to_rotation", "solve_acceleration",
 ]
