@@ -32,7 +32,7 @@ from tamedpuma.metrics import (
     RunMetrics,
     run_metrics,
 )
-from tamedpuma.recording.records import Recorder, RunInfo, StepRecord
+from tamedpuma.records import Recorder, RunInfo, StepRecord
 from tamedpuma.robot.rotations import orientation_error, quat_log, relative_quat
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Controller, Scenario
 from tamedpuma.worlds.bullet import Simulator
