@@ -203,13 +203,15 @@ class TamedEpisode:
     """What FPM's and CPM's step writes (see the module docstring), None where off: the
     avoidance fabric's work buffers (:class:`~tamedpuma.fabrics.FabricBuffers`), the
     circulation's chosen sides (:mod:`tamedpuma.methods._circulation`), the stall monitor
-    (:mod:`tamedpuma.methods._stall`) and the configuration pull's monitor
-    (:mod:`tamedpuma.methods._configuration_pull`)."""
+    (:mod:`tamedpuma.methods._stall`), the configuration pull's monitor
+    (:mod:`tamedpuma.methods._configuration_pull`) and the control step Δt [s] (the scenario's;
+    NaN before the first ``reset``)."""
 
     fabric: FabricBuffers
     circulation: Circulation | None
     stall: StallMonitor | None
     configuration: ConfigurationMonitor | None
+    dt: float = float("nan")
 
 
 class TamedController:
@@ -230,24 +232,28 @@ class TamedController:
         self.energy, self.forcing = check_energy(energy), forcing or Forcing()
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
-        self.dt = float("nan")  # the scenario's, from reset
         self.hulls = link_hulls(self.kinematics) if self.rate.barrier_step else None
         self.episode = self.new_episode()
 
-    def new_episode(self) -> TamedEpisode:
-        """A fresh episode state (the monitors of the forcing's settings, nothing seen yet)."""
+    def new_episode(self, dt: float = float("nan")) -> TamedEpisode:
+        """A fresh episode state (the monitors of the forcing's settings, nothing seen yet) of
+        control step dt [s]."""
         return self.Episode(self.fabric.buffers(), self.forcing.make_circulation(),
                             self.forcing.make_stall_monitor(self.creep_fraction),
                             self.forcing.make_configuration_monitor(self.kinematics.spec,
-                                                                    self.ground()))
+                                                                    self.ground()), dt)
+
+    @property
+    def dt(self) -> float:
+        """The control step Δt [s] of the current episode (the scenario's)."""
+        return self.episode.dt
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
-        self.episode = self.new_episode()
+        self.episode = self.new_episode(float(scenario.dt))
         configuration = self.episode.configuration
         if configuration is not None:  # the goal's IK before the first step
             configuration.prepare(scenario.goal.position, scenario.goal.quaternion, scenario.q0)
-        self.dt = float(scenario.dt)
 
     def ground(self) -> Ground | None:
         """The ground the barrier step keeps (its geometry and plane), for the configuration

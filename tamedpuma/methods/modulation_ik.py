@@ -142,10 +142,11 @@ class ModulationIKParams:
 @dataclass
 class ModulationEpisode:
     """What the step writes (the controller's episode state, made afresh by ``reset``): the
-    primitive the episode evaluates (its own buffers: :func:`episode_primitive`) and the number
-    of failed IK solves so far."""
+    primitive the episode evaluates (its own buffers: :func:`episode_primitive`), the control
+    step Δt [s] (the scenario's) and the number of failed IK solves so far."""
 
     primitive: VelocityField
+    dt: float = 0.02
     failures: int = 0
 
 
@@ -160,20 +161,18 @@ class ModulationIK:
         self.kinematics = kinematics
         self.primitive = primitive
         self.params = params
-        self.dt = 0.02
         self.episode = ModulationEpisode(episode_primitive(primitive))
 
     def reset(self, scenario: Scenario) -> None:
         """New episode: Δt from the scenario; the IK backend's one-off set-up (Drake's plant for
         these obstacle radii) happens here, outside the timed steps."""
-        self.dt = float(scenario.dt)
-        self.episode = ModulationEpisode(episode_primitive(self.primitive))
+        self.episode = ModulationEpisode(episode_primitive(self.primitive), float(scenario.dt))
         warm_up(self.kinematics, scenario.obstacles.radii, self.params.ik_backend)
 
     def _targets(self, obs: Observation, p: np.ndarray, rot: np.ndarray):
         """(p⁺ target, R⁺ target, v, modulated v, the Modulation) from the hand's position p
         [m] and rotation R."""
-        prm, dt = self.params, self.dt
+        prm, dt = self.params, self.episode.dt
         v = np.asarray(self.episode.primitive.velocity(p, obs.goal_position), float).reshape(3)
         v = v + obs.goal_velocity
         speed = float(np.linalg.norm(v))
@@ -188,7 +187,7 @@ class ModulationIK:
         return p + v_mod * dt, rot_target, v, v_mod, mod
 
     def step(self, obs: Observation) -> Command:
-        prm, dt = self.params, self.dt
+        prm, dt = self.params, self.episode.dt
         q, qd = np.asarray(obs.q, float), np.asarray(obs.qd, float)
         # the hand's pose only (the placement pass: the numbers evaluate() gives)
         hand = self.kinematics.ee_frame(q)
