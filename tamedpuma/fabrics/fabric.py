@@ -185,7 +185,7 @@ class FabricBuffers:
         return ws
 
     def __deepcopy__(self, memo) -> FabricBuffers:
-        return FabricBuffers(self.fabric)
+        return FabricBuffers(self.fabric)  # the fabric is configuration, never written: shared
 
 
 class Fabric:

@@ -3,12 +3,12 @@ policy, its construction from a method config, and the avoidance fabric FPM and 
 
 Methods never import each other; what two of them share lives here.
 
-Episode state. Everything a step writes lives in the controller's ``episode`` (made afresh by
-``reset``): :class:`PumaEpisode` (PUMA's task with this episode's orientation reference and its
-own network buffers) and :class:`TamedEpisode` (the fabric's work buffers, the circulation's
-sides, the stall monitor, the configuration pull's monitor; CPM adds its energy tank). The rest
-of a controller is its configuration, fixed after construction; a step is a function of
-(episode, observation) (``tests/test_episode_state.py``).
+Episode state. Everything a reset or a step writes lives in the controller's ``episode`` (made
+afresh by ``reset``): :class:`PumaEpisode` (PUMA's task with this episode's orientation
+reference and its own network buffers) and :class:`TamedEpisode` (the fabric's work buffers, Δt,
+the circulation's sides, the stall monitor, the configuration pull's monitor; CPM adds its
+energy tank). The rest of a controller is its configuration, fixed after construction; a step is
+a function of (episode, observation) (``tests/test_episode_state.py``).
 """
 
 from __future__ import annotations
