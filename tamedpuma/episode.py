@@ -32,7 +32,7 @@ from tamedpuma.metrics import (
     RunMetrics,
     run_metrics,
 )
-from tamedpuma.recording.records import Recorder, RunInfo, StepRecord
+from tamedpuma.records import Recorder, RunInfo, StepRecord
 from tamedpuma.robot.rotations import orientation_error, quat_log, relative_quat
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Controller, Scenario
 from tamedpuma.worlds.bullet import Simulator
@@ -42,7 +42,7 @@ from tamedpuma.worlds.bullet import Simulator
 class EpisodeResult:
     """metrics: the run's scalars; stop_reason: 'converged' (at rest in the goal ball),
     'max_steps' or 'nonfinite_command';
-    trajectory: per-step arrays q (T, 7) [rad], ee_position (T, 3) [m], t (T,) [s];
+    trajectory: per-step arrays q (T, dof) [rad], ee_position (T, 3) [m], t (T,) [s];
     compute_ms (T,): the controller's wall time per step [ms]."""
 
     metrics: RunMetrics

@@ -92,7 +92,8 @@ class Goal:
 class Scenario:
     """Everything that defines one episode, independent of the method that drives it.
 
-    q0: (7,) start configuration [rad] (already inside the joint limits);
+    q0: (dof,) start configuration [rad] (already inside the joint limits; dof: the robot's
+    joint count, its config's);
     dt: control period [s]; max_steps: episode length limit; goal_tolerance: success radius [m].
     """
 
@@ -120,7 +121,7 @@ class Scenario:
 class Observation:
     """What the controller sees at the start of a control step (simulator truth).
 
-    t: time [s]; step: control step index; q, qd: (7,) joint position [rad] and velocity [rad/s];
+    t: time [s]; step: control step index; q, qd: (dof,) joint position [rad] and velocity [rad/s];
     obstacle_centers, obstacle_velocities: (n, 3) [m], [m/s]; obstacle_radii: (n,) [m];
     goal_position: (3,) [m]; goal_quaternion: (4,) (x, y, z, w); goal_velocity (3,) [m/s].
     """
@@ -141,7 +142,7 @@ class Observation:
 class Command:
     """A controller's output for one step.
 
-    qdd: (7,) desired joint acceleration [rad/s²]; the simulator commands the joint velocity
+    qdd: (dof,) desired joint acceleration [rad/s²]; the simulator commands the joint velocity
     ``clip(q̇ + q̈ Δt, ±q̇_max)``. scalars: the method's internals for the log
     (energies, α, β, ψ, ...). logged_later: scalars for the log that the step itself does not
     need (e.g. PUMA's ψ where the step never evaluates it): called after the step is timed

@@ -100,11 +100,6 @@ def test_the_compose_scan_sees_every_form():
     assert _compose_api_uses(PKG / "app" / "sweep.py", "import hydra\nhydra.main()\n") == set()
 
 
-#: modules below the entry points that still read a config YAML themselves (to be handed the
-#: values by the app layer instead): listed here, each checked to still do so
-READS_CONFIG_PENDING: set[str] = set()
-
-
 def _reads_config_yaml(path: Path, text: str | None = None) -> list[str]:
     """Where a file reaches the config files itself: the config folder (``CONF_DIR``) or a YAML
     file loaded by OmegaConf (``OmegaConf.load``)."""
@@ -125,12 +120,9 @@ def _reads_config_yaml(path: Path, text: str | None = None) -> list[str]:
 def test_only_the_entry_points_read_config_files(path):
     """Below the entry points (``app/``) modules receive config values; none reads a config
     YAML (``paths.py`` only names the folder)."""
-    rel = path.relative_to(PKG).as_posix()
     found = _reads_config_yaml(path)
-    if rel in READS_CONFIG_PENDING:
-        assert found, f"{rel} reads no config file any more: drop it from READS_CONFIG_PENDING"
-    else:
-        assert not found, f"{rel} reads config files itself: {found}; pass the values down"
+    assert not found, f"{path.relative_to(PKG)} reads config files itself: {found}; pass the " \
+        "values down"
 
 
 def test_the_config_read_scan_sees_every_form():
@@ -142,12 +134,10 @@ def test_the_config_read_scan_sees_every_form():
 
 
 #: the layers, lowest first: a module imports only from its own package or lower layers
-LAYERS = [{"errors", "startup"}, {"types", "paths", "runlog"}, {"robot"},
+LAYERS = [{"errors", "startup"}, {"types", "records", "paths", "runlog"}, {"robot"},
           {"fabrics", "puma", "ik_solvers"},
           {"methods", "worlds"}, {"metrics"}, {"episode"}, {"recording"}, {"analysis"},
           {"app"}]
-#: the one upward edge: the control loop hands recording's record types to the recorders
-_ALLOWED = {("episode", "tamedpuma.recording.records")}
 _SHIMS = {"sweep", "train", "lasa", "bench_fabrics", "bench", "replay", "body_model", "models",
           "safety_suite", "__init__", "__main__"}
 
@@ -172,8 +162,7 @@ def _upward(path: Path, names: set[str]) -> list[str]:
     bad = []
     for name in names:
         parts = name.split(".")
-        if parts[0] != "tamedpuma" or len(parts) < 2 or parts[1] == own \
-                or any(own == o and (name + ".").startswith(m + ".") for o, m in _ALLOWED):
+        if parts[0] != "tamedpuma" or len(parts) < 2 or parts[1] == own:
             continue
         if not _layer(parts[1]) < _layer(own):
             bad.append(name)

@@ -152,8 +152,9 @@ def test_many_pairs_path_matches_the_leaf_by_leaf_reference(kinematics, changes)
         obs = _obstacles(rng, n_obs, st)
         M, f, f_e, energy, clearance, n_clamped, n_limit = _reference_avoidance(
             fab, st, q, qd, obs)
-        av = fab.avoidance(st, q, qd, *obs)
-        assert fab._buffers(st.sphere_centers.shape[0], n_obs).split
+        buffers = fab.buffers()
+        av = fab.avoidance(st, q, qd, *obs, buffers)
+        assert buffers.layout(st.sphere_centers.shape[0], n_obs).split
         np.testing.assert_allclose(av.M, M, rtol=1e-11, atol=1e-11)
         np.testing.assert_allclose(av.f, f, rtol=1e-11, atol=1e-11)
         np.testing.assert_allclose(av.f_energy, f_e, rtol=1e-11, atol=1e-11)

@@ -163,7 +163,7 @@ def time_counts(counts=COUNTS, calls: int = 3000, clearance: float = 0.15, seed:
     goal_r = quaternion_to_rotation(GOAL_QUATERNION)
     states = workload.states
     evaluate = kin.evaluate
-    fab_eval = fabric.evaluate
+    fab_eval, buffers = fabric.evaluate, fabric.buffers()  # the buffers a controller keeps
 
     def timed(fn, n_calls):
         for i in range(min(200, n_calls)):
@@ -182,7 +182,7 @@ def time_counts(counts=COUNTS, calls: int = 3000, clearance: float = 0.15, seed:
         obs = workload.obstacles[n]
 
         def one(q, qd, obs=obs):
-            return fab_eval(evaluate(q, qd), q, qd, *obs, GOAL_POSITION, goal_r)
+            return fab_eval(evaluate(q, qd), q, qd, *obs, GOAL_POSITION, goal_r, buffers)
 
         n_calls = calls_at(n, calls)
         t0 = time.perf_counter()  # the first call at this count allocates its work buffers

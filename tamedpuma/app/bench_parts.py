@@ -25,13 +25,14 @@ def _fabric_parts(ctrl, method: str, state, obs) -> dict:
     fabric = getattr(ctrl, "fabric", None)
     if fabric is None or state is None:
         return {}
+    buffers = fabric.buffers()  # kept across the timed calls, as an episode keeps its own
     if method == "fabrics":
         goal_r = quaternion_to_rotation(obs.goal_quaternion)
         return {"fabric (all leaves, solve, speed control)": lambda: fabric.evaluate(
             state, obs.q, obs.qd, obs.obstacle_centers, obs.obstacle_radii,
-            obs.obstacle_velocities, obs.goal_position, goal_r)}
+            obs.obstacle_velocities, obs.goal_position, goal_r, buffers)}
     args = (state, obs.q, obs.qd, obs.obstacle_centers, obs.obstacle_radii,
-            obs.obstacle_velocities)
+            obs.obstacle_velocities, buffers)
     av = fabric.avoidance(*args)
     return {"avoidance fabric": lambda: fabric.avoidance(*args),
             "its solve and energization": lambda: av.alpha(obs.qd, av.acceleration())}
@@ -39,8 +40,7 @@ def _fabric_parts(ctrl, method: str, state, obs) -> dict:
 
 def _network_parts(ctrl, method: str, state, obs) -> dict:
     """The network's parts: the task-space acceleration, for CPM with ψ and ∂ψ."""
-    puma = getattr(ctrl, "puma", ctrl)
-    task = getattr(puma, "task", None)
+    task = episode_task(ctrl)
     if task is None or state is None:
         return {}
     goal = (obs.goal_position, obs.goal_quaternion)
@@ -63,10 +63,17 @@ def step_parts(ctrl, method: str, obs) -> dict:
     return parts
 
 
+def episode_task(ctrl):
+    """PUMA's task of the controller's current episode (whose primitive its steps evaluate),
+    None for a controller without one."""
+    puma = getattr(ctrl, "puma", ctrl)
+    return getattr(getattr(puma, "episode", None), "task", None)
+
+
 def primitive_of(ctrl):
-    """The controller's trained network, where it has one with a reference path."""
-    task = getattr(getattr(ctrl, "puma", ctrl), "task", None)
-    primitive = getattr(task, "primitive", None)
+    """The trained network the controller's current episode evaluates, where it has one with
+    a reference path."""
+    primitive = getattr(episode_task(ctrl), "primitive", None)
     return primitive if primitive is not None and hasattr(primitive, "single") else None
 
 

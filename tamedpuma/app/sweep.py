@@ -170,7 +170,7 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
     """Config -> scenario -> controller -> simulator -> recorders -> files. Returns the summary."""
     from tamedpuma.episode import RestTest, run_episode
     from tamedpuma.recording import make_recorders, recorder_files
-    from tamedpuma.recording.records import RunInfo
+    from tamedpuma.records import RunInfo
     from tamedpuma.worlds.bullet import Simulator
 
     t_start = time.perf_counter()

@@ -13,7 +13,7 @@ Reuse by the TamedPUMA methods (FPM, CPM), per control step::
     fabric = Fabric(FabricGains.from_mapping(cfg.get("fabric")), spec.q_min, spec.q_max)
     state = kinematics.evaluate(q, qd)
     av = fabric.avoidance(state, q, qd, obs_centers, obs_radii, obs_velocities)
-    # av.M (7×7 SPD metric = pulled energy metric), av.f (geometry force), av.f_energy,
+    # av.M (dof×dof SPD metric = pulled energy metric), av.f (geometry force), av.f_energy,
     # av.energy (H of the fabric energy L_e), av.min_clearance, av.n_clamped, ...
     qdd_h = av.acceleration()                      # q̈_h = −M⁻¹ f (linear solve)
     # FPM (eq. 9): energize the avoidance geometry w.r.t. L_e, add the pulled PUMA forcing f_C
@@ -30,6 +30,7 @@ from tamedpuma.fabrics.energy import energization_coefficient, energize, executi
 from tamedpuma.fabrics.fabric import (
     AvoidanceFabric,
     Fabric,
+    FabricBuffers,
     FabricDiagnostics,
     Forcing,
     quaternion_to_rotation,
@@ -38,7 +39,7 @@ from tamedpuma.fabrics.gains import BarrierGains, FabricGains
 from tamedpuma.fabrics.spec import FabricError, Spec, pull_rows, pullback, solve_acceleration
 
 __all__ = [
-    "AvoidanceFabric", "BarrierGains", "Fabric", "FabricDiagnostics", "FabricError",
-    "FabricGains", "Forcing", "Spec", "energization_coefficient", "energize", "execution_alpha",
-    "pull_rows", "pullback", "quaternion_to_rotation", "solve_acceleration",
+    "AvoidanceFabric", "BarrierGains", "Fabric", "FabricBuffers", "FabricDiagnostics",
+    "FabricError", "FabricGains", "Forcing", "Spec", "energization_coefficient", "energize",
+    "execution_alpha", "pull_rows", "pullback", "quaternion_to_rotation", "solve_acceleration",
 ]

@@ -1,10 +1,10 @@
 """The assembled joint-space fabric: avoidance leaves, goal forcing, energization and speed control.
 
-:class:`Fabric` holds only gains and robot limits; nothing depends on the obstacle count, which is
-run-time data of every call (no build step, nothing rebuilt when it changes; the only per-count
-state is a cache of preallocated work buffers,
-:class:`~tamedpuma.fabrics.fused.LayoutBuffers`, one per (spheres, obstacles) layout, allocated
-on first use in well under a millisecond). Per call:
+:class:`Fabric` holds only gains and robot limits, and no call writes it; nothing depends on the
+obstacle count, which is run-time data of every call (no build step, nothing rebuilt when it
+changes). The work buffers a call fills are the caller's, a :class:`FabricBuffers` (one
+:class:`~tamedpuma.fabrics.fused.LayoutBuffers` per (spheres, obstacles) layout, allocated on
+first use in well under a millisecond): a controller keeps one in its episode state. Per call:
 
 1. avoidance (the unforced fabric, method.md §2): base ``(m_b I, 0)`` plus the pullback of every
    barrier leaf spec ``(M_L, M_L h)`` (body sphere × obstacle pairs, joint limits, optional ground)
@@ -160,55 +160,80 @@ _DIAGNOSTIC_FIELDS = tuple(f.name for f in fields(FabricDiagnostics))
 quaternion_to_rotation = quat_to_matrix  # re-exported for the fabrics API
 
 
+class FabricBuffers:
+    """The work buffers of one :class:`Fabric`'s calls: one
+    :class:`~tamedpuma.fabrics.fused.LayoutBuffers` per layout (k spheres, m obstacles), built on
+    first use, then reused. A call overwrites every entry it reads before reading it, so nothing
+    in them carries from one call to the next: they are scratch, not state. A controller keeps
+    one in its episode state (so a step writes nothing else); a copy (``copy.deepcopy`` of an
+    episode) starts with none, which gives the same numbers. One per thread."""
+
+    def __init__(self, fabric: Fabric):
+        self.fabric = fabric
+        self.layouts: dict[tuple[int, int], LayoutBuffers] = {}
+
+    def layout(self, k: int, m: int) -> LayoutBuffers:
+        """The buffers of the layout (k spheres, m obstacles): built on first use (cheap; no
+        geometry is built, only arrays), then reused."""
+        ws = self.layouts.get((k, m))
+        if ws is None:
+            if len(self.layouts) > 64:
+                self.layouts.clear()
+            f = self.fabric
+            ws = self.layouts[(k, m)] = LayoutBuffers(f.gains, k, m, f.n, len(f.axes), f.q_min,
+                                                      f.q_max)
+        return ws
+
+    def __deepcopy__(self, memo) -> FabricBuffers:
+        return FabricBuffers(self.fabric)  # the fabric is configuration, never written: shared
+
+
 class Fabric:
     """Geometric fabric of one robot (see the module docstring).
 
-    gains: :class:`FabricGains`; q_min, q_max: (n,) joint limits [rad]. Calls share its work
-    buffers: use one Fabric per thread. Returned arrays are always fresh.
+    gains: :class:`FabricGains`; q_min, q_max: (n,) joint limits [rad]. Fixed after
+    construction: the work buffers of a call are the ``buffers`` given to it (a
+    :class:`FabricBuffers` of :meth:`buffers`; none: fresh ones for that call). Returned arrays
+    are always fresh.
     """
 
     def __init__(self, gains: FabricGains, q_min, q_max):
         self.gains = gains
         self.q_min = np.array(q_min, dtype=float)
         self.q_max = np.array(q_max, dtype=float)
-        self._n = self.q_min.shape[0]
+        self.n = self.q_min.shape[0]
         axes = list(gains.orientation_axes) if gains.orientation_weight > 0 else []
-        self._axes = axes
+        self.axes = axes
         self._offsets = gains.orientation_offset * np.eye(3)[axes]
         self._tx, self._tb = orientation_maps(axes, gains.orientation_offset)
         self._weight_list = [gains.goal_weight] + [gains.orientation_weight] * len(axes)
-        self._layouts: dict[tuple[int, int], LayoutBuffers] = {}  # per (spheres, obstacles)
 
-    def _buffers(self, k: int, m: int) -> LayoutBuffers:
-        """The buffers of the layout (k spheres, m obstacles): built on first use (cheap; no
-        geometry is built, only arrays), then reused."""
-        ws = self._layouts.get((k, m))
-        if ws is None:
-            if len(self._layouts) > 64:
-                self._layouts.clear()
-            ws = self._layouts[(k, m)] = LayoutBuffers(self.gains, k, m, self._n,
-                                                      len(self._axes), self.q_min, self.q_max)
-        return ws
+    def buffers(self) -> FabricBuffers:
+        """Fresh work buffers for this fabric's calls (what an episode state keeps)."""
+        return FabricBuffers(self)
 
-    def _barriers(self, state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities):
+    def _barriers(self, state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities,
+                  buffers: FabricBuffers | None):
         """Fill a layout's barrier rows; returns (its buffers, H_{L_e}, n_clamped, n_limit)."""
-        ws = self._buffers(state.sphere_centers.shape[0], obstacle_centers.shape[0])
+        own = buffers if buffers is not None else self.buffers()
+        ws = own.layout(state.sphere_centers.shape[0], obstacle_centers.shape[0])
         n_clamped, n_limit = ws.barrier_rows(state, q, qd, obstacle_centers, obstacle_radii,
                                              obstacle_velocities, self.gains)
         return ws, ws.barrier_kernel(), n_clamped, n_limit
 
     def avoidance(self, state, q, qd, obstacle_centers, obstacle_radii,
-                  obstacle_velocities) -> AvoidanceFabric:
+                  obstacle_velocities, buffers: FabricBuffers | None = None) -> AvoidanceFabric:
         """The unforced fabric at (q, q̇) among the obstacles (see :class:`AvoidanceFabric`).
 
         state: a KinematicState at (q, q̇) (body spheres used); q, qd (n,) [rad], [rad/s];
-        obstacle_centers (m, 3) [m], obstacle_radii (m,) [m], obstacle_velocities (m, 3) [m/s].
-        Every leaf is a row block of :mod:`~tamedpuma.fabrics.fused`'s design matrix.
+        obstacle_centers (m, 3) [m], obstacle_radii (m,) [m], obstacle_velocities (m, 3) [m/s];
+        buffers: the work buffers to fill (:meth:`buffers`; None: fresh ones). Every leaf is a
+        row block of :mod:`~tamedpuma.fabrics.fused`'s design matrix.
         """
         ws, energy, n_clamped, n_limit = self._barriers(
-            state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities)
+            state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities, buffers)
         mf = ws.avoidance_system()
-        n = self._n
+        n = self.n
         clearance = float(_min(ws.clear_flat)) if ws.P else np.inf
         ground = ws.ground_clearance if ws.ground else np.inf
         v = ws.views  # the rows in use (with many pairs: the pairs within x_a, then the rest)
@@ -251,7 +276,8 @@ class Fabric:
                        goal_distance=r[0], orientation_error=sum(r[1:]))
 
     def evaluate(self, state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities,
-                 goal_position, goal_rotation) -> tuple[np.ndarray, FabricDiagnostics]:
+                 goal_position, goal_rotation, buffers: FabricBuffers | None = None
+                 ) -> tuple[np.ndarray, FabricDiagnostics]:
         """The vanilla Fabrics acceleration q̈ [rad/s²] at (q, q̇) and its diagnostics.
 
         Arguments as :meth:`avoidance` and :meth:`forcing`. Raises :class:`FabricError` on
@@ -259,10 +285,10 @@ class Fabric:
         """
         g = self.gains
         ws, energy, n_clamped, n_limit = self._barriers(
-            state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities)
+            state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities, buffers)
         psi, r = ws.goal_rows(state, qd, goal_position, goal_rotation, g, self._tx, self._tb,
                               self._weight_list)
-        n = self._n
+        n = self.n
         if ws.compiled:  # the same three steps as below, compiled (fabrics.compiled)
             v = ws.views
             ws.compiled.systems_solve(v.Z, v.W0, ws.Rb - v.lo, qd, ws.Ms, ws.dot_values)

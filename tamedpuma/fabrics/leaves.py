@@ -40,8 +40,8 @@ def sphere_obstacle_pairs(centers, jacobians, jdqd, radii, qd, obs_centers, obs_
                           obs_velocities, margin: float) -> PairTerms:
     """Task variables of every (body sphere i, obstacle j) pair, vectorised.
 
-    centers (k, 3) [m], jacobians (k, 3, 7), jdqd (k, 3) [m/s²], radii (k,) [m]: body spheres;
-    qd (7,) [rad/s]; obs_centers (n, 3) [m], obs_radii (n,) [m], obs_velocities (n, 3) [m/s]
+    centers (k, 3) [m], jacobians (k, 3, dof), jdqd (k, 3) [m/s²], radii (k,) [m]: body spheres;
+    qd (dof,) [rad/s]; obs_centers (n, 3) [m], obs_radii (n,) [m], obs_velocities (n, 3) [m/s]
     (constant-velocity obstacles: ``ö_j = 0``); margin: lower clamp of x [1].
 
     With ``d = c_i − o_j``, ``ν = d/‖d‖``, ``R = r_i + r_j``, ``v = J_i q̇ − ȯ_j``:
@@ -80,9 +80,10 @@ def pull_sphere_pairs(m, b_geometry, b_energy, u, jacobians):
 
     m: (k, n) pair metrics; b_geometry, b_energy: (k, n) pulled task forces ``f_p + m_p (J̇q̇)_p``
     of the geometry and of the energy; u: (3, k, n) pair directions (row ``a_ij = u_ijᵀ J_i``);
-    jacobians (k, 3, 7). Uses ``Σ_ij m a aᵀ = Σ_i J_iᵀ S_i J_i`` with ``S_i = Σ_j m_ij u_ij u_ijᵀ``
-    (3×3) and ``Σ_ij b a = Σ_i J_iᵀ g_i``, ``g_i = Σ_j b_ij u_ij``: one batched product gives
-    ``[S_i | g_i]``. Returns M (7, 7) and F (2, 7) (rows: geometry, energy).
+    jacobians (k, 3, dof). Uses ``Σ_ij m a aᵀ = Σ_i J_iᵀ S_i J_i`` with
+    ``S_i = Σ_j m_ij u_ij u_ijᵀ`` (3×3) and ``Σ_ij b a = Σ_i J_iᵀ g_i``, ``g_i = Σ_j b_ij u_ij``:
+    one batched product gives ``[S_i | g_i]``. Returns M (dof, dof) and F (2, dof) (rows:
+    geometry, energy).
     """
     k = m.shape[0]
     Z = np.empty((5,) + m.shape)
@@ -146,9 +147,10 @@ def ground_plane(centers, jacobians, jdqd, radii, qd, height: float, margin: flo
 class GoalTerms:
     """Goal-attractor task variables: K = 1 + A three-dimensional errors.
 
-    e (K, 3): ``[p_ee − p_g; R_ee a_k − R_g a_k …]`` [m]; jacobians (K, 3, 8): the task Jacobians
-    (columns 0…6) with ``J̇q̇`` appended as column 7 [m/s²] (one product then pulls back both the
-    metric and the curvature force). Block 0 is the position error.
+    e (K, 3): ``[p_ee − p_g; R_ee a_k − R_g a_k …]`` [m]; jacobians (K, 3, dof + 1): the task
+    Jacobians (columns 0…dof − 1) with ``J̇q̇`` appended as the last column [m/s²] (one
+    product then pulls back both the metric and the curvature force). Block 0 is the position
+    error.
     """
 
     e: np.ndarray
@@ -159,8 +161,8 @@ def goal_errors(ee_position, ee_rotation, ee_jacobian, ee_jdqd, qd, goal_positio
                 goal_rotation, offsets) -> GoalTerms:
     """Position and orientation-vector errors of the end effector to the goal pose.
 
-    ee_position (3,) [m], ee_rotation (3, 3), ee_jacobian (6, 7) rows [v; ω], ee_jdqd (6,) = J̇q̇,
-    qd (7,); goal_position (3,) [m], goal_rotation (3, 3); offsets (A, 3) local vectors a_k [m].
+    ee_position (3,) [m], ee_rotation (3, 3), ee_jacobian (6, dof) rows [v; ω], ee_jdqd (6,) = J̇q̇,
+    qd (dof,); goal_position (3,) [m], goal_rotation (3, 3); offsets (A, 3) local vectors a_k [m].
     Orientation: ``x_k = R_ee a_k``, ``J_k = −[x_k]× J_ω``,
     ``J̇q̇_k = −[x_k]× (J̇q̇)_ω + ω (ωᵀx_k) − x_k ‖ω‖²`` (= ``… + ω × (ω × x_k)``), ``ω = J_ω q̇``;
     the target ``R_g a_k`` is fixed. Aligning two non-parallel vectors fixes the orientation.

@@ -49,11 +49,11 @@ class SolverOptions:
 class IKProblem:
     """One collision-aware IK solve (see the module docstring for the equations).
 
-    kinematics: the robot; q_start: (7,) initial guess, also the configuration returned on failure
-    if it is safe [rad]; q_ref: (7,) regularisation reference [rad] (default q_start);
+    kinematics: the robot; q_start: (dof,) initial guess, also the configuration returned on failure
+    if it is safe [rad]; q_ref: (dof,) regularisation reference [rad] (default q_start);
     target_position: (3,) p* [m]; target_rotation: (3, 3) R* or None (no orientation term);
     obstacle_centers (n, 3) [m], obstacle_radii (n,) [m]; d_min: clearance bound [m];
-    q_lower, q_upper: (7,) bounds [rad] (default the robot's joint limits);
+    q_lower, q_upper: (dof,) bounds [rad] (default the robot's joint limits);
     position_weight w_p [1/m²], orientation_weight w_R [-], regularization_weight w_q [1/rad²];
     tolerance: allowed constraint violation of a successful result [m or rad];
     max_iterations: solver iteration limit; options: the backends' own settings.
@@ -108,7 +108,7 @@ class IKProblem:
 
 @dataclass(frozen=True)
 class IKResult:
-    """q: (7,) the answer [rad]: the solver's solution on success; on failure the safest known
+    """q: (dof,) the answer [rad]: the solver's solution on success; on failure the safest known
     configuration (the solver's iterate if it satisfies every constraint, else q_start if it does,
     else the one of the two with the smaller violation);
     success: the solver converged AND the returned q satisfies every constraint within tolerance;
@@ -134,7 +134,7 @@ class IKResult:
 
 def distances(problem: IKProblem, q: np.ndarray, with_jacobian: bool = False):
     """``d_ij(q) − d_min`` for every (sphere i, obstacle j), flattened (k·n,) [m];
-    with_jacobian: also the (k·n, 7) Jacobian ``n_ijᵀ J_i``."""
+    with_jacobian: also the (k·n, dof) Jacobian ``n_ijᵀ J_i``."""
     kin = problem.kinematics
     if not with_jacobian:  # the centres alone: the placement pass (the same numbers)
         return _gaps(problem, kin.sphere_centers(q), kin.sphere_radii)[0].ravel()
@@ -197,7 +197,7 @@ def robot_key(kinematics: Kinematics) -> tuple:
 
 
 def reach_bounds(kinematics: Kinematics) -> np.ndarray:
-    """(k, 7) upper bounds L_ik on ‖∂c_i/∂q_k‖ [m/rad], valid at every configuration.
+    """(k, dof) upper bounds L_ik on ‖∂c_i/∂q_k‖ [m/rad], valid at every configuration.
 
     For a serial chain, joint k moves sphere i only if k is an ancestor of the sphere's link, and
     then ``‖∂c_i/∂q_k‖ ≤ ‖c_i − a_k‖ ≤ Σ`` of the (rigid) segment lengths between joint origins

@@ -30,6 +30,15 @@ from tamedpuma.robot.kinematics import KinematicState
 from tamedpuma.robot.rotations import quat_conj, quat_exp, quat_log, quat_mul
 
 
+def episode_primitive(primitive):
+    """The primitive one episode evaluates: a trained one's wrapper for the episode
+    (``for_episode``: the network shared, the one-state buffers and the rest-row memo its own,
+    :mod:`tamedpuma.puma.single`), so a step writes the network's buffers only in the episode
+    state; a primitive without buffers (an analytic stand-in) itself."""
+    own = getattr(primitive, "for_episode", None)
+    return primitive if own is None else own()
+
+
 @dataclass(frozen=True)
 class TaskAcceleration:
     """xdd (m,) desired task acceleration; J (m, n) task Jacobian; jdqd (m,) = J̇q̇."""

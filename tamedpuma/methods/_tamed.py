@@ -3,11 +3,12 @@ policy, its construction from a method config, and the avoidance fabric FPM and 
 
 Methods never import each other; what two of them share lives here.
 
-Episode state. Everything a step writes lives in the controller's ``episode`` (made afresh by
-``reset``): :class:`PumaEpisode` (PUMA's task with this episode's orientation reference) and
-:class:`TamedEpisode` (the circulation's sides, the stall monitor, the configuration pull's
-monitor; CPM adds its energy tank). The rest of a controller is its configuration, fixed after
-construction; a step is a function of (episode, observation) (``tests/test_episode_state.py``).
+Episode state. Everything a reset or a step writes lives in the controller's ``episode`` (made
+afresh by ``reset``): :class:`PumaEpisode` (PUMA's task with this episode's orientation
+reference and its own network buffers) and :class:`TamedEpisode` (the fabric's work buffers, Δt,
+the circulation's sides, the stall monitor, the configuration pull's monitor; CPM adds its
+energy tank). The rest of a controller is its configuration, fixed after construction; a step is
+a function of (episode, observation) (``tests/test_episode_state.py``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from tamedpuma.errors import ConfigError
-from tamedpuma.fabrics import Fabric, solve_acceleration
+from tamedpuma.fabrics import Fabric, FabricBuffers, solve_acceleration
 from tamedpuma.fabrics.discrete import (
     barrier_step,
     limit_speed,
@@ -37,6 +38,7 @@ from tamedpuma.methods._policy import (
     OrientationReference,
     PoseTask,
     TaskAcceleration,
+    episode_primitive,
     pull_through_metric,
     pull_to_joints,
     weighted_rows,
@@ -51,21 +53,24 @@ from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenari
 
 
 def episode_task(task):
-    """``task`` for one episode: with an orientation reference, a copy holding its own
-    reference, reset (the primitive shared; ``task`` itself, the template, is never written);
-    without one, ``task`` itself (nothing in it changes during an episode)."""
-    if getattr(task, "reference", None) is None:
-        return task
+    """``task`` for one episode: a copy holding its own primitive wrapper
+    (:func:`~tamedpuma.methods._policy.episode_primitive`: the network shared, its buffers the
+    episode's) and, with an orientation reference, its own reference, reset (``task`` itself,
+    the template, is never written)."""
     own = copy.copy(task)
-    own.reference = copy.copy(task.reference)
-    own.reference.reset()
+    if getattr(task, "primitive", None) is not None:
+        own.primitive = episode_primitive(task.primitive)
+    if getattr(task, "reference", None) is not None:
+        own.reference = copy.copy(task.reference)
+        own.reference.reset()
     return own
 
 
 @dataclass
 class PumaEpisode:
     """What :class:`PumaController`'s step writes (see the module docstring): ``task``, PUMA's
-    task with this episode's orientation reference (:func:`episode_task`)."""
+    task with this episode's orientation reference and network buffers (:func:`episode_task`):
+    every evaluation of the network in a step goes through it."""
 
     task: object
 
@@ -110,7 +115,7 @@ class PumaController:
         task = own.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         if stall is not None:
             task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
-                self.task.potential(state, obs.goal_position, obs.goal_quaternion)[0]),
+                own.potential(state, obs.goal_position, obs.goal_quaternion)[0]),
                 lambda: state.ee_jacobian[:3] @ obs.qd - np.asarray(obs.goal_velocity)[:3])
             if configuration is not None:
                 task = configuration.applied(obs.q, obs.qd, stall.distance, stall, obs, task)
@@ -175,7 +180,7 @@ class PumaController:
         """``{"psi": ψ}`` at the hand's pose, computed when called: the log's ψ for a step that
         never evaluates ψ itself (``Command.logged_later``, off the control path). state: the
         kinematics' evaluation at obs, current until the next step."""
-        task, goal_p, goal_q = self.task, obs.goal_position, obs.goal_quaternion
+        task, goal_p, goal_q = self.episode.task, obs.goal_position, obs.goal_quaternion
         return lambda: {"psi": task.psi(state, goal_p, goal_q)}
 
 
@@ -196,13 +201,17 @@ class Forced(NamedTuple):
 @dataclass
 class TamedEpisode:
     """What FPM's and CPM's step writes (see the module docstring), None where off: the
+    avoidance fabric's work buffers (:class:`~tamedpuma.fabrics.FabricBuffers`), the
     circulation's chosen sides (:mod:`tamedpuma.methods._circulation`), the stall monitor
-    (:mod:`tamedpuma.methods._stall`) and the configuration pull's monitor
-    (:mod:`tamedpuma.methods._configuration_pull`)."""
+    (:mod:`tamedpuma.methods._stall`), the configuration pull's monitor
+    (:mod:`tamedpuma.methods._configuration_pull`) and the control step Δt [s] (the scenario's;
+    NaN before the first ``reset``)."""
 
+    fabric: FabricBuffers
     circulation: Circulation | None
     stall: StallMonitor | None
     configuration: ConfigurationMonitor | None
+    dt: float = float("nan")
 
 
 class TamedController:
@@ -223,24 +232,28 @@ class TamedController:
         self.energy, self.forcing = check_energy(energy), forcing or Forcing()
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
-        self.dt = float("nan")  # the scenario's, from reset
         self.hulls = link_hulls(self.kinematics) if self.rate.barrier_step else None
         self.episode = self.new_episode()
 
-    def new_episode(self) -> TamedEpisode:
-        """A fresh episode state (the monitors of the forcing's settings, nothing seen yet)."""
-        return self.Episode(self.forcing.make_circulation(),
+    def new_episode(self, dt: float = float("nan")) -> TamedEpisode:
+        """A fresh episode state (the monitors of the forcing's settings, nothing seen yet) of
+        control step dt [s]."""
+        return self.Episode(self.fabric.buffers(), self.forcing.make_circulation(),
                             self.forcing.make_stall_monitor(self.creep_fraction),
                             self.forcing.make_configuration_monitor(self.kinematics.spec,
-                                                                    self.ground()))
+                                                                    self.ground()), dt)
+
+    @property
+    def dt(self) -> float:
+        """The control step Δt [s] of the current episode (the scenario's)."""
+        return self.episode.dt
 
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
-        self.episode = self.new_episode()
+        self.episode = self.new_episode(float(scenario.dt))
         configuration = self.episode.configuration
         if configuration is not None:  # the goal's IK before the first step
             configuration.prepare(scenario.goal.position, scenario.goal.quaternion, scenario.q0)
-        self.dt = float(scenario.dt)
 
     def ground(self) -> Ground | None:
         """The ground the barrier step keeps (its geometry and plane), for the configuration
@@ -251,9 +264,9 @@ class TamedController:
 
     def forced(self, obs: Observation) -> Forced:
         """The fabric and PUMA's forcing at the observation (:class:`Forced`)."""
-        state, av = avoidance_at(self.kinematics, self.fabric, obs)
-        ground = self.ground_rows(state, obs.qd)  # from the pass that evaluated ``state``
         ep = self.episode
+        state, av = avoidance_at(self.kinematics, self.fabric, obs, ep.fabric)
+        ground = self.ground_rows(state, obs.qd)  # from the pass that evaluated ``state``
         h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, ep.circulation,
                                                  ep.stall, ep.configuration)
         return Forced(state, av, h, qdd_c, xdd, ground)
@@ -408,11 +421,13 @@ def puma_and_fabric(settings, kinematics) -> tuple[PumaController, Fabric]:
                                                      q_max - margin)
 
 
-def avoidance_at(kinematics, fabric: Fabric, obs: Observation):
-    """(kinematic state, avoidance fabric) at the observation: one kinematics pass."""
+def avoidance_at(kinematics, fabric: Fabric, obs: Observation,
+                 buffers: FabricBuffers | None = None):
+    """(kinematic state, avoidance fabric) at the observation: one kinematics pass; buffers:
+    the fabric's work buffers (the episode's; None: fresh ones)."""
     state = kinematics.evaluate(obs.q, obs.qd)
     av = fabric.avoidance(state, obs.q, obs.qd, obs.obstacle_centers, obs.obstacle_radii,
-                          obs.obstacle_velocities)
+                          obs.obstacle_velocities, buffers)
     return state, av
 
 

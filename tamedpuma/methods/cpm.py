@@ -235,7 +235,8 @@ class CpmController(TamedController):
         if attractor:  # the configuration pull's own potential while it acts (see the module)
             psi, dpsi = configuration.potential(obs.q)
         else:
-            psi, dpsi = self.puma.task.potential(state, obs.goal_position, obs.goal_quaternion)
+            psi, dpsi = self.puma.episode.task.potential(state, obs.goal_position,
+                                                         obs.goal_quaternion)
             psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
         h_plus_f = h + qdd_c
         Mqd = energy_times_velocity(av, self.energy, qd)  # M of the energy energized and of γ

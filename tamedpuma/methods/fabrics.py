@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tamedpuma.errors import ConfigError
-from tamedpuma.fabrics import Fabric, FabricGains, quaternion_to_rotation
+from tamedpuma.fabrics import Fabric, FabricBuffers, FabricGains, quaternion_to_rotation
 from tamedpuma.types import Command, Observation, Scenario
 
 _KEYS = {"name", "fabric", "defaults"}  # defaults: Hydra's list, when loaded without Hydra
@@ -33,9 +33,11 @@ _KEYS = {"name", "fabric", "defaults"}  # defaults: Hydra's list, when loaded wi
 @dataclass
 class FabricsEpisode:
     """What the step writes (the controller's episode state, made afresh by ``reset``): the
-    warnings given (once each per episode) and the goal's rotation matrix for the goal
-    quaternion it was made from (``goal_key``: its bytes; None: none yet)."""
+    fabric's work buffers (:class:`~tamedpuma.fabrics.FabricBuffers`), the warnings given (once
+    each per episode) and the goal's rotation matrix for the goal quaternion it was made from
+    (``goal_key``: its bytes; None: none yet)."""
 
+    buffers: FabricBuffers
     warned: set[str] = field(default_factory=set)
     goal_key: bytes | None = None
     goal_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
@@ -54,11 +56,11 @@ class FabricsController:
         self.kinematics = kinematics
         spec = kinematics.spec
         self.fabric = Fabric(gains, spec.q_min, spec.q_max)
-        self.episode = FabricsEpisode()
+        self.episode = FabricsEpisode(self.fabric.buffers())
 
     def reset(self, scenario: Scenario) -> None:
         """Start an episode: forget warnings and the cached goal; warn if q0 is on/past a limit."""
-        self.episode = FabricsEpisode()
+        self.episode = FabricsEpisode(self.fabric.buffers())
         spec = self.kinematics.spec
         q0 = np.asarray(scenario.q0, dtype=float)
         margin = self.gains.barrier_margin
@@ -83,7 +85,8 @@ class FabricsController:
         state = self.kinematics.evaluate(obs.q, obs.qd)
         qdd, diag = self.fabric.evaluate(
             state, obs.q, obs.qd, obs.obstacle_centers, obs.obstacle_radii,
-            obs.obstacle_velocities, obs.goal_position, self._rotation(obs.goal_quaternion))
+            obs.obstacle_velocities, obs.goal_position, self._rotation(obs.goal_quaternion),
+            self.episode.buffers)
         if diag.n_limit_clamped:
             self._warn("limit", f"step {obs.step}: {diag.n_limit_clamped} joint-limit distances "
                                 "below the margin were clamped")

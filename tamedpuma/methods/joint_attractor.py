@@ -23,8 +23,17 @@ from tamedpuma.types import Command, Observation, Scenario
 log = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class JointEpisode:
+    """The episode state: q* [rad], the IK solution of the episode's goal pose (made by
+    ``reset``; the step only reads it)."""
+
+    q_target: np.ndarray
+
+
 class JointAttractor:
-    """q̈ = −k (q − q*) − d q̇ towards the IK solution q* of the goal pose."""
+    """q̈ = −k (q − q*) − d q̇ towards the IK solution q* of the goal pose. ``episode``: the
+    episode state (:class:`JointEpisode`), made by :meth:`reset`."""
 
     def __init__(self, kinematics: Kinematics, stiffness: float, damping: float):
         if not (stiffness > 0 and damping > 0):
@@ -32,7 +41,7 @@ class JointAttractor:
         self.kinematics = kinematics
         self.stiffness = stiffness
         self.damping = damping
-        self.q_target = np.zeros(kinematics.spec.dof)
+        self.episode = JointEpisode(np.zeros(kinematics.spec.dof))
 
     def reset(self, scenario: Scenario) -> None:
         result = solve_pose_ik(self.kinematics, scenario.goal.position,
@@ -41,10 +50,10 @@ class JointAttractor:
             log.warning("IK for the goal pose did not converge (position error %.3g m, "
                         "orientation error %.3g rad)", result.position_error,
                         result.orientation_error)
-        self.q_target = result.q
+        self.episode = JointEpisode(result.q)
 
     def step(self, obs: Observation) -> Command:
-        error = obs.q - self.q_target
+        error = obs.q - self.episode.q_target
         qdd = -self.stiffness * error - self.damping * obs.qd
         return Command(qdd=qdd, scalars={"joint_error_rad": float(np.linalg.norm(error))})
 

@@ -63,6 +63,7 @@ import numpy as np
 from tamedpuma.errors import CheckpointError, ConfigError
 from tamedpuma.ik_solvers import BACKENDS, IKProblem, solve_ik, warm_up
 from tamedpuma.methods._modulation import modulate
+from tamedpuma.methods._policy import episode_primitive
 from tamedpuma.methods._settings import MODEL_CHOICES, check
 from tamedpuma.paths import resolve
 from tamedpuma.robot.kinematics import Kinematics
@@ -141,8 +142,11 @@ class ModulationIKParams:
 @dataclass
 class ModulationEpisode:
     """What the step writes (the controller's episode state, made afresh by ``reset``): the
-    number of failed IK solves so far."""
+    primitive the episode evaluates (its own buffers: :func:`episode_primitive`), the control
+    step Δt [s] (the scenario's) and the number of failed IK solves so far."""
 
+    primitive: VelocityField
+    dt: float = 0.02
     failures: int = 0
 
 
@@ -157,21 +161,19 @@ class ModulationIK:
         self.kinematics = kinematics
         self.primitive = primitive
         self.params = params
-        self.dt = 0.02
-        self.episode = ModulationEpisode()
+        self.episode = ModulationEpisode(episode_primitive(primitive))
 
     def reset(self, scenario: Scenario) -> None:
         """New episode: Δt from the scenario; the IK backend's one-off set-up (Drake's plant for
         these obstacle radii) happens here, outside the timed steps."""
-        self.dt = float(scenario.dt)
-        self.episode = ModulationEpisode()
+        self.episode = ModulationEpisode(episode_primitive(self.primitive), float(scenario.dt))
         warm_up(self.kinematics, scenario.obstacles.radii, self.params.ik_backend)
 
     def _targets(self, obs: Observation, p: np.ndarray, rot: np.ndarray):
         """(p⁺ target, R⁺ target, v, modulated v, the Modulation) from the hand's position p
         [m] and rotation R."""
-        prm, dt = self.params, self.dt
-        v = np.asarray(self.primitive.velocity(p, obs.goal_position), float).reshape(3)
+        prm, dt = self.params, self.episode.dt
+        v = np.asarray(self.episode.primitive.velocity(p, obs.goal_position), float).reshape(3)
         v = v + obs.goal_velocity
         speed = float(np.linalg.norm(v))
         if speed > prm.max_speed:
@@ -185,7 +187,7 @@ class ModulationIK:
         return p + v_mod * dt, rot_target, v, v_mod, mod
 
     def step(self, obs: Observation) -> Command:
-        prm, dt = self.params, self.dt
+        prm, dt = self.params, self.episode.dt
         q, qd = np.asarray(obs.q, float), np.asarray(obs.qd, float)
         # the hand's pose only (the placement pass: the numbers evaluate() gives)
         hand = self.kinematics.ee_frame(q)
@@ -243,7 +245,7 @@ class ModulationIK:
     def _psi_later(self, p: np.ndarray, obs: Observation):
         """``{"psi": ψ}`` of the position primitive (PUMA's potential) at the hand's position p
         [m], computed only for the log (``Command.logged_later``); None for a field without ψ."""
-        psi = getattr(self.primitive, "psi", None)
+        psi = getattr(self.episode.primitive, "psi", None)
         if psi is None:
             return None
         goal = obs.goal_position

@@ -16,6 +16,7 @@ happens at all on this path.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 from pathlib import Path
 
@@ -52,6 +53,15 @@ class _Base:
             p.requires_grad_(False)
         self.fast = FastNet(net)
         self.single: SingleState | None = SingleState(self.fast)  # None: the reference path
+
+    def for_episode(self):
+        """A wrapper of the same network for one episode: the network, its float64 copy and the
+        one-state weights shared, the one-state buffers and rest-row memo its own
+        (:meth:`SingleState.fresh`), so an episode's calls write only what the episode owns."""
+        own = copy.copy(self)
+        if self.single is not None:
+            own.single = self.single.fresh()
+        return own
 
     @property
     def goal(self) -> dict:

@@ -23,6 +23,7 @@ Tested against FastNet and against the torch network in float64 (1e-10).
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -61,9 +62,9 @@ class SingleState:
         self.n = spec.n_pos
         self.ori = spec.orientation
         self.order = spec.order
-        d = self.d = spec.input_dim
-        w = self.w = fast.e1.w.shape[1]
-        z = self.z = fast.e3.w.shape[1]
+        self.d = spec.input_dim
+        self.w = fast.e1.w.shape[1]
+        self.z = fast.e3.w.shape[1]
         self.skip = fast.skip
         s_in = [1.0 / np.asarray(fast.pos_scale, float).reshape(-1) * np.ones(self.n)]
         if self.ori:
@@ -92,12 +93,24 @@ class SingleState:
         self.e3T = fast.e3.w.T.copy()
         self.e2T, self.e1T = self.W2[:-1].T.copy(), self.W1[:-1].T.copy()
         self.pos_scale = np.asarray(fast.pos_scale, float).reshape(-1)
+        self._new_buffers()
+
+    def _new_buffers(self) -> None:
+        """The buffers and the memo the calls write (everything else is fixed by __init__)."""
+        d, w, z = self.d, self.w, self.z
         self._rows = {B: _Rows(B, d, w, z, self.skip > 0) for B in (1, 2)}
         self._h = np.ones(w + 1)  # decoder hidden, with the bias 1
         self._t = np.empty(w)
         self.want_rest = False  # set by the first potential(): forward then encodes (x, 0) too
         self._rest_key: list | None = None  # pose of the cached rest row
         self._rest: tuple | None = None
+
+    def fresh(self) -> SingleState:
+        """A copy sharing the (read-only) weights, with its own buffers and memo, as built:
+        one episode's evaluator (``PosePrimitive.for_episode``)."""
+        own = copy.copy(self)
+        own._new_buffers()
+        return own
 
     # ------------------------------------------------------------------ pieces
 

@@ -21,8 +21,9 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
+from tamedpuma.records import Recorder, RunInfo, StepRecord
+
 from .mcap_writer import McapRecorder, active_path
-from .records import Recorder, RunInfo, StepRecord
 
 #: names imported on first use: the readers need pandas, the Rerun recorder rerun and pyarrow
 #: (2 s CPU of a process's start together), which a run that records MCAP alone never uses

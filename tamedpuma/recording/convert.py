@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from tamedpuma.records import RunInfo, StepRecord
+
 from ..errors import LogError
 from ..runlog import RunLog, _by_topic, _decoded, _scan, read_mcap
-from .records import RunInfo, StepRecord
 from .rerun_writer import RerunRecorder
 
 

@@ -59,9 +59,9 @@ from foxglove.messages import (
 
 from tamedpuma.errors import DiskFullError, LogError, LogExistsError, TamedPumaError
 from tamedpuma.paths import free_bytes, no_space
+from tamedpuma.records import RunInfo, StepRecord
 
 from ..runlog import ACTIVE_SUFFIX, ATTACH_URDF, META_CONFIG, META_RUN_INFO, META_SUMMARY
-from .records import RunInfo, StepRecord
 
 WORLD_FRAME = "world"
 #: the logger the SDK reports a failed write of a logged message to (it does not raise)

@@ -49,9 +49,10 @@ from rerun.components import LineStrip3DBatch
 from rerun.encodings import Vec3DBatch
 from rerun.urdf import UrdfTree
 
+from tamedpuma.records import RunInfo, StepRecord
+
 from ..paths import LOW_SPACE, free_bytes
 from .mcap_writer import active_path, prepare_output, write_error
-from .records import RunInfo, StepRecord
 
 WORLD_FRAME = "world"
 PATH_BLOCK = 100  # steps per end-effector path strip

@@ -6,12 +6,12 @@ forward kinematics once and returns everything a controller needs as a frozen
 :class:`KinematicState`:
 
 - end-effector position p [m], rotation R, quaternion (x, y, z, w);
-- the 6×7 frame Jacobian ``J = [J_v; J_ω]`` in the world-aligned frame at the end-effector origin,
+- the 6×dof frame Jacobian ``J = [J_v; J_ω]`` in the world-aligned frame at the end-effector origin,
   so that ``[ṗ; ω] = J q̇``;
 - the curvature term ``J̇ q̇`` [m/s², rad/s²] (pinocchio's classical frame acceleration at q̈ = 0),
   so that ``[p̈; ω̇] = J q̈ + J̇ q̇``;
-- for every collision sphere i: centre c_i [m], Jacobian ``J_i = ∂c_i/∂q`` (3×7) and ``J̇_i q̇``,
-  batched as arrays of shape (k, 3), (k, 3, 7), (k, 3).
+- for every collision sphere i: centre c_i [m], Jacobian ``J_i = ∂c_i/∂q`` (3×dof) and ``J̇_i q̇``,
+  batched as arrays of shape (k, 3), (k, 3, dof), (k, 3).
 
 numpy and pinocchio only.
 """
@@ -190,8 +190,8 @@ class KinematicState:
     """Kinematics at one (q, q̇); world frame, metres and radians.
 
     ee_position (3,); ee_rotation (3, 3); ee_quaternion (4,) (x, y, z, w);
-    ee_jacobian (6, 7) rows [v; ω]; ee_jdqd (6,) = J̇q̇;
-    sphere_centers (k, 3); sphere_jacobians (k, 3, 7); sphere_jdqd (k, 3); sphere_radii (k,).
+    ee_jacobian (6, dof) rows [v; ω]; ee_jdqd (6,) = J̇q̇;
+    sphere_centers (k, 3); sphere_jacobians (k, 3, dof); sphere_jdqd (k, 3); sphere_radii (k,).
     """
 
     ee_position: np.ndarray

@@ -188,7 +188,7 @@ def generate(region: TaskRegion, kinematics, seed: int, params: RandomParams,
 
     region: the task's goal and workspace; kinematics: a
     :class:`~tamedpuma.robot.kinematics.Kinematics` (its spec gives the limits and body spheres);
-    table1_starts: the task's Table-1 starts (n, 7) [rad] (needed for ``near_table1``);
+    table1_starts: the task's Table-1 starts (n, dof) [rad] (needed for ``near_table1``);
     start_kind: one of :data:`START_KINDS`; dt [s], max_steps and goal_tolerance [m]: the
     scenario's (``scenario.*``; the obstacles are checked over the horizon max_steps·dt).
     Raises :class:`ScenarioError` if no valid draw is found in ``params.max_tries``.

@@ -3,7 +3,7 @@
 A scenario config (``conf/scenario/*.yaml``, goal usually interpolated from ``conf/task``) holds::
 
     name: default
-    q0: [7 joint angles, rad]   # null: the robot config's home
+    q0: [the robot's joint angles, rad]   # null: the robot config's home
     goal: {position: [x, y, z], quaternion: [x, y, z, w], velocity: [vx, vy, vz]}
     obstacles: [{center: [x, y, z], radius: r, velocity: [vx, vy, vz]}, ...]
     dt: control period [s]
