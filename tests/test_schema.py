@@ -106,7 +106,9 @@ def test_every_method_has_a_schema():
 
 @pytest.mark.parametrize("method", sorted(schema.METHODS))
 def test_a_misspelt_method_option_is_refused(hydra_conf, method):
-    cfg = compose("sweep", overrides=[f"method={method}", "+method.stifness=100"])
+    from tamedpuma.app.compose import with_plugins  # an installed plugin's method too
+
+    cfg = compose("sweep", overrides=with_plugins([f"method={method}", "+method.stifness=100"]))
     with pytest.raises(ConfigError, match=r"method\.stifness: unknown key"):
         schema.run_config(cfg)
 

@@ -153,7 +153,7 @@ def with_search_path(overrides: list[str], search: list[str]) -> list[str]:
             existing.extend(value if isinstance(value, list) else [value])
         else:
             out.append(arg)
-    entries = ",".join(f"'{p}'" for p in [*search, *existing])
+    entries = ",".join(f"'{p}'" for p in dict.fromkeys([*search, *existing]))
     return [f"hydra.searchpath=[{entries}]", *out]
 
 

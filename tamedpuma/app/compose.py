@@ -57,12 +57,27 @@ def compose(config_name: str, overrides: Sequence[str] = (), *, hydra_config: bo
     from hydra import compose as hydra_compose
     from hydra.core.global_hydra import GlobalHydra
 
+    overrides = with_plugins(overrides)
     if GlobalHydra.instance().is_initialized():
         return hydra_compose(config_name, overrides=list(overrides),
                              return_hydra_config=hydra_config)
     with session():
         return hydra_compose(config_name, overrides=list(overrides),
                              return_hydra_config=hydra_config)
+
+
+def with_plugins(overrides: Sequence[str]) -> list[str]:
+    """``overrides`` with the installed method plugins' config folders
+    (:func:`tamedpuma.methods.config_dirs`) in their ``hydra.searchpath``, so ``method=<plugin>``
+    composes in every entry point as in the sweep; unchanged without plugins."""
+    from tamedpuma.methods import config_dirs
+
+    dirs = [f"file://{d.resolve()}" for d in config_dirs()]
+    if not dirs:
+        return list(overrides)
+    from tamedpuma.app.cli import with_search_path
+
+    return with_search_path(list(overrides), dirs)
 
 
 def compose_typed(config_name: str, overrides: Sequence[str] = ()):

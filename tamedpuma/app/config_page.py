@@ -32,7 +32,6 @@ from omegaconf import MISSING, OmegaConf
 
 from tamedpuma.app import schema
 from tamedpuma.app.compose import compose
-from tamedpuma.app.config import group_options
 from tamedpuma.paths import CONF_DIR
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -472,12 +471,20 @@ def collapsed(options: list[str]) -> str:
     return ", ".join(out)
 
 
+def package_options(group: str) -> list[str]:
+    """The options of ``group`` the package ships (the page is the same wherever it is
+    generated; an installed method plugin documents its own)."""
+    folder = CONF_DIR / group
+    return sorted(p.relative_to(folder).with_suffix("").as_posix()
+                  for p in folder.rglob("*.yaml")) if folder.is_dir() else []
+
+
 def group_section() -> list[str]:
     lines = ["## Config groups", "", "Choose an option with `group=option` (`python -m "
              "tamedpuma.sweep task=pouring method=cpm`); the keys each sets are below.", "",
              "| group | options | what it sets |", "|---|---|---|"]
     for group, what in GROUPS.items():
-        lines.append(f"| `{group}` | {collapsed(group_options(group))} | {what} |")
+        lines.append(f"| `{group}` | {collapsed(package_options(group))} | {what} |")
     return lines + [""]
 
 
