@@ -49,6 +49,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tamedpuma.methods._kernels import STEP
+
 _X, _Y, _UP = np.eye(3)
 #: [m] far above the rounding difference of two computations of one clearance (~1e-16 m), far
 #: below anything physical: a clearance known to exceed d_a by this is beyond d_a in either
@@ -96,33 +98,24 @@ class Circulation:
                                and min_clearance > self.distance + _ROUNDING_M):
             self.axes.clear()
             return None
-        c, r = state.sphere_centers, state.sphere_radii
-        delta = c[:, None, :] - centers[None, :, :]  # (k, m, 3)
-        dist = np.linalg.norm(delta, axis=2)
-        clear = dist - r[:, None] - radii[None, :]
-        near = np.argwhere(clear < self.distance)
-        if near.size == 0:
+        pairs, clear, normals, pushes, push, head_on = STEP["pair_pushes"](
+            state.sphere_centers, state.sphere_radii, state.sphere_jacobians, state.sphere_jdqd,
+            centers, radii, qdd_free, self.distance, self.cos_onset)
+        if len(pairs) == 0:
             self.axes.clear()
             return None
-        keep = {(int(i), int(j)) for i, j in near}
         rows, targets, weights = [], [], []
-        for i, j in sorted(keep):
-            n = delta[i, j] / max(dist[i, j], 1e-12)
+        for a in np.flatnonzero(~((push <= 0.0) | (head_on <= 0.0))):
+            n, p, i = normals[a], pushes[a], pairs[a, 0]
             Ji, jd = state.sphere_jacobians[i], state.sphere_jdqd[i]
-            p = Ji @ qdd_free + jd
-            push = -float(p @ n)
-            head_on = (push / max(float(np.linalg.norm(p)), 1e-12) - self.cos_onset) / (
-                1.0 - self.cos_onset)  # 0 at the onset angle, 1 straight into the obstacle
-            if push <= 0.0 or head_on <= 0.0:
-                continue
             if "arm" not in self.axes and pull_at_rest is not None:
                 rest = pull_at_rest()
                 t = self._tangent(n, Ji @ rest, Ji @ qd, Ji)
             else:
                 t = self._tangent(n, p, Ji @ qd, Ji)
-            s = (1.0 - max(float(clear[i, j]), 0.0) / self.distance) * min(head_on, 1.0)
+            s = (1.0 - max(float(clear[a]), 0.0) / self.distance) * min(float(head_on[a]), 1.0)
             rows.append(t @ Ji)
-            targets.append(float(p @ t) + self.gain * s * push - float(t @ jd))
+            targets.append(float(p @ t) + self.gain * s * float(push[a]) - float(t @ jd))
             weights.append(self.weight * s)
         if not rows:
             return None
