@@ -12,6 +12,8 @@ import pytest
 from tamedpuma.fabrics.discrete import barrier_step
 from tamedpuma.methods import _kernels
 from tamedpuma.methods._circulation import TangentSpecs
+from tamedpuma.methods._ground_rows import HullTable
+from tamedpuma.methods._ground_rows import hull_ground_rows as fused_ground_rows
 from tamedpuma.methods._policy import TaskAcceleration, pull_to_joints
 from tamedpuma.methods._tamed import (
     BARRIER_KAPPA,
@@ -23,7 +25,8 @@ from tamedpuma.methods._tamed import (
     free_pull,
     keeps_velocity,
 )
-from tamedpuma.robot.ground import GroundRows
+from tamedpuma.robot import ground
+from tamedpuma.robot.ground import GroundRows, link_hulls
 
 N, M_ROWS = 7, 6
 
@@ -58,6 +61,8 @@ def _case(seed: int):
 
 def _close(a, b, rel=1e-12):
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if b.size == 0:
+        return a.shape == b.shape
     return np.all(np.abs(a - b) <= rel * np.maximum(np.abs(b).max(), 1e-300))
 
 
@@ -158,3 +163,43 @@ def test_without_numba_every_kernel_is_the_plain_function(monkeypatch):
     monkeypatch.setattr(_kernels, "AVAILABLE", False)
     monkeypatch.setattr(_kernels, "_COMPILED", None)
     assert _kernels.warm_up() is False
+
+
+@pytest.fixture(scope="module")
+def hulls(kinematics):
+    return link_hulls(kinematics)
+
+
+@pytest.mark.parametrize("below", [np.inf, 0.4, 0.1])
+def test_the_fused_ground_rows_are_the_robot_modules(kinematics, hulls, below):
+    table = HullTable.of(hulls)
+    rng = np.random.default_rng(7)
+    lo, hi = np.asarray(kinematics.spec.q_min), np.asarray(kinematics.spec.q_max)
+    found = 0
+    for _ in range(100):
+        qd = rng.standard_normal(N)
+        kinematics.evaluate(rng.uniform(lo, hi), qd)
+        want = ground.hull_ground_rows(kinematics, hulls, qd, below)
+        got = fused_ground_rows(kinematics, table, qd, below)
+        found += len(want.heights)
+        for g, w in ((got.heights, want.heights), (got.rows, want.rows),
+                     (got.jdqd, want.jdqd)):
+            assert g.shape == w.shape and _close(g, w)
+    assert found > 0
+
+
+def test_compiled_and_plain_ground_kernels_agree(kinematics, hulls):
+    table = HullTable.of(hulls)
+    rng = np.random.default_rng(8)
+    Rt = np.stack([np.linalg.qr(rng.standard_normal((3, 3)))[0] for _ in table.radii])
+    tz = rng.uniform(-0.2, 0.6, len(table.radii))
+    plain, fast = _plain_and_compiled("lowest_points", table.vertices, table.starts, Rt, tz,
+                                      table.radii, 0.3)
+    assert np.array_equal(plain[0], fast[0]) and plain[0].any()
+    for p, f in zip(plain[1:], fast[1:]):
+        assert _close(f[plain[0]], p[plain[0]])
+    args = (rng.standard_normal((3, 6, N)), rng.standard_normal((3, 6)),
+            rng.standard_normal((3, 3)), rng.standard_normal(N))
+    plain, fast = _plain_and_compiled("ground_rows", *args)
+    for p, f in zip(plain, fast):
+        assert _close(f, p)

@@ -24,6 +24,8 @@ Kernels (n joints, m task rows, R barrier rows, K tangent specs):
   from (``a_r·q̈_P > 0``, m_r > 0), the rows q̈_C approaches put back until none is (directional),
   and the geometry ``h = −(M + [task] w JᵀJ)⁻¹ f`` [rad/s²].
 - :func:`pair_pushes`: the circulation's pairs within d_a, their normals and pushes.
+- :func:`lowest_points`, :func:`ground_rows`: the links' lowest hull points and their ground
+  rows (:func:`~tamedpuma.robot.ground.hull_ground_rows`).
 - :func:`rows_free`: whether v meets every barrier row ``a·v ≥ b`` (and ``a·v + drift ≥ b``),
   ``b = −κ(x − x_s)/Δt − ½Δt min(J̇q̇, 0)`` (``min(b, 0)`` on rows at or past x_s).
 """
@@ -31,6 +33,7 @@ Kernels (n joints, m task rows, R barrier rows, K tangent specs):
 from __future__ import annotations
 
 import importlib.util
+import warnings
 
 import numpy as np
 
@@ -173,7 +176,49 @@ def pair_pushes(c, r, J, jd, oc, orad, qdd_free, distance, cos_onset):
     return pairs, cl, n, p, push, head_on
 
 
-KERNELS = (damped_pull, metric_forcing, rows_free, pair_pushes)
+def lowest_points(verts, starts, Rt, tz, radii, below):
+    """Each link hull's lowest point (robot/ground.py ``_lowest_points``): hull l has the
+    vertices ``verts[starts[l]:starts[l + 1]]`` (link frame), rotation R_l (given transposed,
+    ``Rt[l] = R_lᵀ``: R_l in pinocchio's column-major order, so that the products take the
+    same BLAS route as on pinocchio's own array), origin height tz[l] and bounding radius
+    radii[l] [m]; its lowest vertex v (``min (v·R_l[2])``) counts when ``tz − radius < below``
+    and its height ``tz + v·R_l[2] < below``. Returns (found (L,) bool, heights (L,), the vertex
+    relative to the origin in world axes R_l v (L, 3))."""
+    L = tz.shape[0]
+    found, heights, points = np.zeros(L, np.bool_), np.empty(L), np.empty((L, 3))
+    for i in range(L):
+        if tz[i] - radii[i] >= below:
+            continue
+        R = Rt[i].T
+        v = verts[starts[i]:starts[i + 1]]
+        z = v @ R[2]
+        j = z.argmin()
+        height = tz[i] + z[j]
+        if height < below:
+            found[i], heights[i] = True, height
+            points[i] = R @ v[j]
+    return found, heights, points
+
+
+def ground_rows(J, acc, r, qd):
+    """The rows and curvature terms of the lowest points (robot/ground.py
+    ``hull_ground_rows``): J (k, 6, n) the links' world-aligned Jacobians, acc (k, 6) their
+    origins' classical accelerations, r (k, 3) the points relative to the origins [m]:
+    rows ``(J_p)_z + (J_ω)_x r_y − (J_ω)_y r_x`` (k, n) and the z component of
+    ``a_o + α × r + ω × (ω × r)`` (k,) [m/s²]."""
+    rx, ry, rz = r[:, 0], r[:, 1], r[:, 2]
+    rows = (J[:, 2] + J[:, 3] * ry[:, None]) - J[:, 4] * rx[:, None]
+    w = np.empty((J.shape[0], 3))
+    for i in range(J.shape[0]):
+        w[i] = J[i, 3:] @ qd
+    wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
+    w_r = (wx * rx + wy * ry) + wz * rz
+    w_w = (wx * wx + wy * wy) + wz * wz
+    return rows, acc[:, 2] + acc[:, 3] * ry - acc[:, 4] * rx + wz * w_r - rz * w_w
+
+
+KERNELS = (damped_pull, metric_forcing, rows_free, pair_pushes, lowest_points,
+           ground_rows)
 HELPERS = (_weighted_solve, _restore, _meets, _bounds)
 
 
@@ -226,7 +271,9 @@ def warm_up() -> bool:
         return False
     if _COMPILED is None:
         _COMPILED = _compiled()
-        _first_calls(_COMPILED)
+        with warnings.catch_warnings():  # numba's notes on non-contiguous products: by design
+            warnings.simplefilter("ignore")
+            _first_calls(_COMPILED)
         for name, fast in _COMPILED.items():
             fast.disable_compile()
             STEP[name].fast = fast
@@ -249,5 +296,8 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
     radii.flags.writeable = False  # the kinematic state's sphere radii are read-only
     kernels["pair_pushes"](k3, radii, rng.standard_normal((4, 3, n)), k3, k3[:2], np.ones(2),
                            v, 0.1, 0.7)
+    three = np.eye(3).reshape(1, 3, 3).repeat(2, 0)
+    kernels["lowest_points"](k3, np.array([0, 2, 4]), three, np.ones(2), np.ones(2), 2.0)
+    kernels["ground_rows"](rng.standard_normal((2, 6, n)), k3[:2].repeat(2, 1), k3[:2], v)
     kernels["rows_free"](v, rows, metric, metric, metric, v, True, none, np.empty(0),
                          np.empty(0), 0.01, 0.02, 0.5, 1e-3)

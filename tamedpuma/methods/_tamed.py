@@ -31,6 +31,7 @@ from tamedpuma.fabrics.energy import execution_alpha
 from tamedpuma.methods._circulation import Circulation, TangentSpecs
 from tamedpuma.methods._configuration_pull import MODES as CONFIGURATION_MODES
 from tamedpuma.methods._configuration_pull import ConfigurationMonitor, ConfigurationPull, Ground
+from tamedpuma.methods._ground_rows import HullTable, hull_ground_rows
 from tamedpuma.methods._kernels import STEP, warm_up
 from tamedpuma.methods._learned import load_task, null_objective
 from tamedpuma.methods._policy import (
@@ -46,7 +47,6 @@ from tamedpuma.methods._policy import (
 from tamedpuma.methods._stall import StallMonitor, StallPull
 from tamedpuma.robot.ground import (
     GroundRows,
-    hull_ground_rows,
     link_hulls,
 )
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
@@ -215,6 +215,7 @@ class TamedController:
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.dt = float("nan")  # the scenario's, from reset
         self.hulls = link_hulls(self.kinematics) if self.rate.barrier_step else None
+        self.hull_table = HullTable.of(self.hulls) if self.hulls is not None else None
         self.episode = self.new_episode()
         warm_up()  # the step's kernels compiled now, never inside a step (methods/_kernels.py)
 
@@ -256,7 +257,7 @@ class TamedController:
         if self.hulls is None:
             return None
         below = self.hulls.speed_bound * self.dt / BARRIER_KAPPA  # higher: no row needed
-        return hull_ground_rows(self.kinematics, self.hulls, qd,
+        return hull_ground_rows(self.kinematics, self.hull_table, qd,
                                 below if np.isfinite(below) else np.inf)
 
     def stall_scalars(self) -> dict[str, float]:
