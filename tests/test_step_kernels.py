@@ -203,3 +203,18 @@ def test_compiled_and_plain_ground_kernels_agree(kinematics, hulls):
     plain, fast = _plain_and_compiled("ground_rows", *args)
     for p, f in zip(plain, fast):
         assert _close(f, p)
+
+
+def test_a_numba_that_cannot_compile_leaves_the_plain_kernels(monkeypatch):
+    def broken():
+        raise ImportError("numba built for another numpy")
+
+    fresh = {k.__name__: _kernels.Kernel(k) for k in _kernels.KERNELS}
+    monkeypatch.setattr(_kernels, "AVAILABLE", True)
+    monkeypatch.setattr(_kernels, "_COMPILED", None)
+    monkeypatch.setattr(_kernels, "_compiled", broken)
+    monkeypatch.setattr(_kernels, "STEP", fresh)
+    with pytest.warns(UserWarning, match="plain numpy"):
+        assert _kernels.warm_up() is False
+    assert all(k.fast is None for k in fresh.values())
+    assert _kernels.warm_up() is False  # once per process: no second attempt, no warning

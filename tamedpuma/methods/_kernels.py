@@ -265,19 +265,27 @@ def _compiled():
 
 def warm_up() -> bool:
     """Compile the kernels (or load them from the cache) with the argument types of a step,
-    then freeze them; once per process. Whether they are compiled (False without numba)."""
+    then freeze them; once per process. Whether they are compiled (False without numba, or
+    where numba fails to import or compile here: then, with a warning, every call is plain)."""
     global _COMPILED
     if not AVAILABLE:
         return False
     if _COMPILED is None:
-        _COMPILED = _compiled()
-        with warnings.catch_warnings():  # numba's notes on non-contiguous products: by design
-            warnings.simplefilter("ignore")
-            _first_calls(_COMPILED)
-        for name, fast in _COMPILED.items():
+        _COMPILED = {}
+        try:
+            kernels = _compiled()
+            with warnings.catch_warnings():  # numba's notes on non-contiguous products
+                warnings.simplefilter("ignore")
+                _first_calls(kernels)
+        except Exception as exc:  # noqa: BLE001 - a broken numba install: the plain kernels
+            warnings.warn(f"numba could not compile the step kernels ({type(exc).__name__}: "
+                          f"{exc}); the step runs them as plain numpy", stacklevel=2)
+            return False
+        for name, fast in kernels.items():
             fast.disable_compile()
             STEP[name].fast = fast
-    return True
+        _COMPILED = kernels
+    return bool(_COMPILED)
 
 
 def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
