@@ -11,7 +11,7 @@ import pytest
 
 from tamedpuma.fabrics.discrete import barrier_step
 from tamedpuma.methods import _kernels
-from tamedpuma.methods._circulation import TangentSpecs
+from tamedpuma.methods._circulation import Circulation, TangentSpecs
 from tamedpuma.methods._ground_rows import HullTable
 from tamedpuma.methods._ground_rows import hull_ground_rows as fused_ground_rows
 from tamedpuma.methods._policy import TaskAcceleration, pull_to_joints
@@ -143,14 +143,30 @@ def test_the_cases_cover_both_answers():
 def test_after_the_warm_up_nothing_compiles_and_new_types_run_plain():
     pytest.importorskip("numba")
     assert _kernels.warm_up()
-    kernel = _kernels.STEP["damped_pull"]
+    kernel = _kernels.Kernel(_kernels.damped_pull)
+    kernel.fast = _kernels.STEP["damped_pull"].fast
     before = len(kernel.fast.signatures)
     rng = np.random.default_rng(0)
     J = np.asfortranarray(rng.standard_normal((M_ROWS, N)))  # a layout the warm-up never saw
     t = rng.standard_normal(M_ROWS).astype(np.float32)
     out = kernel(J, t, 1e-4, t[:0], False)
-    assert len(kernel.fast.signatures) == before
+    assert len(_kernels.STEP["damped_pull"].fast.signatures) == before
     assert np.array_equal(out, kernel.plain(J, t, 1e-4, t[:0], False))
+    assert kernel.fast is None and "No matching definition" in kernel.demoted  # plain for good
+
+
+def test_the_step_passes_the_types_the_warm_up_compiled(kinematics):
+    """Read-only radii (the kinematic state's, the simulator's) included: no kernel of an FPM
+    step on the arm is demoted to plain."""
+    pytest.importorskip("numba")
+    assert _kernels.warm_up()
+    rng = np.random.default_rng(3)
+    radii = np.array([0.05, 0.1])
+    radii.flags.writeable = False
+    state = kinematics.evaluate(np.zeros(N), rng.standard_normal(N))
+    Circulation(10.0, 1.0, 100.0, 0.0).specs(state, np.zeros(N), rng.standard_normal(N),
+                                              state.sphere_centers[:2] + 0.01, radii)
+    assert all(k.fast is not None for k in _kernels.STEP.values())
 
 
 def test_without_numba_every_kernel_is_the_plain_function(monkeypatch):

@@ -224,17 +224,21 @@ HELPERS = (_weighted_solve, _restore, _meets, _bounds)
 
 class Kernel:
     """One kernel: its compiled version where :func:`warm_up` made one (frozen: it compiles
-    nothing more), else the plain function; a call the compiled version cannot take (argument
-    types it was not warmed up with, or an error, e.g. a singular or non-finite system, which
-    numba reports differently) runs the plain function, whose numbers and errors are numpy's."""
+    nothing more), else the plain function. A call the compiled version cannot take runs the
+    plain function, whose numbers and errors are numpy's: argument types the warm-up did not
+    see (numba's TypeError, whose message alone costs ~1 ms: the kernel then stays plain for
+    the rest of the process, ``demoted`` saying why), or an error inside it (e.g. a singular or
+    non-finite system, which numba reports differently: this call only)."""
 
     def __init__(self, plain):
-        self.plain, self.fast = plain, None
+        self.plain, self.fast, self.demoted = plain, None, None
 
     def __call__(self, *args):
         if self.fast is not None:
             try:
                 return self.fast(*args)
+            except TypeError as exc:
+                self.fast, self.demoted = None, str(exc).split("\n")[0]
             except Exception:  # noqa: BLE001 - the plain function answers (or raises) as numpy
                 pass
         return self.plain(*args)
@@ -300,10 +304,12 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
         for r, mt in ((rows, metric), (none, np.empty(0))):
             kernels["metric_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, ext,
                                       np.ones(len(ext)), np.ones(len(ext)), v, True, True)
-    k3, radii = rng.standard_normal((4, 3)), np.ones(4)
-    radii.flags.writeable = False  # the kinematic state's sphere radii are read-only
-    kernels["pair_pushes"](k3, radii, rng.standard_normal((4, 3, n)), k3, k3[:2], np.ones(2),
-                           v, 0.1, 0.7)
+    k3, fixed = rng.standard_normal((4, 3)), np.ones(4)
+    fixed.flags.writeable = False  # radii may be read-only (the state's, the simulator's)
+    for r in (fixed, np.ones(4)):
+        for orad in (fixed[:2], np.ones(2)):
+            kernels["pair_pushes"](k3, r, rng.standard_normal((4, 3, n)), k3, k3[:2], orad, v,
+                                   0.1, 0.7)
     three = np.eye(3).reshape(1, 3, 3).repeat(2, 0)
     kernels["lowest_points"](k3, np.array([0, 2, 4]), three, np.ones(2), np.ones(2), 2.0)
     kernels["ground_rows"](rng.standard_normal((2, 6, n)), k3[:2].repeat(2, 1), k3[:2], v)
