@@ -45,6 +45,7 @@ as its energy allows).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -105,7 +106,7 @@ class Circulation:
             self.axes.clear()
             return None
         rows, targets, weights = [], [], []
-        for a in np.flatnonzero(~((push <= 0.0) | (head_on <= 0.0))):
+        for a in (~((push <= 0.0) | (head_on <= 0.0))).nonzero()[0]:
             n, p, i = normals[a], pushes[a], pairs[a, 0]
             Ji, jd = state.sphere_jacobians[i], state.sphere_jdqd[i]
             if "arm" not in self.axes and pull_at_rest is not None:
@@ -128,16 +129,29 @@ class Circulation:
         takes its own tangent (not stored)."""
         b = self.axes.get("arm")
         if b is not None:
-            t = np.cross(b, n)
-            norm = np.linalg.norm(t)
+            t = _cross(b, n)
+            norm = _norm(t)
             if norm > 0.2:  # the axis still spans a tangent plane with n
                 return t / norm
         for candidate in (p, v, *Ji.T, _UP, _X, _Y):
             t = candidate - (candidate @ n) * n
-            norm = np.linalg.norm(t)
-            if norm > 1e-3 * max(np.linalg.norm(candidate), 1e-9) and norm > 1e-9:
+            norm = _norm(t)
+            if norm > 1e-3 * max(_norm(candidate), 1e-9) and norm > 1e-9:
                 t = t / norm
                 if b is None:
-                    self.axes["arm"] = np.cross(n, t)
+                    self.axes["arm"] = _cross(n, t)
                 return t
         raise AssertionError("unreachable: the world's axes cannot all be parallel to n")
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a × b`` of two 3-vectors: np.cross's numbers (``a₁b₂ − a₂b₁``, ...) without its
+    ~10 µs of axis handling."""
+    a0, a1, a2 = a.tolist()
+    b0, b1, b2 = b.tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
+def _norm(x: np.ndarray) -> float:
+    """‖x‖: np.linalg.norm's numbers (``√(x·x)``) without its wrapper."""
+    return math.sqrt(x.dot(x))

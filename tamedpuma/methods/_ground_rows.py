@@ -55,7 +55,7 @@ def hull_ground_rows(kinematics, table: HullTable, qd: np.ndarray,
             Rt[i] = placement.rotation.T
     found, heights, points = STEP["lowest_points"](table.vertices, table.starts, Rt, tz,
                                                    table.radii, below)
-    links = np.flatnonzero(found)
+    links = found.nonzero()[0]
     k = len(links)
     if not k:
         return GroundRows(np.empty(0), np.empty((0, model.nv)), np.empty(0))
