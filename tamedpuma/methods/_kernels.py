@@ -136,17 +136,18 @@ def rows_free(v, rows, x, jdqd, xd, qd, has_drift, g_rows, g_heights, g_jdqd, g_
     """Whether the next velocity v (n,) [rad/s] meets every row of
     :func:`~tamedpuma.fabrics.discrete.barrier_step`, so that the step keeps it: the barrier
     rows (R, n) with x, J̇q̇ (R,), and with has_drift their drift ``ẋ − a·q̇`` (xd (R,), q̇)
-    also ``a·v + drift ≥ b``; the ground rows (G, n) at heights − g_height, no drift."""
-    b = _bounds(x, jdqd, dt, kappa, standoff)
-    Av = rows @ v
-    gb = _bounds(g_heights - g_height, g_jdqd, dt, kappa, standoff)
-    gAv = g_rows @ v
-    if not (_meets(Av, b, x, standoff) and _meets(gAv, gb, g_heights - g_height, standoff)):
+    also ``a·v + drift ≥ b``; the ground rows (G, n) at heights − g_height, no drift (the
+    rows stacked as the step stacks them)."""
+    A = np.concatenate((rows, g_rows))
+    x = np.concatenate((x, g_heights - g_height))
+    b = _bounds(x, np.concatenate((jdqd, g_jdqd)), dt, kappa, standoff)
+    Av = A @ v
+    if not _meets(Av, b, x, standoff):
         return False
     if not has_drift:
         return True
-    drift = xd - rows @ qd
-    return (Av >= b - drift).all() and (gAv >= gb).all()
+    drift = np.concatenate((xd - rows @ qd, np.zeros(g_heights.shape[0])))
+    return (Av >= b - drift).all()
 
 
 def pair_pushes(c, r, J, jd, oc, orad, qdd_free, distance, cos_onset):
@@ -208,9 +209,7 @@ def ground_rows(J, acc, r, qd):
     ``a_o + α × r + ω × (ω × r)`` (k,) [m/s²]."""
     rx, ry, rz = r[:, 0], r[:, 1], r[:, 2]
     rows = (J[:, 2] + J[:, 3] * ry[:, None]) - J[:, 4] * rx[:, None]
-    w = np.empty((J.shape[0], 3))
-    for i in range(J.shape[0]):
-        w[i] = J[i, 3:] @ qd
+    w = (np.ascontiguousarray(J[:, 3:]).reshape(-1, J.shape[2]) @ qd).reshape(-1, 3)  # ω
     wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
     w_r = (wx * rx + wy * ry) + wz * rz
     w_w = (wx * wx + wy * wy) + wz * wz
