@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from tamedpuma.fabrics.discrete import barrier_step
+from tamedpuma.fabrics.spec import FabricError
 from tamedpuma.methods import _kernels
 from tamedpuma.methods._circulation import Circulation, TangentSpecs
 from tamedpuma.methods._ground_rows import HullTable
@@ -234,3 +235,19 @@ def test_a_numba_that_cannot_compile_leaves_the_plain_kernels(monkeypatch):
         assert _kernels.warm_up() is False
     assert all(k.fast is None for k in fresh.values())
     assert _kernels.warm_up() is False  # once per process: no second attempt, no warning
+
+
+def test_a_singular_geometry_raises_as_the_numpy_forcing_does():
+    """M + JᵀwJ singular while the forcing's system is not (its m_null I): FabricError, as
+    before the fusion (not the kernel's LinAlgError)."""
+    rng, av, task, null, extra, _ = _case(1)
+    J = task.J.copy()
+    J[:, -1] = 0.0  # the last joint moves no task row: JᵀwJ (and M = 0 + JᵀwJ) singular
+    task = TaskAcceleration(task.xdd, J, task.jdqd)
+    av.M = np.zeros((N, N))
+    forcing = Forcing(mode="task_metric", directional=False)
+    target = task.xdd - task.jdqd
+    with pytest.raises(FabricError):
+        forced_reference(av, task, forcing, np.ones(N), None, None)
+    with pytest.raises(FabricError):
+        forced_through_metric(av, task, target, forcing, np.ones(N), None, None)

@@ -295,7 +295,8 @@ def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, 
     the avoidance metric (directional: settled on q̈_C, :func:`restore_approached`) and the
     geometry (−M⁻¹f, or :func:`geometry_with_task_metric`), fused in one kernel
     (:func:`_kernels.metric_forcing`); its numbers are those of :func:`forced_reference`,
-    which answers (and raises) where the kernel's result is not finite."""
+    which answers (and raises: LinAlgError, FabricError) where the kernel's system is singular
+    or its result not finite."""
     rows, m, weight = av.barrier_rows, av.barrier_metric, forcing.weight
     if type(weight) is float:
         if rows is None or m is None:
@@ -303,11 +304,14 @@ def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, 
         has_null = null is not None
         if extra is None:
             extra = _NO_SPECS
-        qdd_c, h = STEP["metric_forcing"](
-            av.M, av.f, rows, m, task.J, weight, target, forcing.null_metric,
-            null if has_null else target[:0], has_null, extra.rows, extra.weights,
-            extra.targets, target[:0] if qdd_free is None else qdd_free, forcing.directional,
-            forcing.mode == "task_metric")
+        try:
+            qdd_c, h = STEP["metric_forcing"](
+                av.M, av.f, rows, m, task.J, weight, target, forcing.null_metric,
+                null if has_null else target[:0], has_null, extra.rows, extra.weights,
+                extra.targets, target[:0] if qdd_free is None else qdd_free,
+                forcing.directional, forcing.mode == "task_metric")
+        except np.linalg.LinAlgError:  # a singular system: raised below as before
+            qdd_c = h = np.full(1, np.nan)
         if math.isfinite(float(qdd_c @ qdd_c + h @ h)):
             return qdd_c, h
     return forced_reference(av, task, forcing, null, None if extra is _NO_SPECS else extra,
