@@ -156,17 +156,22 @@ def test_after_the_warm_up_nothing_compiles_and_new_types_run_plain():
     assert kernel.fast is None and "No matching definition" in kernel.demoted  # plain for good
 
 
-def test_the_step_passes_the_types_the_warm_up_compiled(kinematics):
-    """Read-only radii (the kinematic state's, the simulator's) included: no kernel of an FPM
-    step on the arm is demoted to plain."""
+def test_the_step_passes_the_types_the_warm_up_compiled(kinematics, monkeypatch):
+    """Read-only radii (the kinematic state's, the simulator's) included: no kernel of the
+    circulation on the arm is demoted to plain."""
     pytest.importorskip("numba")
     assert _kernels.warm_up()
+    for name, fast in _kernels._COMPILED.items():  # fresh wrappers: no earlier test's state
+        fresh = _kernels.Kernel(getattr(_kernels, name))
+        fresh.fast = fast
+        monkeypatch.setitem(_kernels.STEP, name, fresh)
     rng = np.random.default_rng(3)
     radii = np.array([0.05, 0.1])
     radii.flags.writeable = False
     state = kinematics.evaluate(np.zeros(N), rng.standard_normal(N))
     Circulation(10.0, 1.0, 100.0, 0.0).specs(state, np.zeros(N), rng.standard_normal(N),
                                               state.sphere_centers[:2] + 0.01, radii)
+    assert not any(k.demoted for k in _kernels.STEP.values())
     assert all(k.fast is not None for k in _kernels.STEP.values())
 
 
