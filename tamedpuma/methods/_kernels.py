@@ -13,8 +13,9 @@ removes the ~1-3 µs of Python and numpy dispatch each of the ~60 small calls co
 
 The kernels compile when a controller is built (:func:`warm_up`, from numba's on-disk cache
 after the first time), never inside a step: after the warm-up the dispatchers compile nothing
-more, and a call with argument types the warm-up did not see runs the plain function (the same
-numbers). Without numba (``AVAILABLE`` False) every call is plain.
+more, and a kernel handed argument types the warm-up did not see runs as the plain function
+(the same numbers) for the rest of the process (:class:`Kernel`). Without numba
+(``AVAILABLE`` False), or where it fails to compile, every call is plain.
 
 Kernels (n joints, m task rows, R barrier rows, K tangent specs):
 
