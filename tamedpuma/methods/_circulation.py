@@ -45,9 +45,12 @@ as its energy allows).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from tamedpuma.methods._kernels import STEP
 
 _X, _Y, _UP = np.eye(3)
 #: [m] far above the rounding difference of two computations of one clearance (~1e-16 m), far
@@ -96,33 +99,24 @@ class Circulation:
                                and min_clearance > self.distance + _ROUNDING_M):
             self.axes.clear()
             return None
-        c, r = state.sphere_centers, state.sphere_radii
-        delta = c[:, None, :] - centers[None, :, :]  # (k, m, 3)
-        dist = np.linalg.norm(delta, axis=2)
-        clear = dist - r[:, None] - radii[None, :]
-        near = np.argwhere(clear < self.distance)
-        if near.size == 0:
+        pairs, clear, normals, pushes, push, head_on = STEP["pair_pushes"](
+            state.sphere_centers, state.sphere_radii, state.sphere_jacobians, state.sphere_jdqd,
+            centers, radii, qdd_free, self.distance, self.cos_onset)
+        if len(pairs) == 0:
             self.axes.clear()
             return None
-        keep = {(int(i), int(j)) for i, j in near}
         rows, targets, weights = [], [], []
-        for i, j in sorted(keep):
-            n = delta[i, j] / max(dist[i, j], 1e-12)
+        for a in (~((push <= 0.0) | (head_on <= 0.0))).nonzero()[0]:
+            n, p, i = normals[a], pushes[a], pairs[a, 0]
             Ji, jd = state.sphere_jacobians[i], state.sphere_jdqd[i]
-            p = Ji @ qdd_free + jd
-            push = -float(p @ n)
-            head_on = (push / max(float(np.linalg.norm(p)), 1e-12) - self.cos_onset) / (
-                1.0 - self.cos_onset)  # 0 at the onset angle, 1 straight into the obstacle
-            if push <= 0.0 or head_on <= 0.0:
-                continue
             if "arm" not in self.axes and pull_at_rest is not None:
                 rest = pull_at_rest()
                 t = self._tangent(n, Ji @ rest, Ji @ qd, Ji)
             else:
                 t = self._tangent(n, p, Ji @ qd, Ji)
-            s = (1.0 - max(float(clear[i, j]), 0.0) / self.distance) * min(head_on, 1.0)
+            s = (1.0 - max(float(clear[a]), 0.0) / self.distance) * min(float(head_on[a]), 1.0)
             rows.append(t @ Ji)
-            targets.append(float(p @ t) + self.gain * s * push - float(t @ jd))
+            targets.append(float(p @ t) + self.gain * s * float(push[a]) - float(t @ jd))
             weights.append(self.weight * s)
         if not rows:
             return None
@@ -135,16 +129,29 @@ class Circulation:
         takes its own tangent (not stored)."""
         b = self.axes.get("arm")
         if b is not None:
-            t = np.cross(b, n)
-            norm = np.linalg.norm(t)
+            t = _cross(b, n)
+            norm = _norm(t)
             if norm > 0.2:  # the axis still spans a tangent plane with n
                 return t / norm
         for candidate in (p, v, *Ji.T, _UP, _X, _Y):
             t = candidate - (candidate @ n) * n
-            norm = np.linalg.norm(t)
-            if norm > 1e-3 * max(np.linalg.norm(candidate), 1e-9) and norm > 1e-9:
+            norm = _norm(t)
+            if norm > 1e-3 * max(_norm(candidate), 1e-9) and norm > 1e-9:
                 t = t / norm
                 if b is None:
-                    self.axes["arm"] = np.cross(n, t)
+                    self.axes["arm"] = _cross(n, t)
                 return t
         raise AssertionError("unreachable: the world's axes cannot all be parallel to n")
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a × b`` of two 3-vectors: np.cross's numbers (``a₁b₂ − a₂b₁``, ...) without its
+    ~10 µs of axis handling."""
+    a0, a1, a2 = a.tolist()
+    b0, b1, b2 = b.tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
+def _norm(x: np.ndarray) -> float:
+    """‖x‖: np.linalg.norm's numbers (``√(x·x)``) without its wrapper."""
+    return math.sqrt(x.dot(x))

@@ -14,6 +14,7 @@ a function of (episode, observation) (``tests/test_episode_state.py``).
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import NamedTuple
@@ -28,9 +29,11 @@ from tamedpuma.fabrics.discrete import (
     linearly_implicit_step,
 )
 from tamedpuma.fabrics.energy import execution_alpha
-from tamedpuma.methods._circulation import Circulation
+from tamedpuma.methods._circulation import Circulation, TangentSpecs
 from tamedpuma.methods._configuration_pull import MODES as CONFIGURATION_MODES
 from tamedpuma.methods._configuration_pull import ConfigurationMonitor, ConfigurationPull, Ground
+from tamedpuma.methods._ground_rows import HullTable, hull_ground_rows
+from tamedpuma.methods._kernels import STEP, warm_up
 from tamedpuma.methods._learned import load_task, null_objective
 from tamedpuma.methods._policy import (
     Damping,
@@ -46,7 +49,6 @@ from tamedpuma.methods._policy import (
 from tamedpuma.methods._stall import StallMonitor, StallPull
 from tamedpuma.robot.ground import (
     GroundRows,
-    hull_ground_rows,
     link_hulls,
 )
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenario
@@ -144,28 +146,16 @@ class PumaController:
         (and the configuration pull's joint-space spec in their place while it is engaged)."""
         if forcing.metric:
             task, null = self.task_and_null(state, obs, av.min_clearance, stall, configuration)
-            extra, W = None, av.M
+            target, extra, qdd_free = task.xdd - task.jdqd, None, None
             if circulation is not None or forcing.directional:
-                qdd_free = pull_to_joints(task, self.damping, null)
+                qdd_free = free_pull(task, target, self.damping, null)
             if circulation is not None:
                 extra = circulation.specs(state, obs.qd, qdd_free, obs.obstacle_centers,
                                           obs.obstacle_radii,
                                           lambda: self.pull_at_rest(state, obs),
                                           av.min_clearance)
-            weights = forcing.weight
-
-            def solve(W: np.ndarray) -> np.ndarray:
-                return pull_through_metric(task, W, weights, forcing.null_metric, null, extra)
-
-            if forcing.directional:
-                receding = receding_rows(av, qdd_free)
-                W = metric_without(av, receding)
-                qdd_c, _ = restore_approached(av, receding, W, solve(W), solve)
-            else:
-                qdd_c = solve(W)
-            if forcing.mode == "task_metric":
-                return geometry_with_task_metric(av, task.J, weights), qdd_c, task.xdd
-            return av.acceleration(), qdd_c, task.xdd
+            qdd_c, h = forced_through_metric(av, task, target, forcing, null, extra, qdd_free)
+            return h, qdd_c, task.xdd
         qdd_c, xdd = self.joint_acceleration(state, obs, stall)
         return av.acceleration(), qdd_c, xdd
 
@@ -233,7 +223,9 @@ class TamedController:
         self.alpha_min, self.rate = alpha_min, rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.hulls = link_hulls(self.kinematics) if self.rate.barrier_step else None
+        self.hull_table = HullTable.of(self.hulls) if self.hulls is not None else None
         self.episode = self.new_episode()
+        warm_up()  # the step's kernels compiled now, never inside a step (methods/_kernels.py)
 
     def new_episode(self, dt: float = float("nan")) -> TamedEpisode:
         """A fresh episode state (the monitors of the forcing's settings, nothing seen yet) of
@@ -278,7 +270,7 @@ class TamedController:
         if self.hulls is None:
             return None
         below = self.hulls.speed_bound * self.dt / BARRIER_KAPPA  # higher: no row needed
-        return hull_ground_rows(self.kinematics, self.hulls, qd,
+        return hull_ground_rows(self.kinematics, self.hull_table, qd,
                                 below if np.isfinite(below) else np.inf)
 
     def stall_scalars(self) -> dict[str, float]:
@@ -293,6 +285,69 @@ class TamedController:
         if configuration is not None:
             out["configuration_pull"] = float(configuration.engaged)
         return out
+
+
+#: no barrier rows, no tangent specs (the kernels' empty arguments)
+_NO_ROWS = np.empty((0, 0))
+_NO_SPECS = TangentSpecs(_NO_ROWS, np.empty(0), np.empty(0))
+
+
+def free_pull(task, target: np.ndarray, damping, null: np.ndarray | None) -> np.ndarray:
+    """PUMA's obstacle-free pull q̈_P = J⁺(ẍ_d − J̇q̇) + (I − J⁺J) q̈_null [rad/s²]
+    (:func:`~tamedpuma.methods._policy.pull_to_joints`, fused: :func:`_kernels.damped_pull`);
+    target: ẍ_d − J̇q̇."""
+    lam = damping(task.J) if callable(damping) else damping
+    has_null = null is not None
+    return STEP["damped_pull"](task.J, target, lam**2, null if has_null else target[:0],
+                               has_null)
+
+
+def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, extra,
+                          qdd_free) -> tuple[np.ndarray, np.ndarray]:
+    """(q̈_C, h) [rad/s²] of ``forcing.mode`` metric or task_metric: PUMA's forcing through
+    the avoidance metric (directional: settled on q̈_C, :func:`restore_approached`) and the
+    geometry (−M⁻¹f, or :func:`geometry_with_task_metric`), fused in one kernel
+    (:func:`_kernels.metric_forcing`); its numbers are those of :func:`forced_reference`,
+    which answers (and raises: LinAlgError, FabricError) where the kernel's system is singular
+    or its result not finite."""
+    rows, m, weight = av.barrier_rows, av.barrier_metric, forcing.weight
+    if type(weight) is float:
+        if rows is None or m is None:
+            rows, m = _NO_ROWS, _NO_SPECS.weights
+        has_null = null is not None
+        if extra is None:
+            extra = _NO_SPECS
+        try:
+            qdd_c, h = STEP["metric_forcing"](
+                av.M, av.f, rows, m, task.J, weight, target, forcing.null_metric,
+                null if has_null else target[:0], has_null, extra.rows, extra.weights,
+                extra.targets, target[:0] if qdd_free is None else qdd_free,
+                forcing.directional, forcing.mode == "task_metric")
+        except np.linalg.LinAlgError:  # a singular system: raised below as before
+            qdd_c = h = np.full(1, np.nan)
+        if math.isfinite(float(qdd_c @ qdd_c + h @ h)):
+            return qdd_c, h
+    return forced_reference(av, task, forcing, null, None if extra is _NO_SPECS else extra,
+                            qdd_free)
+
+
+def forced_reference(av, task, forcing: Forcing, null, extra, qdd_free
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(q̈_C, h) as :func:`forced_through_metric`, by the numpy functions it fuses."""
+    weights = forcing.weight
+
+    def solve(W: np.ndarray) -> np.ndarray:
+        return pull_through_metric(task, W, weights, forcing.null_metric, null, extra)
+
+    if forcing.directional:
+        receding = receding_rows(av, qdd_free)
+        W = metric_without(av, receding)
+        qdd_c, _ = restore_approached(av, receding, W, solve(W), solve)
+    else:
+        qdd_c = solve(av.M)
+    if forcing.mode == "task_metric":
+        return qdd_c, geometry_with_task_metric(av, task.J, weights)
+    return qdd_c, av.acceleration()
 
 
 def geometry_with_task_metric(av, J: np.ndarray, weights: float | np.ndarray) -> np.ndarray:
@@ -493,7 +548,8 @@ class ControlRate:
         rows' rates give the moving obstacles' drift); returns it and the log scalars
         ``n_barrier_active`` (rows projected) and ``speed_scale`` (s ≤ 1)."""
         n_active, scale = 0, 1.0
-        if self.barrier_step and av.barrier_rows is not None:
+        if (self.barrier_step and av.barrier_rows is not None
+                and not keeps_velocity(av, ground, qd_next, qd, dt)):
             rows, x, jd = av.barrier_rows, av.barrier_x, av.barrier_jdqd
             drift = None if av.barrier_xd is None or qd is None else av.barrier_xd - rows @ qd
             if ground is not None:
@@ -507,6 +563,27 @@ class ControlRate:
         if self.speed_limit:
             qd_next, scale = limit_speed(qd_next, (1.0 - SPEED_HEADROOM) * qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}
+
+
+def keeps_velocity(av, ground: GroundRows | None, v: np.ndarray, qd, dt: float) -> bool:
+    """Whether the barrier step keeps the next velocity v [rad/s] as it is (the common case:
+    no row of ``av`` or ``ground`` would be violated, with or without the obstacles' drift,
+    and the rows left out provably hold), by one kernel (:func:`_kernels.rows_free`) instead of
+    the step's concatenations and products; False sends the step the whole way
+    (:func:`~tamedpuma.fabrics.discrete.barrier_step`), which then decides the same."""
+    if av.barrier_jdqd is None:
+        return False
+    has_drift = av.barrier_xd is not None and qd is not None
+    n = len(v)
+    g_rows, g_heights, g_jdqd = ((ground.rows, ground.heights, ground.jdqd) if ground is not None
+                                 else (np.empty((0, n)), v[:0], v[:0]))
+    if not STEP["rows_free"](v, av.barrier_rows, av.barrier_x, av.barrier_jdqd,
+                             av.barrier_xd if has_drift else v[:0], qd if has_drift else v,
+                             has_drift, g_rows, g_heights, g_jdqd, GROUND_HEIGHT_M, dt,
+                             BARRIER_KAPPA, BARRIER_STANDOFF):
+        return False
+    far = av.far_rows
+    return far is None or far.holds(v, dt, BARRIER_KAPPA, BARRIER_STANDOFF)
 
 
 #: w [1]: PUMA's task metric in the metric forcing (outweighs the base metric 0.2 and a barrier's

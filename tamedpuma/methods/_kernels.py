@@ -1,0 +1,317 @@
+"""The per-step linear algebra of FPM's and CPM's forcing and control-rate filters, fused into a
+few kernels, compiled with numba where it is installed (the ``fast`` extra) and plain numpy
+where it is not: ONE code path, the same Python functions either way.
+
+Each kernel is written in numpy's array operations, in the order and with the calls of the
+functions it fuses (:func:`~tamedpuma.methods._policy.pull_to_joints`,
+:func:`~tamedpuma.methods._policy.pull_through_metric`,
+:func:`~tamedpuma.methods._tamed.restore_approached`, the free case of
+:func:`~tamedpuma.fabrics.discrete.barrier_step`, ...). Run plain they are those numpy calls, bit
+for bit; compiled, numba calls the same BLAS/LAPACK routines for the products and solves (here
+the same numbers bit for bit; tests/test_step_kernels.py holds them to 1e-12 relative) and
+removes the ~1-3 µs of Python and numpy dispatch each of the ~60 small calls costs.
+
+The kernels compile when a controller is built (:func:`warm_up`, from numba's on-disk cache
+after the first time), never inside a step: after the warm-up the dispatchers compile nothing
+more, and a kernel handed argument types the warm-up did not see runs as the plain function
+(the same numbers) for the rest of the process (:class:`Kernel`). Without numba
+(``AVAILABLE`` False), or where it fails to compile, every call is plain.
+
+Kernels (n joints, m task rows, R barrier rows, K tangent specs):
+
+- :func:`damped_pull`: ``q̈ = J⁺ t + (I − J⁺J) q̈_null``, ``J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹`` [rad/s²].
+- :func:`metric_forcing`: ``q̈_C = (W + w JᵀJ + m_null I + Σ w_k r_k r_kᵀ)⁻¹ (w Jᵀ t + m_null
+  q̈_null + Σ w_k r_k a_k)`` with W the avoidance metric M less the barrier rows q̈_P recedes
+  from (``a_r·q̈_P > 0``, m_r > 0), the rows q̈_C approaches put back until none is (directional),
+  and the geometry ``h = −(M + [task] w JᵀJ)⁻¹ f`` [rad/s²].
+- :func:`pair_pushes`: the circulation's pairs within d_a, their normals and pushes.
+- :func:`lowest_points`, :func:`ground_rows`: the links' lowest hull points and their ground
+  rows (:func:`~tamedpuma.robot.ground.hull_ground_rows`).
+- :func:`rows_free`: whether v meets every barrier row ``a·v ≥ b`` (and ``a·v + drift ≥ b``),
+  ``b = −κ(x − x_s)/Δt − ½Δt min(J̇q̇, 0)`` (``min(b, 0)`` on rows at or past x_s).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import warnings
+
+import numpy as np
+
+#: numba is installed: the kernels are compiled (imported only by :func:`warm_up`)
+AVAILABLE = importlib.util.find_spec("numba") is not None
+_COMPILED: dict | None = None
+
+
+def damped_pull(J, target, lam2, qdd_null, has_null):
+    """``q̈ = J⁺ t + (I − J⁺J) q̈_null`` [rad/s²], ``J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹`` (by a solve);
+    J (m, n), t = ẍ_d − J̇q̇ (m,), lam2 = λ², q̈_null (n,) used when has_null."""
+    G = J @ J.T
+    for i in range(G.shape[0]):
+        G[i, i] += lam2
+    # C order first (numba's solve returns Fortran order): J⁺ is then the transpose of a C
+    # array in both, and its products take the same BLAS route (the same numbers)
+    pinv = np.ascontiguousarray(np.linalg.solve(G, J)).T
+    qdd = pinv @ target
+    if has_null:
+        qdd = qdd + qdd_null - pinv @ (J @ qdd_null)
+    return qdd
+
+
+def _weighted_solve(W, JwJ, diag, ext, has_ext, rhs):
+    """``(W + JᵀwJ + diag·I + ext)⁻¹ rhs``, summed in that order (pull_through_metric's)."""
+    A = W + JwJ
+    for i in range(A.shape[0]):
+        A[i, i] += diag
+    if has_ext:
+        A += ext
+    return np.linalg.solve(A, rhs)
+
+
+def _restore(W, rows, metric, out, qdd_c, JwJ, diag, ext, has_ext, rhs):
+    """restore_approached: every left-out row q̈_C approaches (``a_r·q̈_C < 0``) put back
+    with its metric, q̈_C solved again, until none is approached."""
+    while out.any():
+        back = out & (rows @ qdd_c < 0.0)
+        if not back.any():
+            break
+        idx = np.nonzero(back)[0]
+        r = rows[idx]
+        W = W + (r.T * metric[idx]) @ r
+        out &= ~back
+        qdd_c = _weighted_solve(W, JwJ, diag, ext, has_ext, rhs)
+    return qdd_c
+
+
+def metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null, ext_rows,
+                   ext_weights, ext_targets, qdd_free, directional, task_geometry):
+    """``(q̈_C, h)`` [rad/s²] (see the module): M (n, n), f (n,) the avoidance fabric's metric
+    and geometry force; rows (R, n), metric (R,) its barrier rows (R may be 0); J (m, n), w,
+    target t = ẍ_d − J̇q̇ (m,): PUMA's task spec; m_null, q̈_null, has_null: the secondary
+    objective; ext_*: the tangent specs (K may be 0); qdd_free: q̈_P; task_geometry: h with
+    PUMA's task metric as a leaf."""
+    wJ = w * J
+    JwJ = J.T @ wJ
+    rhs = wJ.T @ target
+    diag = 0.0
+    if has_null and m_null > 0.0:
+        diag = m_null
+        rhs = rhs + m_null * qdd_null
+    has_ext = ext_rows.shape[0] > 0
+    ext = np.zeros_like(M)
+    if has_ext:
+        wr = ext_weights.reshape(-1, 1) * ext_rows
+        ext = ext_rows.T @ wr
+        rhs = rhs + wr.T @ ext_targets
+    if directional and rows.shape[0] > 0:
+        out = (rows @ qdd_free > 0.0) & (metric > 0.0)
+        W = M.copy()
+        if out.any():
+            idx = np.nonzero(out)[0]
+            r = rows[idx]
+            W -= (r.T * metric[idx]) @ r
+        qdd_c = _weighted_solve(W, JwJ, diag, ext, has_ext, rhs)
+        qdd_c = _restore(W, rows, metric, out, qdd_c, JwJ, diag, ext, has_ext, rhs)
+    else:
+        qdd_c = _weighted_solve(M, JwJ, diag, ext, has_ext, rhs)
+    G = M + JwJ if task_geometry else M
+    return qdd_c, -np.linalg.solve(G, f)
+
+
+def _meets(Av, b, x, standoff):
+    """``a·v ≥ b`` on every row, with ``min(b, 0)`` on the rows at or past the standoff."""
+    past = x <= standoff
+    if past.any():
+        return (Av >= np.where(past, np.minimum(b, 0.0), b)).all()
+    return (Av >= b).all()
+
+
+def _bounds(x, jdqd, dt, kappa, standoff):
+    """``b = −κ(x − x_s)/Δt − ½Δt min(J̇q̇, 0)`` (barrier_step's right-hand sides)."""
+    b = -kappa * (x - standoff) / dt
+    return b - 0.5 * dt * np.minimum(jdqd, 0.0)
+
+
+def rows_free(v, rows, x, jdqd, xd, qd, has_drift, g_rows, g_heights, g_jdqd, g_height, dt,
+              kappa, standoff):
+    """Whether the next velocity v (n,) [rad/s] meets every row of
+    :func:`~tamedpuma.fabrics.discrete.barrier_step`, so that the step keeps it: the barrier
+    rows (R, n) with x, J̇q̇ (R,), and with has_drift their drift ``ẋ − a·q̇`` (xd (R,), q̇)
+    also ``a·v + drift ≥ b``; the ground rows (G, n) at heights − g_height, no drift (the
+    rows stacked as the step stacks them)."""
+    A = np.concatenate((rows, g_rows))
+    x = np.concatenate((x, g_heights - g_height))
+    b = _bounds(x, np.concatenate((jdqd, g_jdqd)), dt, kappa, standoff)
+    Av = A @ v
+    if not _meets(Av, b, x, standoff):
+        return False
+    if not has_drift:
+        return True
+    drift = np.concatenate((xd - rows @ qd, np.zeros(g_heights.shape[0])))
+    return (Av >= b - drift).all()
+
+
+def pair_pushes(c, r, J, jd, oc, orad, qdd_free, distance, cos_onset):
+    """The circulation's candidate pairs (:meth:`~tamedpuma.methods._circulation.Circulation.
+    specs`): every (body sphere i, obstacle j) with clearance ``‖c_i − o_j‖ − r_i − r_j < d_a``,
+    in (i, j) order: ``(i, j)`` (K, 2), the clearance (K,) [m], the unit normal
+    ``n = (c_i − o_j)/‖c_i − o_j‖`` (K, 3), the sphere's acceleration under q̈_P
+    ``p = J_i q̈_P + J̇_i q̇`` (K, 3) [m/s²], the push ``−p·n`` (K,) and how head-on it is,
+    ``(−p·n/‖p‖ − c₀)/(1 − c₀)`` (K,). c (k, 3), r (k,), J (k, 3, n), jd (k, 3): the spheres;
+    oc (m, 3), orad (m,): the obstacles."""
+    delta = c.reshape(-1, 1, 3) - oc.reshape(1, -1, 3)
+    dist = np.sqrt(delta[:, :, 0] * delta[:, :, 0] + delta[:, :, 1] * delta[:, :, 1]
+                   + delta[:, :, 2] * delta[:, :, 2])
+    clear = dist - r.reshape(-1, 1) - orad.reshape(1, -1)
+    ii, jj = np.nonzero(clear < distance)
+    K = len(ii)
+    pairs, cl, n = np.empty((K, 2), np.int64), np.empty(K), np.empty((K, 3))
+    p, push, head_on = np.empty((K, 3)), np.empty(K), np.empty(K)
+    for a in range(K):
+        i, j = ii[a], jj[a]
+        pairs[a, 0], pairs[a, 1], cl[a] = i, j, clear[i, j]
+        n[a] = delta[i, j] / max(dist[i, j], 1e-12)
+        p[a] = J[i] @ qdd_free + jd[i]
+        push[a] = -np.dot(p[a], n[a])
+        head_on[a] = (push[a] / max(np.sqrt(np.dot(p[a], p[a])), 1e-12) - cos_onset) / (
+            1.0 - cos_onset)
+    return pairs, cl, n, p, push, head_on
+
+
+def lowest_points(verts, starts, Rt, tz, radii, below):
+    """Each link hull's lowest point (robot/ground.py ``_lowest_points``): hull l has the
+    vertices ``verts[starts[l]:starts[l + 1]]`` (link frame), rotation R_l (given transposed,
+    ``Rt[l] = R_lᵀ``: R_l in pinocchio's column-major order, so that the products take the
+    same BLAS route as on pinocchio's own array), origin height tz[l] and bounding radius
+    radii[l] [m]; its lowest vertex v (``min (v·R_l[2])``) counts when ``tz − radius < below``
+    and its height ``tz + v·R_l[2] < below``. Returns (found (L,) bool, heights (L,), the vertex
+    relative to the origin in world axes R_l v (L, 3))."""
+    L = tz.shape[0]
+    found, heights, points = np.zeros(L, np.bool_), np.empty(L), np.empty((L, 3))
+    for i in range(L):
+        if tz[i] - radii[i] >= below:
+            continue
+        R = Rt[i].T
+        v = verts[starts[i]:starts[i + 1]]
+        z = v @ R[2]
+        j = z.argmin()
+        height = tz[i] + z[j]
+        if height < below:
+            found[i], heights[i] = True, height
+            points[i] = R @ v[j]
+    return found, heights, points
+
+
+def ground_rows(J, acc, r, qd):
+    """The rows and curvature terms of the lowest points (robot/ground.py
+    ``hull_ground_rows``): J (k, 6, n) the links' world-aligned Jacobians, acc (k, 6) their
+    origins' classical accelerations, r (k, 3) the points relative to the origins [m]:
+    rows ``(J_p)_z + (J_ω)_x r_y − (J_ω)_y r_x`` (k, n) and the z component of
+    ``a_o + α × r + ω × (ω × r)`` (k,) [m/s²]."""
+    rx, ry, rz = r[:, 0], r[:, 1], r[:, 2]
+    rows = (J[:, 2] + J[:, 3] * ry[:, None]) - J[:, 4] * rx[:, None]
+    w = (np.ascontiguousarray(J[:, 3:]).reshape(-1, J.shape[2]) @ qd).reshape(-1, 3)  # ω
+    wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
+    w_r = (wx * rx + wy * ry) + wz * rz
+    w_w = (wx * wx + wy * wy) + wz * wz
+    return rows, acc[:, 2] + acc[:, 3] * ry - acc[:, 4] * rx + wz * w_r - rz * w_w
+
+
+KERNELS = (damped_pull, metric_forcing, rows_free, pair_pushes, lowest_points,
+           ground_rows)
+HELPERS = (_weighted_solve, _restore, _meets, _bounds)
+
+
+class Kernel:
+    """One kernel: its compiled version where :func:`warm_up` made one (frozen: it compiles
+    nothing more), else the plain function. A call the compiled version cannot take runs the
+    plain function, whose numbers and errors are numpy's: argument types the warm-up did not
+    see (numba's TypeError, whose message alone costs ~1 ms: the kernel then stays plain for
+    the rest of the process, ``demoted`` saying why), or an error inside it (e.g. a singular or
+    non-finite system, which numba reports differently: this call only)."""
+
+    def __init__(self, plain):
+        self.plain, self.fast, self.demoted = plain, None, None
+
+    def __call__(self, *args):
+        if self.fast is not None:
+            try:
+                return self.fast(*args)
+            except TypeError as exc:
+                self.fast, self.demoted = None, str(exc).split("\n")[0]
+            except Exception:  # noqa: BLE001 - the plain function answers (or raises) as numpy
+                pass
+        return self.plain(*args)
+
+
+#: the kernels the step calls, by name
+STEP = {k.__name__: Kernel(k) for k in KERNELS}
+
+
+def _compiled():
+    """The kernels compiled by numba (helpers resolved to compiled copies in a namespace of
+    their own, so the plain functions stay plain); loaded from numba's on-disk cache after the
+    first time."""
+    import types
+
+    import numba
+
+    space = dict(globals())
+
+    def jit(fn):
+        copy = types.FunctionType(fn.__code__, space, fn.__name__, fn.__defaults__)
+        return numba.njit(cache=True, nogil=True)(copy)
+
+    for helper in HELPERS:
+        space[helper.__name__] = jit(helper)
+    return {k.__name__: jit(k) for k in KERNELS}
+
+
+def warm_up() -> bool:
+    """Compile the kernels (or load them from the cache) with the argument types of a step,
+    then freeze them; once per process. Whether they are compiled (False without numba, or
+    where numba fails to import or compile here: then, with a warning, every call is plain)."""
+    global _COMPILED
+    if not AVAILABLE:
+        return False
+    if _COMPILED is None:
+        _COMPILED = {}
+        try:
+            kernels = _compiled()
+            with warnings.catch_warnings():  # numba's notes on non-contiguous products
+                warnings.simplefilter("ignore")
+                _first_calls(kernels)
+        except Exception as exc:  # noqa: BLE001 - a broken numba install: the plain kernels
+            warnings.warn(f"numba could not compile the step kernels ({type(exc).__name__}: "
+                          f"{exc}); the step runs them as plain numpy", stacklevel=2)
+            return False
+        for name, fast in kernels.items():
+            fast.disable_compile()
+            STEP[name].fast = fast
+        _COMPILED = kernels
+    return bool(_COMPILED)
+
+
+def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
+    """One call of each kernel per argument-type combination a step passes (C-contiguous
+    float64 arrays, bools, floats): numba compiles (or loads) each signature here."""
+    rng = np.random.default_rng(0)
+    J, t, v = rng.standard_normal((m, n)), rng.standard_normal(m), rng.standard_normal(n)
+    M = np.eye(n) + 0.1 * np.ones((n, n))
+    rows, none, metric = rng.standard_normal((3, n)), np.empty((0, n)), np.ones(3)
+    kernels["damped_pull"](J, t, 1e-4, v, True)
+    for ext in (rows, none):
+        for r, mt in ((rows, metric), (none, np.empty(0))):
+            kernels["metric_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, ext,
+                                      np.ones(len(ext)), np.ones(len(ext)), v, True, True)
+    k3, fixed = rng.standard_normal((4, 3)), np.ones(4)
+    fixed.flags.writeable = False  # radii may be read-only (the state's, the simulator's)
+    for r in (fixed, np.ones(4)):
+        for orad in (fixed[:2], np.ones(2)):
+            kernels["pair_pushes"](k3, r, rng.standard_normal((4, 3, n)), k3, k3[:2], orad, v,
+                                   0.1, 0.7)
+    three = np.eye(3).reshape(1, 3, 3).repeat(2, 0)
+    kernels["lowest_points"](k3, np.array([0, 2, 4]), three, np.ones(2), np.ones(2), 2.0)
+    kernels["ground_rows"](rng.standard_normal((2, 6, n)), k3[:2].repeat(2, 1), k3[:2], v)
+    kernels["rows_free"](v, rows, metric, metric, metric, v, True, none, np.empty(0),
+                         np.empty(0), 0.01, 0.02, 0.5, 1e-3)

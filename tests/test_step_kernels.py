@@ -1,0 +1,258 @@
+"""FPM's and CPM's fused step kernels (tamedpuma/methods/_kernels.py): compiled (numba) and plain
+give the same numbers, the plain ones are the numpy functions they fuse, and the barrier step's
+fast path keeps exactly the velocities the whole step keeps."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tamedpuma.fabrics.discrete import barrier_step
+from tamedpuma.fabrics.spec import FabricError
+from tamedpuma.methods import _kernels
+from tamedpuma.methods._circulation import Circulation, TangentSpecs
+from tamedpuma.methods._ground_rows import HullTable
+from tamedpuma.methods._ground_rows import hull_ground_rows as fused_ground_rows
+from tamedpuma.methods._policy import TaskAcceleration, pull_to_joints
+from tamedpuma.methods._tamed import (
+    BARRIER_KAPPA,
+    BARRIER_STANDOFF,
+    GROUND_HEIGHT_M,
+    Forcing,
+    forced_reference,
+    forced_through_metric,
+    free_pull,
+    keeps_velocity,
+)
+from tamedpuma.robot import ground
+from tamedpuma.robot.ground import GroundRows, link_hulls
+
+N, M_ROWS = 7, 6
+
+
+def _spd(rng, n=N):
+    A = rng.standard_normal((n, n))
+    return A @ A.T + 0.2 * np.eye(n)
+
+
+def _fabric(rng, rows: int):
+    """An avoidance fabric's parts (M = m_b I + Σ m_r a_r a_rᵀ, f, barrier rows and metric)."""
+    a = rng.standard_normal((rows, N))
+    m = np.where(rng.random(rows) < 0.3, 0.0, rng.exponential(5.0, rows))
+    M = 0.2 * np.eye(N) + (a.T * m) @ a
+    f = rng.standard_normal(N)
+    return SimpleNamespace(M=M, f=f, barrier_rows=a, barrier_metric=m,
+                           acceleration=lambda: -np.linalg.solve(M, f))
+
+
+def _case(seed: int):
+    rng = np.random.default_rng(seed)
+    av = _fabric(rng, int(rng.integers(0, 12)))
+    task = TaskAcceleration(rng.standard_normal(M_ROWS), rng.standard_normal((M_ROWS, N)),
+                            rng.standard_normal(M_ROWS))
+    null = rng.standard_normal(N) if seed % 3 else None
+    k = int(rng.integers(0, 3))
+    extra = TangentSpecs(rng.standard_normal((k, N)), rng.standard_normal(k),
+                         rng.random(k) * 100.0) if k else None
+    forcing = Forcing(mode=("metric", "task_metric")[seed % 2], directional=seed % 5 != 0)
+    return rng, av, task, null, extra, forcing
+
+
+def _close(a, b, rel=1e-12):
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if b.size == 0:
+        return a.shape == b.shape
+    return np.all(np.abs(a - b) <= rel * np.maximum(np.abs(b).max(), 1e-300))
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_the_fused_forcing_is_the_numpy_forcing(seed):
+    rng, av, task, null, extra, forcing = _case(seed)
+    target = task.xdd - task.jdqd
+    qdd_free = free_pull(task, target, 0.01, null)
+    assert _close(qdd_free, pull_to_joints(task, 0.01, null))
+    got = forced_through_metric(av, task, target, forcing, null, extra, qdd_free)
+    want = forced_reference(av, task, forcing, null, extra, qdd_free)
+    for g, w in zip(got, want):
+        assert _close(g, w)
+
+
+def _plain_and_compiled(name, *args):
+    pytest.importorskip("numba")
+    assert _kernels.warm_up()
+    kernel = _kernels.STEP[name]
+    return kernel.plain(*args), kernel.fast(*args)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_compiled_and_plain_kernels_agree_to_rounding(seed):
+    rng, av, task, null, extra, forcing = _case(seed)
+    target = task.xdd - task.jdqd
+    has_null = null is not None
+    null = null if has_null else target[:0]
+    plain, fast = _plain_and_compiled("damped_pull", task.J, target, 1e-4, null, has_null)
+    assert _close(fast, plain)
+    ext = extra or TangentSpecs(np.empty((0, N)), np.empty(0), np.empty(0))
+    args = (av.M, av.f, av.barrier_rows, av.barrier_metric, task.J, 100.0, target, 0.05, null,
+            has_null, ext.rows, ext.weights, ext.targets, plain, forcing.directional,
+            forcing.mode == "task_metric")
+    plain, fast = _plain_and_compiled("metric_forcing", *args)
+    for p, f in zip(plain, fast):
+        assert _close(f, p)
+
+
+def _rows_case(seed: int):
+    """A barrier step's inputs: rows near their bound (some past the standoff), a drift on
+    some, ground rows on some seeds."""
+    rng = np.random.default_rng(1000 + seed)
+    rows, x = rng.standard_normal((9, N)), rng.uniform(-0.01, 0.3, 9)
+    v = rng.standard_normal(N) * rng.choice([0.01, 0.1, 1.0])
+    av = SimpleNamespace(barrier_rows=rows, barrier_x=x, barrier_jdqd=rng.standard_normal(9),
+                         barrier_xd=rng.standard_normal(9) if seed % 2 else None,
+                         M=_spd(rng), far_rows=None)
+    ground = None
+    if seed % 3:
+        k = int(rng.integers(0, 4))
+        ground = GroundRows(rng.uniform(0.0, 0.2, k), rng.standard_normal((k, N)),
+                            rng.standard_normal(k))
+    return av, ground, v, rng.standard_normal(N) * 0.1
+
+
+@pytest.mark.parametrize("seed", range(200))
+def test_the_fast_path_keeps_exactly_what_the_barrier_step_keeps(seed):
+    av, ground, v, qd = _rows_case(seed)
+    rows, x, jd = av.barrier_rows, av.barrier_x, av.barrier_jdqd
+    drift = None if av.barrier_xd is None else av.barrier_xd - rows @ qd
+    if ground is not None:
+        rows = np.concatenate((rows, ground.rows))
+        x = np.concatenate((x, ground.heights - GROUND_HEIGHT_M))
+        jd = np.concatenate((jd, ground.jdqd))
+        if drift is not None:
+            drift = np.concatenate((drift, np.zeros(len(ground.heights))))
+    w, active = barrier_step(v, rows, x, 0.02, BARRIER_KAPPA, av.M, jd, drift, None,
+                             BARRIER_STANDOFF)
+    assert keeps_velocity(av, ground, v, qd, 0.02) == (w is v and active == 0)
+
+
+def test_the_cases_cover_both_answers():
+    kept = [keeps_velocity(*_rows_case(s)[:3], _rows_case(s)[3], 0.02) for s in range(200)]
+    assert 20 < sum(kept) < 180
+
+
+def test_after_the_warm_up_nothing_compiles_and_new_types_run_plain():
+    pytest.importorskip("numba")
+    assert _kernels.warm_up()
+    kernel = _kernels.Kernel(_kernels.damped_pull)
+    kernel.fast = _kernels.STEP["damped_pull"].fast
+    before = len(kernel.fast.signatures)
+    rng = np.random.default_rng(0)
+    J = np.asfortranarray(rng.standard_normal((M_ROWS, N)))  # a layout the warm-up never saw
+    t = rng.standard_normal(M_ROWS).astype(np.float32)
+    out = kernel(J, t, 1e-4, t[:0], False)
+    assert len(_kernels.STEP["damped_pull"].fast.signatures) == before
+    assert np.array_equal(out, kernel.plain(J, t, 1e-4, t[:0], False))
+    assert kernel.fast is None and "No matching definition" in kernel.demoted  # plain for good
+
+
+def test_the_step_passes_the_types_the_warm_up_compiled(kinematics, monkeypatch):
+    """Read-only radii (the kinematic state's, the simulator's) included: no kernel of the
+    circulation on the arm is demoted to plain."""
+    pytest.importorskip("numba")
+    assert _kernels.warm_up()
+    for name, fast in _kernels._COMPILED.items():  # fresh wrappers: no earlier test's state
+        fresh = _kernels.Kernel(getattr(_kernels, name))
+        fresh.fast = fast
+        monkeypatch.setitem(_kernels.STEP, name, fresh)
+    rng = np.random.default_rng(3)
+    radii = np.array([0.05, 0.1])
+    radii.flags.writeable = False
+    state = kinematics.evaluate(np.zeros(N), rng.standard_normal(N))
+    Circulation(10.0, 1.0, 100.0, 0.0).specs(state, np.zeros(N), rng.standard_normal(N),
+                                              state.sphere_centers[:2] + 0.01, radii)
+    assert not any(k.demoted for k in _kernels.STEP.values())
+    assert all(k.fast is not None for k in _kernels.STEP.values())
+
+
+def test_without_numba_every_kernel_is_the_plain_function(monkeypatch):
+    kernel = _kernels.Kernel(_kernels.damped_pull)  # as STEP's are before any warm-up
+    assert kernel.fast is None
+    rng = np.random.default_rng(1)
+    J, t = rng.standard_normal((M_ROWS, N)), rng.standard_normal(M_ROWS)
+    assert np.array_equal(kernel(J, t, 1e-4, t[:0], False),
+                          _kernels.damped_pull(J, t, 1e-4, t[:0], False))
+    monkeypatch.setattr(_kernels, "AVAILABLE", False)
+    monkeypatch.setattr(_kernels, "_COMPILED", None)
+    assert _kernels.warm_up() is False
+
+
+@pytest.fixture(scope="module")
+def hulls(kinematics):
+    return link_hulls(kinematics)
+
+
+@pytest.mark.parametrize("below", [np.inf, 0.4, 0.1])
+def test_the_fused_ground_rows_are_the_robot_modules(kinematics, hulls, below):
+    table = HullTable.of(hulls)
+    rng = np.random.default_rng(7)
+    lo, hi = np.asarray(kinematics.spec.q_min), np.asarray(kinematics.spec.q_max)
+    found = 0
+    for _ in range(100):
+        qd = rng.standard_normal(N)
+        kinematics.evaluate(rng.uniform(lo, hi), qd)
+        want = ground.hull_ground_rows(kinematics, hulls, qd, below)
+        got = fused_ground_rows(kinematics, table, qd, below)
+        found += len(want.heights)
+        for g, w in ((got.heights, want.heights), (got.rows, want.rows),
+                     (got.jdqd, want.jdqd)):
+            assert g.shape == w.shape and _close(g, w)
+    assert found > 0
+
+
+def test_compiled_and_plain_ground_kernels_agree(kinematics, hulls):
+    table = HullTable.of(hulls)
+    rng = np.random.default_rng(8)
+    Rt = np.stack([np.linalg.qr(rng.standard_normal((3, 3)))[0] for _ in table.radii])
+    tz = rng.uniform(-0.2, 0.6, len(table.radii))
+    plain, fast = _plain_and_compiled("lowest_points", table.vertices, table.starts, Rt, tz,
+                                      table.radii, 0.3)
+    assert np.array_equal(plain[0], fast[0]) and plain[0].any()
+    for p, f in zip(plain[1:], fast[1:]):
+        assert _close(f[plain[0]], p[plain[0]])
+    args = (rng.standard_normal((3, 6, N)), rng.standard_normal((3, 6)),
+            rng.standard_normal((3, 3)), rng.standard_normal(N))
+    plain, fast = _plain_and_compiled("ground_rows", *args)
+    for p, f in zip(plain, fast):
+        assert _close(f, p)
+
+
+def test_a_numba_that_cannot_compile_leaves_the_plain_kernels(monkeypatch):
+    def broken():
+        raise ImportError("numba built for another numpy")
+
+    fresh = {k.__name__: _kernels.Kernel(k) for k in _kernels.KERNELS}
+    monkeypatch.setattr(_kernels, "AVAILABLE", True)
+    monkeypatch.setattr(_kernels, "_COMPILED", None)
+    monkeypatch.setattr(_kernels, "_compiled", broken)
+    monkeypatch.setattr(_kernels, "STEP", fresh)
+    with pytest.warns(UserWarning, match="plain numpy"):
+        assert _kernels.warm_up() is False
+    assert all(k.fast is None for k in fresh.values())
+    assert _kernels.warm_up() is False  # once per process: no second attempt, no warning
+
+
+def test_a_singular_geometry_raises_as_the_numpy_forcing_does():
+    """M + JᵀwJ singular while the forcing's system is not (its m_null I): FabricError, as
+    before the fusion (not the kernel's LinAlgError)."""
+    rng, av, task, null, extra, _ = _case(1)
+    J = task.J.copy()
+    J[:, -1] = 0.0  # the last joint moves no task row: JᵀwJ (and M = 0 + JᵀwJ) singular
+    task = TaskAcceleration(task.xdd, J, task.jdqd)
+    av.M = np.zeros((N, N))
+    forcing = Forcing(mode="task_metric", directional=False)
+    target = task.xdd - task.jdqd
+    with pytest.raises(FabricError):
+        forced_reference(av, task, forcing, np.ones(N), None, None)
+    with pytest.raises(FabricError):
+        forced_through_metric(av, task, target, forcing, np.ones(N), None, None)
