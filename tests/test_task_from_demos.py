@@ -274,3 +274,37 @@ def test_a_new_task_runs_with_obstacles_at_once(tmp_path, csv_folder, scenario):
     (summary,) = tmp_path.glob("*/summary.json")
     s = json.loads(summary.read_text())
     assert s["task"] == "mine" and s["steps"] == 3 and np.isfinite(s["min_clearance_m"])
+
+
+def test_the_goal_pose_check_finds_solutions_and_judges_their_clearance(kinematics):
+    from tamedpuma.worlds.goal_pose import goal_pose_spheres, pose_clear
+
+    q = np.array([0.3, 0.5, -0.2, -1.4, 0.1, 0.9, 0.2])  # a reachable pose, above the ground
+    position, quaternion = kinematics.ee_pose(q)
+    spheres = goal_pose_spheres(kinematics, position, quaternion, seed=0)
+    assert len(spheres) >= 2
+    radii = kinematics.spec.sphere_radii
+    hand = spheres[:, -1]  # the hand's sphere sits where the pose puts it, in every solution
+    assert np.allclose(hand, hand[0], atol=1e-3)
+    assert pose_clear(spheres, radii, np.zeros((0, 3)), np.zeros(0), 0.02)
+    assert not pose_clear(spheres[:0], radii, [[2.0, 2.0, 2.0]], [0.05], 0.02)
+    far = position + np.array([0.0, 0.0, 1.5])
+    assert pose_clear(spheres, radii, [far], [0.05], 0.02)
+    assert not pose_clear(spheres, radii, [hand[0]], [0.05], 0.02)  # on the hand: blocked
+    gaps = np.linalg.norm(spheres - far, axis=-1) - radii - 0.05
+    assert not pose_clear(spheres, radii, [far], [0.05], float(gaps.min(axis=1).max()) + 1e-6)
+
+
+def test_scenarios_from_demonstrations_leave_the_goal_pose_reachable(csv_folder, kinematics):
+    from tamedpuma.worlds import demo_scenarios as ds
+    from tamedpuma.worlds.goal_pose import goal_pose_spheres, pose_clear
+
+    raws = demo_formats.load_any(csv_folder)
+    goal = np.mean([r.pos[-1] for r in raws], axis=0)
+    goal_q = raws[0].quat[-1]
+    home = [-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010]
+    for seed in range(3):
+        cfg = ds.DemoScenarioConfig(seed=seed, n_obstacles=2)
+        _, centers, radii, _ = ds.generate(raws, goal, kinematics, home, cfg, goal_q)
+        assert pose_clear(goal_pose_spheres(kinematics, goal, goal_q, seed),
+                          kinematics.spec.sphere_radii, centers, radii, cfg.goal_pose_clearance)

@@ -11,7 +11,11 @@ Seeded by ``seed`` (the same seed gives the same scenario):
   that start runs), a point at an arc-length fraction drawn from ``path_fraction``, moved sideways
   (perpendicular to the path) by at most ``path_offset`` [m]: obstacles on or near the path. A
   point is kept only if the obstacle's surface stays ``min_clearance`` [m] from the start's body
-  spheres and end effector and from the goal, and clear of the other obstacles.
+  spheres and end effector and from the goal, and clear of the other obstacles, and if the arm
+  can still hold the goal pose with every body sphere ``goal_pose_clearance`` [m] clear of the
+  obstacles (:mod:`tamedpuma.worlds.goal_pose`: 9 of the first 30 scenarios of the authors'
+  other pouring folder had an obstacle by the forearm at the goal pose, where every controller
+  rests 7-9 cm short).
 
 numpy only (kinematics and IK from :mod:`tamedpuma.robot`). The configs are the schema's typed
 objects (``tamedpuma/app/schema.py``), read by attribute and never changed: :func:`apply` returns
@@ -27,6 +31,7 @@ import numpy as np
 
 from tamedpuma.errors import ScenarioError
 from tamedpuma.robot.ik import solve_pose_ik
+from tamedpuma.worlds.goal_pose import goal_pose_spheres, pose_clear
 from tamedpuma.worlds.scenarios import ObstacleConfig
 
 if TYPE_CHECKING:  # annotations only: the config schema imports this module without torch
@@ -45,6 +50,7 @@ class DemoScenarioConfig:
     path_fraction: tuple[float, float] = (0.3, 0.7)
     path_offset: float = 0.03
     min_clearance: float = 0.1
+    goal_pose_clearance: float = 0.02  # [m] the arm at the goal pose clear of the obstacles
     max_tries: int = 200
 
 
@@ -86,11 +92,15 @@ def start_configuration(kin, position, quaternion, home, rng) -> np.ndarray | No
     return None
 
 
-def generate(raws: list[RawDemo], goal_position, kin, home, cfg: DemoScenarioConfig
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """(q0 (dof,), obstacle centres (n, 3), radii (n,), index of the demonstration used)."""
+def generate(raws: list[RawDemo], goal_position, kin, home, cfg: DemoScenarioConfig,
+             goal_quaternion=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(q0 (dof,), obstacle centres (n, 3), radii (n,), index of the demonstration used). With
+    ``goal_quaternion``, the obstacles also leave the arm a way to hold the goal pose
+    ``goal_pose_clearance`` clear of them (:mod:`tamedpuma.worlds.goal_pose`)."""
     rng = np.random.default_rng([int(cfg.seed), 2718])
     goal = np.asarray(goal_position, float)
+    at_goal = (None if goal_quaternion is None
+               else goal_pose_spheres(kin, goal, goal_quaternion, int(cfg.seed)))
     home = np.asarray(home if home is not None else (kin.spec.q_min + kin.spec.q_max) / 2, float)
     for _ in range(cfg.max_tries):
         i = int(rng.integers(len(raws)))
@@ -119,13 +129,18 @@ def generate(raws: list[RawDemo], goal_position, kin, home, cfg: DemoScenarioCon
             if centers and (np.linalg.norm(np.array(centers) - c, axis=1).min()
                             < 2 * cfg.obstacle_radius):
                 continue
+            if at_goal is not None and not pose_clear(
+                    at_goal, kin.spec.sphere_radii, np.array([*centers, c]),
+                    np.full(len(centers) + 1, cfg.obstacle_radius), cfg.goal_pose_clearance):
+                continue
             centers.append(c)
         if len(centers) == cfg.n_obstacles:
             return q0, np.array(centers).reshape(-1, 3), np.full(len(centers),
                                                                  cfg.obstacle_radius), i
     raise ScenarioError(f"could not make a scenario from the demonstrations in {cfg.max_tries} "
                         "tries (start unreachable by IK, or no obstacle place on the path "
-                        f"{cfg.min_clearance} m clear of the start and the goal)")
+                        f"{cfg.min_clearance} m clear of the start and the goal, the arm at the "
+                        f"goal pose {cfg.goal_pose_clearance} m clear)")
 
 
 def task_raws(task) -> list[RawDemo]:
@@ -183,7 +198,8 @@ def _generated(sc, gen, raws: list[RawDemo], kinematics, home):
                                     for k, v in values.items()})
     except TypeError as exc:
         raise ScenarioError(f"scenario.generator: {exc}") from None
-    q0, centers, radii, _ = generate(raws, sc.goal.position, kinematics, home, cfg)
+    q0, centers, radii, _ = generate(raws, sc.goal.position, kinematics, home, cfg,
+                                     sc.goal.quaternion)
     made = [ObstacleConfig(tuple(c.tolist()), float(r)) for c, r in zip(centers, radii)]
     return replace(sc, q0=q0.tolist(), obstacles=[*(sc.obstacles or []), *made],
                    name=f"{sc.name}_{cfg.seed}")
