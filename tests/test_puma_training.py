@@ -220,10 +220,11 @@ def test_the_stop_target_is_the_smallest_of_the_gate_the_spread_and_the_absolute
 def test_the_default_config_stops_on_the_data_not_on_a_fixed_line():
     t = compose("train", ["task=tomato"])["puma"]["train"]
     assert t["stop_dtw"] == 0 and t["keep_dtw"] == 0  # no absolute DTW line
-    assert 0 < t["stop_gate"] < 1 and t["patience"] >= 2 and 0 < t["min_delta"] < 0.2
+    assert 0 < t["stop_spread"] < 1 and t["patience"] >= 2 and 0 < t["min_delta"] < 0.2
     assert t["path_weight"] > 0 and t["ema"] > 0 and t["val_confirm"] + t["val_starts"] >= 1000
-    network = compose("train", ["task=tomato"])["puma"]["network"]
-    assert 0 < network["out_quantile"] < 1  # a typical demonstration's peak, not one spike's
+    candidate = compose("train", ["task=tomato", "puma=candidate"])["puma"]
+    assert 0 < candidate["train"]["stop_gate"] < 1 and candidate["train"]["stop_spread"] == 0
+    assert candidate["network"]["out_quantile"] == 0.5 and candidate["train"]["lr"] == 0.003
 
 
 def test_a_plateau_starts_the_final_decay_and_the_run_ends_after_it():
