@@ -19,8 +19,8 @@ from tamedpuma.methods._policy import TaskAcceleration, pull_to_joints
 from tamedpuma.methods._tamed import (
     BARRIER_KAPPA,
     BARRIER_STANDOFF,
-    GROUND_HEIGHT_M,
     Forcing,
+    barrier_system,
     forced_reference,
     forced_through_metric,
     free_pull,
@@ -123,14 +123,7 @@ def _rows_case(seed: int):
 @pytest.mark.parametrize("seed", range(200))
 def test_the_fast_path_keeps_exactly_what_the_barrier_step_keeps(seed):
     av, ground, v, qd = _rows_case(seed)
-    rows, x, jd = av.barrier_rows, av.barrier_x, av.barrier_jdqd
-    drift = None if av.barrier_xd is None else av.barrier_xd - rows @ qd
-    if ground is not None:
-        rows = np.concatenate((rows, ground.rows))
-        x = np.concatenate((x, ground.heights - GROUND_HEIGHT_M))
-        jd = np.concatenate((jd, ground.jdqd))
-        if drift is not None:
-            drift = np.concatenate((drift, np.zeros(len(ground.heights))))
+    rows, x, jd, drift = barrier_system(av, ground, qd)
     w, active = barrier_step(v, rows, x, 0.02, BARRIER_KAPPA, av.M, jd, drift, None,
                              BARRIER_STANDOFF)
     assert keeps_velocity(av, ground, v, qd, 0.02) == (w is v and active == 0)

@@ -550,19 +550,28 @@ class ControlRate:
         n_active, scale = 0, 1.0
         if (self.barrier_step and av.barrier_rows is not None
                 and not keeps_velocity(av, ground, qd_next, qd, dt)):
-            rows, x, jd = av.barrier_rows, av.barrier_x, av.barrier_jdqd
-            drift = None if av.barrier_xd is None or qd is None else av.barrier_xd - rows @ qd
-            if ground is not None:
-                rows = np.concatenate((rows, ground.rows))
-                x = np.concatenate((x, ground.heights - GROUND_HEIGHT_M))
-                jd = np.concatenate((jd, ground.jdqd))
-                if drift is not None:
-                    drift = np.concatenate((drift, np.zeros(len(ground.heights))))
+            rows, x, jd, drift = barrier_system(av, ground, qd)
             qd_next, n_active = barrier_step(qd_next, rows, x, dt, BARRIER_KAPPA, av.M, jd,
                                              drift, av.far_rows, BARRIER_STANDOFF)
         if self.speed_limit:
             qd_next, scale = limit_speed(qd_next, (1.0 - SPEED_HEADROOM) * qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}
+
+
+def barrier_system(av, ground: GroundRows | None, qd):
+    """The barrier step's rows J (r, n), distances x (r,) [m | rad], J̇q̇ (r,) and drift (r,)
+    (the obstacles' part of ẋ at the current velocity qd, None without moving obstacles): the
+    avoidance's rows of ``av``, then the ground's (heights above :data:`GROUND_HEIGHT_M`, no
+    drift)."""
+    rows, x, jd = av.barrier_rows, av.barrier_x, av.barrier_jdqd
+    drift = None if av.barrier_xd is None or qd is None else av.barrier_xd - rows @ qd
+    if ground is not None:
+        rows = np.concatenate((rows, ground.rows))
+        x = np.concatenate((x, ground.heights - GROUND_HEIGHT_M))
+        jd = np.concatenate((jd, ground.jdqd))
+        if drift is not None:
+            drift = np.concatenate((drift, np.zeros(len(ground.heights))))
+    return rows, x, jd, drift
 
 
 def keeps_velocity(av, ground: GroundRows | None, v: np.ndarray, qd, dt: float) -> bool:
