@@ -31,11 +31,16 @@ def group_options(group: str, extra_dirs: tuple[Path, ...] = ()) -> list[str]:
     ``--config-dir``), sorted."""
     found = set()
     for root in (*config_roots(), *extra_dirs):
-        folder = Path(root) / group
-        if folder.is_dir():
-            found.update(p.relative_to(folder).with_suffix("").as_posix()
-                         for p in folder.rglob("*.yaml"))
+        found.update(options_in(Path(root) / group))
     return sorted(found)
+
+
+def options_in(folder: Path) -> list[str]:
+    """The options (``*.yaml`` below ``folder``, nested ones as ``tomato/00``) of one config
+    group folder, sorted; none if it is missing."""
+    if not folder.is_dir():
+        return []
+    return sorted(p.relative_to(folder).with_suffix("").as_posix() for p in folder.rglob("*.yaml"))
 
 
 def load_group(group: str, name: str) -> dict:

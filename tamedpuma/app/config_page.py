@@ -32,6 +32,7 @@ from omegaconf import MISSING, OmegaConf
 
 from tamedpuma.app import schema
 from tamedpuma.app.compose import compose
+from tamedpuma.app.config import options_in
 from tamedpuma.paths import CONF_DIR
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -474,9 +475,7 @@ def collapsed(options: list[str]) -> str:
 def package_options(group: str) -> list[str]:
     """The options of ``group`` the package ships (the page is the same wherever it is
     generated; an installed method plugin documents its own)."""
-    folder = CONF_DIR / group
-    return sorted(p.relative_to(folder).with_suffix("").as_posix()
-                  for p in folder.rglob("*.yaml")) if folder.is_dir() else []
+    return options_in(CONF_DIR / group)
 
 
 def group_section() -> list[str]:
