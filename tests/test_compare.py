@@ -14,7 +14,8 @@ from tamedpuma.analysis import compare, stats
 
 
 def _summary(folder: Path, method: str, scenario: str, solved: bool, *, suite=None,
-             task: str = "tomato", n_obstacles: int = 1, whole_body: bool | None = None):
+             task: str = "tomato", n_obstacles: int = 1, whole_body: bool | None = None,
+             converged: bool | None = None):
     run = folder / f"{method}_{task}_{scenario}_{n_obstacles}"
     run.mkdir(parents=True)
     summary = {"status": "complete", "method": method, "method_label": method, "task": task,
@@ -22,6 +23,8 @@ def _summary(folder: Path, method: str, scenario: str, solved: bool, *, suite=No
                "success_paper": solved,
                "success_whole_body": solved if whole_body is None else whole_body,
                "step_compute_ms": [1.0, 1.0]}
+    if converged is not None:  # summaries written before the converged criterion have none
+        summary["converged_paper"] = converged
     if suite is not None:
         summary["suite"] = suite
     (run / "summary.json").write_text(json.dumps(summary))
@@ -36,7 +39,7 @@ def two_sweeps(tmp_path):
     for i in range(12):  # fpm solves 0-9, pink_cbf 0-3 and 10-11
         name = f"random_tomato_near_table1_{2000 + i}"
         _summary(a, "fpm", name, i < 10, suite=SUITE)
-        _summary(b, "pink_cbf", name, i < 4 or i >= 10, suite=SUITE)
+        _summary(b, "pink_cbf", name, i < 4 or i >= 10, suite=SUITE, converged=i < 3)
         _summary(b, "pink_cbf", name, True, suite=SUITE, n_obstacles=0)  # obstacle-free: left out
     _summary(b, "pink_cbf", "tomato_03", True, suite={"name": "table1", "version": 1})
     return a, b
@@ -51,6 +54,8 @@ def test_the_paired_comparison_names_the_scenarios_and_the_exact_p(two_sweeps, t
     assert (row["A"], row["B"], row["paired scenarios"]) == ("fpm", "pink_cbf", 12)
     p = stats.mcnemar_exact(6, 2)
     assert row["success paper: only A / only B (p)"] == f"6 / 2 ({p:.3g})"
+    # converged: A's summaries record none, so no scenario is paired on it (not a loss)
+    assert row["converged paper: only A / only B (p)"] == "0 / 0 (1)"
     pairs = pd.read_csv(out / "compare_pairs.csv")
     paper = pairs[pairs["outcome"] == "success_paper"]
     assert sorted(paper[paper["solved by"] == "B"]["scenario"]) == [
@@ -59,6 +64,8 @@ def test_the_paired_comparison_names_the_scenarios_and_the_exact_p(two_sweeps, t
     rates = pd.read_csv(out / "compare_rates.csv").set_index(["suite", "entry"])
     assert rates.loc[("random", "fpm"), "scenarios"] == 12
     assert rates.loc[("random", "pink_cbf"), "success paper [95% CI]"].startswith("0.50 [")
+    assert rates.loc[("random", "pink_cbf"), "converged paper [95% CI]"].startswith("0.25 [")
+    assert rates.loc[("random", "fpm"), "converged paper [95% CI]"] == "—"
     assert rates.loc[("table1", "pink_cbf"), "scenarios"] == 1
     assert (out / "compare.png").stat().st_size > 1000
     assert "fpm" in capsys.readouterr().out

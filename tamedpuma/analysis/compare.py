@@ -5,11 +5,11 @@ Each folder's run summaries (``summary.json``) are read; every (folder, method l
 *entry* (named by its method label, with ``@<folder>`` where two folders hold the same label).
 On the runs with obstacles, per suite (the run's recorded suite, else ``table1`` or ``random``
 from the scenario's name), the table gives each entry's success rates (paper and whole-body
-criteria) with 95 % Wilson score intervals (:func:`tamedpuma.analysis.stats.rate_interval`),
-and for every pair of entries from different folders (every pair, with one folder)
-**on the scenarios both ran** (task, scenario, obstacle count, disturbance): the scenarios one
-solves and the other does not, and McNemar's exact two-sided p
-(:func:`tamedpuma.analysis.ablation.paired`).
+criteria) and its converged rate (the hand at rest in the goal ball) with 95 % Wilson score
+intervals (:func:`tamedpuma.analysis.stats.rate_interval`), and for every pair of entries
+from different folders (every pair, with one folder) **on the scenarios both ran** (task,
+scenario, obstacle count, disturbance): the scenarios one solves and the other does not, and
+McNemar's exact two-sided p (:func:`tamedpuma.analysis.ablation.paired`).
 
 Runs of one suite made with different suite versions (``suite.version`` in ``conf/experiment``,
 recorded in each summary; none for runs made before versions) are not comparable: their seeds
@@ -34,8 +34,9 @@ from tamedpuma.analysis import stats
 from tamedpuma.analysis.ablation import paired, suite_of
 from tamedpuma.analysis.runs import runs_or_error, split_incomplete, write_table
 
-#: the paired outcomes (0/1 per run), as in the tables
-OUTCOMES = ("success_paper", "success_whole_body")
+#: the paired outcomes (0/1 per run), as in the tables: success under both criteria, and the
+#: hand come to rest in the goal ball (paper criterion); a summary without one has NaN there
+OUTCOMES = ("success_paper", "success_whole_body", "converged_paper")
 
 
 def suite_columns(runs: pd.DataFrame) -> pd.DataFrame:
@@ -112,12 +113,13 @@ def pair_rows(scored: pd.DataFrame, single_folder: bool) -> tuple[list[dict], li
         for a, b in itertools.combinations(ordered, 2):
             if source[a] == source[b] and not single_folder:
                 continue
-            row = {"suite": suite, "A": a, "B": b}
+            both = set(data.loc[data["entry"] == a, "key"]) & set(
+                data.loc[data["entry"] == b, "key"])
+            row = {"suite": suite, "A": a, "B": b, "paired scenarios": len(both)}
             for outcome in OUTCOMES:
                 # paired() counts B's losses (A solves, B not) and gains against A
                 pair = paired(data[data["entry"] == a], data[data["entry"] == b], outcome)
                 name = outcome.replace("_", " ")
-                row["paired scenarios"] = pair["n"]
                 row[f"{name}: only A / only B (p)"] = (
                     f"{len(pair['lost'])} / {len(pair['gained'])} ({pair['p']:.3g})")
                 scenarios += [{"suite": suite, "A": a, "B": b, "outcome": outcome,
@@ -141,8 +143,8 @@ def rates_figure(rates: list[dict], out: Path) -> Path:
     for ax, suite in zip(axes[0], suites):
         rows = [r for r in rates if r["suite"] == suite]
         y = np.arange(len(rows))
-        for shift, outcome, color in ((-0.15, OUTCOMES[0], "tab:blue"),
-                                      (0.15, OUTCOMES[1], "tab:orange")):
+        for shift, outcome, color in zip((-0.2, 0.0, 0.2), OUTCOMES,
+                                         ("tab:blue", "tab:orange", "tab:green")):
             value = np.array([r[f"_{outcome}"].value for r in rows])
             err = np.array([[r[f"_{outcome}"].value - r[f"_{outcome}"].low,
                              r[f"_{outcome}"].high - r[f"_{outcome}"].value] for r in rows]).T
@@ -150,7 +152,7 @@ def rates_figure(rates: list[dict], out: Path) -> Path:
                         label=outcome.replace("_", " "))
         ax.set_yticks(y, [r["entry"] for r in rows])
         ax.set_xlim(-0.02, 1.02)
-        ax.set_xlabel("success rate (95 % Wilson interval)")
+        ax.set_xlabel("rate (95 % Wilson interval)")
         ax.set_title(f"suite {suite}")
         ax.legend(loc="lower left", fontsize=8)
     fig.tight_layout()
