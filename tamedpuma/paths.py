@@ -24,6 +24,19 @@ CONF_DIR = PACKAGE_DIR / "conf"  # the config groups ship inside the package
 CHECKOUT_ROOT = PACKAGE_DIR.parent
 
 
+def in_checkout() -> bool:
+    """True when this package runs from a checkout (its ``pyproject.toml`` beside the package),
+    False for an installed package (the folder above it is site-packages)."""
+    return (CHECKOUT_ROOT / "pyproject.toml").is_file()
+
+
+def project_root() -> Path:
+    """Where the project's own pages and benchmark files go (``docs/``, ``BENCHMARKS.md``,
+    ``benchmarks/``): the checkout holding this package, else the working directory (an
+    installed package has no such files, and its site-packages is no place to write them)."""
+    return CHECKOUT_ROOT if in_checkout() else Path.cwd()
+
+
 def candidates(path: str | os.PathLike) -> list[Path]:
     """Where ``path`` is looked for, in order."""
     p = Path(path).expanduser()

@@ -362,6 +362,31 @@ def test_the_results_page_refuses_a_folder_without_the_analysis_in_one_line(tmp_
     assert results_page.main(["table1", str(tmp_path / "nope"), "--page", str(page)]) == 2
 
 
+def test_installed_the_pages_go_to_docs_of_the_current_folder(tmp_path, monkeypatch, capsys):
+    """An installed package (no pyproject.toml beside it: site-packages) writes the results and
+    configuration pages into docs/ of the working directory, never beside site-packages, and
+    names its version, not the git revision of whatever repository holds site-packages."""
+    from tamedpuma import paths
+    from tamedpuma.app import config_page, results_page
+    from tamedpuma.app.models import code_revision
+
+    runs = _fake_runs(tmp_path)
+    monkeypatch.setattr(paths, "CHECKOUT_ROOT", tmp_path / "site-packages")
+    here = tmp_path / "elsewhere"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    assert results_page.main(["table1", str(runs)]) == 0
+    text = (here / "docs" / "results.md").read_text()
+    assert "| fpm | 0.97 |" in text and "(no git checkout)" in text
+    assert code_revision().startswith("tamedpuma ")  # what its runs record, shown whole
+    assert results_page.run_revisions([{"code_revision": code_revision()}]) == (
+        f"`{code_revision()}`")
+    capsys.readouterr()
+    assert config_page.main(["--check"]) == 1  # no page in this folder yet
+    assert capsys.readouterr().out.startswith(f"{here / 'docs' / 'configuration.md'}: stale")
+    assert not (tmp_path / "docs").exists()
+
+
 def test_every_results_block_names_its_provenance():
     text = (DOCS / "results.md").read_text()
     blocks = re.findall(r"<!-- result: ([a-z0-9]+) -->(.*?)<!-- /result -->", text, re.S)

@@ -203,6 +203,12 @@ def test_wheel_ships_the_synthetic_models_and_no_demonstration(tmp_path):
         assert f"tamedpuma/puma/shipped/{name}/manifest.json" in names
     assert "tamedpuma/puma/demos_sha256.txt" in names
     _no_authors_data(entries)
+    # every file of the package in git (configs, data) is in the wheel: a non-editable install
+    # has nothing else (pyproject.toml's package-data names the files that are not modules)
+    tracked = subprocess.run(["git", "-C", str(REPO), "ls-files", "tamedpuma"],
+                             capture_output=True, text=True).stdout.split()
+    missing = [t for t in tracked if t not in names]
+    assert not missing, f"not in the wheel (pyproject.toml's package-data): {missing[:5]}"
 
 
 # -- download of the authors' demonstrations (local server only) ------------------------------

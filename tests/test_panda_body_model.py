@@ -167,3 +167,26 @@ def test_the_body_model_command_writes_a_robot_option_and_updates_its_block(tmp_
     bare = tmp_path / "bare.yaml"
     bare.write_text("name: x\n")
     assert app.main(["robot=panda", f"out={bare}", "samples=4000", "max_spheres=1"]) == 2
+
+
+def test_a_robot_of_a_users_config_folder_is_updated_in_that_folder(tmp_path):
+    """``--config-dir DIR robot=mine``: the block of ``DIR/robot/mine.yaml`` is rewritten, and
+    nothing is written into the package's config folder (installed: site-packages)."""
+    from omegaconf import OmegaConf
+
+    from tamedpuma.app import body_model as app
+
+    mine = tmp_path / "robot" / "mine.yaml"
+    mine.parent.mkdir()
+    mine.write_text(f"defaults:\n  - panda\n  - _self_\nname: mine\n{app.BEGIN}\n{app.END}\n")
+    before = set((CONF_DIR / "robot").iterdir())
+    try:
+        assert app.main(["--config-dir", str(tmp_path), "robot=mine", "samples=4000",
+                         "max_spheres=1"]) == 0
+    finally:
+        written = set((CONF_DIR / "robot").iterdir()) - before
+        for path in written:  # not left behind for the other tests when this one fails
+            path.unlink()
+    assert not written, f"wrote into the package: {sorted(map(str, written))}"
+    assert len(OmegaConf.to_container(OmegaConf.load(mine))["spheres"]) == 8
+    assert app.robot_file(["robot=panda"]) == CONF_DIR / "robot" / "panda.yaml"

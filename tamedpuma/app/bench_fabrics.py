@@ -41,11 +41,11 @@ import numpy as np
 from tamedpuma.app.config import default_kinematics, load_group
 from tamedpuma.fabrics import Fabric, quaternion_to_rotation
 from tamedpuma.methods.fabrics import gains_from_config
-from tamedpuma.paths import CHECKOUT_ROOT
+from tamedpuma.paths import project_root
 
 #: where the benchmark files are written: the checkout holding this package, else (an installed
 #: package has no BENCHMARKS.md of its own) the current folder
-ROOT = CHECKOUT_ROOT if (CHECKOUT_ROOT / "pyproject.toml").is_file() else Path.cwd()
+ROOT = project_root()
 COUNTS = (2, 10, 100, 1000)
 Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
 GOAL_POSITION = np.array([0.58, -0.214, 0.115])

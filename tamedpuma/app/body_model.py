@@ -89,9 +89,31 @@ def write_block(path: Path, text: str, base_robot: str, name: str) -> str:
     return "created"
 
 
-def run(cfg, argv: list[str], log=print) -> dict:
+def robot_file(overrides: list[str]) -> Path:
+    """The yaml of the robot option that ``overrides`` compose: the first config folder of
+    Hydra's search path holding ``robot/<option>.yaml``, in Hydra's order (the package's
+    ``conf/``, then the ``hydra.searchpath`` folders: a user's ``--config-dir``), so a user's
+    robot is updated in the user's folder, never copied into the package."""
+    from tamedpuma.app.compose import compose, session
+
+    with session():
+        hydra = compose("body_model", overrides, hydra_config=True).hydra
+    option = hydra.runtime.choices["robot"]
+    folders = [CONF_DIR]
+    for entry in hydra.searchpath:
+        scheme, sep, rest = str(entry).partition("://")
+        if not sep or scheme == "file":  # Hydra reads a path without a scheme as a file path
+            folders.append(Path(rest if sep else entry).expanduser())
+    for folder in folders:
+        if (folder / "robot" / f"{option}.yaml").is_file():
+            return folder / "robot" / f"{option}.yaml"
+    return CONF_DIR / "robot" / f"{option}.yaml"
+
+
+def run(cfg, argv: list[str], log=print, robot_yaml: Path | None = None) -> dict:
     """Fit the spheres of the typed ``cfg`` (:class:`tamedpuma.app.schema.BodyModelRunConfig`),
-    report their coverage and write them into the robot's config (or ``cfg.out``)."""
+    report their coverage and write them into the robot's config ``robot_yaml`` (default: the
+    package's ``conf/robot/<robot.name>.yaml``) or into ``cfg.out``."""
     from tamedpuma.robot import body_model as bm
     from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
 
@@ -132,7 +154,7 @@ def run(cfg, argv: list[str], log=print) -> dict:
     command = " ".join(["python -m tamedpuma.body_model", *argv])
     text = block(robot.name, fits, tol, command)
     out = cfg.out
-    path = Path(out) if out else CONF_DIR / "robot" / f"{robot.name}.yaml"
+    path = Path(out) if out else robot_yaml or CONF_DIR / "robot" / f"{robot.name}.yaml"
     name = path.stem
     what = write_block(path, text, robot.name, name)
     log(f"{what} {path}")
@@ -148,8 +170,9 @@ def main(argv: list[str]) -> int:
     unknown = sorted(set(flags) - {"--config-dir", "-cd"})
     if unknown:
         raise ConfigError(f"unknown option(s) {', '.join(unknown)}")
-    cfg = compose_typed("body_model", with_search_path(overrides, search))
-    run(cfg, argv)
+    overrides = with_search_path(overrides, search)
+    cfg = compose_typed("body_model", overrides)
+    run(cfg, argv, robot_yaml=None if cfg.out else robot_file(overrides))
     return 0
 
 

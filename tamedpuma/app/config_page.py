@@ -33,10 +33,11 @@ from omegaconf import MISSING, OmegaConf
 from tamedpuma.app import schema
 from tamedpuma.app.compose import compose
 from tamedpuma.app.config import options_in
-from tamedpuma.paths import CONF_DIR
+from tamedpuma.paths import CONF_DIR, project_root
 
-ROOT = Path(__file__).resolve().parents[2]
-PAGE = ROOT / "docs" / "configuration.md"
+#: the page, in :func:`tamedpuma.paths.project_root`: the checkout's, else (an installed
+#: package) docs/ of the current folder
+PAGE = Path("docs") / "configuration.md"
 RULE_CALLS = {"positive": "a finite number > 0", "nonneg": "a finite number >= 0"}
 MUST = re.compile(r"^([\w.\[\]{}* /]+?) must be (.+?)(?:[,;] got\b.*)?$", re.S)
 
@@ -499,8 +500,10 @@ def render() -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="status 1 if the page is stale")
-    parser.add_argument("--out", type=Path, default=PAGE, help=f"default: {PAGE}")
+    parser.add_argument("--out", type=Path, default=None, help=f"default: {PAGE} of the "
+                        "checkout (installed: of the current folder)")
     args = parser.parse_args(argv)
+    args.out = args.out or project_root() / PAGE
     text = render()
     if args.check:
         current = args.out.read_text() if args.out.is_file() else ""

@@ -80,15 +80,17 @@ def _data_of(cfg: dict) -> tuple[str, str]:
 
 
 def code_revision() -> str:
-    """``git describe`` of the checkout (with ``-dirty``), else the package version."""
-    try:
-        out = subprocess.run(["git", "-C", str(paths.CHECKOUT_ROOT), "describe", "--always",
-                              "--dirty", "--abbrev=40"], capture_output=True, text=True,
-                             timeout=10)
-        if out.returncode == 0 and out.stdout.strip():
-            return out.stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        pass
+    """``git describe`` of the checkout (with ``-dirty``), else (an installed package: git would
+    describe whatever repository holds site-packages) the package version."""
+    if paths.in_checkout():
+        try:
+            out = subprocess.run(["git", "-C", str(paths.CHECKOUT_ROOT), "describe", "--always",
+                                  "--dirty", "--abbrev=40"], capture_output=True, text=True,
+                                 timeout=10)
+            if out.returncode == 0 and out.stdout.strip():
+                return out.stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            pass
     from importlib.metadata import PackageNotFoundError, version
 
     try:

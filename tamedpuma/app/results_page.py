@@ -33,9 +33,11 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from tamedpuma.paths import CHECKOUT_ROOT
+from tamedpuma.paths import CHECKOUT_ROOT, in_checkout, project_root
 
-PAGE = CHECKOUT_ROOT / "docs" / "results.md"
+#: the page, in :func:`tamedpuma.paths.project_root`: the checkout's, else (an installed
+#: package) docs/ of the current folder
+PAGE = Path("docs") / "results.md"
 
 
 @dataclass(frozen=True)
@@ -127,10 +129,12 @@ def machine() -> str:
 
 
 def run_revisions(found: list[dict]) -> str | None:
-    """The code revisions the runs record (``summary.json``'s ``code_revision``, short; a
-    ``-dirty`` one kept as recorded), or None where no run records one (layout 1)."""
-    revs = sorted({str(s["code_revision"])[:7] + ("-dirty" if "dirty" in str(
-        s["code_revision"]) else "") for s in found if s.get("code_revision")})
+    """The code revisions the runs record (``summary.json``'s ``code_revision``: a git hash cut
+    to 7 characters, ``-dirty`` kept; an installed package's version, ``tamedpuma 0.1.0``, as
+    recorded), or None where no run records one (layout 1)."""
+    revs = sorted({re.sub(r"(?<![0-9a-f])([0-9a-f]{7})[0-9a-f]{5,}(?![0-9a-f])", r"\1",
+                          str(s["code_revision"]))
+                   for s in found if s.get("code_revision")})
     return ", ".join(f"`{r}`" for r in revs) if revs else None
 
 
@@ -147,15 +151,19 @@ def run_machines(found: list[dict]) -> str | None:
 
 
 def revision() -> str:
-    """The checkout's short revision (``-dirty`` with uncommitted changes), else the version."""
-    try:
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=CHECKOUT_ROOT,
-                             capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=CHECKOUT_ROOT, capture_output=True, text=True).stdout.strip()
-        return rev + ("-dirty" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return f"tamedpuma {metadata.version('tamedpuma')} (no git checkout)"
+    """The checkout's short revision (``-dirty`` with uncommitted changes), else the version
+    (an installed package: git would describe whatever repository holds site-packages)."""
+    if in_checkout():
+        try:
+            rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=CHECKOUT_ROOT,
+                                 capture_output=True, text=True, check=True).stdout.strip()
+            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                                   cwd=CHECKOUT_ROOT, capture_output=True,
+                                   text=True).stdout.strip()
+            return rev + ("-dirty" if dirty else "")
+        except (OSError, subprocess.CalledProcessError):
+            pass
+    return f"tamedpuma {metadata.version('tamedpuma')} (no git checkout)"
 
 
 # ----------------------------------------------------------------------------- the block
@@ -205,13 +213,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("runs", type=Path, help="the folder its analysis wrote into")
     parser.add_argument("--command", default=None, help="how the runs were made (default: the "
                         "experiment's command)")
-    parser.add_argument("--page", type=Path, default=PAGE, help=f"default: {PAGE}")
+    parser.add_argument("--page", type=Path, default=None, help=f"default: {PAGE} of the "
+                        "checkout (installed: of the current folder)")
     args = parser.parse_args(argv)
+    args.page = args.page or project_root() / PAGE
     try:
         if not args.runs.is_dir():
             raise PageError(f"{args.runs} is not a folder of runs")
         new = block(args.name, args.runs, args.command, args.page.parent / "img")
         text = args.page.read_text() if args.page.is_file() else "# Results\n"
+        args.page.parent.mkdir(parents=True, exist_ok=True)
         args.page.write_text(replace_block(text, args.name, new))
     except PageError as exc:
         print(f"error: {exc}", file=sys.stderr)
