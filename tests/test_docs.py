@@ -395,3 +395,50 @@ def test_every_results_block_names_its_provenance():
     for name, body in blocks:
         for field in ("- command: ", "- date: ", "- machine: ", "- code: ", "- models"):
             assert field in body, f"results.md block {name}: no {field.strip()}"
+
+
+def test_the_readmes_table1_is_written_beside_the_papers_from_the_analysis(tmp_path, capsys):
+    from tamedpuma.app import readme_table, results_page
+
+    runs = _fake_runs(tmp_path)
+    (runs / "table1.md").write_text(
+        "| method | runs | success (paper) | success (whole body) | with orientation (paper / "
+        "whole body) | converged (paper / whole body) | path difference to PUMA [m] |\n"
+        "|:--|:--|:--|:--|:--|:--|:--|\n"
+        "| fabrics | 30 | 0.87 | 0.73 | 0.03 / 0.03 | 0.87 / 0.73 | 0.12 ± 0.06 |\n"
+        "| my_method | 30 | 0.50 | 0.40 | 0.20 / 0.10 | 0.45 / 0.35 | 0.30 ± 0.10 |\n")
+    page, readme = tmp_path / "results.md", tmp_path / "README.md"
+    page.write_text("# Results\n")
+    readme.write_text("# x\n\nbefore\n<!-- result: table1-summary -->\nold 0.99\n"
+                      "<!-- /result -->\nafter\n")
+    argv = ["table1", str(runs), "--page", str(page), "--readme", str(readme)]
+    assert results_page.main(argv) == 0
+    text = readme.read_text()
+    assert text.startswith("# x\n\nbefore\n<!-- result: table1-summary -->\n")
+    assert text.endswith("<!-- /result -->\nafter\n") and "old 0.99" not in text
+    assert "| Fabrics | 0.87 | 0.73 | 0.03 | 0.87 | 0.12 ± 0.06 | 0.83 / 0.22 ± 0.27 |" in text
+    assert "| `my_method` | 0.50 | 0.40 | 0.20 | 0.45 | 0.30 ± 0.10 | — |" in text
+    assert "(2 runs;" in text and f"tomato `{'ab' * 6}` (cache)" in text
+    assert readme_table.PAPER["fpm"] == ("1.00", "0.02 ± 0.04")  # the paper's Table 1
+    # a README without the block, or --readme with another experiment: one line, status 2
+    readme.write_text("# no block\n")
+    assert results_page.main(argv) == 2
+    assert results_page.main(["scaling", str(runs), "--page", str(page), "--readme",
+                              str(readme)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0].startswith("error: ") and "table1-summary" in err[0]
+    assert err[1] == "error: --readme goes with the table1 block only"
+
+
+def test_the_readmes_table1_block_is_the_analysis_output():
+    """The README's Table 1 is a generated block, never typed between its markers by hand:
+    its rows have the columns the writer gives them and its first line is the provenance."""
+    from tamedpuma.app import readme_table
+
+    text = (ROOT / "README.md").read_text()
+    start = text.index("<!-- result: table1-summary -->")
+    body = text[start:text.index("<!-- /result -->", start)].splitlines()[1:]
+    assert body[0].startswith("Measured ") and "code `" in body[0]
+    rows = readme_table.markdown_rows("\n".join(body))
+    assert rows and all(len(r) == len(readme_table.COLUMNS) + 2 for r in rows)
+    assert {r["method"] for r in rows} >= {"PUMA", "Modulation-IK", "Fabrics", "FPM", "CPM"}

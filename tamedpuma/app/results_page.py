@@ -10,6 +10,7 @@ by hand, so a table on the page is always the one its command wrote, and the oth
 left as they are.
 
     python -m analysis.tables runs/table1 && python -m tamedpuma.app.results_page table1 runs/table1
+    python -m tamedpuma.app.results_page table1 runs/table1 --readme README.md  # and the README's
     python -m analysis.scaling runs/scaling --timing-only runs/mik_timing
     python -m tamedpuma.app.results_page scaling runs/scaling
     python -m analysis.report runs/look && python -m tamedpuma.app.results_page figures runs/look
@@ -207,6 +208,25 @@ def replace_block(text: str, name: str, new: str) -> str:
     return text[:i] + new + text[j + len(end):]
 
 
+def write_readme(readme: Path, runs: Path) -> None:
+    """Replace the README's Table-1 block (:mod:`tamedpuma.app.readme_table`) with the table
+    the analysis wrote into ``runs``, beside the paper's; PageError if the README has none."""
+    from tamedpuma.app import readme_table
+
+    text = readme.read_text() if readme.is_file() else ""
+    start = MARKERS[0].format(readme_table.BLOCK)
+    if start not in text:
+        raise PageError(f"{readme} has no block {start} ... {MARKERS[1]} to rewrite")
+    found = summaries(runs)
+    provenance = (f"Measured {run_dates(found)} ({len(found)} runs; code "
+                  f"{run_revisions(found) or '`' + revision() + '`'}; models (sha256) "
+                  f"{models(found)}; every column and the machine: "
+                  "[docs/results.md](docs/results.md#table-1)), beside the paper's:")
+    body = readme_table.summary_block((runs / "table1.md").read_text(), provenance)
+    readme.write_text(replace_block(text, readme_table.BLOCK,
+                                    f"{start}\n{body}\n{MARKERS[1]}"))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("name", choices=sorted(EXPERIMENTS), help="the experiment's block")
@@ -215,15 +235,21 @@ def main(argv: list[str] | None = None) -> int:
                         "experiment's command)")
     parser.add_argument("--page", type=Path, default=None, help=f"default: {PAGE} of the "
                         "checkout (installed: of the current folder)")
+    parser.add_argument("--readme", type=Path, default=None, help="table1 only: also rewrite "
+                        "this README's Table-1 block (the current rates beside the paper's)")
     args = parser.parse_args(argv)
     args.page = args.page or project_root() / PAGE
     try:
         if not args.runs.is_dir():
             raise PageError(f"{args.runs} is not a folder of runs")
+        if args.readme is not None and args.name != "table1":
+            raise PageError("--readme goes with the table1 block only")
         new = block(args.name, args.runs, args.command, args.page.parent / "img")
         text = args.page.read_text() if args.page.is_file() else "# Results\n"
         args.page.parent.mkdir(parents=True, exist_ok=True)
         args.page.write_text(replace_block(text, args.name, new))
+        if args.readme is not None:
+            write_readme(args.readme, args.runs)
     except PageError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
