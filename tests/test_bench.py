@@ -226,6 +226,11 @@ def test_render_rewrites_the_sections_from_the_saved_reports(tmp_path, capsys):
     (tmp_path / "benchmarks" / "bench.json").write_text(json.dumps(report))
     (tmp_path / "benchmarks" / "fabrics.json").write_text(json.dumps(fabrics))
     (tmp_path / "BENCHMARKS.md").write_text("# Benchmarks\n\n## Z\nz\n")
+    # --no-write prints the sections and leaves the file as it is
+    assert bench.main(["--render", "--no-write", "--root", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "| fpm | 2 | 0.500 |" in printed and "## Fabrics" in printed
+    assert (tmp_path / "BENCHMARKS.md").read_text() == "# Benchmarks\n\n## Z\nz\n"
     assert bench.main(["--render", "--root", str(tmp_path)]) == 0
     text = (tmp_path / "BENCHMARKS.md").read_text()
     assert "| fpm | 2 | 0.500 |" in text and "## Fabrics" in text and "## Z\nz" in text

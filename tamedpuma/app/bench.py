@@ -80,20 +80,26 @@ def report_from_stdout(text: str) -> dict:
     return json.loads(text[start:text.rindex("}") + 1])
 
 
-def render(root: Path) -> int:
-    """Rewrite the sections from the saved reports (``--render``)."""
+def render(root: Path, write: bool = True) -> int:
+    """Rewrite the sections from the saved reports (``--render``); with ``write`` False
+    (``--no-write``) print them instead."""
     try:
         report = json.loads((root / "benchmarks" / "bench.json").read_text())
         fabrics = json.loads((root / "benchmarks" / "fabrics.json").read_text())
     except (OSError, ValueError) as exc:
         print(f"error: --render needs the saved reports: {one_line(exc)}", file=sys.stderr)
         return 2
-    update_markdown(root / "BENCHMARKS.md", bench_report.markdown_section(report), SECTION)
+    sections = [(bench_report.markdown_section(report), SECTION)]
     steps = root / "benchmarks" / "steps.json"
     if steps.is_file():
-        update_markdown(root / "BENCHMARKS.md",
-                        bench_steps.markdown_section(json.loads(steps.read_text())),
-                        bench_steps.SECTION)
+        sections.append((bench_steps.markdown_section(json.loads(steps.read_text())),
+                         bench_steps.SECTION))
+    if not write:
+        print("\n\n".join([text for text, _ in sections]
+                           + [bench_fabrics.markdown_section(fabrics)]))
+        return 0
+    for text, section in sections:
+        update_markdown(root / "BENCHMARKS.md", text, section)
     bench_fabrics.write(fabrics, root)
     print(f"rewrote {root / 'BENCHMARKS.md'} from benchmarks/*.json", file=sys.stderr)
     return 0
@@ -323,7 +329,7 @@ def main(argv=None) -> int:
     args.root = args.root or ROOT
     command = "python -m tamedpuma.bench " + " ".join(argv)
     if args.render:
-        return render(args.root)
+        return render(args.root, write=not args.no_write)
     problem = bad_arguments(args)
     if problem:
         print(f"error: {problem}", file=sys.stderr)

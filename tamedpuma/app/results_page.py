@@ -62,6 +62,9 @@ EXPERIMENTS = {
     "disturbance": Experiment("Disturbances",
                               "python -m tamedpuma.sweep -m +experiment=disturbance "
                               "recorder=none", ("disturbance.md",)),
+    "compare": Experiment("Paired comparison on the randomized suite",
+                          "python -m tamedpuma.analysis.compare RUNS [RUNS ...]",
+                          ("compare_rates.md", "compare.md"), ("compare.png",)),
     "figures": Experiment("Paths, clearance and ψ, success and timing",
                           "python -m tamedpuma.sweep -m method=puma,fpm,cpm "
                           "scenario=tomato/00,tomato/03,tomato/07 without_obstacles=false,true "
