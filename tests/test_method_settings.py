@@ -75,3 +75,49 @@ def test_the_sweep_hands_the_typed_settings_down(kinematics):
     assert settings.null_space.link == "lbr_iiwa_link_3"
     panda = with_robot_null_space(settings, run.robot.null_space)
     assert panda.null_space.link == "panda_link4" and panda.null_space.stiffness == 1.0
+
+
+def differences(composed, default, prefix: str = "") -> list[str]:
+    """Dotted names of the fields where two settings dataclasses differ (nested ones
+    recursed), each with both values: ``"key: composed != default"``."""
+    out = []
+    for f in dataclasses.fields(default):
+        a, b = getattr(composed, f.name), getattr(default, f.name)
+        if dataclasses.is_dataclass(a) and dataclasses.is_dataclass(b) and type(a) is type(b):
+            out += differences(a, b, f"{prefix}{f.name}.")
+        elif a != b:
+            out.append(f"{prefix}{f.name}: {a!r} != {b!r}")
+    return out
+
+
+def method_options() -> list[str]:
+    """The ``conf/method`` options whose name is a registered method (the others, e.g.
+    ``fpm_literal``, are configured variants of one)."""
+    from tamedpuma import methods
+    from tamedpuma.app.config import group_options
+
+    return [name for name in group_options("method") if name in methods.available()]
+
+
+def test_every_method_of_the_package_has_its_config():
+    from tamedpuma import methods
+
+    assert set(methods.builtin()) <= set(method_options())
+
+
+@pytest.mark.parametrize("name", method_options())
+def test_the_settings_defaults_are_what_the_method_config_composes(name):
+    """One set of defaults: ``method=<name>`` composes to the method's ``SETTINGS()`` field by
+    field (``task``, the task config's name interpolated, aside), so a value changed in the
+    dataclass or in ``conf/method/<name>.yaml`` alone fails here. The variants
+    (``fpm_literal``, ``cpm_literal``, ``cpm_original``) override these defaults."""
+    from tamedpuma import methods
+    from tamedpuma.app.compose import compose_typed
+
+    composed = schema.method_settings(compose_typed("sweep", [f"method={name}"]).method)
+    default = methods.settings_type(name)()
+    assert type(composed) is type(default)
+    if any(f.name == "task" for f in dataclasses.fields(default)):
+        composed = dataclasses.replace(composed, task=default.task)
+    assert differences(composed, default) == []
+    assert composed == default

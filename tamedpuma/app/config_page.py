@@ -318,7 +318,12 @@ def rows(cls: type, prefix: str, composed, skip: tuple[str, ...] = (),
             inner = f"{key}[]" if many else key
             out.append([key, type_name(hints[f.name]), _default(f, key, composed, many, parent),
                         valid_range(cls, key, f.name), meaning(cls, f.name, key, notes)])
-            own = getattr(parent, f.name) if parent is not None else f.default
+            if parent is not None:
+                own = getattr(parent, f.name)
+            elif f.default_factory is not dataclasses.MISSING:  # e.g. FPM's own Forcing()
+                own = f.default_factory()
+            else:
+                own = f.default
             out += rows(nested, inner, None if many else composed, notes=notes,
                         parent=own if dataclasses.is_dataclass(own) else None)
             continue

@@ -4,11 +4,13 @@
               their ranges checked in its constructor)
     make(settings: SETTINGS, kinematics: Kinematics) -> Controller
 
-``conf/method/<name>.yaml`` overrides the settings' defaults; ``tamedpuma.app.schema`` types a
-composed config into them (besides the method's ``name`` and ``label``, the name a configured
-variant carries in tables, e.g. ``conf/method/cpm_literal.yaml``), and the entry points pass
-them down. Methods never import the simulator; they see only
-:class:`~tamedpuma.types.Observation` and return :class:`~tamedpuma.types.Command`.
+``method=<name>`` (``conf/method/<name>.yaml``) composes to exactly the settings' defaults
+(``tests/test_method_settings.py``); a configured variant of a method, e.g.
+``conf/method/cpm_literal.yaml``, overrides them. ``tamedpuma.app.schema`` types a composed
+config into the settings (besides the method's ``name`` and ``label``, the name a variant
+carries in tables), and the entry points pass them down. Methods never import the simulator;
+they see only :class:`~tamedpuma.types.Observation` and return
+:class:`~tamedpuma.types.Command`.
 
 A method from another package registers the same way through the entry point group
 ``tamedpuma.methods`` (docs/extending.md, "A method from outside the package"): the entry point

@@ -1,8 +1,11 @@
 """The settings of the methods driven by a trained PUMA primitive (puma, fpm, cpm, modulation_ik):
-frozen dataclasses, their defaults the only defaults (``conf/method/*.yaml`` override them),
-their ranges checked in ``__post_init__`` (a :class:`~tamedpuma.errors.ConfigError` naming the
-key). Each method's ``make(settings, kinematics)`` takes one of them; ``app/schema.py`` types a
-composed config into them (with the method's ``name`` and ``label``).
+frozen dataclasses, their defaults the only defaults, their ranges checked in ``__post_init__``
+(a :class:`~tamedpuma.errors.ConfigError` naming the key). The defaults are what
+``method=<name>`` runs, the project's additions included (``tests/test_method_settings.py``
+composes every ``conf/method/<name>.yaml`` and checks it equals ``SETTINGS()``); the paper's laws
+as written are the variants ``conf/method/fpm_literal.yaml`` and ``cpm_literal.yaml``, which
+override them. Each method's ``make(settings, kinematics)`` takes one of them; ``app/schema.py``
+types a composed config into them (with the method's ``name`` and ``label``).
 
 The shared ones live here because methods never import each other: :class:`PumaSettings`
 (method=puma) and :class:`FpmSettings` (method=fpm, PUMA's plus the avoidance fabric's), which
@@ -12,7 +15,7 @@ CPM's settings extend in :mod:`tamedpuma.methods.cpm`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics.gains import FabricGains
@@ -66,7 +69,7 @@ class PumaSettings:
     pinv_damping: float = 0.01        # λ₀ of J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹
     pinv_damping_max: float = 0.0     # λ_max of the singularity-robust inverse (0: constant λ₀)
     manipulability_threshold: float = 0.02  # w₀: λ grows below this manipulability
-    goal_velocity: str = "ignore"     # feedforward: the primitive sees ṗ − v_g | ignore
+    goal_velocity: str = "feedforward"  # feedforward: the primitive sees ṗ − v_g | ignore
     orientation: str = "feedback"     # feedback: the primitive sees the hand's orientation |
     #                                   reference: a reference it moves itself, which the hand
     #                                   tracks (methods/_policy.py OrientationReference)
@@ -98,18 +101,48 @@ class PumaSettings:
               "method.orientation_leash", "> 0 [rad] (.inf: no leash)", self.orientation_leash)
 
 
+def tamed_fabric() -> FabricGains:
+    """The avoidance fabric of FPM and CPM: the Fabrics method's gains
+    (:class:`~tamedpuma.fabrics.gains.FabricGains`) with the barriers' energies ×30 (obstacle
+    0.1 → 3, joint limit 0.05 → 1.5): PUMA's forcing metric w = 100 outweighs the Fabrics goal
+    metric (0.3-2) those gains were set against."""
+    gains = FabricGains()
+    return replace(gains, obstacle=replace(gains.obstacle, energy_gain=3.0),
+                   joint_limit=replace(gains.joint_limit, energy_gain=1.5))
+
+
+def all_control_rate_filters() -> ControlRate:
+    """FPM's and CPM's safety at the control rate: every filter of :class:`ControlRate` on."""
+    return ControlRate(barrier_step=True, speed_limit=True, semi_implicit=True)
+
+
+def fpm_forcing() -> Forcing:
+    """How FPM's forcing meets the fabric: through its metric, directional, turned round the
+    obstacles within 0.1 m, a stall pull of 1.5 m/s² and the configuration pull near a limit."""
+    return Forcing(mode="metric", circulation=0.1, directional=True, stall_pull=1.5,
+                   configuration_pull="limits")
+
+
 @dataclass(frozen=True)
 class FpmSettings(PumaSettings):
     """method=fpm: PUMA's settings, the avoidance fabric and how they meet
-    (:mod:`tamedpuma.methods.fpm`)."""
+    (:mod:`tamedpuma.methods.fpm`). The defaults are ``method=fpm``'s; ``conf/method/
+    fpm_literal.yaml`` switches each addition off (paper eq. 9 as written)."""
 
-    fabric: FabricGains = field(default_factory=FabricGains)
-    alpha_bound: float = math.inf     # [1/s] α ≥ −alpha_bound (.inf: unbounded, eq. 9 as written)
-    energy: str = "fabric"            # the energy energized: fabric (H_{L_e} of the leaves) |
+    orientation: str = "reference"    # feedback: the primitive sees the hand's orientation |
+    #                                   reference (FPM's): a reference it moves itself near the
+    #                                   goal, which the hand tracks (PumaSettings.orientation)
+    orientation_clearance: float = 0.1  # [m] the reference only while every body sphere is
+    #                                     this clear of the obstacles
+    fabric: FabricGains = field(default_factory=tamed_fabric)  # the barriers' energies ×30
+    alpha_bound: float = 20.0         # [1/s] α ≥ −alpha_bound (.inf: unbounded, eq. 9 as written)
+    energy: str = "execution"         # the energy energized: fabric (H_{L_e} of the leaves) |
     #                                   execution (½‖q̇‖²: M_e = I; methods/_tamed.py)
-    control_rate: ControlRate = field(default_factory=ControlRate)  # safety at the control rate
-    forcing: Forcing = field(default_factory=Forcing)  # how PUMA's forcing meets the fabric
-    limit_margin: float = 0.0         # [rad] the fabric's joint limits sit this far inside
+    control_rate: ControlRate = field(default_factory=all_control_rate_filters)  # safety at the
+    #                                   control rate: every filter on (all off: eq. 9 as written)
+    forcing: Forcing = field(default_factory=fpm_forcing)  # how PUMA's forcing meets the fabric
+    #                                   (Forcing(), additive and nothing added: eq. 9 as written)
+    limit_margin: float = 0.01        # [rad] the fabric's joint limits sit this far inside
 
     def __post_init__(self):
         super().__post_init__()

@@ -521,7 +521,11 @@ class ControlRate:
     (direction kept) instead of leaving the per-joint clamp to the simulator.
     semi_implicit: take the velocity-proportional terms implicitly over the period (FPM: −α q̇,
     and the geometry's own braking along q̇ beyond the α bound, :func:`braking_split`; CPM: its
-    whole coefficient c), so that a large |c|Δt brakes towards rest instead of reversing q̇."""
+    whole coefficient c), so that a large |c|Δt brakes towards rest instead of reversing q̇.
+
+    ``ControlRate()`` has every filter off (the paper's laws as written); FPM's and CPM's
+    settings give their own, every filter on
+    (:func:`~tamedpuma.methods._settings.all_control_rate_filters`)."""
 
     barrier_step: bool = False
     speed_limit: bool = False
@@ -636,7 +640,11 @@ class Forcing:
     stops making progress (0: off; :mod:`tamedpuma.methods._stall`); configuration_pull:
     ``off``, ``limits`` or ``always``, when a joint-space attractor to a clear goal
     configuration replaces PUMA's rows after the stall pull arms (with a joint within 0.1 rad
-    of a limit, or at every arming; :mod:`tamedpuma.methods._configuration_pull`)."""
+    of a limit, or at every arming; :mod:`tamedpuma.methods._configuration_pull`).
+
+    ``Forcing()`` is the paper's (``additive``, nothing added); FPM's and CPM's settings give
+    their own (:func:`~tamedpuma.methods._settings.fpm_forcing`,
+    :func:`~tamedpuma.methods.cpm.cpm_forcing`)."""
 
     mode: str = "additive"
     circulation: float = 0.0

@@ -89,13 +89,13 @@ H_{L_e}, or ½‖q̇‖² with ``energy: execution``), ``alpha``, ``beta``, ``mi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from tamedpuma.errors import ConfigError
-from tamedpuma.fabrics import Fabric
-from tamedpuma.methods._settings import FpmSettings, check, nonneg
+from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.methods._settings import FpmSettings, check, fpm_forcing, nonneg, tamed_fabric
 from tamedpuma.methods._tamed import (
     ControlRate,
     Forcing,
@@ -307,15 +307,39 @@ class CpmController(TamedController):
         return float(av.energy) if self.energy == "fabric" else 0.5 * float(qd @ Mqd)
 
 
+def cpm_fabric() -> FabricGains:
+    """CPM's avoidance fabric: FPM's (:func:`~tamedpuma.methods._settings.tamed_fabric`) with
+    the energization and regulator denominators' ε = 1e-3 [(rad/s)²], above the joint
+    controller's velocity noise squared (the module docstring says why)."""
+    return replace(tamed_fabric(), energization_eps=1.0e-3)
+
+
+def cpm_forcing() -> Forcing:
+    """How CPM's forcing meets the fabric: FPM's (:func:`~tamedpuma.methods._settings.
+    fpm_forcing`) with PUMA's task metric one more leaf of the geometry (``task_metric``) and
+    the configuration pull at every arming (``always``)."""
+    return replace(fpm_forcing(), mode="task_metric", configuration_pull="always")
+
+
 @dataclass(frozen=True)
 class CpmSettings(FpmSettings):
     """method=cpm: FPM's settings (:class:`~tamedpuma.methods._settings.FpmSettings`) and the
-    regulator's."""
+    regulator's. The defaults are ``method=cpm``'s: FPM's, except those redeclared here;
+    ``conf/method/cpm_literal.yaml`` (paper eq. 10 as written) and ``cpm_original.yaml`` (the
+    authors' code) override them."""
 
+    orientation: str = "feedback"     # feedback (CPM's, as PUMA's): the primitive sees the
+    #                                   hand's orientation | reference: a reference it moves
+    #                                   itself, which the hand tracks (PumaSettings.orientation)
+    orientation_clearance: float = 0.0  # [m] the reference's (orientation: reference only)
+    fabric: FabricGains = field(default_factory=cpm_fabric)  # the barriers' energies ×30 (as
+    #                                   FPM's) and ε = 1e-3 (cpm_fabric)
+    forcing: Forcing = field(default_factory=cpm_forcing)  # how PUMA's forcing meets the fabric:
+    #                                   FPM's with task_metric and configuration_pull always
     variant: str = "paper"           # paper | original (the authors' code)
     beta: float = 0.5                # β [1/s] > 0: the damping (its floor with damping: matched)
     damping: str = "matched"         # matched: β(q, q̇) = max(β, r − α) | constant: the paper's β
-    tank: float = 0.0                # energy tank capacity [1] × k_ψ ψ(q₀) (0: off;
+    tank: float = 1.0                # energy tank capacity [1] × k_ψ ψ(q₀) (0: off;
     #                                  EnergyTank): FPM's law where it pays
 
     def __post_init__(self):
@@ -326,7 +350,7 @@ class CpmSettings(FpmSettings):
         nonneg("method.tank", self.tank)
 
 
-#: the settings ``make`` takes (``conf/method/cpm.yaml`` overrides their defaults)
+#: the settings ``make`` takes; their defaults are what ``method=cpm`` composes (tested)
 SETTINGS = CpmSettings
 
 

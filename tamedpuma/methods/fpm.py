@@ -118,7 +118,7 @@ class FpmController(TamedController):
                        else self.puma.psi_later(state, obs))
 
 
-#: the settings ``make`` takes (``conf/method/fpm.yaml`` overrides their defaults)
+#: the settings ``make`` takes; their defaults are what ``method=fpm`` composes (tested)
 SETTINGS = FpmSettings
 
 

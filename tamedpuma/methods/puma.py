@@ -14,7 +14,7 @@ from tamedpuma.methods._tamed import PumaController, pulled_puma
 
 __all__ = ["SETTINGS", "PumaController", "PumaSettings", "make"]
 
-#: the settings ``make`` takes (``conf/method/puma.yaml`` overrides their defaults)
+#: the settings ``make`` takes; their defaults are what ``method=puma`` composes (tested)
 SETTINGS = PumaSettings
 
 
