@@ -118,7 +118,9 @@ def _rows_link_by_link(kinematics, hulls, qd, below):
     return np.array(heights), np.array(rows).reshape(-1, model.nv), np.array(jdqd)
 
 
-def test_the_batched_rows_are_the_link_by_link_formula_bit_for_bit(kinematics, hulls):
+def test_the_batched_rows_are_the_link_by_link_formula_to_rounding(kinematics, hulls):
+    """The same numbers; bit for bit on some CPUs, within an ulp or two where BLAS takes
+    another kernel for the batched products (seen: 2.2e-16 on an Intel Xeon)."""
     rng = np.random.default_rng(5)
     lo, hi = kinematics.spec.q_min, kinematics.spec.q_max
     for i in range(200):
@@ -127,7 +129,7 @@ def test_the_batched_rows_are_the_link_by_link_formula_bit_for_bit(kinematics, h
         got = _rows_at(kinematics, hulls, q, qd, below)
         want = _rows_link_by_link(kinematics, hulls, qd, below)
         for ours, theirs in zip((got.heights, got.rows, got.jdqd), want):
-            np.testing.assert_array_equal(ours, theirs)
+            np.testing.assert_allclose(ours, theirs, rtol=1e-14, atol=1e-15)
 
 
 def test_the_sphere_rows_are_the_body_spheres(kinematics):
