@@ -203,12 +203,14 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
     ee_index = spec.link_names.index(spec.ee_link)
     obs = sim.reset(scenario)
     controller.reset(scenario)
-    for rec in recorders:
-        rec.open(info)
     trace, complete, stop_reason = _Trace(), False, "max_steps"
     onset = getattr(sim, "disturbance_time", None)
     stop = _StopRule(scenario, settle_time, rest, onset, stop_on_success)
-    try:
+    started: list[Recorder] = []  # each recorder whose open began: an interrupt while the
+    try:  # next one opens (a slow Rerun start) still closes the logs already created
+        for rec in recorders:
+            started.append(rec)
+            rec.open(info)
         k = 0
         while k < stop.limit:
             link_pos, link_quat, centers, contacts, pos_err, rot_err, rotation = _observe(
@@ -237,7 +239,7 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
         complete = True
     finally:
         metrics = trace.metrics(spec, scenario, settle_time, onset, rest)
-        _close(recorders, complete, {"stop_reason": stop_reason if complete else "interrupted",
+        _close(started, complete, {"stop_reason": stop_reason if complete else "interrupted",
                                      **(metrics.as_dict() if metrics else {})})
     return EpisodeResult(metrics=metrics, stop_reason=stop_reason, t=np.array(trace.t),
                          q=np.array(trace.q), ee_position=np.array(trace.ee_position),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tamedpuma.episode import run_episode
 from tamedpuma.types import Command
@@ -107,3 +108,31 @@ def test_a_hand_hovering_in_the_ball_does_not_converge_and_a_resting_one_does():
     # at rest: the last rest window moved less than the rest distance
     window = rest.ee_position[rest.t >= rest.t[-1] - 1.0 + 1e-9]
     assert np.linalg.norm(window - rest.ee_position[-1], axis=1).max() <= 0.005
+
+
+class _Log:
+    """A recorder that notes what happened to it; ``fail_open`` raises from its open (as an
+    interrupt that lands while a slow recorder starts)."""
+
+    def __init__(self, fail_open=None):
+        self.fail_open, self.events = fail_open, []
+
+    def open(self, info):
+        self.events.append("open")
+        if self.fail_open is not None:
+            raise self.fail_open
+
+    def write(self, record):
+        self.events.append("write")
+
+    def close(self, complete, summary):
+        self.events.append(("close", complete, summary["stop_reason"]))
+
+
+def test_an_interrupt_while_a_recorder_opens_closes_the_logs_already_open():
+    first, second, never = _Log(), _Log(fail_open=KeyboardInterrupt()), _Log()
+    with pytest.raises(KeyboardInterrupt):
+        run_episode(point_scenario(), _Attractor(), PointMassWorld(), [first, second, never])
+    assert first.events == ["open", ("close", False, "interrupted")]
+    assert second.events == ["open", ("close", False, "interrupted")]  # half open: closed too
+    assert never.events == []
