@@ -34,8 +34,7 @@ from tamedpuma.metrics import (
 )
 from tamedpuma.records import Recorder, RunInfo, StepRecord
 from tamedpuma.robot.rotations import orientation_error, quat_log, relative_quat
-from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Controller, Scenario
-from tamedpuma.worlds.bullet import Simulator
+from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Contacts, Controller, Scenario, World
 
 
 @dataclass(frozen=True)
@@ -96,43 +95,61 @@ class _Trace:
             rest_distance=rest.distance, rest_angle=rest.angle)
 
 
-def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, link_pos, link_quat,
-                 ee_index: int, centers, contacts, pos_err: float, rot_err: float,
-                 rotation: np.ndarray, compute_ms: float) -> StepRecord:
+@dataclass(frozen=True)
+class Seen:
+    """The simulator's truth at a step (:func:`_observe`): link poses (n, 3) [m] and (n, 4)
+    quaternions (x, y, z, w), body-sphere centres [m], contacts, the hand's error to the goal
+    (vector and distance [m]), the angle [rad] and the error rotation's vector
+    log(ζ ⊗ ζ_g⁻¹) [rad]."""
+
+    link_pos: np.ndarray
+    link_quat: np.ndarray
+    ee_index: int
+    centers: np.ndarray
+    contacts: Contacts
+    error: np.ndarray
+    pos_err: float
+    rot_err: float
+    rotation: np.ndarray
+
+
+def _observe(sim: World, obs, ee_index: int) -> Seen:
+    """What the simulator shows at ``obs`` (:class:`Seen`)."""
+    link_pos, link_quat = sim.link_poses()
+    centers = sim.body_sphere_centers(link_pos, link_quat)
+    error = link_pos[ee_index] - obs.goal_position
+    return Seen(link_pos=link_pos, link_quat=link_quat, ee_index=ee_index, centers=centers,
+                contacts=sim.contacts(centers), error=error,
+                pos_err=math.sqrt(float(error.dot(error))),  # = np.linalg.norm, no wrapper
+                rot_err=float(orientation_error(link_quat[ee_index], obs.goal_quaternion)),
+                rotation=quat_log(relative_quat(link_quat[ee_index], obs.goal_quaternion)))
+
+
+def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, seen: Seen,
+                 compute_ms: float) -> StepRecord:
     """What the recorders receive for step k (simulator truth, the command and its scalars)."""
-    clearance = contacts.sphere_clearance
+    clearance = seen.contacts.sphere_clearance
     scalars = {
         "compute_time_ms": compute_ms,
         "clearance_m": clearance if math.isfinite(clearance) else NO_OBSTACLE_CLEARANCE,
-        "position_error_m": pos_err,
-        **dict(zip(ERROR_VECTOR_FIELDS, (link_pos[ee_index] - obs.goal_position).tolist())),
-        "orientation_error_rad": rot_err,
-        **dict(zip(ROTATION_VECTOR_FIELDS, rotation.tolist())),
-        "obstacle_contact": float(contacts.obstacle_contact),
-        "ground_contact": float(contacts.ground_contact),
+        "position_error_m": seen.pos_err,
+        **dict(zip(ERROR_VECTOR_FIELDS, seen.error.tolist())),
+        "orientation_error_rad": seen.rot_err,
+        **dict(zip(ROTATION_VECTOR_FIELDS, seen.rotation.tolist())),
+        "obstacle_contact": float(seen.contacts.obstacle_contact),
+        "ground_contact": float(seen.contacts.ground_contact),
         **{name: float(v) for name, v in command.scalars.items()},
     }
     if command.logged_later is not None:  # after the step's timing: off the control path
         scalars.update((name, float(v)) for name, v in command.logged_later().items())
+    ee = seen.ee_index
     return StepRecord(
         step=k, t=obs.t, q=obs.q, qd=obs.qd, qdd_cmd=qdd,
-        link_positions=link_pos, link_quaternions=link_quat,
-        ee_position=link_pos[ee_index], ee_quaternion=link_quat[ee_index],
-        body_sphere_centers=centers, obstacle_centers=truth, obstacle_radii=obs.obstacle_radii,
-        goal_position=obs.goal_position, goal_quaternion=obs.goal_quaternion, scalars=scalars)
-
-
-def _observe(sim, obs, ee_index: int):
-    """The simulator's truth at a step: link poses, body spheres, contacts, goal errors (the
-    distance [m], the angle [rad] and the error rotation's vector log(ζ ⊗ ζ_g⁻¹) [rad])."""
-    link_pos, link_quat = sim.link_poses()
-    centers = sim.body_sphere_centers(link_pos, link_quat)
-    contacts = sim.contacts(centers)
-    error = link_pos[ee_index] - obs.goal_position
-    pos_err = math.sqrt(float(error.dot(error)))  # = np.linalg.norm, without its wrapper
-    rot_err = float(orientation_error(link_quat[ee_index], obs.goal_quaternion))
-    rotation = quat_log(relative_quat(link_quat[ee_index], obs.goal_quaternion))
-    return link_pos, link_quat, centers, contacts, pos_err, rot_err, rotation
+        link_positions=seen.link_pos, link_quaternions=seen.link_quat,
+        ee_position=seen.link_pos[ee], ee_quaternion=seen.link_quat[ee],
+        body_sphere_centers=seen.centers, obstacle_centers=truth,
+        obstacle_radii=obs.obstacle_radii, goal_position=obs.goal_position,
+        goal_quaternion=obs.goal_quaternion, scalars=scalars)
 
 
 def _timed_step(controller: Controller, obs, dof: int):
@@ -187,7 +204,7 @@ class _StopRule:
         return self.monitor.update(t, error, rotation, check=due) and due  # tested when due
 
 
-def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
+def run_episode(scenario: Scenario, controller: Controller, sim: World,
                 recorders: Sequence[Recorder] = (), info: RunInfo | None = None,
                 stop_on_success: bool = True, settle_time: float = 0.0,
                 rest: RestTest = RestTest()) -> EpisodeResult:
@@ -197,14 +214,11 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
     with ``stop_on_success`` it ends at the first step after that at rest (``rest``) inside the
     goal ball, else at the step limit."""
     spec = sim.spec
-    # the recorders log the true obstacle positions (the controller may see noisy ones)
-    truth = ((lambda _obs: sim.obstacle_centers()) if hasattr(sim, "obstacle_centers")
-             else (lambda o: o.obstacle_centers))
     ee_index = spec.link_names.index(spec.ee_link)
     obs = sim.reset(scenario)
     controller.reset(scenario)
     trace, complete, stop_reason = _Trace(), False, "max_steps"
-    onset = getattr(sim, "disturbance_time", None)
+    onset = sim.disturbance_time
     stop = _StopRule(scenario, settle_time, rest, onset, stop_on_success)
     started: list[Recorder] = []  # each recorder whose open began: an interrupt while the
     try:  # next one opens (a slow Rerun start) still closes the logs already created
@@ -213,25 +227,24 @@ def run_episode(scenario: Scenario, controller: Controller, sim: Simulator,
             rec.open(info)
         k = 0
         while k < stop.limit:
-            link_pos, link_quat, centers, contacts, pos_err, rot_err, rotation = _observe(
-                sim, obs, ee_index)
+            seen = _observe(sim, obs, ee_index)
             command, qdd, compute_ms = _timed_step(controller, obs, spec.dof)
             if recorders:  # (no record is built for none: recorder=none costs nothing)
-                record = _step_record(k, obs, truth(obs), command, qdd, link_pos, link_quat,
-                                      ee_index, centers, contacts, pos_err, rot_err,
-                                      rotation, compute_ms)
+                # the true obstacle positions (the controller may see noisy ones)
+                record = _step_record(k, obs, sim.obstacle_centers(), command, qdd, seen,
+                                      compute_ms)
                 for rec in recorders:
                     rec.write(record)
-            error = link_pos[ee_index] - obs.goal_position
-            trace.add(t=obs.t, q=obs.q, ee_position=link_pos[ee_index], error_vector=error,
-                      rotation_vector=rotation, position_error=pos_err,
-                      orientation_error=rot_err, clearance=contacts.sphere_clearance,
-                      obstacle_contact=contacts.obstacle_contact,
-                      ground_contact=contacts.ground_contact, compute_ms=compute_ms)
+            trace.add(t=obs.t, q=obs.q, ee_position=seen.link_pos[ee_index],
+                      error_vector=seen.error, rotation_vector=seen.rotation,
+                      position_error=seen.pos_err, orientation_error=seen.rot_err,
+                      clearance=seen.contacts.sphere_clearance,
+                      obstacle_contact=seen.contacts.obstacle_contact,
+                      ground_contact=seen.contacts.ground_contact, compute_ms=compute_ms)
             if not np.isfinite(qdd).all():
                 stop_reason = "nonfinite_command"
                 break
-            if stop.converged(k, obs.t, error, rotation, pos_err):
+            if stop.converged(k, obs.t, seen.error, seen.rotation, seen.pos_err):
                 stop_reason = "converged"
                 break
             obs = sim.step(qdd)

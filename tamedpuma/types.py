@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -167,6 +167,37 @@ class Contacts:
     sphere_clearance: float
     obstacle_contact: bool
     ground_contact: bool
+
+
+class World(Protocol):
+    """What the episode loop (:func:`tamedpuma.episode.run_episode`) drives: PyBullet's arm
+    (:class:`tamedpuma.worlds.bullet.Simulator`) and the 2-D point robot
+    (:class:`tamedpuma.worlds.pointmass.PointMassWorld`) implement it. Positions [m], times [s]."""
+
+    spec: Any  # the robot's RobotSpec (dof, links, limits, body spheres)
+
+    def reset(self, scenario: Scenario) -> Observation: ...
+
+    def step(self, qdd: np.ndarray) -> Observation: ...
+
+    def link_poses(self) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def body_sphere_centers(self, link_pos: np.ndarray,
+                            link_quat: np.ndarray) -> np.ndarray: ...
+
+    def contacts(self, sphere_centers: np.ndarray) -> Contacts: ...
+
+    def obstacle_centers(self, t: float | None = None) -> np.ndarray:
+        """The obstacles' true centres at ``t`` (now if None), shape (n, 3): what the logs
+        record, whatever noise the controller's observation carries."""
+        ...
+
+    @property
+    def disturbance_time(self) -> float | None:
+        """The onset [s] of the scenario's discrete disturbance (goal change, push), else None."""
+        ...
+
+    def close(self) -> None: ...
 
 
 class Controller(Protocol):

@@ -136,3 +136,20 @@ def test_an_interrupt_while_a_recorder_opens_closes_the_logs_already_open():
     assert first.events == ["open", ("close", False, "interrupted")]
     assert second.events == ["open", ("close", False, "interrupted")]  # half open: closed too
     assert never.events == []
+
+
+def test_both_worlds_are_what_the_episode_loop_drives():
+    """PyBullet's arm and the point robot implement :class:`tamedpuma.types.World` (every
+    method and property of the protocol), so the loop needs no adapter."""
+    from tamedpuma.types import World
+    from tamedpuma.worlds.bullet import Simulator
+
+    members = {n for n in vars(World) if not n.startswith("_")}
+    assert members >= {"reset", "step", "contacts", "obstacle_centers", "disturbance_time"}
+    for world in (Simulator, PointMassWorld):
+        assert all(hasattr(world, n) for n in members), world
+        assert isinstance(vars(world)["disturbance_time"], property), world
+    world = PointMassWorld()
+    world.reset(point_scenario())
+    assert world.disturbance_time is None
+    np.testing.assert_array_equal(world.obstacle_centers(), world.observe().obstacle_centers)

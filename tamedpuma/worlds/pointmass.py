@@ -79,7 +79,7 @@ class PointKinematics:
 
 
 class PointMassWorld:
-    """The 2-D world, with the interface of :class:`tamedpuma.worlds.bullet.Simulator`."""
+    """The 2-D world: a :class:`tamedpuma.types.World`, as PyBullet's arm is."""
 
     def __init__(self, spec: RobotSpec | None = None):
         self.spec = spec or point_spec()
@@ -113,6 +113,15 @@ class PointMassWorld:
                            obstacle_velocities=sc.obstacles.velocities,
                            goal_position=sc.goal.at(t), goal_quaternion=sc.goal.quaternion,
                            goal_velocity=sc.goal.velocity)
+
+    def obstacle_centers(self, t: float | None = None) -> np.ndarray:
+        """The obstacles' centres at ``t`` (now if None): the observation's, without noise."""
+        return self._scenario.obstacles.at(self.t if t is None else t)
+
+    @property
+    def disturbance_time(self) -> float | None:
+        """None: the point world has no discrete disturbance."""
+        return None
 
     def link_poses(self) -> tuple[np.ndarray, np.ndarray]:
         return np.array([[self._q[0], self._q[1], 0.0]]), np.array([[0.0, 0, 0, 1]])
