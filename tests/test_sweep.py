@@ -104,10 +104,13 @@ def test_start_just_past_a_limit_is_clamped_with_a_warning(tmp_path):
 
 
 def test_a_killed_run_leaves_a_readable_log_marked_incomplete(tmp_path):
-    # a long episode (no success stop), killed after its first flushes
+    # a long episode (no success stop, 100,000 steps: minutes, where the default 2,000 can end
+    # on a fast machine while the test still reads the first flush), killed after its first
+    # flushes
     proc = subprocess.Popen(
         [sys.executable, "-m", "tamedpuma.sweep", f"output_root={tmp_path}",
-         "stop_on_success=false", "recorder.flush_every=20", "recorder.rerun=false"],
+         "stop_on_success=false", "scenario.max_steps=100000", "recorder.flush_every=20",
+         "recorder.rerun=false"],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 300
     active = None
@@ -120,6 +123,7 @@ def test_a_killed_run_leaves_a_readable_log_marked_incomplete(tmp_path):
         except Exception:  # noqa: BLE001 - not readable yet: keep polling
             pass
     assert active is not None, "the run never wrote its log"
+    assert proc.poll() is None, "the run ended before it could be killed"
     os.kill(proc.pid, signal.SIGTERM)
     proc.communicate(timeout=180)
     assert proc.returncode != 0
@@ -128,7 +132,7 @@ def test_a_killed_run_leaves_a_readable_log_marked_incomplete(tmp_path):
     assert len(files) == 1
     log = read_mcap(files[0])
     assert not log.complete
-    assert 20 <= log.n_steps < 2000
+    assert 20 <= log.n_steps < 100000
     assert list(log.joints.index) == list(range(log.n_steps))
 
 
