@@ -22,6 +22,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
+from typing import NamedTuple
 
 import numpy as np
 
@@ -95,12 +96,11 @@ class _Trace:
             rest_distance=rest.distance, rest_angle=rest.angle)
 
 
-@dataclass(frozen=True)
-class Seen:
+class Seen(NamedTuple):
     """The simulator's truth at a step (:func:`_observe`): link poses (n, 3) [m] and (n, 4)
     quaternions (x, y, z, w), body-sphere centres [m], contacts, the hand's error to the goal
     (vector and distance [m]), the angle [rad] and the error rotation's vector
-    log(ζ ⊗ ζ_g⁻¹) [rad]."""
+    log(ζ ⊗ ζ_g⁻¹) [rad]. A named tuple: built every control step, at a tuple's cost."""
 
     link_pos: np.ndarray
     link_quat: np.ndarray
