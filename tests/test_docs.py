@@ -377,7 +377,7 @@ def test_installed_the_pages_go_to_docs_of_the_current_folder(tmp_path, monkeypa
     monkeypatch.chdir(here)
     assert results_page.main(["table1", str(runs)]) == 0
     text = (here / "docs" / "results.md").read_text()
-    assert "| fpm | 0.97 |" in text and "(no git checkout)" in text
+    assert "| fpm | 0.97 |" in text and "- code: `tamedpuma " in text  # the version, no git
     assert code_revision().startswith("tamedpuma ")  # what its runs record, shown whole
     assert results_page.run_revisions([{"code_revision": code_revision()}]) == (
         f"`{code_revision()}`")

@@ -28,13 +28,12 @@ import os
 import platform
 import re
 import shutil
-import subprocess
 import sys
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from tamedpuma.paths import CHECKOUT_ROOT, in_checkout, project_root
+from tamedpuma.paths import project_root
 
 #: the page, in :func:`tamedpuma.paths.project_root`: the checkout's, else (an installed
 #: package) docs/ of the current folder
@@ -136,9 +135,7 @@ def run_revisions(found: list[dict]) -> str | None:
     """The code revisions the runs record (``summary.json``'s ``code_revision``: a git hash cut
     to 7 characters, ``-dirty`` kept; an installed package's version, ``tamedpuma 0.1.0``, as
     recorded), or None where no run records one (layout 1)."""
-    revs = sorted({re.sub(r"(?<![0-9a-f])([0-9a-f]{7})[0-9a-f]{5,}(?![0-9a-f])", r"\1",
-                          str(s["code_revision"]))
-                   for s in found if s.get("code_revision")})
+    revs = sorted({_short(str(s["code_revision"])) for s in found if s.get("code_revision")})
     return ", ".join(f"`{r}`" for r in revs) if revs else None
 
 
@@ -155,19 +152,16 @@ def run_machines(found: list[dict]) -> str | None:
 
 
 def revision() -> str:
-    """The checkout's short revision (``-dirty`` with uncommitted changes), else the version
-    (an installed package: git would describe whatever repository holds site-packages)."""
-    if in_checkout():
-        try:
-            rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=CHECKOUT_ROOT,
-                                 capture_output=True, text=True, check=True).stdout.strip()
-            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                                   cwd=CHECKOUT_ROOT, capture_output=True,
-                                   text=True).stdout.strip()
-            return rev + ("-dirty" if dirty else "")
-        except (OSError, subprocess.CalledProcessError):
-            pass
-    return f"tamedpuma {metadata.version('tamedpuma')} (no git checkout)"
+    """This code's revision (:func:`tamedpuma.app.models.code_revision`, what runs record), its
+    git hash cut to 7 characters as :func:`run_revisions` cuts the runs'."""
+    from tamedpuma.app.models import code_revision
+
+    return _short(code_revision())
+
+
+def _short(rev: str) -> str:
+    """``rev`` with each git hash in it cut to 7 characters (``-dirty`` and versions kept)."""
+    return re.sub(r"(?<![0-9a-f])([0-9a-f]{7})[0-9a-f]{5,}(?![0-9a-f])", r"\1", rev)
 
 
 # ----------------------------------------------------------------------------- the block
