@@ -12,6 +12,9 @@ Per control step k (period Δt):
    :class:`~tamedpuma.metrics.RestMonitor`), or at the step limit (extended to cover the settle
    period of a reach near the limit), else apply q̈_k.
 
+A termination a signal asked for (:mod:`tamedpuma.termination`) ends the loop at the top of a
+step, as if the signal's exception had been raised there.
+
 The loop knows neither the method nor the file formats. It returns the run's
 :class:`~tamedpuma.metrics.RunMetrics`, computed from the same per-step values that were recorded.
 """
@@ -26,6 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from tamedpuma import termination
 from tamedpuma.metrics import (
     ERROR_VECTOR_FIELDS,
     ROTATION_VECTOR_FIELDS,
@@ -227,6 +231,7 @@ def run_episode(scenario: Scenario, controller: Controller, sim: World,
             rec.open(info)
         k = 0
         while k < stop.limit:
+            termination.check()  # a signal's SystemExit lost in a finaliser is raised here
             seen = _observe(sim, obs, ee_index)
             command, qdd, compute_ms = _timed_step(controller, obs, spec.dof)
             if recorders:  # (no record is built for none: recorder=none costs nothing)

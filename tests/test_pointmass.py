@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import signal
+
 import numpy as np
 import pytest
 
@@ -153,3 +156,44 @@ def test_both_worlds_are_what_the_episode_loop_drives():
     world.reset(point_scenario())
     assert world.disturbance_time is None
     np.testing.assert_array_equal(world.obstacle_centers(), world.observe().obstacle_centers)
+
+
+class _Finaliser:
+    """Sends this process SIGTERM from its finaliser, where Python loses the handler's exception
+    ("Exception ignored in ... __del__"), as a SIGTERM landing during garbage collection does."""
+
+    def __del__(self):
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(100):  # bytecode after the kill: the handler runs in here
+            pass
+
+
+class _SignalledAtStep:
+    """The attractor, whose fifth step drops a :class:`_Finaliser`."""
+
+    def reset(self, scenario):
+        self.k = 0
+
+    def step(self, obs):
+        self.k += 1
+        if self.k == 5:
+            _Finaliser()  # unreferenced: finalised at once
+        return _Attractor().step(obs)
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_a_sigterm_lost_in_a_finaliser_still_ends_the_run_at_the_next_step():
+    from tamedpuma import termination
+    from tamedpuma.app import sweep
+
+    log = _Log()
+    previous = signal.signal(signal.SIGTERM, sweep._terminated_main)
+    try:
+        with pytest.raises(SystemExit) as raised:
+            run_episode(point_scenario(), _SignalledAtStep(), PointMassWorld(), [log])
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        sweep._MAIN_TERMINATED.clear()
+        termination.clear()
+    assert raised.value.code == 143
+    assert log.events == ["open", *["write"] * 5, ("close", False, "interrupted")]

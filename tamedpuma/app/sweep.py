@@ -49,6 +49,7 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from tamedpuma import termination
 from tamedpuma.app import callbacks
 from tamedpuma.app.cli import fail, precheck_overrides, shell_completion, with_plugin_configs
 from tamedpuma.app.config import CONF_DIR
@@ -536,6 +537,7 @@ def _terminated(*_) -> None:
     if _TERMINATED and _RUN_OPEN:  # a second SIGTERM while the run closes its logs: the
         return  # first one is unwinding it (cut short, the Rerun log stayed .active)
     _TERMINATED.append(True)
+    termination.request(143)  # raised again at the next step if this exit is lost
     if not _RUN_OPEN:
         _leave_worker()
     sys.exit(143)
@@ -547,6 +549,7 @@ def _terminated_main(*_) -> None:
     if _MAIN_TERMINATED:
         return
     _MAIN_TERMINATED.append(True)
+    termination.request(143)  # raised again at the next step if this exit is lost
     sys.exit(143)
 
 
@@ -703,6 +706,7 @@ def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     os.environ.setdefault("RUST_LOG", _RERUN_LOG)  # read when rerun is first imported
     # a killed run (SIGTERM) unwinds normally, so recorders close their files as incomplete
+    termination.clear()
     signal.signal(signal.SIGTERM, _terminated_main)
     # loky's resource tracker of a launcher killed with SIGKILL removes the semaphores it left
     # and warns about each: noise after the workers closed their logs (see _die_with_launcher)
