@@ -442,3 +442,33 @@ def test_the_readmes_table1_block_is_the_analysis_output():
     rows = readme_table.markdown_rows("\n".join(body))
     assert rows and all(len(r) == len(readme_table.COLUMNS) + 2 for r in rows)
     assert {r["method"] for r in rows} >= {"PUMA", "Modulation-IK", "Fabrics", "FPM", "CPM"}
+
+
+def test_a_measuring_commands_block_is_written_from_its_stamped_json(tmp_path, capsys):
+    """The learner table's and the LASA benchmark's blocks come from the JSON their command
+    stamped (command, date, machine, code, load); an unstamped JSON is refused in one line."""
+    from tamedpuma.app import provenance, results_page
+
+    row = {"set": "tomato", "order": 2, "seed": 0, "n_demos": 10, "unit": "m", "dtw": 0.008,
+           "dtw_worst": 0.02, "frechet": 0.015, "converged": 1.0, "compatible": 0.999,
+           "iterations": 900, "train_s": 70.0, "wall_s": 80.0, "cpu_s": 79.0,
+           "gates_failed": []}
+    bad = {**row, "set": "pouring_v2", "seed": 1, "dtw": 0.021, "train_s": 130.0}
+    stamp = provenance.with_end(provenance.stamp("python -m tamedpuma.train --table t.md"))
+    table = tmp_path / "learner.json"
+    table.write_text(json.dumps({"provenance": stamp, "rows": [row, bad]}))
+    page = tmp_path / "BENCHMARKS.md"
+    page.write_text("# Benchmarks\n\n<!-- result: learner -->\nold\n<!-- /result -->\nkept\n")
+    assert results_page.main(["learner", str(table), "--page", str(page)]) == 0
+    text = page.read_text()
+    assert "old" not in text and text.endswith("<!-- /result -->\nkept\n")
+    for field in ("- command: `python -m tamedpuma.train --table t.md`", "- date: ",
+                  "- machine: ", "- code: `", "- models: ", "load average"):
+        assert field in text, field
+    assert "| tomato | 2 | 0 | 10 | 0.80 cm | 2.00 cm |" in text
+    assert "met by 1 of 2 models; missed by pouring_v2 order 2 seed 1 (DTW)" in text
+    assert "Median training of a second-order model 100 s (target ≤ 90 s: missed)" in text
+    table.write_text(json.dumps([row]))  # rows without the command's stamp
+    assert results_page.main(["learner", str(table), "--page", str(page)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "no stamped rows" in err and "\n" not in err

@@ -49,7 +49,6 @@ from tamedpuma.app.bench_baseline import (
     BaselineError,
     attach_baseline,
     baseline_tree,
-    cited,
     describe,
 )
 from tamedpuma.app.bench_fabrics import ROOT, machine_info, update_markdown
@@ -206,11 +205,10 @@ def optional_sections(args, report: dict) -> dict | None:
 
 
 def finish(report: dict, args) -> None:
-    """Models, cited figures and the closing load averages."""
+    """Models and the closing load averages."""
     models = [r["model"] for r in report["controller"] if r.get("model")]
     if models:
         report["models"] = ", ".join(dict.fromkeys(models))
-    report["cited"] = {} if args.training else cited(args.root)  # measured here: not cited
     machine = report["machine"]
     machine["load_averages_end"] = load_averages()
     machine["load_average_1min_end"] = (machine["load_averages_end"] or [None])[0]

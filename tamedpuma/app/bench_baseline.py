@@ -1,5 +1,5 @@
 """What the benchmark compares against: another source tree timed side by side in the same run
-(``--baseline DIR``), and dated figures already saved in ``benchmarks/`` (cited, not re-measured).
+(``--baseline DIR``).
 
 A baseline is a checkout the user prepares, e.g. ``git worktree add /tmp/before <rev>``; the
 benchmark never checks out, archives or edits anything. Its workers run that tree's own
@@ -8,9 +8,7 @@ benchmark never checks out, archives or edits anything. Its workers run that tre
 
 from __future__ import annotations
 
-import json
 import subprocess
-import time
 from pathlib import Path
 
 WORKER = Path("tamedpuma") / "app" / "bench_worker.py"
@@ -53,18 +51,3 @@ def attach_baseline(rows: list[dict], before: list[dict]) -> None:
             for key in ("median_ms", "p10_ms", "p90_ms", "n_calls"):
                 row[f"before_{key}"] = old[key]
             row["speedup"] = round(old["median_ms"] / row["median_ms"], 3)
-
-
-def cited(root: Path) -> dict:
-    """Dated figures already in ``benchmarks/`` (training reports), cited, not re-measured."""
-    out = {}
-    for task in ("tomato", "pouring"):
-        path = Path(root) / "benchmarks" / f"puma_{task}.json"
-        if path.is_file():
-            data = json.loads(path.read_text())
-            out[f"training_{task}"] = {
-                "source": str(path.relative_to(root)),
-                "wall_s": data.get("pipeline_seconds"),
-                "date": time.strftime("%Y-%m-%d", time.gmtime(path.stat().st_mtime)),
-            }
-    return out

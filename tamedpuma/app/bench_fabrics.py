@@ -473,9 +473,10 @@ def markdown_section(report: dict) -> str:
 
 
 def update_markdown(path: Path, section: str, title: str = "Fabrics") -> None:
-    """Replace (or append) the "## <title>" section of ``path``, keeping every other section."""
+    """Replace (or append) the "## <title>" section of ``path``, keeping every other section
+    and every block another command writes (``<!-- result: NAME -->``)."""
     text = path.read_text() if path.exists() else "# Benchmarks\n\n"
-    pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.M | re.S)
+    pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |^<!-- result: |\Z)", re.M | re.S)
     if pattern.search(text):
         text = pattern.sub(lambda _: section + "\n", text, count=1)
     else:

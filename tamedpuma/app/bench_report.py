@@ -297,7 +297,4 @@ def markdown_section(report: dict) -> str:
     lines += bench_runs.training_lines(report.get("training") or [],
                                        report.get("training_measured_by"))
     lines += bench_runs.table1_lines(report.get("table1"))[2:]  # its per-method table
-    for key, item in report.get("cited", {}).items():
-        lines += ["", f"{key} (cited from `{item['source']}`, not re-measured in this run): "
-                  f"{item['wall_s']:.0f} s wall (file dated {item['date']})."]
     return "\n".join(lines + machine_line(report))

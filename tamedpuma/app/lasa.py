@@ -19,9 +19,12 @@ def main(argv: list[str]) -> int:
     cfg = compose_dict("train", ["task=lasa", "puma=lasa", "out_dir=runs/lasa", "progress=false",
                                  "overwrite=true",  # the benchmark retrains every shape
                                  *argv])
+    from tamedpuma.app import provenance
     from tamedpuma.puma import lasa_benchmark
 
-    rows = lasa_benchmark.run(cfg, log=lambda m: print(m, file=sys.stderr))
+    start = provenance.stamp(provenance.command_line("tamedpuma.lasa", argv))
+    rows = lasa_benchmark.run(cfg, log=lambda m: print(m, file=sys.stderr),
+                              stamp=lambda: provenance.with_end(start))
     print(lasa_benchmark.markdown(rows))
     return 0
 

@@ -24,15 +24,14 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
-import os
-import platform
-import re
 import shutil
 import sys
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 
+from tamedpuma.app.provenance import lines as provenance_lines
+from tamedpuma.app.provenance import machine as host_machine
+from tamedpuma.app.provenance import machine_text, short_revision
 from tamedpuma.paths import project_root
 
 #: the page, in :func:`tamedpuma.paths.project_root`: the checkout's, else (an installed
@@ -70,6 +69,29 @@ EXPERIMENTS = {
                           "recorder=mcap output_root=runs/look", (),
                           ("figures/paths_tomato.png", "figures/clearance_psi_tomato.png",
                            "figures/success_timing.png")),
+}
+
+
+@dataclass(frozen=True)
+class Measured:
+    """A block written from a measuring command's stamped JSON (``{"provenance", "rows"}``)
+    instead of a folder of runs: its title, the page it belongs on, the module whose
+    ``markdown(rows)`` renders the rows, and what the command measures."""
+
+    title: str
+    page: Path
+    renderer: str
+    about: str
+
+
+MEASURED = {
+    "lasa": Measured("LASA shapes (PUMA alone, 2-D)", PAGE, "tamedpuma.puma.lasa_benchmark",
+                     "A second-order 2-D PUMA trained and evaluated on each LASA handwriting "
+                     "shape (per-shape table: `benchmarks/lasa.md`)."),
+    "learner": Measured("PUMA training", Path("BENCHMARKS.md"), "tamedpuma.puma.learner_table",
+                        "Every demonstration set at hand trained with the default recipe and "
+                        "evaluated (`report.json` of each training): imitation, the converged "
+                        "share of the random starts, ψ compatibility, the gates, and the time."),
 }
 MARKERS = ("<!-- result: {} -->", "<!-- /result -->")
 HOST = " (the host writing the page: the runs record none)"
@@ -118,36 +140,23 @@ def models(found: list[dict]) -> str:
 
 
 def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-        cpu = re.search(r"^model name\s*:\s*(.+)$", text, re.M).group(1).strip()
-    except (OSError, AttributeError):
-        pass
-    try:
-        torch = f", torch {metadata.version('torch')}"
-    except metadata.PackageNotFoundError:
-        torch = ""
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}{torch}"
+    """The host's machine in one line (CPU, cores, Python, torch)."""
+    return machine_text(host_machine())
 
 
 def run_revisions(found: list[dict]) -> str | None:
     """The code revisions the runs record (``summary.json``'s ``code_revision``: a git hash cut
     to 7 characters, ``-dirty`` kept; an installed package's version, ``tamedpuma 0.1.0``, as
     recorded), or None where no run records one (layout 1)."""
-    revs = sorted({_short(str(s["code_revision"])) for s in found if s.get("code_revision")})
+    revs = sorted({short_revision(str(s["code_revision"])) for s in found
+                   if s.get("code_revision")})
     return ", ".join(f"`{r}`" for r in revs) if revs else None
 
 
 def run_machines(found: list[dict]) -> str | None:
     """The machines the runs record (``summary.json``'s ``machine``), or None."""
-    seen = set()
-    for s in found:
-        m = s.get("machine")
-        if isinstance(m, dict) and m.get("cpu"):
-            torch = (m.get("packages") or {}).get("torch")
-            seen.add(f"{m['cpu']}, {m.get('cores', '?')} cores, Python {m.get('python', '?')}"
-                     + (f", torch {torch}" if torch else ""))
+    seen = {machine_text(s["machine"]) for s in found
+            if isinstance(s.get("machine"), dict) and s["machine"].get("cpu")}
     return "; ".join(sorted(seen)) or None
 
 
@@ -156,12 +165,7 @@ def revision() -> str:
     git hash cut to 7 characters as :func:`run_revisions` cuts the runs'."""
     from tamedpuma.app.models import code_revision
 
-    return _short(code_revision())
-
-
-def _short(rev: str) -> str:
-    """``rev`` with each git hash in it cut to 7 characters (``-dirty`` and versions kept)."""
-    return re.sub(r"(?<![0-9a-f])([0-9a-f]{7})[0-9a-f]{5,}(?![0-9a-f])", r"\1", rev)
+    return short_revision(code_revision())
 
 
 # ----------------------------------------------------------------------------- the block
@@ -190,6 +194,34 @@ def block(name: str, runs: Path, command: str | None, img: Path) -> str:
         img.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(path, img / path.name)
         lines += [f"![{Path(figure).stem.replace('_', ' ')}](img/{path.name})", ""]
+    return "\n".join(lines).rstrip("\n") + "\n" + MARKERS[1]
+
+
+def read_measured(path: Path) -> tuple[dict, list[dict]]:
+    """(provenance, rows) of a measuring command's JSON; PageError if it has no provenance."""
+    try:
+        found = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise PageError(f"{path} is not readable JSON: {exc}") from None
+    if not isinstance(found, dict) or not found.get("provenance") or not found.get("rows"):
+        raise PageError(f"{path} holds no stamped rows: write it again with its command "
+                        "(python -m tamedpuma.lasa, python -m tamedpuma.train --table ...)")
+    return found["provenance"], found["rows"]
+
+
+def measured_block(name: str, path: Path) -> str:
+    """The block of ``name`` (:data:`MEASURED`) from the stamped JSON at ``path``."""
+    import importlib
+
+    spec = MEASURED[name]
+    stamp, rows = read_measured(path)
+    render = importlib.import_module(spec.renderer)
+    lines = [MARKERS[0].format(name), f"## {spec.title}", "", spec.about, "",
+             *provenance_lines(stamp), "- models: trained by the command",
+             f"- figures: `{path}`", "", render.markdown(rows).strip()]
+    summary = getattr(render, "targets", None)
+    if summary is not None:
+        lines += ["", summary(rows)]
     return "\n".join(lines).rstrip("\n") + "\n" + MARKERS[1]
 
 
@@ -226,22 +258,28 @@ def write_readme(readme: Path, runs: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("name", choices=sorted(EXPERIMENTS), help="the experiment's block")
-    parser.add_argument("runs", type=Path, help="the folder its analysis wrote into")
+    parser.add_argument("name", choices=sorted([*EXPERIMENTS, *MEASURED]),
+                        help="the experiment's block")
+    parser.add_argument("runs", type=Path, help="the folder its analysis wrote into (lasa, "
+                        "learner: the JSON their command wrote)")
     parser.add_argument("--command", default=None, help="how the runs were made (default: the "
                         "experiment's command)")
     parser.add_argument("--page", type=Path, default=None, help=f"default: {PAGE} of the "
-                        "checkout (installed: of the current folder)")
+                        "checkout (learner: BENCHMARKS.md; installed: of the current folder)")
     parser.add_argument("--readme", type=Path, default=None, help="table1 only: also rewrite "
                         "this README's Table-1 block (the current rates beside the paper's)")
     args = parser.parse_args(argv)
-    args.page = args.page or project_root() / PAGE
+    page = MEASURED[args.name].page if args.name in MEASURED else PAGE
+    args.page = args.page or project_root() / page
     try:
-        if not args.runs.is_dir():
-            raise PageError(f"{args.runs} is not a folder of runs")
         if args.readme is not None and args.name != "table1":
             raise PageError("--readme goes with the table1 block only")
-        new = block(args.name, args.runs, args.command, args.page.parent / "img")
+        if args.name in MEASURED:
+            new = measured_block(args.name, args.runs)
+        elif not args.runs.is_dir():
+            raise PageError(f"{args.runs} is not a folder of runs")
+        else:
+            new = block(args.name, args.runs, args.command, args.page.parent / "img")
         text = args.page.read_text() if args.page.is_file() else "# Results\n"
         args.page.parent.mkdir(parents=True, exist_ok=True)
         args.page.write_text(replace_block(text, args.name, new))

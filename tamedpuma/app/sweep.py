@@ -53,6 +53,7 @@ from tamedpuma import termination
 from tamedpuma.app import callbacks
 from tamedpuma.app.cli import fail, precheck_overrides, shell_completion, with_plugin_configs
 from tamedpuma.app.config import CONF_DIR
+from tamedpuma.app.provenance import machine
 from tamedpuma.errors import ConfigError, DiskFullError, TamedPumaError
 from tamedpuma.paths import SET_ASIDE, free_bytes, no_space, write_atomic
 from tamedpuma.runlog import SUMMARY_SCHEMA_VERSION
@@ -220,32 +221,6 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                           "episode": round(t_episode - t_built, 4)}}
     write_summary(run_dir, summary)
     return summary
-
-
-@functools.cache
-def machine() -> dict:
-    """What ran the run: OS, CPU, core count, Python and the numerical packages' versions
-    (results of one suite from two machines differ in time, never in scenarios)."""
-    import platform
-    from importlib import metadata
-
-    def version(name: str) -> str | None:
-        try:
-            return metadata.version(name)
-        except metadata.PackageNotFoundError:
-            return None
-
-    cpu = platform.processor() or platform.machine()
-    try:  # Linux names the model; platform gives only the architecture there
-        cpu = next(line.split(":", 1)[1].strip() for line in
-                   Path("/proc/cpuinfo").read_text().splitlines()
-                   if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {"system": f"{platform.system()} {platform.release()}", "cpu": cpu,
-            "cores": os.cpu_count(),
-            "python": platform.python_version(),
-            "packages": {n: version(n) for n in ("numpy", "pin", "pybullet", "torch")}}
 
 
 @functools.cache

@@ -137,7 +137,11 @@ def table_main(argv: list[str]) -> int:
                                         "progress=false", *rest])
                 jobs.append(learner_table.Job(name, order, seed, cfg,
                                               tuple(workspace_starts(cfg["task"]))))
-    rows = learner_table.run(jobs, resolve(str(out)), log=lambda m: print(m, file=sys.stderr))
+    from tamedpuma.app import provenance
+
+    start = provenance.stamp(provenance.command_line("tamedpuma.train", ["--table", *argv]))
+    rows = learner_table.run(jobs, resolve(str(out)), log=lambda m: print(m, file=sys.stderr),
+                             stamp=lambda: provenance.with_end(start))
     print(learner_table.markdown(rows))
     return 0
 

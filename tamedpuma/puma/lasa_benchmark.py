@@ -65,8 +65,10 @@ def markdown(rows: list[dict], note: str = "") -> str:
     return "\n".join(lines) + "\n" + (f"\n{note}\n" if note else "")
 
 
-def run(cfg: dict, log=print) -> list[dict]:
-    """All configured shapes; writes the Markdown table and a JSON beside it after each shape."""
+def run(cfg: dict, log=print, stamp=None) -> list[dict]:
+    """All configured shapes; writes the Markdown table and a JSON beside it after each shape
+    (``{"provenance": stamp(), "rows": [...]}``; ``stamp`` gives the run's provenance, its end
+    set to now)."""
     task = cfg["task"]
     shapes = task["shapes"]
     names = data.lasa_names() if shapes in ("all", None) else [str(s) for s in shapes]
@@ -87,7 +89,8 @@ def run(cfg: dict, log=print) -> list[dict]:
                 f"after {p['eval']['horizon']} s; {len(rows)}/{len(names)} shapes done in "
                 f"{time.perf_counter() - t0:.0f} s. Command: `python -m tamedpuma.lasa`.")
         table.write_text("# LASA handwriting benchmark (PUMA)\n\n" + markdown(rows, note))
-        table.with_suffix(".json").write_text(json.dumps(rows, indent=1) + "\n")
+        table.with_suffix(".json").write_text(json.dumps(
+            {"provenance": stamp() if stamp else None, "rows": rows}, indent=1) + "\n")
         log(f"{name}: DTW {rows[-1]['dtw']:.2f} mm, grid not converged "
             f"{rows[-1]['grid_not_converged']}")
     return rows

@@ -72,9 +72,11 @@ def markdown(rows: list[dict], note: str = "") -> str:
     return "\n".join(lines) + "\n" + (f"\n{note}\n" if note else "")
 
 
-def run(jobs: list[Job], table: Path, log=print) -> list[dict]:
-    """Train and evaluate every job in turn; rewrite ``table`` (.md) and its ``.json`` after each.
-    A job whose training fails is logged and left out (the others still run)."""
+def run(jobs: list[Job], table: Path, log=print, stamp=None) -> list[dict]:
+    """Train and evaluate every job in turn; rewrite ``table`` (.md) and its ``.json`` after each
+    (``{"provenance": stamp(now), "rows": [...]}``: ``stamp`` is a callable giving the run's
+    provenance, its end set to now). A job whose training fails is logged and left out (the
+    others still run)."""
     from ..errors import TamedPumaError
 
     table.parent.mkdir(parents=True, exist_ok=True)
@@ -92,5 +94,45 @@ def run(jobs: list[Job], table: Path, log=print) -> list[dict]:
         note = (f"Machine: {os.cpu_count()} cores, load average at the last row "
                 f"{', '.join(f'{x:.1f}' for x in os.getloadavg())}.")
         table.write_text(markdown(rows, note))
-        table.with_suffix(".json").write_text(json.dumps(rows, indent=2) + "\n")
+        table.with_suffix(".json").write_text(json.dumps(
+            {"provenance": stamp() if stamp else None, "rows": rows}, indent=2) + "\n")
     return rows
+
+
+#: what a model of a robot set must show (:func:`targets`): mean DTW per point [m] by model
+#: order, the worst demonstration's [m], the converged and ψ-compatible shares, and the median
+#: training time of a second-order model [s]
+TARGETS = {"dtw": {2: 0.010, 1: 0.015}, "dtw_worst": 0.03, "converged": 1.0,
+           "compatible": 0.995, "train_s": 90.0}
+
+
+def misses(r: dict) -> list[str]:
+    """The targets a row of a robot set (in m) misses, by name; [] for other units."""
+    if r["unit"] != "m":
+        return []
+    t = TARGETS
+    checks = {"DTW": r["dtw"] <= t["dtw"].get(r["order"], t["dtw"][2]),
+              "worst demo": r["dtw_worst"] <= t["dtw_worst"],
+              "converged": r["converged"] >= t["converged"],
+              "ψ": r["compatible"] >= t["compatible"]}
+    return [name for name, ok in checks.items() if not ok]
+
+
+def targets(rows: list[dict]) -> str:
+    """One paragraph: the rows of robot sets meeting every target, those missing which, and the
+    median training time of the second-order models against its target."""
+    robot = [r for r in rows if r["unit"] == "m"]
+    if not robot:
+        return "No robot set in the table: the targets are not judged."
+    t = TARGETS
+    missed = [f"{r['set']} order {r['order']} seed {r['seed']} ({', '.join(misses(r))})"
+              for r in robot if misses(r)]
+    second = [r["train_s"] for r in rows if r["order"] == 2]
+    med = float(np.median(second)) if second else float("nan")
+    return (f"Targets (robot sets): mean DTW ≤ {100 * t['dtw'][2]:.1f} cm (first order "
+            f"≤ {100 * t['dtw'][1]:.1f} cm), worst demonstration ≤ {100 * t['dtw_worst']:.0f} cm, "
+            f"{100 * t['converged']:.0f} % converged, ψ-compatible ≥ {100 * t['compatible']:.1f} "
+            f"%: met by {len(robot) - len(missed)} of {len(robot)} models"
+            + (f"; missed by {'; '.join(missed)}" if missed else "")
+            + f". Median training of a second-order model {med:.0f} s (target "
+            f"≤ {t['train_s']:.0f} s: {'met' if med <= t['train_s'] else 'missed'}).")
