@@ -396,7 +396,7 @@ def _gate(p: Prepared, report: dict, log, follows=None) -> list[gates.Failure]:
 
 
 def benchmark_summary(report: dict, cfg: dict) -> dict:
-    """The headline figures of one training run (for benchmarks/puma_<task>.json)."""
+    """The headline figures of one training run (the JSON ``bench_out`` names)."""
     import platform
 
     import torch
