@@ -234,3 +234,17 @@ def test_render_rewrites_the_sections_from_the_saved_reports(tmp_path, capsys):
     assert bench.main(["--render", "--root", str(tmp_path)]) == 0
     text = (tmp_path / "BENCHMARKS.md").read_text()
     assert "| fpm | 2 | 0.500 |" in text and "## Fabrics" in text and "## Z\nz" in text
+
+
+def test_a_rewritten_section_keeps_the_block_another_command_wrote(tmp_path):
+    """``bench`` rewrites its "## Fabrics" section up to the next section or the next block
+    another command owns (the learner table's ``<!-- result: learner -->``), never into it."""
+    from tamedpuma.app.bench_fabrics import update_markdown
+
+    page = tmp_path / "BENCHMARKS.md"
+    block = "<!-- result: learner -->\n## PUMA training\n\nrows\n<!-- /result -->\n"
+    page.write_text("# Benchmarks\n\n## Fabrics\n\nold\n\n" + block + "\n## Later\n\nkept\n")
+    update_markdown(page, "## Fabrics\n\nnew\n")
+    text = page.read_text()
+    assert "old" not in text and "## Fabrics\n\nnew\n" in text
+    assert block in text and text.endswith("## Later\n\nkept\n")
