@@ -38,7 +38,7 @@ from tamedpuma.metrics import (
     run_metrics,
 )
 from tamedpuma.records import Recorder, RunInfo, StepRecord
-from tamedpuma.robot.rotations import orientation_error, quat_log, relative_quat
+from tamedpuma.robot.rotations import error_to_goal
 from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Contacts, Controller, Scenario, World
 
 
@@ -122,11 +122,11 @@ def _observe(sim: World, obs, ee_index: int) -> Seen:
     link_pos, link_quat = sim.link_poses()
     centers = sim.body_sphere_centers(link_pos, link_quat)
     error = link_pos[ee_index] - obs.goal_position
+    rot_err, rotation = error_to_goal(link_quat[ee_index], obs.goal_quaternion)
     return Seen(link_pos=link_pos, link_quat=link_quat, ee_index=ee_index, centers=centers,
                 contacts=sim.contacts(centers), error=error,
                 pos_err=math.sqrt(float(error.dot(error))),  # = np.linalg.norm, no wrapper
-                rot_err=float(orientation_error(link_quat[ee_index], obs.goal_quaternion)),
-                rotation=quat_log(relative_quat(link_quat[ee_index], obs.goal_quaternion)))
+                rot_err=rot_err, rotation=rotation)
 
 
 def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, seen: Seen,

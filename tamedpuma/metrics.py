@@ -164,15 +164,28 @@ def at_rest(t: np.ndarray, error_vector: np.ndarray, rest_window: float,
     """Per step (T,): the error vector e (T, 3) [m] stayed within ``rest_distance`` [m] of e_k
     over the ``rest_window`` [s] before step k (False until a whole window has passed), and,
     given ``rotation_vector`` r (T, 3) [rad], r within ``rest_angle`` [rad] of r_k too."""
+    t, e, r, start, full = _rest_windows(t, error_vector, rotation_vector, rest_window)
+    out = np.zeros(len(t), dtype=bool)
+    for k in np.nonzero(full)[0]:
+        out[k] = _rest_at(k, start, e, r, rest_distance, rest_angle)
+    return out
+
+
+def _rest_windows(t, error_vector, rotation_vector, rest_window: float) -> tuple:
+    """(t, e, r as arrays, the first step inside each step's window (T,), whether a whole
+    window has passed at each step (T,))."""
     t = np.asarray(t, dtype=float)
     e = np.asarray(error_vector, dtype=float)
     r = None if rotation_vector is None else np.asarray(rotation_vector, dtype=float)
     start = np.searchsorted(t, t - rest_window + 1e-9)  # first step inside each window
-    out = np.zeros(len(t), dtype=bool)
-    for k in np.nonzero(t - t[0] >= rest_window - 1e-9)[0]:
-        out[k] = (_within(e[start[k]:k + 1], rest_distance)
-                  and (r is None or _within(r[start[k]:k + 1], rest_angle)))
-    return out
+    return t, e, r, start, t - t[0] >= rest_window - 1e-9
+
+
+def _rest_at(k: int, start: np.ndarray, e: np.ndarray, r: np.ndarray | None,
+             rest_distance: float, rest_angle: float) -> bool:
+    """Step k of :func:`at_rest` (its window complete)."""
+    return (_within(e[start[k]:k + 1], rest_distance)
+            and (r is None or _within(r[start[k]:k + 1], rest_angle)))
 
 
 def _within(window: np.ndarray, radius: float) -> bool:
@@ -221,11 +234,13 @@ def rest_step(t, error_vector, inside: np.ndarray, reach: int | None, rest_windo
     """k_c: the first step at or after ``reach`` at rest (:func:`at_rest`) inside the ball."""
     if reach is None or error_vector is None:
         return None
-    rest = at_rest(t, error_vector, rest_window, rest_distance, rotation_vector,
-                   rest_angle) & inside
-    rest[:reach] = False
-    k = _first(rest)
-    return k if k < len(rest) else None
+    t, e, r, start, full = _rest_windows(t, error_vector, rotation_vector, rest_window)
+    candidates = full & np.asarray(inside, dtype=bool)
+    candidates[:reach] = False
+    for k in np.nonzero(candidates)[0]:  # at_rest's test, only up to the first step it holds
+        if _rest_at(k, start, e, r, rest_distance, rest_angle):
+            return int(k)
+    return None
 
 
 def _rest_outcome(t, error_vector, inside, reach, rot_err, causes, time_limit: float,

@@ -20,11 +20,14 @@ def _array(value, shape: tuple[int | None, ...], name: str) -> np.ndarray:
     """``value`` as a float64 array of ``shape`` (None = any length); ValueError otherwise."""
     arr = value if type(value) is np.ndarray and value.dtype is _F8 else np.asarray(
         value, dtype=float)  # (the control loop's arrays: no conversion call)
-    if arr.ndim != len(shape):
-        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
-    for s, n in zip(shape, arr.shape):
+    got = arr.shape
+    if got == shape:  # a shape given in full: one comparison
+        return arr
+    if len(got) != len(shape):
+        raise ValueError(f"{name} must have shape {shape}, got {got}")
+    for s, n in zip(shape, got):
         if s is not None and s != n:
-            raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+            raise ValueError(f"{name} must have shape {shape}, got {got}")
     return arr
 
 

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from tamedpuma.analysis.tables import step_time_stats, table1
-from tamedpuma.metrics import RestMonitor, at_rest, run_metrics
+from tamedpuma.metrics import RestMonitor, at_rest, rest_step, run_metrics
 
 DT = 0.02
 TOL = 0.05  # the goal tolerance [m] of the synthetic runs
@@ -168,6 +168,28 @@ def test_with_a_disturbance_only_a_reach_after_its_onset_counts():
     never_back[150:] = 0.3
     assert not run_metrics(**_log(n=300, position_error=never_back),
                            disturbance_time=100 * DT).success_paper
+
+
+def test_the_rest_step_is_the_first_step_at_rest_inside_after_the_reach():
+    """rest_step tests the steps one by one up to the first at rest: the first True of
+    at_rest & inside at or after the reach, with and without the rotation vector."""
+    rng = np.random.default_rng(5)
+    t = np.arange(400) * 0.02
+    e = np.cumsum(rng.normal(size=(400, 3)) * np.exp(-t / 1.0)[:, None] * 0.01, axis=0)
+    r = np.cumsum(rng.normal(size=(400, 3)) * np.exp(-t / 1.5)[:, None] * 0.01, axis=0)
+    found = set()
+    for inside in (rng.uniform(size=400) < 0.7, np.ones(400, bool), np.zeros(400, bool)):
+        for reach in (None, 0, 60, 250, 399, 400):
+            for rot, angle in ((None, np.inf), (r, 0.02)):
+                got = rest_step(t, e, inside, reach, 1.0, 0.005, rot, angle)
+                if reach is None:
+                    assert got is None
+                    continue
+                rest = at_rest(t, e, 1.0, 0.005, rot, angle) & inside
+                rest[:reach] = False
+                assert got == (int(np.argmax(rest)) if rest.any() else None)
+                found.add(got)
+    assert len(found) > 3  # steps found at several places, and none
 
 
 def test_the_online_rest_monitor_agrees_with_the_offline_rest_test():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import math
 import os
 import shutil
 import subprocess
@@ -316,6 +317,31 @@ def test_non_finite_scalars_are_null_in_json(tmp_path):
     assert b"null" in data[0] and b"Infinity" not in data[0] and b"NaN" not in data[0]
     log = read_mcap(path)
     assert np.isnan(log.scalars["clearance_m"].iloc[0]) and np.isnan(log.scalars["alpha"].iloc[0])
+
+
+def test_scalars_json_is_what_json_dumps_writes_step_by_step(tmp_path):
+    """Every step's /scalars text is ``json.dumps`` of its values (non-finite ones as null),
+    whether all are finite or not, and when a step brings other names."""
+    import json
+
+    urdf = _urdf(tmp_path)
+    path = tmp_path / "scalars.mcap"
+    rec = McapRecorder(path)
+    rec.open(_info(urdf))
+    base = _record(0)
+    steps = [{"a%s": 0.1, 'b"q': 1e300, "c": -0.0}, {"a%s": float("nan"), 'b"q': 1e308, "c": 2.5},
+             {"a%s": 1e308, 'b"q': 1e308, "c": float("-inf")}, {"a%s": 3.0, 'b"q': 4.0, "c": 5.0},
+             {"other": 1.0 / 3.0}, {"a%s": 1, 'b"q': np.float32(0.5), "c": True}]
+    for i, scalars in enumerate(steps):
+        rec.write(StepRecord(**{**base.__dict__, "step": i, "t": 0.02 * i, "scalars": scalars}))
+    rec.close(complete=True, summary={})
+    with open(path, "rb") as f:
+        data = [m.data for _, c, m in make_reader(f).iter_messages(topics=["/scalars"])]
+    for i, (scalars, text) in enumerate(zip(steps, data)):
+        values = {k: float(v) for k, v in scalars.items()}
+        expected = {"step": i, "t": 0.02 * i,
+                    **{k: v if math.isfinite(v) else None for k, v in values.items()}}
+        assert text == json.dumps(expected).encode()
 
 
 @pytest.mark.skipif(importlib.util.find_spec("pybullet_data") is None,

@@ -90,6 +90,23 @@ def test_relative_rotation_on_floats_is_the_matrix_of_relative_quat():
     assert all(math.isnan(e) for e in r.relative_rotation([0.0] * 4, [0.0, 0.0, 0.0, 1.0]))
 
 
+def test_error_to_goal_is_the_angle_and_the_log_of_relative_quat_to_the_bit():
+    q, g = _unit(400), _unit(400)
+    g[:100] = q[:100] + RNG.normal(size=(100, 4)) * 1e-7  # near the goal
+    g[100:120] = q[100:120]  # at it (|θ| below the log's threshold)
+    g[120:140] = -q[120:140]  # the same orientation, the other sign (w < 0)
+    q[140:200] *= RNG.uniform(0.5, 2.0, size=(60, 1))  # not normalised
+    cases = [*zip(q, g), (np.full(4, np.nan), g[0]), (np.zeros(4), g[0])]
+    with np.errstate(invalid="ignore"):  # the zero quaternion's 0/0
+        for a, b in cases:
+            angle, rotation = r.error_to_goal(a, b)
+            assert isinstance(angle, float)
+            np.testing.assert_array_equal(angle, float(r.orientation_error(a, b)))
+            assert rotation.tobytes() == r.quat_log(r.relative_quat(a, b)).tobytes()
+    np.testing.assert_array_equal(r.error_to_goal(Z90.tolist(), [0.0, 0.0, 0.0, 1.0])[1],
+                                  r.quat_log(Z90))
+
+
 def test_skew_is_the_cross_product_and_its_generators_are_the_basis():
     v, w = RNG.normal(size=(10, 3)), RNG.normal(size=(10, 3))
     np.testing.assert_allclose(np.einsum("kij,kj->ki", r.skew(v), w), np.cross(v, w),

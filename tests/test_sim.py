@@ -93,6 +93,26 @@ def test_link_poses_match_pinocchio(robot_spec, kinematics):
     np.testing.assert_allclose(pos, ref, atol=1e-6)
 
 
+def test_link_poses_are_pybullets_link_states_one_link_at_a_time(robot_spec):
+    """The one batched query, written into its rows, gives each link's own ``getLinkState``
+    (the base: the origin), to the bit."""
+    import pybullet as pb
+
+    with Simulator(robot_spec) as sim:
+        sim.reset(_scenario())
+        for k in range(3):
+            sim.step(np.sin(np.arange(7.0) + k))
+        pos, quat = sim.link_poses()
+        for row, link in enumerate(sim._link_idx):
+            if link < 0:
+                want = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)
+            else:
+                state = pb.getLinkState(sim._robot, link, computeForwardKinematics=True,
+                                        physicsClientId=sim._client)
+                want = state[4], state[5]
+            assert pos[row].tolist() == list(want[0]) and quat[row].tolist() == list(want[1])
+
+
 def test_contacts_are_checked_among_1000_obstacles(robot_spec, kinematics):
     """The scaling experiment's largest count: 999 seeded clutter spheres kept clear of the arm
     plus one on link 4 — the mesh contact and the sphere penetration are both reported; without

@@ -201,6 +201,8 @@ class McapRecorder:
         self._goal_style = _Spheres(_GOAL_COLOR)
         self._body_radii = info.body_sphere_radii
         self._scalar_keys: dict[str, str] = {}  # scalar name -> its JSON key
+        self._scalar_names: tuple[str, ...] | None = None  # the names _scalar_template holds
+        self._scalar_template = ""
 
         meta = info.metadata()
         meta["created_unix_s"] = repr(time.time())
@@ -293,14 +295,27 @@ class McapRecorder:
 
     def _scalars_json(self, rec: StepRecord) -> bytes:
         """``{"step": .., "t": .., <name>: <value or null>, ...}`` as ``json.dumps`` writes it
-        (keys JSON-encoded once per name, floats by ``repr``, non-finite values as null)."""
+        (keys JSON-encoded once per name, floats by ``repr``, non-finite values as null).
+
+        The keys are constant within a run: their text is a ``%``-template made once, which the
+        step's values fill in when they are all finite (their sum is), else they are written one
+        by one."""
+        scalars = rec.scalars
+        values = [float(v) for v in scalars.values()]
+        names = tuple(scalars)
+        if names != self._scalar_names:
+            self._scalar_names = names
+            self._scalar_template = "".join(
+                ['{"step": %d, "t": %r'] + [f", {json.dumps(k).replace('%', '%%')}: %r"
+                                             for k in names] + ["}"])
+        if math.isfinite(sum(values)):  # (an overflowing sum takes the slow way: the same text)
+            return (self._scalar_template % (int(rec.step), float(rec.t), *values)).encode()
         keys = self._scalar_keys
         parts = [f'{{"step": {int(rec.step)}, "t": {float(rec.t)!r}']
-        for k, v in rec.scalars.items():
+        for k, v in zip(names, values):
             key = keys.get(k)
             if key is None:
                 key = keys[k] = json.dumps(k)
-            v = float(v)
             parts.append(f"{key}: {v!r}" if math.isfinite(v) else f"{key}: null")
         return (", ".join(parts) + "}").encode()
 

@@ -119,6 +119,34 @@ def relative_rotation(quat, goal_quat) -> list[float]:
                             aw * bw - ax * bx - ay * by - az * bz)
 
 
+def error_to_goal(quat, goal_quat) -> tuple[float, np.ndarray]:
+    """(angle [rad], rotation vector [rad] (3,)) from a goal orientation to ``quat``, both
+    (x, y, z, w): ``orientation_error(quat, goal_quat)`` and
+    ``quat_log(relative_quat(quat, goal_quat))``, to the last bit, for one state (Python floats
+    in the order the array functions sum and multiply; their ``arccos``, ``arctan2`` and the
+    3-vector's dot product are numpy's own)."""
+    ax, ay, az, aw = quat.tolist() if hasattr(quat, "tolist") else quat
+    gx, gy, gz, gw = goal_quat.tolist() if hasattr(goal_quat, "tolist") else goal_quat
+    dot = abs(((ax * gx + ay * gy) + az * gz) + aw * gw)
+    angle = float(2.0 * np.arccos(min(max(dot, 0.0), 1.0)))  # = np.clip, NaN kept
+    na = math.sqrt(((ax * ax + ay * ay) + az * az) + aw * aw)
+    nb = math.sqrt(((gx * gx + gy * gy) + gz * gz) + gw * gw)
+    if na == 0.0 or nb == 0.0:  # a zero quaternion: numpy's 0/0 (NaN, and its warning)
+        return angle, quat_log(relative_quat(quat, goal_quat))
+    ax, ay, az, aw = ax / na, ay / na, az / na, aw / na
+    bx, by, bz, bw = -(gx / nb), -(gy / nb), -(gz / nb), gw / nb  # the inverse
+    v = np.array((aw * bx + ax * bw + ay * bz - az * by,
+                  aw * by - ax * bz + ay * bw + az * bx,
+                  aw * bz + ax * by - ay * bx + az * bw))
+    w = aw * bw - ax * bx - ay * by - az * bz
+    if not w >= 0.0:
+        v, w = -v, -w
+    n = math.sqrt(v.dot(v))
+    if n < 1e-12:
+        return angle, 2.0 * v
+    return angle, float(2.0 * np.arctan2(n, w) / n) * v
+
+
 def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
     """Rotation matrix (3, 3) of a quaternion (x, y, z, w) (normalised first)."""
     x, y, z, w = np.asarray(quat, dtype=float) / np.linalg.norm(quat)

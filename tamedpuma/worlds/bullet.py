@@ -169,8 +169,13 @@ class Simulator:
         quat = np.zeros((len(self._link_idx), 4))
         quat[:, 3] = 1.0  # the base (index -1) at the world origin
         self._base_pose = (np.zeros((len(self._link_idx), 3)), quat)
-        self._movable_rows = np.array([k for k, i in enumerate(self._link_idx) if i >= 0],
-                                      dtype=int)
+        rows = [k for k, i in enumerate(self._link_idx) if i >= 0]
+        # the rows PyBullet's link states fill: a slice when consecutive (every link but the
+        # base), which numpy fills from the list of tuples about 3x faster than an index array
+        self._movable_rows = (slice(rows[0], rows[-1] + 1)
+                              if rows and rows == list(range(rows[0], rows[-1] + 1))
+                              else np.array(rows, dtype=int))
+        self._any_movable = bool(rows)
         self._offset_spheres = np.flatnonzero(np.any(self._sphere_offset != 0, axis=1))
         self._offset_links = np.asarray(self._sphere_link, dtype=int)[self._offset_spheres]
 
@@ -350,7 +355,7 @@ class Simulator:
         states = pb.getLinkStates(self._robot, self._movable_links,
                                   computeForwardKinematics=True, physicsClientId=self._client)
         pos, quat = self._base_pose[0].copy(), self._base_pose[1].copy()  # base: the origin
-        if len(self._movable_rows):
+        if self._any_movable:
             pos[self._movable_rows] = [s[4] for s in states]
             quat[self._movable_rows] = [s[5] for s in states]
         return pos, quat
