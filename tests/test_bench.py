@@ -248,3 +248,19 @@ def test_a_rewritten_section_keeps_the_block_another_command_wrote(tmp_path):
     text = page.read_text()
     assert "old" not in text and "## Fabrics\n\nnew\n" in text
     assert block in text and text.endswith("## Later\n\nkept\n")
+
+
+def test_every_benchmark_section_names_the_code_it_measured():
+    """bench.json, fabrics.json and steps.json record the code revision (with the machine) and
+    each BENCHMARKS.md section they write names it."""
+    from tamedpuma.app.bench_fabrics import code_line, machine_info
+    from tamedpuma.app.models import code_revision
+
+    assert machine_info()["code_revision"] == code_revision()
+    assert code_line({"code_revision": "0123456789abcdef0123"}) == "Code: `0123456`."
+    assert code_line({}) == "Code: not recorded in this report."
+    text = (ROOT / "BENCHMARKS.md").read_text()
+    for section in ("## Controller step\n", "## Fabrics\n", "## Controller step in episodes\n"):
+        body = text[text.index(section):]
+        body = body[:body.find("\n## ", 1) if "\n## " in body[1:] else len(body)]
+        assert "\nCode: `" in body, section

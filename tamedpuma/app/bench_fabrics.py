@@ -67,8 +67,19 @@ REFERENCE_ENV = "TAMEDPUMA_REFERENCE_PYTHON"
 MOTION_STEPS, MOTION_DT = 2000, 0.01
 
 
+def code_line(machine: dict) -> str:
+    """"Code: `<revision>`." of a report's machine block (reports that predate it: unrecorded)."""
+    from tamedpuma.app.provenance import short_revision
+
+    rev = machine.get("code_revision")
+    return f"Code: `{short_revision(rev)}`." if rev else "Code: not recorded in this report."
+
+
 def machine_info() -> dict:
-    """CPU model, core count, numpy and BLAS versions, load average."""
+    """CPU model, core count, numpy and BLAS versions, load average, and the code revision
+    measured (:func:`tamedpuma.app.models.code_revision`)."""
+    from tamedpuma.app.models import code_revision
+
     cpu = platform.processor() or "unknown"
     try:
         text = Path("/proc/cpuinfo").read_text()
@@ -90,6 +101,7 @@ def machine_info() -> dict:
         "blas": blas,
         "platform": platform.platform(),
         "OPENBLAS_CORETYPE": os.environ.get("OPENBLAS_CORETYPE"),
+        "code_revision": code_revision(),
     }
     if hasattr(os, "getloadavg"):
         info["load_average_1min"] = round(os.getloadavg()[0], 2)
@@ -467,6 +479,8 @@ def markdown_section(report: dict) -> str:
         f"({m['blas']}), load average {m.get('load_average_1min', '?')} at start and "
         f"{m.get('load_average_1min_end', '?')} at the end",
         "(the machine is shared; other jobs inflate every figure).",
+        "",
+        code_line(m),
         "",
     ]
     return "\n".join(lines)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from tamedpuma.app import bench_runs
 from tamedpuma.app.bench_baseline import label
+from tamedpuma.app.bench_fabrics import code_line
 
 SECTION = "Controller step"
 #: The speed targets: median [ms] per (method, obstacle count).
@@ -287,7 +288,7 @@ def machine_line(report: dict) -> list[str]:
             + "; load average (1 / 5 / 15 min) "
             f"{loads(m, 'load_averages_start')} at the start, "
             f"{loads(m, 'load_averages_end')} at the end (a shared machine inflates every "
-            "figure; compare ratios measured in one run).", ""]
+            "figure; compare ratios measured in one run).", "", code_line(m), ""]
 
 
 def markdown_section(report: dict) -> str:
