@@ -69,7 +69,6 @@ def _sweep(tmp_path, monkeypatch, *overrides, multirun=True) -> int:
     else:
         argv += [f"hydra.run.dir={tmp_path}/run"]
     monkeypatch.setattr(sys, "argv", ["tamedpuma.sweep", *argv])
-    monkeypatch.setattr(sweep, "_MAIN_TERMINATED", [])
     handler = signal.getsignal(signal.SIGTERM)
     try:
         sweep.main(argv)

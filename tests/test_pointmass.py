@@ -193,7 +193,6 @@ def test_a_sigterm_lost_in_a_finaliser_still_ends_the_run_at_the_next_step():
             run_episode(point_scenario(), _SignalledAtStep(), PointMassWorld(), [log])
     finally:
         signal.signal(signal.SIGTERM, previous)
-        sweep._MAIN_TERMINATED.clear()
         termination.clear()
     assert raised.value.code == 143
     assert log.events == ["open", *["write"] * 5, ("close", False, "interrupted")]

@@ -79,14 +79,9 @@ def machine_info() -> dict:
     """CPU model, core count, numpy and BLAS versions, load average, and the code revision
     measured (:func:`tamedpuma.app.models.code_revision`)."""
     from tamedpuma.app.models import code_revision
+    from tamedpuma.app.provenance import machine
 
-    cpu = platform.processor() or "unknown"
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-        found = re.search(r"^model name\s*:\s*(.+)$", text, re.M)
-        cpu = found.group(1).strip() if found else cpu
-    except OSError:
-        pass
+    cpu = machine()["cpu"]
     blas = "unknown"
     try:
         deps = np.show_config(mode="dicts")["Build Dependencies"]["blas"]

@@ -520,15 +520,12 @@ def _terminated(*_) -> None:
 
 def _terminated_main(*_) -> None:
     """SIGTERM in the main process: unwind (a run's logs close as incomplete, exit 143); a
-    repeated SIGTERM while that unwinding closes the logs is ignored."""
-    if _MAIN_TERMINATED:
+    repeated SIGTERM while that unwinding closes the logs is ignored (the main process's only
+    termination request is this handler's, :func:`main` clears it at the start)."""
+    if termination.requested():
         return
-    _MAIN_TERMINATED.append(True)
     termination.request(143)  # raised again at the next step if this exit is lost
     sys.exit(143)
-
-
-_MAIN_TERMINATED = []  # set in the main process by its first SIGTERM
 
 
 def _leave_worker() -> None:
@@ -704,7 +701,7 @@ def main(argv: list[str] | None = None) -> None:
             print("interrupted (SIGTERM) while checking the configuration: nothing was run",
                   file=sys.stderr)
         raise
-    if _MAIN_TERMINATED:  # a SIGTERM inside OmegaConf surfaces as a config error: not one
+    if termination.requested():  # a SIGTERM inside OmegaConf surfaces as a config error: not one
         print("interrupted (SIGTERM) while checking the configuration: nothing was run",
               file=sys.stderr)
         sys.exit(143)

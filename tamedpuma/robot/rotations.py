@@ -113,10 +113,16 @@ def relative_rotation(quat, goal_quat) -> list[float]:
     bx, by, bz, bw = goal_quat
     nb = _inv_norm(bx * bx + by * by + bz * bz + bw * bw)
     bx, by, bz, bw = -bx * nb, -by * nb, -bz * nb, bw * nb
-    return rotation_entries(aw * bx + ax * bw + ay * bz - az * by,
-                            aw * by - ax * bz + ay * bw + az * bx,
-                            aw * bz + ax * by - ay * bx + az * bw,
-                            aw * bw - ax * bx - ay * by - az * bz)
+    return rotation_entries(*_product(ax, ay, az, aw, bx, by, bz, bw))
+
+
+def _product(ax, ay, az, aw, bx, by, bz, bw) -> tuple[float, float, float, float]:
+    """The Hamilton product a ⊗ b of two quaternions (x, y, z, w) given as Python floats, in
+    :func:`quat_mul`'s order of operations."""
+    return (aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz)
 
 
 def error_to_goal(quat, goal_quat) -> tuple[float, np.ndarray]:
@@ -135,10 +141,8 @@ def error_to_goal(quat, goal_quat) -> tuple[float, np.ndarray]:
         return angle, quat_log(relative_quat(quat, goal_quat))
     ax, ay, az, aw = ax / na, ay / na, az / na, aw / na
     bx, by, bz, bw = -(gx / nb), -(gy / nb), -(gz / nb), gw / nb  # the inverse
-    v = np.array((aw * bx + ax * bw + ay * bz - az * by,
-                  aw * by - ax * bz + ay * bw + az * bx,
-                  aw * bz + ax * by - ay * bx + az * bw))
-    w = aw * bw - ax * bx - ay * by - az * bz
+    x, y, z, w = _product(ax, ay, az, aw, bx, by, bz, bw)
+    v = np.array((x, y, z))
     if not w >= 0.0:
         v, w = -v, -w
     n = math.sqrt(v.dot(v))
