@@ -47,7 +47,9 @@ class EpisodeResult:
     """metrics: the run's scalars; stop_reason: 'converged' (at rest in the goal ball),
     'max_steps' or 'nonfinite_command';
     trajectory: per-step arrays q (T, dof) [rad], ee_position (T, 3) [m], t (T,) [s];
-    compute_ms (T,): the controller's wall time per step [ms]."""
+    compute_ms (T,): the controller's wall time per step [ms]; compute_cpu_ms (T,): the CPU time
+    of the thread that ran it [ms] (the step's own work: the wall time also holds the time the
+    operating system gave other processes)."""
 
     metrics: RunMetrics
     stop_reason: str
@@ -55,6 +57,7 @@ class EpisodeResult:
     q: np.ndarray
     ee_position: np.ndarray
     compute_ms: np.ndarray | None = None
+    compute_cpu_ms: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,7 @@ class _Trace:
     obstacle_contact: list = field(default_factory=list)
     ground_contact: list = field(default_factory=list)
     compute_ms: list = field(default_factory=list)
+    compute_cpu_ms: list = field(default_factory=list)
 
     def add(self, **values) -> None:
         for name, value in values.items():
@@ -130,11 +134,12 @@ def _observe(sim: World, obs, ee_index: int) -> Seen:
 
 
 def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, seen: Seen,
-                 compute_ms: float) -> StepRecord:
+                 compute_ms: float, compute_cpu_ms: float) -> StepRecord:
     """What the recorders receive for step k (simulator truth, the command and its scalars)."""
     clearance = seen.contacts.sphere_clearance
     scalars = {
         "compute_time_ms": compute_ms,
+        "compute_cpu_time_ms": compute_cpu_ms,
         "clearance_m": clearance if math.isfinite(clearance) else NO_OBSTACLE_CLEARANCE,
         "position_error_m": seen.pos_err,
         **dict(zip(ERROR_VECTOR_FIELDS, seen.error.tolist())),
@@ -157,15 +162,23 @@ def _step_record(k: int, obs, truth: np.ndarray, command, qdd: np.ndarray, seen:
 
 
 def _timed_step(controller: Controller, obs, dof: int):
-    """(command, q̈, wall time of the whole controller step [ms]); a q̈ of the wrong shape is a
-    controller bug (ValueError)."""
+    """(command, q̈, wall time of the whole controller step [ms], the CPU time its thread spent
+    on it [ms]); a q̈ of the wrong shape is a controller bug (ValueError).
+
+    The wall time is what a robot waits for; it also counts the time the operating system gave
+    other processes while the step ran (a sweep on every core preempts a step for a scheduler
+    slice, 3-5 ms). The thread's CPU time is the step's own work. A controller that runs its
+    work on other threads would show it in the wall time only (the shipped ones do not: torch
+    runs one intra-op thread)."""
     start = time.perf_counter()
+    cpu_start = time.thread_time_ns()
     command = controller.step(obs)
+    compute_cpu_ms = (time.thread_time_ns() - cpu_start) * 1e-6
     compute_ms = (time.perf_counter() - start) * 1e3
     qdd = np.array(command.qdd, dtype=float)  # a copy: recorders may hold it after the step
     if qdd.shape != (dof,):
         raise ValueError(f"controller returned q̈ of shape {qdd.shape}, not ({dof},)")
-    return command, qdd, compute_ms
+    return command, qdd, compute_ms, compute_cpu_ms
 
 
 def _close(recorders: Sequence[Recorder], complete: bool, summary: dict) -> None:
@@ -233,11 +246,11 @@ def run_episode(scenario: Scenario, controller: Controller, sim: World,
         while k < stop.limit:
             termination.check()  # a signal's SystemExit lost in a finaliser is raised here
             seen = _observe(sim, obs, ee_index)
-            command, qdd, compute_ms = _timed_step(controller, obs, spec.dof)
+            command, qdd, compute_ms, compute_cpu_ms = _timed_step(controller, obs, spec.dof)
             if recorders:  # (no record is built for none: recorder=none costs nothing)
                 # the true obstacle positions (the controller may see noisy ones)
                 record = _step_record(k, obs, sim.obstacle_centers(), command, qdd, seen,
-                                      compute_ms)
+                                      compute_ms, compute_cpu_ms)
                 for rec in recorders:
                     rec.write(record)
             trace.add(t=obs.t, q=obs.q, ee_position=seen.link_pos[ee_index],
@@ -245,7 +258,8 @@ def run_episode(scenario: Scenario, controller: Controller, sim: World,
                       position_error=seen.pos_err, orientation_error=seen.rot_err,
                       clearance=seen.contacts.sphere_clearance,
                       obstacle_contact=seen.contacts.obstacle_contact,
-                      ground_contact=seen.contacts.ground_contact, compute_ms=compute_ms)
+                      ground_contact=seen.contacts.ground_contact, compute_ms=compute_ms,
+                      compute_cpu_ms=compute_cpu_ms)
             if not np.isfinite(qdd).all():
                 stop_reason = "nonfinite_command"
                 break
@@ -261,4 +275,5 @@ def run_episode(scenario: Scenario, controller: Controller, sim: World,
                                      **(metrics.as_dict() if metrics else {})})
     return EpisodeResult(metrics=metrics, stop_reason=stop_reason, t=np.array(trace.t),
                          q=np.array(trace.q), ee_position=np.array(trace.ee_position),
-                         compute_ms=np.array(trace.compute_ms))
+                         compute_ms=np.array(trace.compute_ms),
+                         compute_cpu_ms=np.array(trace.compute_cpu_ms))

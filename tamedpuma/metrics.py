@@ -65,8 +65,9 @@ PAPER_CAUSES = ("sphere_penetration",)
 
 @dataclass(frozen=True)
 class RunMetrics:
-    """Scalars of one run; times in seconds except ``compute_ms_*`` (milliseconds).
-    ``success`` is the whole-body criterion (the stricter one)."""
+    """Scalars of one run; times in seconds except ``compute_ms_*`` (the controller step's wall
+    time) and ``compute_cpu_ms_*`` (its thread's CPU time; NaN for a log without it), both in
+    milliseconds. ``success`` is the whole-body criterion (the stricter one)."""
 
     steps: int
     duration_s: float
@@ -101,6 +102,9 @@ class RunMetrics:
     compute_ms_p99: float
     compute_ms_max: float
     compute_ms_first: float
+    compute_cpu_ms_median: float = math.nan
+    compute_cpu_ms_p99: float = math.nan
+    compute_cpu_ms_max: float = math.nan
 
     @property
     def success(self) -> bool:
@@ -322,13 +326,20 @@ def _recovery(t, reach: int | None, disturbance_time: float | None, success: boo
     return float(t[reach] - disturbance_time)
 
 
-def _compute_stats(compute_ms) -> dict[str, float]:
-    """Mean, std, median, p99, max and first of the controller's compute times [ms]."""
+def _compute_stats(compute_ms, compute_cpu_ms=None) -> dict[str, float]:
+    """Mean, std, median, p99, max and first of the controller's wall times per step [ms]; the
+    median, p99 and max of its CPU times [ms] (NaN without them)."""
     ms = np.asarray(compute_ms, dtype=float)
+    cpu = {}
+    if compute_cpu_ms is not None and len(compute_cpu_ms):
+        c = np.asarray(compute_cpu_ms, dtype=float)
+        cpu = {"compute_cpu_ms_median": float(np.median(c)),
+               "compute_cpu_ms_p99": float(np.percentile(c, 99)),
+               "compute_cpu_ms_max": float(c.max())}
     return {"compute_ms_mean": float(ms.mean()), "compute_ms_std": float(ms.std()),
             "compute_ms_median": float(np.median(ms)),
             "compute_ms_p99": float(np.percentile(ms, 99)), "compute_ms_max": float(ms.max()),
-            "compute_ms_first": float(ms[0])}
+            "compute_ms_first": float(ms[0]), **cpu}
 
 
 def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np.ndarray,
@@ -341,10 +352,12 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
                 disturbance_time: float | None = None, error_vector: np.ndarray | None = None,
                 rest_window: float = 1.0, rest_distance: float = 0.005,
                 rotation_vector: np.ndarray | None = None,
-                rest_angle: float = math.inf) -> RunMetrics:
+                rest_angle: float = math.inf,
+                compute_cpu_ms: np.ndarray | None = None) -> RunMetrics:
     """Metrics of one run from per-step arrays (T steps): t (T,) [s], end-effector position
     error to the goal (T,) [m], orientation error (T,) [rad], clearance (T,) [m], contact flags
-    (T,), q (T, n) [rad], compute_ms (T,), optional ee_position (T, 3) [m] (for the stall class).
+    (T,), q (T, n) [rad], compute_ms (T,) [ms, wall], optional compute_cpu_ms (T,) [ms, the
+    step thread's CPU time], optional ee_position (T, 3) [m] (for the stall class).
     tolerance [m]: the scenario's goal tolerance (``scenario.goal_tolerance``);
     time_limit [s]: the goal must be reached strictly before it (the episode horizon);
     settle_time [s]: how long after the reach the orientation is judged;
@@ -389,7 +402,7 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
         settled_orientation_error_rad=float(rot_err[settle] if settle is not None else np.nan),
         min_clearance_m=float(clearance.min()),
         **_collisions(causes),
-        **_compute_stats(compute_ms),
+        **_compute_stats(compute_ms, compute_cpu_ms),
     )
 
 

@@ -31,7 +31,7 @@ if TYPE_CHECKING:  # pandas is imported where a log is read: a run writing its s
 ACTIVE_SUFFIX = ".active"  # a log still being written (or left by a killed run)
 #: the version of a run's ``summary.json`` layout: 2 added ``schema_version``, ``suite``
 #: ({name, version} or null) and ``machine``; a summary without the field is version 1
-SUMMARY_SCHEMA_VERSION = 2
+SUMMARY_SCHEMA_VERSION = 3
 META_RUN_INFO = "tamedpuma.run_info"
 META_CONFIG = "tamedpuma.app.config"
 META_SUMMARY = "tamedpuma.summary"
@@ -286,7 +286,8 @@ def _obstacles_frame(topics, factory, step_of: dict, t_of: dict) -> pd.DataFrame
 
 def upgrade_summary(summary: dict) -> dict:
     """A ``summary.json`` of any version up to :data:`SUMMARY_SCHEMA_VERSION` in the current
-    layout: the fields a version lacks are added as null (version 1: ``suite``, ``machine``).
+    layout: the fields a version lacks are added as null (version 1: ``suite``, ``machine``;
+    version 2: the step thread's CPU times ``step_compute_cpu_ms`` and ``compute_cpu_ms_*``).
     A newer summary (written by a later tamedpuma) is a :class:`LogError` naming both
     versions."""
     version = summary.get("schema_version", 1)
@@ -297,5 +298,9 @@ def upgrade_summary(summary: dict) -> dict:
     if version < 2:
         out.setdefault("suite", None)
         out.setdefault("machine", None)
+    if version < 3:
+        out.setdefault("step_compute_cpu_ms", None)
+        for key in ("median", "p99", "max"):
+            out.setdefault(f"compute_cpu_ms_{key}", None)
     out["schema_version"] = SUMMARY_SCHEMA_VERSION
     return out

@@ -17,14 +17,16 @@ def test_step_statistics_count_the_steps_over_the_period_and_the_bound():
 
 
 def test_the_pooled_figures_hold_every_step_of_every_run():
-    runs = [{"method": "fpm", "ms": [1.0, 2.0, 30.0], "over_period": 1, "over_bound": 1,
-             "success": True, "summary_mismatch": 0.0},
-            {"method": "fpm", "ms": [1.0, 1.0], "over_period": 0, "over_bound": 0,
-             "success": False, "summary_mismatch": 1e-6}]
+    runs = [{"method": "fpm", "ms": [1.0, 2.0, 30.0], "cpu_ms": [0.9, 1.9, 4.0],
+             "over_period": 1, "over_bound": 1, "success": True, "summary_mismatch": 0.0},
+            {"method": "fpm", "ms": [1.0, 1.0], "cpu_ms": [0.9, 11.0], "over_period": 0,
+             "over_bound": 0, "success": False, "summary_mismatch": 1e-6}]
     out = bench_steps.pooled(runs)["fpm"]
     assert out["runs"] == 2 and out["steps"] == 5 and out["max_ms"] == 30.0
     assert out["runs_over_period"] == 1 and out["successes"] == 1
     assert out["summary_mismatch"] == 1e-6
+    assert out["cpu"]["steps"] == 5 and out["cpu"]["max_ms"] == 11.0
+    assert out["cpu"]["over_bound"] == 1 and out["cpu"]["median_ms"] == 1.9
 
 
 def test_a_mismatch_with_the_summary_is_reported():
@@ -50,6 +52,10 @@ def test_an_episode_s_step_figures_are_its_summary_s():
                                            "without_obstacles=false"])
     assert row["steps"] == len(row["ms"]) > 10
     assert row["summary_mismatch"] < 1e-3
+    assert row["cpu"]["steps"] == row["steps"] and len(row["cpu_ms"]) == row["steps"]
+    # the thread's CPU time is part of the step's wall time (to the clocks' accounting, which
+    # charges the thread a few microseconds of the clock reads themselves)
+    assert all(c <= w + 0.05 for c, w in zip(row["cpu_ms"], row["ms"]))
 
 
 def test_without_the_reference_the_report_says_its_figure_is_cited(monkeypatch):
@@ -60,9 +66,11 @@ def test_without_the_reference_the_report_says_its_figure_is_cited(monkeypatch):
               "reference": {"reference_median_ms": 0.25, "reference_note": note,
                             "fabric_median_ms": 0.1},
               "methods": {"fpm": {"runs": 1, **bench_steps.step_stats([0.5, 0.5, 25.0]),
+                                  "cpu": bench_steps.step_stats([0.4, 0.4, 3.0]),
                                   "ratio_to_reference": 2.0, "runs_over_period": 1,
                                   "summary_mismatch": 0.0}},
               "machine": {"cpu_model": "c", "load_average_1min": 1.0}}
     section = bench_steps.markdown_section(report)
     assert section.startswith("## Controller step in episodes") and note in section
     assert "| fpm | 1 | 3 | 0.500 | 2.00 |" in section and "| 25.00 | 1 | 1 | 1 |" in section
+    assert "| fpm | 0.400 |" in section and "| 3.00 | 0 |" in section

@@ -67,6 +67,9 @@ def test_mcap_reads_back_the_simulators_joint_values(recorded):
     assert log.summary["steps"] == result.metrics.steps
     assert "lbr_iiwa_link_7" in log.urdf and log.config_yaml == "seed: 0\n"
     assert {"compute_time_ms", "clearance_m", "joint_error_rad"} <= set(log.scalars.columns)
+    np.testing.assert_allclose(log.scalars["compute_time_ms"], result.compute_ms)
+    np.testing.assert_allclose(log.scalars["compute_cpu_time_ms"], result.compute_cpu_ms)
+    assert log.summary["compute_cpu_ms_max"] == pytest.approx(result.compute_cpu_ms.max())
 
 
 def test_mcap_has_the_foxglove_schemas(recorded):
@@ -103,3 +106,41 @@ def test_two_runs_of_the_same_config_are_identical(robot_spec, kinematics):
     a = _run(robot_spec, kinematics, scenario)
     b = _run(robot_spec, kinematics, scenario)
     assert np.array_equal(a.q, b.q) and len(a.q) > 50
+
+
+class _Waits:
+    """The joint attractor, but step 3 sleeps 30 ms (the thread off the CPU, as when the
+    operating system runs another process) and step 5 spins 8 ms on the CPU."""
+
+    def __init__(self, inner):
+        self.inner, self.k = inner, 0
+
+    def reset(self, scenario):
+        self.inner.reset(scenario)
+
+    def step(self, obs):
+        import time
+
+        if self.k == 3:
+            time.sleep(0.030)
+        elif self.k == 5:
+            end = time.thread_time() + 0.008
+            while time.thread_time() < end:
+                pass
+        self.k += 1
+        return self.inner.step(obs)
+
+
+def test_the_step_s_cpu_time_leaves_out_the_time_the_thread_waits(robot_spec, kinematics):
+    scenario = _scenario(robot_spec, max_steps=10)
+    inner = make("joint_attractor", method_settings(load_group("method", "joint_attractor")),
+                 kinematics)
+    with Simulator(robot_spec) as sim:
+        result = run_episode(scenario, _Waits(inner), sim)
+    wall, cpu = result.compute_ms, result.compute_cpu_ms
+    assert len(cpu) == len(wall) == result.metrics.steps
+    assert wall[3] >= 30.0 and cpu[3] < 5.0  # waiting costs wall time, not CPU time
+    assert cpu[5] >= 8.0 and wall[5] >= 8.0   # work costs both
+    assert np.all(cpu <= wall + 0.05)
+    assert result.metrics.compute_cpu_ms_max == pytest.approx(cpu.max())
+    assert result.metrics.compute_ms_max >= 30.0

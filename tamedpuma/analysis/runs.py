@@ -198,7 +198,9 @@ def run_row(path: str | Path) -> tuple[dict, np.ndarray, np.ndarray]:
         rest_window=float(cfg.get("rest_window", 1.0)),
         rest_distance=float(cfg.get("rest_distance", 0.005)),
         rotation_vector=logged_vector(sc, ROTATION_VECTOR_FIELDS),
-        rest_angle=float(cfg.get("rest_angle", float("inf"))))
+        rest_angle=float(cfg.get("rest_angle", float("inf"))),
+        compute_cpu_ms=(sc["compute_cpu_time_ms"].to_numpy()
+                        if "compute_cpu_time_ms" in sc else None))
     method = run.info.get("method")
     row = {"path": str(path), "run_id": run.info.get("run_id"), "method": method,
            "method_label": method_label(cfg, method),

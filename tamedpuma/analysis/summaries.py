@@ -35,6 +35,7 @@ def load_summaries(root: str | Path) -> tuple[pd.DataFrame, dict[str, np.ndarray
         try:
             summary = upgrade_summary(json.loads(path.read_text()))
             steps = np.asarray(summary.pop("step_compute_ms"), dtype=float)
+            summary.pop("step_compute_cpu_ms", None)
             summary.pop("files", None)
         except (OSError, ValueError, KeyError, LogError) as exc:
             log.warning("skipping %s: %s", path, exc)

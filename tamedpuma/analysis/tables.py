@@ -121,6 +121,19 @@ def ordered_labels(labels) -> list[str]:
     return [m for m in METHOD_ORDER if m in present] + sorted(present - set(METHOD_ORDER))
 
 
+def cpu_cell(runs: pd.DataFrame) -> str:
+    """The controller step's CPU time (its thread's: the work, without the slices the operating
+    system gave other processes): the median of the runs' medians and the largest step [ms];
+    '—' for logs that do not record it."""
+    if "compute_cpu_ms_max" not in runs:
+        return "—"
+    med = pd.to_numeric(runs["compute_cpu_ms_median"], errors="coerce").dropna()
+    top = pd.to_numeric(runs["compute_cpu_ms_max"], errors="coerce").dropna()
+    if not len(top):
+        return "—"
+    return f"{med.median():.2f} / {top.max():.2f}"
+
+
 def table1(runs: pd.DataFrame, step_times: dict | None = None) -> pd.DataFrame:
     """One row per method label (paper order first) from a runs frame with path differences;
     ``step_times``: per-step controller times [ms] by run path (else the per-run summaries)."""
@@ -153,6 +166,7 @@ def table1(runs: pd.DataFrame, step_times: dict | None = None) -> pd.DataFrame:
             "median / p99 [ms]": f"{st['median']:.2f} / {st['p99']:.2f}" if st else "—",
             "first step [ms] mean / max": (f"{st['first_mean']:.2f} / {st['first_max']:.2f}"
                                            if st else "—"),
+            "CPU time [ms] median / max": cpu_cell(scored),
             "whole-body failures": failure_counts(scored["failure_whole_body"]),
             "path difference to PUMA [m]": _pm(r["path_difference_m"]),
         })

@@ -212,8 +212,10 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                "suite": ({"name": run.suite.name, "version": run.suite.version}
                          if run.suite.name else None),
                "machine": machine(),
-               # every step's controller time [ms] (pooled statistics across runs)
+               # every step's controller time [ms] (pooled statistics across runs): wall, and
+               # its thread's CPU time (the step's own work, without preemption)
                "step_compute_ms": [round(float(v), 5) for v in result.compute_ms],
+               "step_compute_cpu_ms": [round(float(v), 5) for v in result.compute_cpu_ms],
                # where this process's time went [s, wall]: building config, model, scenario and
                # controller; the simulator's set-up and the episode with its recorders
                # (informational: not part of any result, varies with the machine's load)

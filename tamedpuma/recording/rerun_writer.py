@@ -76,7 +76,7 @@ PLOT_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("ψ (PUMA potential)", ("psi",)),
     ("ψ rate [1/s]", ("psi_rate",)),
     ("energies", ("energy_*", "dissipation", "potential")),
-    ("compute time [ms]", ("compute_time_ms", "ik_solve_ms")),
+    ("compute time [ms]", ("compute_time_ms", "compute_cpu_time_ms", "ik_solve_ms")),
     ("orientation error [rad]", ("orientation_error_rad", "joint_error_rad")),
     ("orientation error x, y, z [rad]", ("orientation_error_?_rad",)),
     ("contacts and switches (1: on)", ("obstacle_contact", "ground_contact", "stall_pull",
