@@ -299,3 +299,23 @@ def test_build_plans_four_keyed_models_and_caches_what_it_trains(isolated, share
     c = store.resolve("tomato", 2)
     assert c.origin == "cache" and c.data_kind == "real" and c.path == (folder / "puma.pt")
     assert store.resolve("tomato", 1).origin == "shipped"  # not built: the shipped one
+
+
+def test_the_default_parallelism_follows_the_cores_the_process_may_use(monkeypatch, tmp_path):
+    """``taskset -c 0 python -m tamedpuma.sweep +experiment=table1`` trains one model at a time
+    on that core, not one per core of the machine on it."""
+    from tamedpuma.app import models
+
+    monkeypatch.setattr(models.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    monkeypatch.setattr(models.os, "cpu_count", lambda: 64)
+    assert models.usable_cores() == 1
+    jobs = [models.Job(f"m{i}", "tomato", 2, (), tmp_path / f"m{i}", "cmd", {}, f"k{i}")
+            for i in range(4)]
+    seen = []
+    monkeypatch.setattr(models, "plan_real", lambda root: jobs)
+    monkeypatch.setattr(models, "data_root", lambda data: tmp_path)
+    monkeypatch.setattr(models, "run_jobs", lambda todo, parallel, log: seen.append(parallel))
+    models.ensure_real_models(log=lambda line: None)
+    assert seen == [1]
+    models.ensure_real_models(parallel=3, log=lambda line: None)
+    assert seen == [1, 3]

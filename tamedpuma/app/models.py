@@ -243,6 +243,16 @@ def data_root(arg: str | None) -> Path:
     return root
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity: ``taskset -c 0`` gives 1), which
+    the default parallelism follows, as joblib's launcher does; ``os.cpu_count`` counts the
+    machine's."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no affinity on this platform
+        return os.cpu_count() or 1
+
+
 def ensure_real_models(data: str | None = None, parallel: int | None = None,
                        log=print) -> list[Path]:
     """Build the real-data models that are missing from the cache (the Table-1 experiment calls
@@ -250,7 +260,7 @@ def ensure_real_models(data: str | None = None, parallel: int | None = None,
     jobs = plan_real(data_root(data))
     todo = missing(jobs)
     if todo:
-        n = parallel or os.cpu_count() or 1
+        n = parallel or usable_cores()
         log(f"building {len(todo)} real-data model(s) ({', '.join(j.name for j in todo)}), "
             f"{min(n, len(todo))} at a time, into {store.models_dir()}")
         run_jobs(todo, min(n, len(todo)), log)
