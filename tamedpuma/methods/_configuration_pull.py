@@ -31,28 +31,29 @@ pull g beyond ℓ), pulled through the same avoidance metric with the task weigh
 row. It lets go once the hand is within ``near_release`` of the goal, where the attractor,
 critically damped near q_g, has brought the arm nearly to rest, and PUMA (with the stall pull
 still armed, as before) finishes the motion, or once ‖q − q_g‖ has not fallen by ``progress``
-[rad] for ``window`` [s] (a barrier holds the attractor: a moving obstacle on the segment; the
-first form, without the segment check, rested 18 s against an obstacle in random pouring
+[rad] for ``window`` [s] (a barrier holds the attractor: a moving obstacle on the segment;
+without the segment check an attractor rests 18 s against an obstacle in random pouring
 ``near_table1`` 31039); it engages at most once per arming of the stall
 pull and re-chooses q_g when the goal has moved more than 2 cm.
 
-Why it lets go only near the goal. The first form let go at ``release`` (0.15 m) where it
-engaged farther out. There the attractor still cruises (up to 1 rad/s) and PUMA took over a
-hand moving faster than any demonstration near the goal: random tomato ``near_table1`` 2034,
-FPM: let go 0.10 m out at 26.0 s, through the goal ball at 26.2 s, 0.85 m out at 29 s and not
-back by 40 s. Letting go within ``near_release`` hands PUMA a hand nearly at rest at its own
-rest point. FPM, random seeds 2015-2039 (100 scenarios): 2 more converged (2034 and pouring
-``anywhere`` 2039), none fewer, CPM's the same; seeds 2040-2064, drawn after the change (100):
-the 15 FPM runs where the pull engaged farther than ``release`` end step for step as before.
+Why it lets go only near the goal. At ``release`` (0.15 m) the attractor still cruises (up to
+1 rad/s), and a PUMA handed the arm there takes over a hand moving faster than any
+demonstration near the goal: random tomato ``near_table1`` 2034, FPM, let go 0.10 m out at
+26.0 s, passes through the goal ball at 26.2 s, is 0.85 m out at 29 s and not back by 40 s.
+Letting go within ``near_release`` hands PUMA a hand nearly at rest at its own rest point.
+Measured against letting go at ``release`` (FPM, random seeds 2015-2039, 100 scenarios): 2 more
+converged (2034 and pouring ``anywhere`` 2039), none fewer, CPM's the same; on seeds 2040-2064
+(100, drawn afterwards) the 15 FPM runs where the pull engages farther than ``release`` end
+step for step alike.
 
 Goals low over the table. The goal pose itself may put a link below the plane the barrier
 step keeps (random tomato goals lie down to 3.5 cm above the table, with the hand pointing
 down): the controller cannot put the hand exactly there either, and PUMA's success radius is
 what reaches it. Such a q_g is solved again with the target raised by its deficit (at most by
-``release``, where the pull hands back to PUMA anyway). The first form checked the body
-spheres 1 cm above z = 0, which the hand's sphere (7 cm round the task point) fails at every
-goal lower than 8 cm, whatever the arm does: in random tomato ``anywhere`` 2014 (goal 4.9 cm
-up) no q_g was ever found, and the arm, joints 1 and 4 on their limits, stayed 0.27 m short.
+``release``, where the pull hands back to PUMA anyway). A check of the body spheres 1 cm
+above z = 0 instead fails the hand's sphere (7 cm round the task point) at every goal lower
+than 8 cm, whatever the arm does: in random tomato ``anywhere`` 2014 (goal 4.9 cm up) it finds
+no q_g, and the arm, joints 1 and 4 on their limits, stays 0.27 m short.
 
 Waypoints. Where the arm rests beside an obstacle, the straight segment to every q_g may pass
 through it (2014: one of 13 goal configurations had a clear segment at 24 s, none at 23.3 s
@@ -61,10 +62,10 @@ waypoint w, q → w → q_g, both segments clear, the shortest of ``waypoints`` 
 segment's middle (:func:`goal_route`); the attractor pulls to w and turns to q_g within
 :data:`VIA_RADIUS` of it (one switch: one more piece of CPM's piecewise energy argument below).
 
-Near the goal. The first form engaged only farther than ``release`` from the goal. In the logged
-200-per-task suite (seeds 2000-2099, BENCHMARKS.md) 11 of FPM's and CPM's 29
-failures with obstacles end 6-15 cm from the goal with a joint on its limit; the stall pull
-armed there, within ``release``, and nothing else acted (random tomato ``anywhere`` 2097, FPM:
+Near the goal. A pull that engages only farther than ``release`` from the goal leaves the
+stalls near it alone: in the logged 200-per-task suite (seeds 2000-2099) 11 of FPM's and CPM's
+29 failures with obstacles then end 6-15 cm from the goal with a joint on its limit; the stall
+pull arms there, within ``release``, and nothing else acts (random tomato ``anywhere`` 2097, FPM:
 joint 3 at 2.95 rad, the hand 9-10 cm short and creeping, the stall pull armed at 19.7 s, 7.1 cm
 short at 40 s). With ``near_release`` > 0 the pull engages at such an arming too (a joint at a
 limit, the hand farther than ``near_release``), only at the control step the stall pull arms
@@ -75,7 +76,7 @@ of time). The way out is often a whole reconfiguration (2097: the elbow turned o
 −1.65 rad, the hand 0.53 m out and back in 7 s, at the goal at 26.5 s): the joint-limit box is
 left only that way, and the attractor's rest point is still the goal pose. Near the goal a joint
 at a limit is asked for in both modes: ``always`` (CPM's default) engages without one only
-farther than ``release``; within it the stall pull alone finishes the approach as before (the
+farther than ``release``; within it the stall pull alone finishes the approach (the
 shipped tomato model overshoots to 0.15 m and comes back in, its stall pull arming at 0.115 m
 in an obstacle-free run, where a reconfiguration has nothing to free).
 
@@ -96,10 +97,10 @@ segment checks and the waypoints), a generator run at most ``budget`` kinematic 
 (:data:`SEARCH_BUDGET`, one forward pass of the arm each) per control step, so a step's extra
 cost is bounded by construction; the pull engages at the step the search ends, from the q and
 obstacles of the step it began. A goal that moves more than 2 cm is solved again the same way,
-the last q_g pulling until the new one is ready. What this changes against solving everything
-inside the engaging step: the IK's first start is q₀ instead of the q at the engagement, and a
-search longer than one step's budget engages that many steps later (where the simulator waited
-for the whole search before, as no robot would).
+the last q_g pulling until the new one is ready. What this gives up against solving everything
+inside the engaging step (a step no robot could wait for): the IK's first start is q₀ instead
+of the q at the engagement, and a search longer than one step's budget engages that many steps
+later.
 
 Position fallback. A goal pose can be in collision whatever the arm does: the body spheres
 rigid with the hand sit where the pose puts them, for every IK solution (random pouring
