@@ -234,7 +234,7 @@ def test_a_plateau_starts_the_final_decay_and_the_run_ends_after_it():
 
     def validator(net, final, previous=()):
         calls.append(final)
-        return (0,), {"stop": False, "plateau": len(calls) >= 2, "dtw": 1.0}
+        return (0,), {"stop": False, "plateau": len(calls) >= 2, "passed": True, "dtw": 1.0}
 
     args = (p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg)
     saved = {}
@@ -252,6 +252,50 @@ def test_a_plateau_starts_the_final_decay_and_the_run_ends_after_it():
     assert torch.equal(_flat(again.net.state_dict()), _flat(res.net.state_dict()))
 
 
+def _plateau_validator(passing: set):
+    """A validator whose DTW is flat from its second validation on (a plateau) and whose weights
+    pass only at the validations numbered in ``passing`` (1 = the first); it counts from the
+    earlier DTWs it is given, so a resumed run sees the same sequence."""
+    seen = []
+
+    def validator(net, final, previous=()):
+        n = len(previous) + 1
+        seen.append((n, final, copy.deepcopy(net.state_dict())))
+        passed = n in passing
+        return (passed, -n), {"stop": False, "plateau": n >= 2, "passed": passed, "dtw": 1.0}
+    return validator, seen
+
+
+def test_a_plateau_of_weights_that_fail_the_validation_does_not_end_the_run():
+    p = _tiny("puma.train.iterations=60", "puma.train.select_every=5", "puma.train.select_from=0",
+              "puma.train.anneal=10")
+    args = (p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg)
+    # the plateau from the 2nd validation on; the weights pass at the 5th only (iteration 25)
+    validator, seen = _plateau_validator({5})
+    saved = {}
+    res = training.train(*args, seed=4, progress=False, validator=validator,
+                         save=lambda s: saved.setdefault(s["it"], copy.deepcopy(s)), save_every=5)
+    assert saved[20]["anneal"][0] is None  # three failing plateaus: the schedule runs on
+    assert saved[30]["anneal"][0] == 25
+    assert res.iterations_run == 35 and seen[-1][:2] == (7, True)  # the decay from 25, then end
+    chosen = [r["it"] for r in res.selection if r["chosen"]]
+    assert chosen == [25]  # the weights that passed, not the decay's end that did not
+    assert torch.equal(_flat(res.net.state_dict()), _flat(seen[4][2]))
+    again = training.train(*args, seed=4, progress=False, validator=validator, resume=saved[15])
+    assert again.iterations_run == 35
+    assert torch.equal(_flat(again.net.state_dict()), _flat(res.net.state_dict()))
+
+
+def test_weights_that_never_pass_train_to_the_last_iteration():
+    p = _tiny("puma.train.iterations=40", "puma.train.select_every=5", "puma.train.select_from=0",
+              "puma.train.anneal=10")
+    validator, seen = _plateau_validator(set())
+    res = training.train(p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg, seed=4,
+                         progress=False, validator=validator)
+    assert res.iterations_run == 40 and [n for n, *_ in seen] == list(range(1, 9))
+    assert [final for _, final, _ in seen] == [False] * 7 + [True]
+
+
 def test_on_a_plateau_the_validation_checks_but_only_stops_where_told():
     from tamedpuma.puma import evaluation
 
@@ -265,7 +309,9 @@ def test_on_a_plateau_the_validation_checks_but_only_stops_where_told():
         _, fresh = annealing(net, False, ())
         _, flat = annealing(net, False, (d, d))
         _, ending = evaluation.validator(p.demos, p.workspace, p.eval_cfg, **kw)(net, False, (d, d))
-    assert "converged_fraction" not in fresh and not fresh["plateau"]
+    assert "converged_fraction" not in fresh and not fresh["plateau"] and not fresh["passed"]
     assert flat["plateau"] and "converged_fraction" in flat and not flat["stop"]
-    assert ending["stop"] == (ending["converged_fraction"] == 1.0
-                              and ending["compatible_fraction"] >= 0.5)
+    assert flat["passed"] == (flat["converged_fraction"] == 1.0
+                              and flat["compatible_fraction"] >= 0.5)
+    assert ending["stop"] == ending["passed"] == (ending["converged_fraction"] == 1.0
+                                                  and ending["compatible_fraction"] >= 0.5)

@@ -197,8 +197,11 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
     learning rate decays) and any DTW ≤ ``keep_dtw`` are checked further: ψ-compatible fraction
     ≥ ``stop_compat``, ``starts`` random starts and, where all of those converge, ``confirm``
     more. ``previous``: the earlier validations' DTWs (the plateau is a function of them: a
-    resumed run stops where an uninterrupted one does). ``info["stop"]``: a candidate passed
-    every check. ``score = (passed, ψ passes, converged fraction, −DTW)`` (0: not measured)."""
+    resumed run stops where an uninterrupted one does). ``info["passed"]``: the weights passed
+    every check (False where not checked); ``info["stop"]``: a candidate passed. A plateau alone
+    says only that the DTW stopped improving, not that the weights converge: the caller ends a
+    run (the final decay) only on a plateau that passed. ``score = (passed, ψ passes, converged
+    fraction, −DTW)`` (0: not measured)."""
     vcfg = EvalConfig(**{**cfg.__dict__, "random_starts": starts + confirm,
                          "seed": cfg.seed + 1000,
                          "horizon": float(horizon) if horizon else cfg.horizon})
@@ -221,7 +224,8 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
         good = any(0 < t and dtw <= t for t in (target, stop_dtw))
         candidate = good or final or (plateau_stops and stale
                                       and dtw <= plateau.best * (1 + min_delta))
-        info = {"dtw": dtw, "stop": False, "stale": plateau.stale, "plateau": stale}
+        info = {"dtw": dtw, "stop": False, "passed": False, "stale": plateau.stale,
+                "plateau": stale}
         if not (candidate or stale) and not (keep_dtw > 0 and dtw <= keep_dtw):
             return (False, False, 0.0, -dtw), info
         psi_ok = stop_compat <= 0 or _psi(net, ws, ccfg, info) >= stop_compat
@@ -229,7 +233,7 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
         if frac == 1.0 and confirm > 0 and psi_ok:
             info["confirmed_fraction"] = conv(net, starts, starts + confirm)
             frac = (starts + confirm * info["confirmed_fraction"]) / (starts + confirm)
-        passed = psi_ok and frac == 1.0
+        passed = info["passed"] = psi_ok and frac == 1.0
         info["stop"] = candidate and passed
         return (passed, psi_ok, frac, -dtw), info
 

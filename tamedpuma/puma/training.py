@@ -374,6 +374,19 @@ def _annealed(run: _Run, cfg: TrainConfig) -> bool:
     return run.anneal_from is not None and run.it >= run.anneal_from + cfg.anneal
 
 
+def _ends_here(selection: _Selection) -> bool:
+    """Whether the last validation starts the final decay, which ends the run: a plateau of the
+    DTW whose weights also passed every check of the validation (ψ, every start converged).
+
+    The plateau is a function of the DTW alone (a rise after a training upset counts as well);
+    the decay freezes the weights where they are, so a plateau of weights that do not converge
+    would end the run on them. Such a plateau leaves the schedule and the stability weight's
+    ramp running, and a later validation on the plateau that passes starts the decay (the kept
+    weights are then ones that passed, whatever the decay's end shows)."""
+    last = selection.records[-1]
+    return bool(last.get("plateau")) and bool(last.get("passed"))
+
+
 def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
     """One optimisation step; returns the loss terms (floats)."""
     net = run.net
@@ -458,7 +471,9 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
     ``select_every`` iterations from ``select_from`` of the run on (and at the end); the weights
     with the best score (a tuple, larger is better) are returned. The validator must use its own
     random starts, not the evaluation's; it is called with the network, whether this is the final
-    validation, and the earlier validations' DTWs.
+    validation, and the earlier validations' DTWs. The run ends sooner where the validator says
+    stop, or ``anneal`` iterations after a validation reported a plateau and passed (``info[
+    "plateau"]`` and ``info["passed"]``: :func:`_ends_here`).
     ``save(state)`` is called every ``save_every`` iterations with the resumable state; passing
     that state back as ``resume`` continues the run exactly (same result as uninterrupted).
     """
@@ -488,8 +503,7 @@ def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCon
             if run.selection.validate(run.ema if run.ema is not None else run.net,
                                       validator, it + 1, final) or final:
                 break  # early stop: the validation met every target (or the decay ended)
-            if cfg.anneal > 0 and run.anneal_from is None \
-                    and run.selection.records[-1].get("plateau"):
+            if cfg.anneal > 0 and run.anneal_from is None and _ends_here(run.selection):
                 run.anneal_from, run.anneal_lr = run.it, run.opt.param_groups[0]["lr"]
         if save is not None and save_every > 0 and run.it % save_every == 0 \
                 and run.it < cfg.iterations:
