@@ -351,8 +351,7 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
                 stall_window: float = 2.0, stall_distance: float = 0.01,
                 disturbance_time: float | None = None, error_vector: np.ndarray | None = None,
                 rest_window: float = 1.0, rest_distance: float = 0.005,
-                rotation_vector: np.ndarray | None = None,
-                rest_angle: float = math.inf,
+                rotation_vector: np.ndarray | None = None, rest_angle: float = math.inf,
                 compute_cpu_ms: np.ndarray | None = None) -> RunMetrics:
     """Metrics of one run from per-step arrays (T steps): t (T,) [s], end-effector position
     error to the goal (T,) [m], orientation error (T,) [rad], clearance (T,) [m], contact flags
@@ -365,8 +364,7 @@ def run_metrics(t: np.ndarray, position_error: np.ndarray, orientation_error: np
     final goal, exact for a goal that does not move; without either no run converges);
     rest_window [s], rest_distance [m]: the rest test (:func:`at_rest`);
     rotation_vector (T, 3) [rad] and rest_angle [rad]: the pose's rest test (converged with
-    orientation; without them it is judged at the position's rest).
-    Works on live arrays and on arrays read from a log."""
+    orientation; without them it is judged at the position's rest). Live or logged arrays."""
     t = np.asarray(t, dtype=float)
     n = len(t)
     if n == 0:

@@ -196,15 +196,12 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
     and only candidates, validations on a plateau (so that a passing one is kept while the
     learning rate decays) and any DTW ≤ ``keep_dtw`` are checked further: ψ-compatible fraction
     ≥ ``stop_compat``, ``starts`` random starts and, where all of those converge, ``confirm``
-    more. ``previous``: the earlier validations' DTWs (the plateau is a function of them: a
-    resumed run stops where an uninterrupted one does). ``info["passed"]``: the weights passed
-    every check (False where not checked); ``info["stop"]``: a candidate passed. A plateau alone
-    says only that the DTW stopped improving, not that the weights converge: the caller ends a
-    run (the final decay) only on a plateau that passed. ``score = (passed, ψ passes, converged
-    fraction, −DTW)`` (0: not measured)."""
-    vcfg = EvalConfig(**{**cfg.__dict__, "random_starts": starts + confirm,
-                         "seed": cfg.seed + 1000,
-                         "horizon": float(horizon) if horizon else cfg.horizon})
+    more. ``previous``: the earlier validations' DTWs (the plateau is their function: a resumed
+    run stops where an uninterrupted one does). ``info["passed"]``: every check passed (False
+    where not checked: the caller decays only on a plateau that passed); ``info["stop"]``: a
+    candidate passed. ``score = (passed, ψ passes, converged fraction, −DTW)`` (0: unmeasured)."""
+    vcfg = EvalConfig(**{**cfg.__dict__, "random_starts": starts + confirm, "seed": cfg.seed
+                         + 1000, "horizon": float(horizon) if horizon else cfg.horizon})
     rng = np.random.default_rng(vcfg.seed)
     pos0, quat0 = ws.sample(rng, starts + confirm, demos.orientation)
     ccfg = EvalConfig(**{**cfg.__dict__, "seed": cfg.seed + 1001})
@@ -224,8 +221,7 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
         good = any(0 < t and dtw <= t for t in (target, stop_dtw))
         candidate = good or final or (plateau_stops and stale
                                       and dtw <= plateau.best * (1 + min_delta))
-        info = {"dtw": dtw, "stop": False, "passed": False, "stale": plateau.stale,
-                "plateau": stale}
+        info = dict(dtw=dtw, stop=False, passed=False, stale=plateau.stale, plateau=stale)
         if not (candidate or stale) and not (keep_dtw > 0 and dtw <= keep_dtw):
             return (False, False, 0.0, -dtw), info
         psi_ok = stop_compat <= 0 or _psi(net, ws, ccfg, info) >= stop_compat
