@@ -11,7 +11,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -200,11 +200,11 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
     run stops where an uninterrupted one does). ``info["passed"]``: every check passed (False
     where not checked: the caller decays only on a plateau that passed); ``info["stop"]``: a
     candidate passed. ``score = (passed, ψ passes, converged fraction, −DTW)`` (0: unmeasured)."""
-    vcfg = EvalConfig(**{**cfg.__dict__, "random_starts": starts + confirm, "seed": cfg.seed
-                         + 1000, "horizon": float(horizon) if horizon else cfg.horizon})
+    vcfg = replace(cfg, random_starts=starts + confirm, seed=cfg.seed + 1000,
+                   horizon=float(horizon) if horizon else cfg.horizon)
     rng = np.random.default_rng(vcfg.seed)
     pos0, quat0 = ws.sample(rng, starts + confirm, demos.orientation)
-    ccfg = EvalConfig(**{**cfg.__dict__, "seed": cfg.seed + 1001})
+    ccfg = replace(cfg, seed=cfg.seed + 1001)
 
     def conv(net, lo, hi):
         return convergence_from(net, pos0[lo:hi], None if quat0 is None else quat0[lo:hi],
