@@ -144,3 +144,66 @@ def test_the_step_s_cpu_time_leaves_out_the_time_the_thread_waits(robot_spec, ki
     assert np.all(cpu <= wall + 0.05)
     assert result.metrics.compute_cpu_ms_max == pytest.approx(cpu.max())
     assert result.metrics.compute_ms_max >= 30.0
+
+
+class _Cycle:
+    def __init__(self):
+        self.me = self
+
+
+class _MakesCycles:
+    """The joint attractor, leaving 2000 reference cycles behind at every step (a controller
+    that would trigger Python's collector many times over an episode), noting whether the
+    collector was enabled while it stepped and how many of its cycles were still there."""
+
+    def __init__(self, inner):
+        self.inner, self.enabled, self.alive, self.refs = inner, [], [], []
+
+    def reset(self, scenario):
+        self.inner.reset(scenario)
+
+    def step(self, obs):
+        import gc
+        import weakref
+
+        for _ in range(2000):
+            self.refs.append(weakref.ref(_Cycle()))
+        self.enabled.append(gc.isenabled())
+        self.alive.append(sum(r() is not None for r in self.refs))
+        return self.inner.step(obs)
+
+
+def test_the_collector_does_not_run_inside_the_loop(robot_spec, kinematics):
+    """No garbage collection (young or full) starts between the first and the last step, the
+    collector is as it was after the episode, and the cycles the controller left are collected
+    then."""
+    import gc
+
+    scenario = _scenario(robot_spec, max_steps=30)
+    inner = make("joint_attractor", method_settings(load_group("method", "joint_attractor")),
+                 kinematics)
+    controller = _MakesCycles(inner)
+    starts = []
+
+    def seen(phase, info):
+        if phase == "start" and controller.enabled and len(controller.enabled) < 30:
+            starts.append(info["generation"])
+
+    gc.callbacks.append(seen)
+    try:
+        with Simulator(robot_spec) as sim:
+            result = run_episode(scenario, controller, sim)
+    finally:
+        gc.callbacks.remove(seen)
+    assert result.metrics.steps == 30 and controller.enabled == [False] * 30
+    assert starts == [] and gc.isenabled()
+    assert controller.alive == [2000 * (k + 1) for k in range(30)]  # none collected inside
+    gc.collect()
+    assert not any(r() is not None for r in controller.refs)  # all collected after it
+    gc.disable()
+    try:  # a caller that runs with the collector off keeps it off
+        with Simulator(robot_spec) as sim:
+            run_episode(scenario, _MakesCycles(inner), sim)
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
