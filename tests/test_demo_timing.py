@@ -46,3 +46,15 @@ def test_the_cli_names_a_missing_folder(tmp_path, capsys):
     assert demo_timing.main([str(tmp_path / "nothing")]) == 2
     out = capsys.readouterr().out
     assert out.startswith("error:") and out.count("\n") == 1
+
+
+def test_the_table_prepares_the_demonstrations_as_the_learner_does():
+    """The CLI's model step and smoothing are the default training's (conf/puma/default.yaml)."""
+    import inspect
+
+    from tamedpuma.app.config import load_group
+
+    puma = load_group("puma", "default")
+    defaults = inspect.signature(demo_timing.timing_rows).parameters
+    assert defaults["dt"].default == puma["dt"]
+    assert defaults["smoothing"].default == puma["smoothing"]

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..puma.data import Demonstrations
+from ..robot.rotations import quat_angle
 
 
 @dataclass(frozen=True)
@@ -36,16 +37,11 @@ class OrientationTiming:
     held_after_settle: np.ndarray
 
     def as_dict(self) -> dict:
-        """Medians, maxima and the held fraction (for ``report.json``)."""
+        """Medians, maxima and the held fraction (one row of the table :func:`main` prints)."""
         return {"arrival_s_median": float(np.median(self.arrival_s)),
                 "lag_s_median": float(np.median(self.lag_s)),
                 "lag_s_max": float(np.max(self.lag_s)),
                 "held_after_settle": float(np.mean(self.held_after_settle))}
-
-
-def _angles(quat: np.ndarray) -> np.ndarray:
-    """The rotation angle [rad] of each unit quaternion (x, y, z, w) of ``quat`` (N, 4)."""
-    return 2.0 * np.arctan2(np.linalg.norm(quat[:, :3], axis=1), np.abs(quat[:, 3]))
 
 
 def orientation_timing(demos: Demonstrations, radius: float = 0.05, angle: float = 0.2,
@@ -59,7 +55,7 @@ def orientation_timing(demos: Demonstrations, radius: float = 0.05, angle: float
         t = np.arange(len(pos)) * demos.dt
         inside = np.linalg.norm(pos, axis=1) <= radius
         k = int(np.argmax(inside)) if inside.any() else len(pos) - 1
-        off = _angles(quat) > angle
+        off = quat_angle(quat) > angle
         turned = t[int(np.nonzero(off)[0][-1]) + 1] if off.any() else 0.0
         j = min(len(t) - 1, int(np.searchsorted(t, t[k] + settle - 1e-9)))
         arrival.append(t[k])
@@ -71,7 +67,7 @@ def orientation_timing(demos: Demonstrations, radius: float = 0.05, angle: float
 def timing_rows(folders: list[str], dt: float = 0.03, smoothing: float = 2.0,
                 radius: float = 0.05, angle: float = 0.2, settle: float = 2.0) -> list[dict]:
     """One row per demonstration folder (any format :func:`~tamedpuma.puma.demo_formats.load_any`
-    reads), its demonstrations prepared as the learner prepares them (Δt ``dt`` [s],
+    reads), its demonstrations prepared as the default training prepares them (Δt ``dt`` [s],
     ``smoothing`` [samples])."""
     from ..puma import data, demo_formats
 
