@@ -84,3 +84,23 @@ def test_every_analysis_command_refuses_a_missing_or_empty_folder_in_one_line(
         return
     assert main([str(tmp_path)]) == 2
     assert capsys.readouterr().err == f"error: no {needs} below {tmp_path}\n"
+
+
+def test_the_logs_read_on_several_processes_give_the_same_frame(tmp_path):
+    import shutil
+
+    _sweep(f"output_root={tmp_path}/one", "scenario=default")
+    (log,) = (tmp_path / "one").rglob("episode.mcap")
+    for i in range(40):  # enough logs for the worker processes to be used
+        (tmp_path / "runs" / f"run_{i:02d}").mkdir(parents=True)
+        shutil.copy(log, tmp_path / "runs" / f"run_{i:02d}" / "episode.mcap")
+    (tmp_path / "runs" / "run_07" / "episode.mcap").write_bytes(b"not an mcap file")
+    one, paths_one, times_one = load_runs(tmp_path / "runs", jobs=1)
+    two, paths_two, times_two = load_runs(tmp_path / "runs", jobs=2)
+    pd.testing.assert_frame_equal(one, two)
+    assert len(one) == 39 and one.attrs["skipped"] == two.attrs["skipped"] == [
+        str(tmp_path / "runs" / "run_07" / "episode.mcap")]
+    assert paths_one.keys() == paths_two.keys()
+    for p in paths_one:
+        np.testing.assert_array_equal(paths_one[p], paths_two[p])
+        np.testing.assert_array_equal(times_one[p], times_two[p])

@@ -134,7 +134,8 @@ def test_the_config_read_scan_sees_every_form():
 
 
 #: the layers, lowest first: a module imports only from its own package or lower layers
-LAYERS = [{"errors", "startup", "termination"}, {"types", "records", "paths", "runlog"}, {"robot"},
+LAYERS = [{"errors", "startup", "termination", "parallel"},
+          {"types", "records", "paths", "runlog"}, {"robot"},
           {"fabrics", "puma", "ik_solvers"},
           {"methods", "worlds"}, {"metrics"}, {"episode"}, {"recording"}, {"analysis"},
           {"app"}]

@@ -213,9 +213,10 @@ def table1_profile(root: Path) -> dict:
 
 def job_overheads(repeats: int = 7) -> dict:
     """Per-job costs of a Table-1 run outside its ``run_one`` [s, medians of ``repeats``]:
-    Hydra's composition of the job's config (what every joblib worker does before each job,
-    ``ConfigLoaderImpl.load_sweep_config``: the job's overrides on ``sweep.yaml``, Hydra's own
-    config included) and the schema's typing of it (``schema.run_config``, the first thing
+    Hydra's composition of the job's config (what every worker of the ``cores`` launcher does
+    before each job, ``ConfigLoaderImpl.load_sweep_config``: the job's overrides on
+    ``sweep.yaml``, Hydra's own config included, each config file read once per worker) and the
+    schema's typing of it (``schema.run_config``, the first thing
     ``build`` does, inside the run's set-up)."""
     from statistics import median
 
@@ -226,7 +227,8 @@ def job_overheads(repeats: int = 7) -> dict:
 
     overrides = ["+experiment=table1", "case=pouring_03", "method=cpm", "without_obstacles=true"]
     composing, typing = [], []
-    with session():
+    with session(shared_reads=True):
+        compose("sweep", overrides, hydra_config=True)  # the worker's first job reads the files
         for _ in range(repeats):
             t0 = time.perf_counter()
             cfg = compose("sweep", overrides, hydra_config=True)
@@ -284,9 +286,9 @@ def table1_lines(item: dict | None) -> list[str]:
         f"set-up (config typing, model, scenario, controller) {build:.0f} s (the schema's "
         f"typing {job.get('typing_s', float('nan')):.2f} s a run), and the other {rest:.0f} s "
         f"went to the sweep's own work and idle cores: Hydra composes every job's config "
-        f"from scratch in its worker ({job.get('compose_s', float('nan')):.2f} s a job, "
+        f"in its worker ({job.get('compose_s', float('nan')):.2f} s a job, "
         f"{compose:.0f} core-s in all), rebuilding the tables from the {tot['runs']} logs at "
-        f"the end takes {tables:.0f} s on one core, and the rest is job files, worker "
+        f"the end takes {tables:.0f} s on {cores} cores, and the rest is job files, worker "
         f"dispatch, the models check and the cores' idle time at the start and the end. "
         f"The episodes alone "
         f"on {cores} cores need {episodes / cores:.0f} s."), "",

@@ -33,9 +33,11 @@ from tamedpuma.paths import CONF_DIR
 
 
 @contextmanager
-def session() -> Iterator[None]:
+def session(shared_reads: bool = False) -> Iterator[None]:
     """Hydra initialized on the package's ``conf/`` for the block; cleared before and after
-    (whatever was initialized before is gone). ConfigError if the folder is missing."""
+    (whatever was initialized before is gone). ConfigError if the folder is missing.
+    ``shared_reads``: its composes read each config file once, as the ``cores`` launcher's
+    workers do (:mod:`tamedpuma.app.config_loads`)."""
     from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
@@ -44,6 +46,10 @@ def session() -> Iterator[None]:
     GlobalHydra.instance().clear()
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            if shared_reads:
+                from tamedpuma.app.config_loads import share_loads
+
+                share_loads(GlobalHydra.instance().config_loader())
             yield
     finally:
         GlobalHydra.instance().clear()

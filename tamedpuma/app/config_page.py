@@ -446,8 +446,9 @@ GROUPS = {
     "ablation": "FPM or CPM without one addition each (`+experiment=ablation`, docs/method.md)",
     "experiment": "a whole experiment's sweep (`+experiment=`, docs/experiments.md)",
     "puma": "the PUMA network and its training (`python -m tamedpuma.train`)",
-    "hydra/launcher": "how a sweep's jobs run: `cores` (all cores, joblib), and the installed "
-                      "Hydra launcher plugins' `submitit_slurm`, `submitit_local`, `ray`",
+    "hydra/launcher": "how a sweep's jobs run: `cores` (all cores: Hydra's joblib launcher whose "
+                      "workers read each config file once per sweep), and the installed Hydra "
+                      "launcher plugins' `submitit_slurm`, `submitit_local`, `ray`",
 }
 
 

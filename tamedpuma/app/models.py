@@ -34,6 +34,7 @@ from pathlib import Path
 
 from tamedpuma import paths
 from tamedpuma.errors import TamedPumaError
+from tamedpuma.parallel import usable_cores
 from tamedpuma.puma import download, store
 
 TASKS = ("tomato", "pouring")
@@ -241,16 +242,6 @@ def data_root(arg: str | None) -> Path:
                              + "): fetch them with `python -m tamedpuma.models download` "
                              "or pass --data DIR")
     return root
-
-
-def usable_cores() -> int:
-    """The cores this process may run on (its CPU affinity: ``taskset -c 0`` gives 1), which
-    the default parallelism follows, as joblib's launcher does; ``os.cpu_count`` counts the
-    machine's."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):  # no affinity on this platform
-        return os.cpu_count() or 1
 
 
 def ensure_real_models(data: str | None = None, parallel: int | None = None,

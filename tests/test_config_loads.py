@@ -1,0 +1,81 @@
+"""The cores launcher's shared config reads (tamedpuma/app/config_loads.py): every job's config is
+the one Hydra composes without them, and a process reads each config file once."""
+
+from __future__ import annotations
+
+from hydra.core.global_hydra import GlobalHydra
+from hydra.types import RunMode
+from omegaconf import OmegaConf
+
+from tamedpuma.app import config_loads
+from tamedpuma.app.compose import session
+
+#: jobs of different groups and values: task, case, method, experiment, an added key
+JOBS = [["+case=tomato_03", "method=fpm"],
+        ["+case=pouring_04", "method=cpm", "without_obstacles=true"],
+        ["task=pouring", "method=modulation_ik", "seed=7"],
+        ["+experiment=random", "method=fabrics", "scenario.goal_tolerance=0.03"],
+        ["+case=tomato_03", "method=fpm"]]
+
+
+def _composed(loader) -> list[str]:
+    return [OmegaConf.to_yaml(loader.load_configuration("sweep", job, RunMode.MULTIRUN))
+            for job in JOBS]
+
+
+def test_shared_reads_compose_every_job_as_hydra_does_and_read_each_file_once(monkeypatch):
+    monkeypatch.setattr(config_loads, "_LOADED", {})
+    with session():
+        loader = GlobalHydra.instance().config_loader()
+        plain = _composed(loader)
+        reads = []
+        inner_load = type(loader.repository).load_config
+
+        def counted(self, config_path):
+            reads.append(config_path)
+            return inner_load(self, config_path)
+
+        monkeypatch.setattr(type(loader.repository), "load_config", counted)
+        config_loads.share_loads(loader)
+        config_loads.share_loads(loader)  # idempotent: one layer
+        assert not isinstance(loader.repository._inner, config_loads.SharedLoads)
+        first = _composed(loader)
+        n_first = len(reads)
+        again = _composed(loader)
+    assert first == plain and again == plain
+    assert n_first == len(set(reads)) > 10  # each file read once ...
+    assert len(reads) == n_first  # ... and never again
+
+
+def test_a_pickled_loader_shares_the_reads_of_the_process_that_unpickles_it(monkeypatch):
+    """The launcher sends each job a pickled copy of the loader: in a worker it reads through
+    that worker's shared results (not a copy of the parent's made at pickling)."""
+    import cloudpickle  # as the launcher (joblib, loky) sends it
+
+    monkeypatch.setattr(config_loads, "_LOADED", {})
+    with session():
+        loader = GlobalHydra.instance().config_loader()
+        config_loads.share_loads(loader)
+        loader.load_configuration("sweep", JOBS[0], RunMode.MULTIRUN)
+        n = len(config_loads._LOADED)
+        copy = cloudpickle.loads(cloudpickle.dumps(loader))
+    assert isinstance(copy.repository, config_loads.SharedLoads)
+    assert n > 10 and len(config_loads._LOADED) == n  # the module's table, not pickled along
+
+
+def test_the_cores_launcher_shares_the_reads_of_the_loader_its_jobs_compose_with():
+    from hydra.core.plugins import Plugins
+    from hydra.types import HydraContext
+
+    from tamedpuma.app.compose import compose
+
+    cfg = compose("sweep", ["hydra/launcher=cores"], hydra_config=True)
+    assert cfg.hydra.launcher._target_ == "hydra_plugins.tamedpuma_launcher.launcher.CoresLauncher"
+    with session():
+        loader = GlobalHydra.instance().config_loader()
+        context = HydraContext(config_loader=loader, callbacks=None)
+        launcher = Plugins.instance().instantiate_launcher(
+            hydra_context=context, task_function=print, config=cfg)
+        assert type(launcher).__mro__[1].__name__ == "JoblibLauncher"
+        assert isinstance(loader.repository, config_loads.SharedLoads)
+        assert launcher.joblib["n_jobs"] == -1 and str(launcher.joblib["batch_size"]) == "1"
