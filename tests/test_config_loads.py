@@ -79,3 +79,19 @@ def test_the_cores_launcher_shares_the_reads_of_the_loader_its_jobs_compose_with
         assert type(launcher).__mro__[1].__name__ == "JoblibLauncher"
         assert isinstance(loader.repository, config_loads.SharedLoads)
         assert launcher.joblib["n_jobs"] == -1 and str(launcher.joblib["batch_size"]) == "1"
+
+
+def test_everything_but_the_reads_is_the_inner_repositorys():
+    from hydra.core.object_type import ObjectType
+
+    with session():
+        repo = GlobalHydra.instance().config_loader().repository
+        shared = config_loads.SharedLoads(repo)
+        for group, kind in (("method", ObjectType.CONFIG), ("scenario", None),
+                            ("", ObjectType.GROUP)):
+            assert shared.get_group_options(group, kind) == repo.get_group_options(group, kind)
+        assert shared.get_group_options("task") == repo.get_group_options("task")
+        assert shared.group_exists("method") and not shared.group_exists("nothing")
+        assert shared.config_exists("method/fpm") and not shared.config_exists("method/none")
+        assert shared.get_sources() == repo.get_sources()
+        assert shared.load_config("method/none") is None

@@ -17,6 +17,7 @@ from __future__ import annotations
 import copy
 
 from hydra._internal.config_repository import IConfigRepository
+from hydra.core.object_type import ObjectType
 
 #: (the repository's sources, config path) -> the ConfigResult read, per process
 _LOADED: dict[tuple, object] = {}
@@ -57,9 +58,8 @@ class SharedLoads(IConfigRepository):
     def config_exists(self, config_path: str) -> bool:
         return self._inner.config_exists(config_path)
 
-    def get_group_options(self, group_name: str, results_filter=None) -> list[str]:
-        if results_filter is None:
-            return self._inner.get_group_options(group_name)
+    def get_group_options(self, group_name: str,
+                          results_filter: ObjectType | None = ObjectType.CONFIG) -> list[str]:
         return self._inner.get_group_options(group_name, results_filter)
 
     def get_sources(self):
