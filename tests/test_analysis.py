@@ -104,3 +104,11 @@ def test_the_logs_read_on_several_processes_give_the_same_frame(tmp_path):
     for p in paths_one:
         np.testing.assert_array_equal(paths_one[p], paths_two[p])
         np.testing.assert_array_equal(times_one[p], times_two[p])
+    # a researcher's plain script, no __main__ guard: the default reads in its own process
+    script = tmp_path / "plain.py"
+    script.write_text("from tamedpuma.analysis.runs import load_runs\n"
+                      f"runs, _, _ = load_runs({str(tmp_path / 'runs')!r})\n"
+                      "print(len(runs))\n")
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == "39", proc.stderr

@@ -59,7 +59,7 @@ def runs_or_error(folder: Path, *, summaries: bool = False, allow_empty: bool = 
 
         loaded, what = load_summaries(folder), "run summaries (summary.json)"
     else:
-        loaded, what = load_runs(folder), "readable run logs (episode.mcap)"
+        loaded, what = load_runs(folder, jobs=None), "readable run logs (episode.mcap)"
     if loaded[0].empty and not allow_empty:
         print(f"error: no {what} below {folder}", file=sys.stderr)
         return None
@@ -242,12 +242,16 @@ def disturbance_onset(cfg: dict) -> float | None:
     return float(onset) if discrete and onset is not None else None
 
 
-def load_runs(root: str | Path, jobs: int | None = None
+def load_runs(root: str | Path, jobs: int | None = 1
               ) -> tuple[pd.DataFrame, dict[str, np.ndarray], dict[str, np.ndarray]]:
     """All runs below ``root``: a metrics frame (one row per run, in the order of
     :func:`find_logs`), the end-effector paths and the per-step controller times [ms], both by
     run path. Unreadable logs are skipped with a warning (and counted in the frame's ``attrs``).
-    The logs are read on ``jobs`` processes (default: every usable core; the same frame)."""
+
+    ``jobs``: processes reading the logs (None: every usable core; the same frame). The analysis
+    commands read on every core; a script that asks for more than one job must guard its
+    top level with ``if __name__ == "__main__":``, as for any spawned process (the workers
+    import the script)."""
     rows, paths, times, skipped = [], {}, {}, []
     logs = find_logs(root)
     for path, (result, error) in zip(logs, process_map(_read_row, logs, jobs)):
