@@ -75,3 +75,23 @@ def test_no_base_run_is_a_one_line_error(tmp_path, capsys):
     _suite(tmp_path, "fabrics", failing=set())
     assert ablation.main([str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith("error: no base run")
+
+
+ROWS = sorted(f"{m.name}/{p.stem}" for m in (Path(__file__).resolve().parents[1] / "tamedpuma"
+                                             / "conf" / "ablation").iterdir() if m.is_dir()
+              for p in m.glob("*.yaml"))
+
+
+@pytest.mark.parametrize("row", ROWS)
+def test_every_ablation_row_builds_its_controller(row):
+    """Each row of ``+experiment=ablation`` composes and builds the controller it runs (a row
+    whose settings contradict each other fails every one of its runs)."""
+    from tamedpuma.app.compose import compose
+    from tamedpuma.app.sweep import build
+
+    cfg = compose("sweep", [f"+ablation={row}", "+case=tomato_00"])
+    built = build(cfg)
+    base, _, removed = row.partition("/")
+    assert built.run.method.name == base
+    assert cfg.method.label == (base if removed == "none" else f"{base}-{removed}")
+    assert built.controller is not None
