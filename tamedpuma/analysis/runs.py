@@ -249,9 +249,9 @@ def load_runs(root: str | Path, jobs: int | None = 1
     run path. Unreadable logs are skipped with a warning (and counted in the frame's ``attrs``).
 
     ``jobs``: processes reading the logs (None: every usable core; the same frame). The analysis
-    commands read on every core; a script that asks for more than one job must guard its
-    top level with ``if __name__ == "__main__":``, as for any spawned process (the workers
-    import the script)."""
+    commands read on every core; a script that asks for more than one job must run its top
+    level only as the main module (the usual ``__main__`` guard), as for any spawned process:
+    the workers import the script."""
     rows, paths, times, skipped = [], {}, {}, []
     logs = find_logs(root)
     for path, (result, error) in zip(logs, process_map(_read_row, logs, jobs)):
