@@ -47,20 +47,26 @@ def test_shared_reads_compose_every_job_as_hydra_does_and_read_each_file_once(mo
     assert len(reads) == n_first  # ... and never again
 
 
-def test_a_pickled_loader_shares_the_reads_of_the_process_that_unpickles_it(monkeypatch):
-    """The launcher sends each job a pickled copy of the loader: in a worker it reads through
-    that worker's shared results (not a copy of the parent's made at pickling)."""
+def test_a_pickled_loader_reads_through_the_table_of_the_process_that_unpickles_it(monkeypatch):
+    """The launcher sends each job a pickled copy of the loader: in a worker it fills and reuses
+    that worker's table (:data:`config_loads._LOADED`), not a copy of the parent's made when it
+    was pickled."""
     import cloudpickle  # as the launcher (joblib, loky) sends it
 
     monkeypatch.setattr(config_loads, "_LOADED", {})
     with session():
         loader = GlobalHydra.instance().config_loader()
         config_loads.share_loads(loader)
-        loader.load_configuration("sweep", JOBS[0], RunMode.MULTIRUN)
-        n = len(config_loads._LOADED)
+        expected = OmegaConf.to_yaml(loader.load_configuration("sweep", JOBS[0], RunMode.MULTIRUN))
         copy = cloudpickle.loads(cloudpickle.dumps(loader))
-    assert isinstance(copy.repository, config_loads.SharedLoads)
-    assert n > 10 and len(config_loads._LOADED) == n  # the module's table, not pickled along
+        monkeypatch.setattr(config_loads, "_LOADED", {})  # a fresh worker's empty table
+        got = OmegaConf.to_yaml(copy.load_configuration("sweep", JOBS[0], RunMode.MULTIRUN))
+        filled = dict(config_loads._LOADED)
+        copy.load_configuration("sweep", JOBS[0], RunMode.MULTIRUN)
+    assert isinstance(copy.repository, config_loads.SharedLoads) and got == expected
+    assert len(filled) > 10  # the copy read into this process's table ...
+    assert config_loads._LOADED.keys() == filled.keys()  # ... and then answered from it
+    assert all(config_loads._LOADED[k] is v for k, v in filled.items())
 
 
 def test_the_cores_launcher_shares_the_reads_of_the_loader_its_jobs_compose_with():
