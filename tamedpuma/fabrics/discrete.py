@@ -104,8 +104,8 @@ def barrier_step(v: np.ndarray, rows: np.ndarray, x: np.ndarray, dt: float, kapp
 
     standoff x_s ≥ 0 (in the rows' units): the distance shrinks at most geometrically towards
     x_s instead of towards 0, so that the linearisation's error (second order in Δt) cannot
-    take a barrier past 0 when a moving obstacle keeps closing in (random pouring 1021, FPM:
-    with x_s = 0 the arm rode the obstacle at x → 0 and crossed by 0.7 µm).
+    take a barrier past 0 when a moving obstacle keeps closing in (with x_s = 0 an arm riding
+    such an obstacle at x → 0 crosses it by the linearisation's error).
 
     rows A (R, n): barrier Jacobian rows ``∂x_p/∂q``; x (R,) barrier distances (in the rows'
     units; ≤ 0 past a barrier: then the row may not approach further); drift (R,): the part
@@ -279,9 +279,9 @@ def linearly_implicit_step(qd: np.ndarray, a: np.ndarray, c: float, dt: float, M
     that is large even at low speed (x⁵ ~ 10⁻⁵ a centimetre from the surface); stepped
     explicitly with κΔt > 1 it reverses the approach, the barrier (directional: on only while
     approaching) switches off, the forcing pushes the arm back in, and the arm chatters at the
-    obstacle with period 2Δt, making no progress along it (random tomato scenario 1045: |q̇| ≈
-    0.05 rad/s for 30 s, α alternating −1.7/+15 /s). Implicitly the approach is braked to rest
-    along the row, never reversed, and the arm slides on.
+    obstacle with period 2Δt, making no progress along it (α alternating in sign from step to
+    step). Implicitly the approach is braked to rest along the row, never reversed, and the arm
+    slides on.
     D_M = None: :func:`implicit_velocity_step`."""
     if D_M is None:
         return implicit_velocity_step(qd, a, c, dt)

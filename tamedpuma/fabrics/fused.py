@@ -132,7 +132,7 @@ def pair_rows_at(d, inv_d, inv_r, si, oj, J, jdqd, Jq, ov):
 
 
 class RowViews:
-    """Views of the rows in use, ``[lo, R)`` (``lo = 0`` unless inactive pairs were left out,
+    """Views of the rows in use, ``[lo, R)`` (``lo = 0`` unless inactive pairs are left out,
     see the module docstring), of every buffer the kernel and the products read and write:
     ``x``, ``xd``, ``jd`` and the kernel arrays over ``[lo, Rb)``; ``Z``, ``C``, ``m_col`` over
     ``[lo, R)``; ``n_pairs = P − lo``; ``head``, ``tail``: the pair-and-limit rows and the
@@ -527,7 +527,7 @@ class LayoutBuffers:
         m *= t
         t *= -0.5 * xa * xa  # → −x_a² t / 2, so that x / that = −2x/(x_a² t)
         if some_off:
-            np.divide(x, t, out=t, where=on)  # (0 where off: t was 0 there)
+            np.divide(x, t, out=t, where=on)  # (0 where off: t is 0 there)
             kappa += t
             kappa *= on
         else:

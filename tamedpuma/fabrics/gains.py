@@ -55,8 +55,8 @@ OBSTACLE_DEFAULT = BarrierGains(0.1, 1.0, False, 0.5, 5.0, True)
 LIMIT_REFERENCE = BarrierGains(0.1, 1.0, True, 0.1, 1.0, False)
 # Ours (tuned; conf/method/fabrics.yaml says why): energy 0.1 s ẋ²/x², geometry ẋ²/x².
 # With L ∝ ẋ²/x^p a bounded energy gives |ẋ| ≤ c x^{p/2}, so the limit is reached in finite time
-# unless p ≥ 2; and ẍ = k ẋ²/x brakes a joint only as |ẋ| ∝ x^k, useless for k = 0.1. With the
-# reference values joints crept past their limits (up to 0.2 rad) in 4 of the 30 Table-1 scenarios.
+# unless p ≥ 2; and ẍ = k ẋ²/x brakes a joint only as |ẋ| ∝ x^k, useless for k = 0.1: the
+# reference values let joints creep past their limits (up to 0.2 rad) on Table 1.
 LIMIT_DEFAULT = BarrierGains(0.05, 2.0, True, 0.05, 2.0, False)
 # Reference: geometry_plane_constraint and finsler_plane_constraint: as the obstacle leaf.
 GROUND_DEFAULT = BarrierGains(0.1, 1.0, False, 0.5, 5.0, True)

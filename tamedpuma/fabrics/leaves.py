@@ -25,7 +25,8 @@ class PairTerms:
     x: (k, n) clamped to ≥ margin; xd: (k, n) ẋ from the relative velocity ``J_i q̇ − ȯ_j`` [1/s];
     jdqd: (k, n) ``J̇q̇`` of the pair [1/s²]; u: (3, k, n) ``ν_ij/(r_i + r_j)`` [1/m] (component
     first), so that the pair's Jacobian row is ``u_ijᵀ J_i``; clearance: (k, n)
-    ``‖c_i − o_j‖ − r_i − r_j`` [m]; n_clamped: number of pairs whose x was below the margin.
+    ``‖c_i − o_j‖ − r_i − r_j`` [m]; n_clamped: number of pairs whose x lies below the margin
+    before clamping.
     """
 
     x: np.ndarray

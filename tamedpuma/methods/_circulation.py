@@ -1,12 +1,12 @@
 """Circulation: PUMA's push into an obstacle turned around it (``method.forcing.circulation``).
 
-Why. In the logs of the random scenarios almost every FPM/CPM failure is a local minimum: the
-goal lies behind an obstacle as seen from the arm (e.g. the hand resting on a sphere with the
-goal 0.6 m below it). PUMA's field points through the obstacle, the avoidance metric suppresses
-the push along the barrier's normal (``forcing.mode: metric``) and what is left of PUMA's
-tangential pull is balanced where the obstacle's side meets PUMA's potential: the arm rests at
-the barrier. No change of gains removes such a point (energization, α bound, barrier step and
-limit margin were each switched off in that run: the arm stayed 0.61 m short in every case).
+Why. Where the goal lies behind an obstacle as seen from the arm (the hand resting on a sphere with
+the goal below it), PUMA's field points through the obstacle, the avoidance metric suppresses the
+push along the barrier's normal (``forcing.mode: metric``) and what is left of PUMA's tangential
+pull is balanced where the obstacle's side meets PUMA's potential: the arm rests at the barrier, a
+local minimum of the forced fabric. Neither other gains nor switching off energization, the α bound,
+the barrier step or the limit margin removes such a point: PUMA's field and the barrier's geometry
+make it. Law and ablation row: docs/method.md, "How PUMA's forcing meets the fabric".
 
 What. For every body sphere i within ``distance`` d_a of an obstacle j (clearance d, unit normal
 n from the obstacle to the sphere) whose acceleration under PUMA's obstacle-free pull,
@@ -33,14 +33,13 @@ behind the obstacle, where p's tangential part changes sign; and every sphere an
 overlapping spheres, a forearm and a hand on one obstacle) turn the same way.
 t̂ = b × n / ‖b × n‖.
 
-What holds. The spec only shapes the forcing near obstacles: far from them (d ≥ d_a for every
-pair, in particular at a goal clear of the obstacles) f_θ^C is unchanged, so its zero set and
-the statements of FPM (PUMA's zero set kept) and CPM (dH/dt = −β q̇ᵀMq̇, which does not depend
-on the forcing) hold as before. Safety never depended on the forcing: the barriers' metric and
-geometry and the control-rate barrier step are unchanged. What is given up near obstacles: the
-forcing is no longer PUMA's field (it is not anyway where the barrier metric bends it), and
-going round may climb PUMA's potential ψ, which CPM's regulator opposes (CPM escapes only as far
-as its energy allows).
+What holds. The spec only shapes the forcing near obstacles: far from them (d ≥ d_a for every pair,
+in particular at a goal clear of the obstacles) f_θ^C is unchanged, so its zero set and the
+statements of FPM (PUMA's zero set kept) and CPM (dH/dt = −β q̇ᵀMq̇, which does not depend on the
+forcing) hold unchanged. Safety does not depend on the forcing: the barriers' metric and geometry
+and the control-rate barrier step are unchanged. What is given up near obstacles: the forcing is no
+longer PUMA's field (it is not anyway where the barrier metric bends it), and going round may climb
+PUMA's potential ψ, which CPM's regulator opposes (CPM escapes only as far as its energy allows).
 """
 
 from __future__ import annotations

@@ -1,139 +1,64 @@
 """Configuration pull: when the stall pull arms with a joint at its limit, a joint-space
-attractor to a goal configuration takes the forcing over (``method.forcing.configuration_pull``;
-FPM and CPM only, off by default).
+attractor to a goal configuration takes the forcing over (``method.forcing.configuration_pull``:
+``off``, ``limits``, FPM's default, or ``always``, CPM's).
 
-Why. In the logs of the random scenarios (BENCHMARKS.md) every FPM failure on
-seeds 31000-31049 ends with one to four joints on their limit barriers and the hand 0.2-0.5 m
-from the goal, turned 1.1-2.5 rad off the goal orientation. Random pouring ``anywhere`` 31007:
-the goal lies at an azimuth of −97°, the base starts at q₁ = 1.08 rad; PUMA's field, a
-task-space field pulled to the joints, turns the base the short way round and into its upper
-limit (2.95 rad at 4 s); from there the hand can come no nearer than 0.34 m (the base would
-have to turn on past its limit), and the task-space stall pull, which pulls the hand straight
-at the goal, presses the arm further into the same limits. The way out leads the hand away
-from the goal first (the base back through −4.6 rad), which no attractor in task space asks
-for: these rest points are made by the joint limits, whatever the forcing in task space.
+Why. A task-space attractor cannot leave a rest point made by the joint limits: where PUMA's
+field, pulled to the joints, has turned a joint into its limit (a goal behind the base, the base
+turned the short way round), the way out leads the hand away from the goal first, which neither
+PUMA nor the stall pull (:mod:`tamedpuma.methods._stall`) asks for. The joint-limit box is convex,
+so an attractor in joint space has no rest point made by the limits. Law and ablation row:
+docs/method.md, "Ways out of a local minimum"; its constants: "The fixed constants".
 
-What. The joint-limit box is convex: the straight segment between two configurations inside the
-limits stays inside them, so an attractor in joint space has no rest point made by the limits.
-Once the stall pull (:mod:`tamedpuma.methods._stall`) has armed with a joint within
-``limit_band`` [rad] of a limit (``mode: limits``; ``always``: at every arming farther than
-``release``, see below) and the hand farther than ``release`` [m] from the goal, a goal
-configuration q_g is chosen (an IK solution of the goal pose inside the limits by ``margin``
-[rad], every body sphere clear of the obstacles, above the ground as the controller's barrier
-step keeps it (:class:`Ground`), the straight joint-space segment from q to it clear of the
-obstacles where they are now and of the ground, the one nearest to q; :func:`goal_route`; none
-such: nothing changes), and PUMA's task rows are replaced by the joint-space spec
+What. Once the stall pull arms with a joint within ``limit_band`` [rad] of a limit (``always``:
+with or without one) and the hand farther than ``release`` [m] from the goal, a route to a goal
+configuration q_g is chosen (:func:`goal_route`): the goal pose's IK solution nearest to q that is
+inside the limits by ``margin`` [rad], ``clearance`` [m] clear of the obstacles where they are now,
+above the ground as the barrier step keeps it (:class:`Ground`), and reached along a clear
+straight segment or, where none is clear, through one waypoint (the shortest of ``waypoints``
+draws; the pull turns to q_g within :data:`VIA_RADIUS` of it); no route, no change. PUMA's task
+rows are replaced by the joint-space spec
 
     q̈_q = g (q_g − q) / max(‖q_g − q‖, ℓ) − k q̇,    k = 2√(g/ℓ)                 [rad/s²]
 
-(g = ``gain`` [rad/s²], ℓ = ``length`` [rad]: a critically damped attractor near q_g, a constant
-pull g beyond ℓ), pulled through the same avoidance metric with the task weight w on each joint
-row. It lets go once the hand is within ``near_release`` of the goal, where the attractor,
-critically damped near q_g, has brought the arm nearly to rest, and PUMA (with the stall pull
-still armed, as before) finishes the motion, or once ‖q − q_g‖ has not fallen by ``progress``
-[rad] for ``window`` [s] (a barrier holds the attractor: a moving obstacle on the segment;
-without the segment check an attractor rests 18 s against an obstacle in random pouring
-``near_table1`` 31039); it engages at most once per arming of the stall
-pull and re-chooses q_g when the goal has moved more than 2 cm.
+(g = ``gain`` [rad/s²], ℓ = ``length`` [rad]: critically damped near q_g, beyond ℓ a constant
+pull cruising at g/k = √(gℓ)/2 = 1 rad/s, so the radians a reconfiguration needs take seconds),
+pulled through the same avoidance metric with the task weight w on each joint row. It engages at
+most once per arming, chooses q_g again when the goal moves :data:`REPLAN_DISTANCE_M`, and lets go
+within ``near_release`` of the goal, where the arm is nearly at rest and PUMA (the stall pull still
+armed) finishes; handed over while still cruising, the hand overshoots. It also lets go once
+‖q − q_g‖ has not fallen by ``progress`` [rad] for ``window`` [s] (a barrier holds it).
 
-Why it lets go only near the goal. At ``release`` (0.15 m) the attractor still cruises (up to
-1 rad/s), and a PUMA handed the arm there takes over a hand moving faster than any
-demonstration near the goal: random tomato ``near_table1`` 2034, FPM, let go 0.10 m out at
-26.0 s, passes through the goal ball at 26.2 s, is 0.85 m out at 29 s and not back by 40 s.
-Letting go within ``near_release`` hands PUMA a hand nearly at rest at its own rest point.
-Measured against letting go at ``release`` (FPM, random seeds 2015-2039, 100 scenarios): 2 more
-converged (2034 and pouring ``anywhere`` 2039), none fewer, CPM's the same; on seeds 2040-2064
-(100, drawn afterwards) the 15 FPM runs where the pull engages farther than ``release`` end
-step for step alike.
+Near the goal, too, a stall at a joint limit is left only by a reconfiguration (the elbow turned
+over, the hand first moving away): with ``near_release`` > 0 the pull engages within ``release`` as
+well, with a joint at a limit and the hand farther than ``near_release``, but only at the step the
+stall pull arms in (a joint reaching its band later, the hand still coming in, is no stall);
+``always`` needs no limit only farther than ``release``. ``always`` is CPM's: its regulator brakes
+every climb of ψ, so where the way round climbs ψ away from obstacles and limits CPM crawls at about
+√ε, the stall pull arms and ``limits`` never engages.
 
-Goals low over the table. The goal pose itself may put a link below the plane the barrier
-step keeps (random tomato goals lie down to 3.5 cm above the table, with the hand pointing
-down): the controller cannot put the hand exactly there either, and PUMA's success radius is
-what reaches it. Such a q_g is solved again with the target raised by its deficit (at most by
-``release``, where the pull hands back to PUMA anyway). A check of the body spheres 1 cm
-above z = 0 instead fails the hand's sphere (7 cm round the task point) at every goal lower
-than 8 cm, whatever the arm does: in random tomato ``anywhere`` 2014 (goal 4.9 cm up) it finds
-no q_g, and the arm, joints 1 and 4 on their limits, stays 0.27 m short.
+A goal low over the table may put a link below the plane the barrier step keeps; q_g is then
+solved with the target raised by the deficit (at most ``release``), and PUMA's approach does the
+rest. The ground check is the controller's own (its link hulls): body spheres kept 1 cm above
+z = 0 would reject the hand's sphere (7 cm round the task point) at every goal lower than 8 cm.
+Where every solution of the pose puts a body sphere rigid with the hand inside an obstacle,
+``position_fallback`` takes the clear solutions of the goal position alone (the orientation off
+the goal's, as the obstacles force).
 
-Waypoints. Where the arm rests beside an obstacle, the straight segment to every q_g may pass
-through it (2014: one of 13 goal configurations had a clear segment at 24 s, none at 23.3 s
-when the stall pull armed). With ``waypoints`` > 0 the route may then pass through one
-waypoint w, q → w → q_g, both segments clear, the shortest of ``waypoints`` draws about each
-segment's middle (:func:`goal_route`); the attractor pulls to w and turns to q_g within
-:data:`VIA_RADIUS` of it (one switch: one more piece of CPM's piecewise energy argument below).
+When it is computed. The goal pose's IK solutions depend on neither the obstacles nor q: the
+controller's reset solves them from q₀ and ``restarts`` seeded starts
+(:meth:`ConfigurationMonitor.prepare`). An engagement searches only the route among them, at most
+``budget`` kinematic passes (:data:`SEARCH_BUDGET`) per control step, and engages when the search
+ends (a moved goal likewise, the last q_g pulling meanwhile). The price: the IK starts from q₀,
+not the q at engagement, and a long search engages some steps late.
 
-Near the goal. A pull that engages only farther than ``release`` from the goal leaves the
-stalls near it alone: in the logged 200-per-task suite (seeds 2000-2099) 11 of FPM's and CPM's
-29 failures with obstacles then end 6-15 cm from the goal with a joint on its limit; the stall
-pull arms there, within ``release``, and nothing else acts (random tomato ``anywhere`` 2097, FPM:
-joint 3 at 2.95 rad, the hand 9-10 cm short and creeping, the stall pull armed at 19.7 s, 7.1 cm
-short at 40 s). With ``near_release`` > 0 the pull engages at such an arming too (a joint at a
-limit, the hand farther than ``near_release``), only at the control step the stall pull arms
-in: armed near the goal the stall pull holds for good, and a joint reaching its band later,
-while the hand still comes in, is no stall (random pouring ``anywhere`` 2026, CPM: engaged 7 s
-after the arming, the hand 6.3 cm out and closing, then a 1.4 m reconfiguration that ran out
-of time). The way out is often a whole reconfiguration (2097: the elbow turned over, q₄ 1.7 →
-−1.65 rad, the hand 0.53 m out and back in 7 s, at the goal at 26.5 s): the joint-limit box is
-left only that way, and the attractor's rest point is still the goal pose. Near the goal a joint
-at a limit is asked for in both modes: ``always`` (CPM's default) engages without one only
-farther than ``release``; within it the stall pull alone finishes the approach (the
-shipped tomato model overshoots to 0.15 m and comes back in, its stall pull arming at 0.115 m
-in an obstacle-free run, where a reconfiguration has nothing to free).
-
-Far from the goal without a limit (``always``). CPM's regulator brakes every climb of ψ, and
-where the way round climbs ψ with no obstacle within the tank's clearance and no joint near a
-limit, CPM crawls at about √ε (random pouring ``anywhere`` 81004, BENCHMARKS.md: ψ
-4.5 -> 8.3 along the hand's way over 40 s; FPM reaches it in 7.9 s); the stall pull arms, but
-``limits`` never engages there. ``always`` hands such an arming to the attractor, and CPM's
-regulator watches the attractor's own φ (:meth:`ConfigurationMonitor.potential`).
-
-When it is computed. Nothing slow runs inside a control step. The goal pose's IK solutions
-(25 starts, up to 200 damped least-squares iterations each, 0.1-0.7 s in all) do not depend on
-the obstacles or on q: they are solved in the controller's reset, before the first step, from
-the start q₀ and the seeded random starts (:meth:`ConfigurationMonitor.prepare`, kept per
-process for the scenario's other runs). At an engagement, only the route is searched among them
-(each solution's clearance from the obstacles where they are now, the nearest first, the
-segment checks and the waypoints), a generator run at most ``budget`` kinematic passes
-(:data:`SEARCH_BUDGET`, one forward pass of the arm each) per control step, so a step's extra
-cost is bounded by construction; the pull engages at the step the search ends, from the q and
-obstacles of the step it began. A goal that moves more than 2 cm is solved again the same way,
-the last q_g pulling until the new one is ready. What this gives up against solving everything
-inside the engaging step (a step no robot could wait for): the IK's first start is q₀ instead
-of the q at the engagement, and a search longer than one step's budget engages that many steps
-later.
-
-Position fallback. A goal pose can be in collision whatever the arm does: the body spheres
-rigid with the hand sit where the pose puts them, for every IK solution (random pouring
-``anywhere`` 2094: a body sphere at least 4 mm inside an obstacle in every solution found from
-25 starts; ``near_table1`` 61013: 3.7 cm). With ``position_fallback`` the candidates are then
-the solutions of the goal position alone (the orientation rows weighted 0 in the IK), clear as
-before: the hand reaches the position (what the success criterion judges) with its orientation
-off the goal's, which the obstacles would not let it take anyway.
-
-What holds. Safety never depended on the forcing: the barriers, the energization bound and the
-control-rate barrier step are unchanged, so the arm cannot be carried through an obstacle or a
-limit by it. Away from these stalls the forcing is PUMA's (and the stall pull's) to the bit, so
-FPM's statement (PUMA's zero set, once reached, kept) is unchanged; q_g puts the hand at the goal
-pose, PUMA's own rest point, so the attractor's rest point lies in PUMA's zero set. While it acts
-the hand's path is not PUMA's (the imitation is suspended where it had stopped delivering the
-goal).
-
-CPM. Were CPM's regulator to watch PUMA's ψ while the attractor acts: the way out of these
-stalls climbs ψ (the hand first moves away from the goal), the regulator brakes it, and the
-arm crawls at the speed √ε below which the regulator fades (random pouring ``anywhere``
-41023: 0.53 → 0.80 m in 26 s). So the regulator watches the attractor's own potential φ
-(:meth:`ConfigurationMonitor.potential`) while it acts:
-−∂φ/∂q is the attractor's pull, so φ is compatible with it, and CPM's law on φ gives
-``dH_φ/dt ≤ −β‖q̇‖²`` with ``H_φ = ½‖q̇‖² + φ`` during the engagement (in free space CPM then
-follows the attractor exactly: its own damping k ≥ β dissipates enough). H switches between the
-ψ and φ forms at engagement and release; CPM's convergence argument holds on every interval on
-one potential, and from the last switch on, ψ's: the statement needs finitely many engagements
-(each needs a new arming of the stall pull, i.e. 2 s without progress, and a joint at a limit).
-
-Gains: g and ℓ set the attractor's cruise speed far from q_g, g/k = √(gℓ)/2 [rad/s]; with the
-first values (g = 1.5, ℓ = 0.3: 0.34 rad/s) the 4-8 rad of joint travel some ways out need took
-12-24 s of the 40 s run, and runs engaged after 20 s ran out of time on the way (random tomato
-``anywhere`` 41015, 41025 with CPM; BENCHMARKS.md).
+What holds. The barriers, the energization bound and the barrier step are unchanged: the pull cannot
+carry the arm through an obstacle or a limit. Away from these stalls the forcing is PUMA's, so FPM's
+statement holds; q_g puts the hand at the goal pose, so the attractor's rest point lies in PUMA's
+zero set; while it acts the path is not PUMA's. CPM's regulator watches the attractor's own
+potential φ meanwhile (:meth:`ConfigurationMonitor.potential`; on ψ it would brake the climb the way
+out needs): −∂φ/∂q is the pull, so ``dH_φ/dt ≤ −β‖q̇‖²`` with ``H_φ = ½‖q̇‖² + φ`` while engaged.
+CPM's convergence argument holds on each interval on one potential and, after the last engagement,
+on ψ's; it needs finitely many engagements (each needs a new arming of the stall pull).
 """
 
 from __future__ import annotations
@@ -336,7 +261,7 @@ def goal_candidates(kin: Kinematics, position: np.ndarray, quaternion: np.ndarra
     and above the ``ground`` (the controller's ground rows; None: the body spheres
     ``pull.clearance`` above z = 0). Where the goal pose itself reaches below the ground (a
     goal low over the table: the controller cannot put the hand there either), the pose raised
-    until it is above, by at most ``pull.release`` (the pull hands back to PUMA there anyway).
+    until it is above, by at most ``pull.release``.
     Where no solution of the pose is clear and ``pull.position_fallback``: the solutions of the
     goal position alone (the orientation free; see the module). Deterministic for a seed."""
     solutions = run_to_end(pose_solutions(kin, position, quaternion, q, pull, seed, ground))

@@ -61,19 +61,17 @@ class OrientationReference:
     feedback law, the same computation); coming on it starts from the hand's ``(ζ, ω)``.
 
     Why. PUMA's position field depends on the orientation it is evaluated at, and its
-    equilibrium is the goal *pose*: with the orientation held 0.47 rad from the goal's (joints 5
-    and 7 on their limits, random tomato scenario 1039 without obstacles) the position part of
-    the learned field alone comes to rest 16.7 cm from the goal, and the arm circled 7-19 cm from
-    it for 40 s. Evaluated at the reference, (p, ζ_r) is PUMA's own system driven through the
-    hand's position, so the position goes on to the goal where the joints cannot give the
-    orientation (7 of the 10 such evaluation runs reached it). Where the hand follows the
-    reference, ζ = ζ_r at every step and this is PUMA's feedback law unchanged
-    (tests/test_orientation_reference.py). Where obstacles hold the hand it is off: a
-    reference running on PUMA's field while the barriers hold the hand's position took it off
-    PUMA's own path (behind an obstacle far from the goal it turned the hand up to 3 rad away;
-    beside one near the goal, Table-1 pouring 8 and 12, the hand went out and back, 13 s longer
-    than with the feedback law). The saturation keeps an unreachable reference from driving the
-    joints at k_p times a large error.
+    equilibrium is the goal *pose*: where joint limits hold the orientation off the goal's, the
+    position part of the learned field alone can come to rest well short of the goal, and
+    the arm circles there. Evaluated at the reference, (p, ζ_r) is PUMA's own system driven
+    through the hand's position, so the position goes on to the goal where the joints cannot
+    give the orientation. Where the hand follows the reference, ζ = ζ_r at every step and this
+    is PUMA's feedback law unchanged (tests/test_orientation_reference.py). Where obstacles hold
+    the hand it is off: a reference running on PUMA's field while the barriers hold the hand's
+    position leaves PUMA's own path (it turns the hand far from the goal orientation, or takes
+    it out and back beside an obstacle). The saturation keeps an unreachable reference from
+    driving the joints at k_p times a large error. Its ablation row:
+    docs/method.md, "How PUMA's forcing meets the fabric" (``orientation_reference``).
     k_p [1/s²], k_d [1/s]: tracking gains; max_acceleration a_max [rad/s²]; radius [m];
     clearance [m].
     """

@@ -105,7 +105,7 @@ def tamed_fabric() -> FabricGains:
     """The avoidance fabric of FPM and CPM: the Fabrics method's gains
     (:class:`~tamedpuma.fabrics.gains.FabricGains`) with the barriers' energies ×30 (obstacle
     0.1 → 3, joint limit 0.05 → 1.5): PUMA's forcing metric w = 100 outweighs the Fabrics goal
-    metric (0.3-2) those gains were set against."""
+    metric (0.3-2) those gains are tuned against."""
     gains = FabricGains()
     return replace(gains, obstacle=replace(gains.obstacle, energy_gain=3.0),
                    joint_limit=replace(gains.joint_limit, energy_gain=1.5))

@@ -323,7 +323,7 @@ def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, 
                 null if has_null else target[:0], has_null, extra.rows, extra.weights,
                 extra.targets, target[:0] if qdd_free is None else qdd_free,
                 forcing.directional, forcing.mode == "task_metric")
-        except np.linalg.LinAlgError:  # a singular system: raised below as before
+        except np.linalg.LinAlgError:  # a singular system: the reference path below raises it
             qdd_c = h = np.full(1, np.nan)
         if math.isfinite(float(qdd_c @ qdd_c + h @ h)):
             return qdd_c, h
@@ -358,7 +358,7 @@ def geometry_with_task_metric(av, J: np.ndarray, weights: float | np.ndarray) ->
     M, f: the avoidance fabric's metric and geometry force (base, obstacle pairs, joint
     limits); J (m, n): PUMA's task Jacobian; w [1]: its task metric (scalar or (m,)). The task
     leaf is ``ẍ = 0`` with the constant metric w: a Finsler energy ½ẋᵀ diag(w) ẋ with a zero
-    (degree-2 homogeneous) geometry, so the sum is still a fabric, energized as before.
+    (degree-2 homogeneous) geometry, so the sum is still a fabric, energized the same way.
     Without it, h = −M⁻¹f moves the hand however the barriers' curvature terms (m_r J̇q̇ along
     each barrier row, at full strength wherever a barrier's metric exceeds the base's) and the
     joint-limit braking dictate, and PUMA's forcing, added after, is not weighed against it.
@@ -375,10 +375,10 @@ def approached_metric(av, qdd_free: np.ndarray) -> np.ndarray:
     A directional barrier's metric is on while its distance shrinks (s(ẋ) = [ẋ < 0]); at rest
     that is decided by the motors' noise, and a joint resting at its limit barrier (metric
     2k/x² with x clamped to 10⁻³: 10⁵) then holds PUMA's pull *away* from the limit as firmly
-    as a push into it: the arm stays where it is for good (random scenarios: joints 3 and 7
-    at their limits, 0.55 m from the goal, obstacles 0.5 m away). Here s is evaluated on the
-    direction the forcing moves each barrier, ``a_r·q̈_P``: the forcing is resisted only along
-    the barriers it approaches. The fabric (h, its metric, energization) is unchanged."""
+    as a push into it: the arm stays where it is for good, however far the goal and however
+    clear the way. Here s is evaluated on the direction the forcing moves each barrier,
+    ``a_r·q̈_P``: the forcing is resisted only along the barriers it approaches. The fabric (h,
+    its metric, energization) is unchanged."""
     return metric_without(av, receding_rows(av, qdd_free))
 
 
@@ -411,14 +411,12 @@ def restore_approached(av, receding: np.ndarray | None, W: np.ndarray, qdd_c: np
     where an approached barrier's metric holds one joint, q̈_C moves the others instead, and it
     can drive one of them towards a limit whose row q̈_P recedes from and which W therefore
     leaves out. Nothing then weighs that joint against PUMA, and q̈_C accelerates it into its
-    limit (Table-1 pouring 05 without obstacles: joint 2 driven into its lower limit at
-    0.5 rad/s by 0.6-17 rad/s² of self-motion while ‖ẍ_d‖ ≈ 0.1 m/s², the hand then 1.2 m from
-    the goal). Here every left-out row that q̈_C approaches
-    (``a_r·q̈_C < 0``) is put back with its metric and q̈_C solved again, until no left-out row
-    is approached: an active set that only grows, so at most as many solves as rows left out.
-    The result is the same weighted pseudo-inverse of PUMA's spec through a metric between
-    ``approached_metric`` and M, so the zero set of the forcing and the statements of
-    :class:`Forcing` are unchanged.
+    limit by self-motion, which PUMA's task rows do not see, even with no obstacle in the scene.
+    Here every left-out row that q̈_C approaches (``a_r·q̈_C < 0``) is put back with its metric
+    and q̈_C solved again, until no left-out row is approached: an active set that only grows,
+    so at most as many solves as rows left out. The result is the same weighted pseudo-inverse
+    of PUMA's spec through a metric between ``approached_metric`` and M, so the zero set of the
+    forcing and the statements of :class:`Forcing` are unchanged.
 
     receding: the mask of :func:`receding_rows` (None: nothing left out); W: the metric without
     them; qdd_c: ``solve(W)``; solve: W ↦ q̈_C."""
@@ -763,10 +761,10 @@ def braking_split(a: np.ndarray, c: float, qd: np.ndarray, alpha_raw: float, alp
     step takes implicitly.
 
     Why: at a barrier the geometry h grows like x⁻⁵ (x: the barrier distance), and its part
-    along q̇ reached α_raw ≈ −10⁸ /s. Taken explicitly, ``q̇ + Δt h`` reversed q̇ with a gain of
-    ~10⁶ (random pouring scenario 1021, CPM: q̇ 10⁵-10¹¹ rad/s, which the barrier step could only
-    zero; the arm stopped and a moving obstacle went 2.4 cm into it). Implicitly,
-    ``(q̇ + Δt(a − κq̇))/(1 − Δt(c + κ))`` brakes towards rest and never reverses q̇."""
+    along q̇ reaches α_raw ~ −10⁸ /s. Taken explicitly, ``q̇ + Δt h`` reverses q̇ with a gain of
+    ~10⁶, step after step; the barrier step can only zero such a velocity, so the arm stops and
+    a moving obstacle runs into it. Implicitly, ``(q̇ + Δt(a − κq̇))/(1 − Δt(c + κ))`` brakes
+    towards rest and never reverses q̇."""
     if alpha_raw >= alpha:
         return a, c
     kappa = alpha_raw - alpha  # < 0

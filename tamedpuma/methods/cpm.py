@@ -35,7 +35,7 @@ With ``forcing.mode: task_metric`` (CPM's default; FPM keeps ``metric``)
 h = −(M + JᵀwJ)⁻¹f: PUMA's task metric is one more leaf of the fabric (ẍ = 0, metric w), so
 the geometry no longer drives the hand against PUMA near barriers
 (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`); the sum is still a fabric,
-energized as before, so dH/dt = −β‖q̇‖² holds unchanged.
+energized the same way, so dH/dt = −β‖q̇‖² holds unchanged.
 
 ``forcing.stall_pull`` (default 1.5 m/s², as FPM's; :mod:`tamedpuma.methods._stall`): a goal
 attractor added to PUMA's position rows while the hand has stopped approaching the goal. It is
@@ -55,32 +55,32 @@ every interval on one potential and, after the last engagement, ψ's (scalar
 sets 1e-3, cpm_literal the fabric's 1e-6): the regulariser of the energization and regulator
 denominators ``q̇ᵀMq̇ + ε``. Below the speed √ε both fade out and the law becomes
 ``h + f_θ^C − β q̇``, PUMA's own start from rest. It must exceed the square of the joint
-controller's velocity noise: in
-PyBullet the velocity motors sag under gravity by ~1e-3 rad/s, and with ε = 1e-6 that sag set
-the direction of q̇ at rest: energization removed f_θ^C's push along it and the regulator saw ψ
-*rising* along it, so the arm never started (Table-1 tomato 8: 0.5 m from the goal for 40 s
-at 7e-4 rad/s, α ≈ 250 /s). Above √ε the law is eq. 10 exactly.
+controller's velocity noise: in PyBullet the velocity motors sag under gravity by ~1e-3 rad/s,
+and with ε no larger than that squared (1e-6) the sag sets the direction of q̇ at rest:
+energization removes f_θ^C's push along it, and where ψ *rises* along the sag the regulator
+brakes it, so the arm at rest never starts. Above √ε the law is eq. 10 exactly (docs/method.md,
+"CPM's regulator and damping").
 
 Discretisation (``control_rate.semi_implicit``, default): over one control period Δt the law is
 q̈ = a + c q̇ with a = h + f_θ^C and c = r − α − β ≤ 0 (the regulator, energization and damping
 all act along q̇); the velocity-proportional part is taken implicitly,
 q̇⁺ = (q̇ + Δt a)/(1 − Δt c), a first-order step like the explicit one, which instead flips q̇
 whenever |c| Δt > 1 and amplifies it beyond 2 (α ~ ‖a‖/‖q̇‖ is large at low speed; matched β
-reaches 100 /s): the arm chattered and moved by numerical noise rather than by the law.
+reaches 100 /s): the arm chatters and moves by numerical noise rather than by the law.
 
-``tank`` κ (energy tank, :class:`EnergyTank`; 0: off): a passive system may only go where its
-energy lets it, so CPM stops at every local minimum of ψ on the free space, e.g. in front of an
-obstacle that is only passed by first moving away from the goal (random scenarios: most CPM
-stalls happened where FPM, from the same state, went round). The tank holds κ k_ψ ψ(q₀) at the
-start; wherever CPM's regulator would brake FPM's law ``energize[h] + f_θ^C`` the tank pays the
-energy that law needs, and CPM's law takes over where the tank is empty; a share σ
-(:data:`TANK_REFILL`) of the energy CPM dissipates beyond β q̇ᵀq̇ refills it. W = H + T still falls
-at least at β q̇ᵀq̇ and T is bounded, so the convergence argument above is unchanged; only the
-basin CPM ends in changes.
+``tank`` κ (energy tank, :class:`EnergyTank`; 0: off): a passive system may only go where its energy
+lets it, so CPM stops at every local minimum of ψ on the free space, e.g. in front of an obstacle
+that is only passed by first moving away from the goal, where FPM, from the same state, goes round.
+The tank holds κ k_ψ ψ(q₀) at the start; wherever CPM's regulator would brake FPM's law
+``energize[h] + f_θ^C`` the tank pays the energy that law needs, and CPM's law takes over where the
+tank is empty; a share σ (:data:`TANK_REFILL`) of the energy CPM dissipates beyond β q̇ᵀq̇ refills
+it. W = H + T still falls at least at β q̇ᵀq̇ and T is bounded, so the convergence argument above is
+unchanged; only the basin CPM ends in changes.
 
 ``variant: original`` reproduces the authors' public code instead, for comparison: no
 energization, β = 0, and the regulator scaled by 0.05: ``q̈ = h + f_θ^C − 0.05 (q̇q̇ᵀ/(q̇ᵀMq̇)) ∂ψ``
-(we keep ψ squared, at the current state, with the correct quaternion Jacobian: those were bugs).
+(ψ squared, at the current state, with the correct quaternion Jacobian: the authors' code
+departs from these by defects this project does not reproduce).
 Scalars: ``psi`` (ψ), ``psi_rate`` (∂ψ/∂q · q̇ [1/s]), ``dissipation`` (β q̇ᵀMq̇, the predicted
 −dH/dt), ``energy_fabric`` (H_{L_e}), ``energy_total`` (H + ψ, H the energized energy:
 H_{L_e}, or ½‖q̇‖² with ``energy: execution``), ``alpha``, ``beta``, ``min_clearance_m`` [m],

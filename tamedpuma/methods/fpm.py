@@ -7,13 +7,13 @@ h = −M⁻¹ f is the summed, pulled-back avoidance geometry (body spheres × o
 energization ``h̃ = h − α q̇`` with ``α = q̇ᵀ(M_L h + f_L)/(q̇ᵀ M_L q̇ + ε)`` keeps the energy H_L
 constant; f_θ^C is PUMA's task acceleration pulled to the joints.
 
-Options (``conf/method/fpm.yaml``; each measured both ways in BENCHMARKS.md, "Safety beyond
-Table 1"), and which of the paper's statements still holds with it:
+Options (``conf/method/fpm.yaml``; each addition's law, setting and ablation row: docs/method.md,
+"The additions the defaults make"), and which of the paper's statements still holds with it:
 
 - ``energy``: ``fabric`` energizes w.r.t. the fabric's own energy L_e, whose metric grows without
   bound at a barrier (0.2/x): energy the forcing injects there (where M_{L_e} is large) comes
-  back as speed when the arm leaves the barrier; in the logs this "slingshot" drove FPM at up to
-  4× PUMA's speed past the goal and, with α unbounded, through the whole joint range.
+  back as speed when the arm leaves the barrier: a "slingshot" that drives the arm past the goal
+  faster than PUMA and, with α unbounded, through its whole joint range.
   ``execution`` energizes w.r.t. ½‖q̇‖² (geometric fabrics' execution energy): h̃ ⟂ q̇, the
   geometry bends the path and never changes the speed, which the forcing alone sets. Either way
   h̃ has the paths of h (any Finsler energy; method.md §2) and conserves its energy, so the
@@ -21,17 +21,17 @@ Table 1"), and which of the paper's statements still holds with it:
   2023) holds unchanged.
 - ``forcing.mode``: ``additive`` is eq. 9 as written, f_θ^C = J⁺(ẍ_d − J̇q̇) + N q̈_null, blind to
   the obstacles: at low speed h (∝ ‖q̇‖²) vanishes and PUMA pushes the arm straight into a
-  barrier, where it hovers (the ``time`` failures). ``metric`` pulls PUMA through the avoidance
+  barrier, where it hovers until the time limit. ``metric`` pulls PUMA through the avoidance
   fabric's metric (a weighted pseudo-inverse, :class:`~tamedpuma.methods._tamed.Forcing`): near
   an obstacle PUMA's push along the barrier's normal is suppressed and the arm slides along it,
   as a forced fabric does. h is the paper's, and the zero set of f_θ^C is unchanged (q̇ = 0,
   ẍ_d = 0 gives q̈ = 0 up to the damped elbow objective), so the same statement holds.
 - ``forcing.directional``: the metric resists PUMA only along the barriers the forcing q̈_C
   itself approaches (:func:`~tamedpuma.methods._tamed.restore_approached`). Decided on PUMA's
-  free pull q̈_P alone, the weighted solution could drive a joint into a limit whose row q̈_P
-  recedes from (Table-1 pouring 05 without obstacles: joint 2 into its limit, the hand 1.2 m
-  from the goal). The forcing is still a weighted pseudo-inverse of PUMA's spec through a PSD
-  metric, so its zero set and the statement below are unchanged.
+  free pull q̈_P alone, the weighted solution can drive a joint into a limit whose row q̈_P
+  recedes from, with nothing weighing that joint against PUMA. The forcing is still a weighted
+  pseudo-inverse of PUMA's spec through a PSD metric, so its zero set and the statement below
+  are unchanged.
 - ``forcing.mode: task_metric`` is ``metric`` and computes the geometry with PUMA's task
   metric as one more leaf, ``h = −(M + JᵀwJ)⁻¹f``
   (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`), instead of ``h = −M⁻¹f``. The
@@ -40,20 +40,18 @@ Table 1"), and which of the paper's statements still holds with it:
   form has the same statement. Why: the barriers' metric (×30) exceeds the base's wherever a
   barrier is near, and there h = −M⁻¹f carries their curvature terms (m_r J̇q̇ along each
   barrier row) and the joint-limit braking to the hand at full strength, unweighed against
-  PUMA's forcing added after it; in a logged failure (random tomato ``near_table1`` 7001)
-  it moved the hand away from the goal at 0.3-0.6 m/s² against PUMA's 0.1-0.2 m/s².
-  CPM's default; FPM keeps ``metric`` (on 600 random scenarios 507 → 513 successes, within
-  the churn, and Table-1 pouring 06 then fails).
+  PUMA's forcing added after it, so near a barrier they can move the hand away from the goal
+  faster than PUMA pulls it in. CPM's default; FPM keeps ``metric``, on which the leaf gains
+  no more than the neutral change (docs/method.md, "What the ablation has measured so far").
 - ``orientation: reference`` (FPM's default; puma and cpm keep ``feedback``): within
   ``orientation_radius`` of the goal, while every body sphere is ``orientation_clearance`` clear
   of the obstacles, the primitive sees a reference orientation it moves itself and the hand
-  tracks (:class:`~tamedpuma.methods._policy.OrientationReference`). PUMA's
-  position field rests only at the goal *pose*, so where joint limits hold the hand's
-  orientation off the goal's, the feedback field's position part rests short of the goal (16.7
-  cm in the measured case); at the reference, (p, ζ_r) is PUMA's own system and the position
-  goes on. Where the hand follows the reference this is the feedback law, so the statement
-  above holds; the closed loop gains the reference's state (ζ_r, ω_r), which PUMA itself
-  drives to the goal's.
+  tracks (:class:`~tamedpuma.methods._policy.OrientationReference`). PUMA's position field
+  rests only at the goal *pose*, so where joint limits hold the hand's orientation off the
+  goal's, the feedback field's position part rests short of the goal; at the reference,
+  (p, ζ_r) is PUMA's own system and the position goes on. Where the hand follows the reference
+  this is the feedback law, so the statement above holds; the closed loop gains the reference's
+  state (ζ_r, ω_r), which PUMA itself drives to the goal's.
 - ``forcing.stall_pull`` (FPM's and CPM's default 1.5 m/s²; :mod:`tamedpuma.methods._stall`):
   once for 2 s neither the hand's distance to the goal (by 5 mm) nor PUMA's potential ψ (by
   10 %) has improved, a goal attractor is added to PUMA's position rows until ψ has fallen 5 %
@@ -64,10 +62,10 @@ Table 1"), and which of the paper's statements still holds with it:
 - ``forcing.configuration_pull: limits`` (:mod:`tamedpuma.methods._configuration_pull`): when
   the stall pull arms with a joint within 0.1 rad of a limit, a joint-space attractor to the
   nearest IK solution of the goal pose (inside the limits, clear, reached along a clear straight
-  segment) replaces PUMA's rows until the hand is within 0.15 m of the goal or the attractor
-  stops making progress. The limit box is convex, so it has no rest point made by the limits;
-  its own rest point is the goal pose, in PUMA's zero set, and elsewhere the forcing is as
-  above, so the statement holds; the path is not PUMA's while it acts.
+  segment) replaces PUMA's rows until the hand is within ``near_release`` (3 cm) of the goal or
+  the attractor stops making progress. The limit box is convex, so it has no rest point made
+  by the limits; its own rest point is the goal pose, in PUMA's zero set, and elsewhere the
+  forcing is as above, so the statement holds; the path is not PUMA's while it acts.
 - ``alpha_bound`` (α ≥ −alpha_bound; ``.inf``: unbounded, eq. 9) only adds damping;
   ``control_rate`` filters only remove energy (:mod:`tamedpuma.fabrics.discrete`);
   ``limit_margin`` moves the joint-limit

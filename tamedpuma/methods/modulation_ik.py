@@ -27,8 +27,7 @@ Each control step (period Δt [s]), everything in the robot base (= world) frame
    fails), it is solved again with ``d_min' = max(0, c_k)``: the arm may not come closer but q_k
    itself is admissible, so it can always stay or move away. With a fixed d_min an arm that
    starts within it has no admissible step, every solve fails and the arm is held for the whole
-   run (Table-1 tomato 1 and 6, 4 and 3.4 cm clear at the start). Beyond d_min the
-   bound is d_min, as without the option;
+   run. Beyond d_min the bound is d_min, as without the option;
 
 5. joint acceleration for the simulator's velocity control ``q̇_cmd = clip(q̇ + q̈ Δt, ±q̇_max)``:
    ``q̈ = (κ (q_ik − q)/Δt − q̇)/Δt`` so that ``q̇_cmd = κ (q_ik − q)/Δt`` (κ = ``tracking_gain``;
