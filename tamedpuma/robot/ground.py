@@ -31,12 +31,10 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.robot.body_model import urdf_collision_geometry
 
-_WORLD = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 _min = np.minimum.reduce  # np.min without its Python wrapper
 
 
@@ -149,29 +147,28 @@ def sphere_ground_rows(state) -> GroundRows:
 def hull_ground_rows(kinematics, hulls: LinkHulls, qd: np.ndarray,
                      below: float = np.inf) -> GroundRows:
     """The lowest point of each hull lower than ``below`` [m] at the kinematics' last
-    ``evaluate(q, q̇)`` (its placements, joint Jacobians and q̈ = 0 accelerations, as
-    :meth:`~tamedpuma.robot.kinematics.Kinematics.link_position_jacobian` reads them: no
-    forward pass of its own); qd: that q̇ [rad/s]. Its height, the z row of its point Jacobian
+    ``evaluate(q, q̇)`` (its placements, and the link origins' Jacobians and J̇q̇ by
+    :meth:`~tamedpuma.robot.kinematics.Kinematics.frame_motion`: no forward pass of its own);
+    qd: that q̇ [rad/s]. Its height, the z row of its point Jacobian
     and its ȧq̇ (see the module).
 
-    Per link only the pinocchio reads and the hull's support point (one product over its
+    Per link only the placement read and the hull's support point (one product over its
     vertices); the rows and curvature terms of all the lowest points are then a few array
     operations over the links at once, each the same floating-point operation, in the same
     order, as the link-by-link formula (the 3-vector dot products as ``(a₀b₀ + a₁b₁) + a₂b₂``,
     which is what a length-3 ``np.dot`` computes): the same numbers, bit for bit."""
-    model, data, oMf = kinematics.model, kinematics.data, kinematics.data.oMf
-    found = _lowest_points(oMf, hulls, below)
+    model = kinematics.model
+    found = _lowest_points(kinematics.frame_placements(hulls.frame_ids), hulls, below)
     k = len(found)
     heights, rows, jdqd = np.empty(k), np.empty((k, model.nv)), np.empty(k)
     if not k:
         return GroundRows(heights, rows, jdqd)
-    J, acc, r = np.empty((k, 6, model.nv)), np.empty((k, 6)), np.empty((k, 3))
-    for n, (i, height, point) in enumerate(found):
-        fid = hulls.frame_ids[i]
-        J[n] = pin.getFrameJacobian(model, data, fid, _WORLD)  # [v; ω] of the origin
-        acc[n] = pin.getFrameClassicalAcceleration(model, data, fid, _WORLD).vector
+    r = np.empty((k, 3))
+    for n, (_, height, point) in enumerate(found):
         heights[n] = height
         r[n] = point
+    # [v; ω] of each link origin and its J̇q̇
+    J, acc = kinematics.frame_motion([hulls.frame_ids[i] for i, _, _ in found])
     rx, ry, rz = r[:, 0], r[:, 1], r[:, 2]
     np.subtract(J[:, 2] + J[:, 3] * ry[:, None], J[:, 4] * rx[:, None], out=rows)
     w = J[:, 3:] @ np.asarray(qd, dtype=float)  # ω (k, 3)
@@ -183,16 +180,17 @@ def hull_ground_rows(kinematics, hulls: LinkHulls, qd: np.ndarray,
     return GroundRows(heights, rows, jdqd)
 
 
-def _lowest_points(oMf, hulls: LinkHulls, below: float) -> list:
+def _lowest_points(placements, hulls: LinkHulls, below: float) -> list:
     """(link index, height [m], lowest vertex relative to the link origin in world axes (3,))
-    of each hull whose lowest point is below ``below``, at the placements ``oMf``."""
+    of each hull whose lowest point is below ``below``, at the hulls' ``placements`` (world
+    rotations (L, 3, 3), origins (L, 3))."""
     lowest = []
-    for i, (fid, v, radius) in enumerate(zip(hulls.frame_ids, hulls.vertices, hulls.radii)):
-        placement = oMf[fid]
-        tz = placement.translation[2]
+    rotations, origins = placements
+    for i, (v, radius) in enumerate(zip(hulls.vertices, hulls.radii)):
+        tz = origins[i, 2]
         if tz - radius >= below:  # no vertex of this hull is lower
             continue
-        R = placement.rotation
+        R = rotations[i]
         z = v @ R[2]
         j = z.argmin()
         height = float(tz + z[j])
@@ -211,19 +209,17 @@ def hull_heights(kinematics, hulls: LinkHulls, q: np.ndarray) -> np.ndarray:
 def hull_heights_and_spheres(kinematics, hulls: LinkHulls, q: np.ndarray):
     """:func:`hull_heights` and the body-sphere centres (k, 3) [m] at q from the one placement
     pass (the same numbers as ``kinematics.sphere_centers(q)``)."""
-    pin.framesForwardKinematics(kinematics.model, kinematics.data, np.asarray(q, dtype=float))
-    oMf = kinematics.data.oMf
-    heights = np.array([_lowest_height(oMf[f], v) for f, v in zip(hulls.frame_ids,
-                                                                   hulls.vertices)])
-    spheres = np.array([oMf[i].translation for i in kinematics.sphere_ids]).reshape(-1, 3)
-    return heights, spheres
+    L = len(hulls.frame_ids)
+    R, p = kinematics.placements(q, tuple(hulls.frame_ids) + tuple(kinematics.sphere_ids))
+    heights = np.array([_lowest_height(R[i], p[i], v) for i, v in enumerate(hulls.vertices)])
+    return heights, np.ascontiguousarray(p[L:])
 
 
-def _lowest_height(placement, vertices: np.ndarray) -> float:
+def _lowest_height(R: np.ndarray, origin: np.ndarray, vertices: np.ndarray) -> float:
     """The lowest point [m] of a hull (vertices (V, 3) in its link frame) at its link's
-    placement: one read of the placement, the minimum as the bare ufunc reduction (the numbers
-    of ``np.min``)."""
-    return placement.translation[2] + float(_min(vertices @ placement.rotation[2]))
+    placement (world rotation R, origin [m]): the minimum as the bare ufunc reduction (the
+    numbers of ``np.min``)."""
+    return origin[2] + float(_min(vertices @ R[2]))
 
 
 def hull_heights_from_poses(hulls: LinkHulls, link_names, positions: np.ndarray,

@@ -13,7 +13,8 @@ forward kinematics once and returns everything a controller needs as a frozen
 - for every collision sphere i: centre c_i [m], Jacobian ``J_i = ∂c_i/∂q`` (3×dof) and ``J̇_i q̇``,
   batched as arrays of shape (k, 3), (k, 3, dof), (k, 3).
 
-numpy and pinocchio only.
+numpy and pinocchio; the frames' Jacobians and J̇q̇ compiled by numba where it is installed
+(:mod:`tamedpuma.robot.point_motion`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 from tamedpuma.errors import ConfigError
+from tamedpuma.robot import point_motion
 
 
 def default_urdf_path() -> str:
@@ -248,6 +250,13 @@ class Kinematics:
         self._link_ids: dict[str, int] = {}  # link_position_jacobian's frame ids, by name
         self._radii = spec.sphere_radii
         self._radii.setflags(write=False)
+        self._tables: dict[tuple, tuple] = {}  # frame ids -> their point_motion table
+        self._chain = _revolute_chain(model)
+        # the chain's placements, Jacobians and J̇q̇ in compiled calls (None: pinocchio's calls)
+        self._fast = point_motion.compiled() if self._chain is not None else None
+        self._ee_table = self._table((self.ee_id,))
+        self._sphere_table = self._table(self.sphere_ids)
+        self._state: tuple | None = None  # the last evaluate's joint state and q̇ (compiled)
 
     @staticmethod
     def _frame_id(model, name: str) -> int:
@@ -255,15 +264,76 @@ class Kinematics:
             raise ConfigError(f"link {name!r} is not in the URDF")
         return model.getFrameId(name)
 
+    def _vector(self, v) -> np.ndarray:
+        """v as a fresh, writable float vector of the model's size (the compiled functions'
+        argument type; they do not check bounds, so a wrong size is a ValueError here)."""
+        out = np.array(v, dtype=float)
+        if out.shape != (self.model.nv,):
+            raise ValueError(f"expected a vector of {self.model.nv} joint values, got shape "
+                             f"{out.shape}")
+        return out
+
+    def _table(self, frame_ids) -> tuple:
+        """The frames as :func:`point_motion.frame_motion` takes them: parent joint indices
+        (F,) (−1: the base), placements in their joints (F, 3, 3), (F, 3), and the joints that
+        move each (F, n) bool."""
+        ids = tuple(frame_ids)
+        table = self._tables.get(ids)
+        if table is None:
+            model = self.model
+            F = len(ids)
+            parents, Rf, pf = np.empty(F, np.int64), np.empty((F, 3, 3)), np.empty((F, 3))
+            support = np.zeros((F, model.nv), dtype=np.bool_)
+            for f, fid in enumerate(ids):
+                frame = model.frames[fid]
+                parents[f] = frame.parentJoint - 1
+                Rf[f], pf[f] = frame.placement.rotation, frame.placement.translation
+                for j in model.supports[frame.parentJoint]:
+                    if j > 0:
+                        joint = model.joints[j]
+                        support[f, joint.idx_v:joint.idx_v + joint.nv] = True
+            table = self._tables[ids] = (parents, Rf, pf, support)
+        return table
+
+    def _frames(self, q: np.ndarray, qd: np.ndarray, table: tuple, rows: int):
+        """(rotations, origins, Jacobians, J̇q̇) of the frames of ``table`` at (q, q̇), compiled;
+        the joint state is kept for :meth:`frame_motion` and :meth:`link_position_jacobian`."""
+        fast = self._fast
+        state = fast["joint_motion"](q, qd, *self._chain)
+        self._state = (state, qd)
+        return fast["frame_motion"](state, qd, *table, rows)
+
     def evaluate(self, q: np.ndarray, qd: np.ndarray) -> KinematicState:
         """All controller kinematics at (q [rad], q̇ [rad/s]) from one forward pass.
 
-        Per frame one pinocchio call each for the placement, the Jacobian and the classical
-        acceleration; every returned array is fresh (pinocchio's placements are views into its
-        data and are copied; its Jacobians and accelerations are already new arrays).
+        Compiled (:mod:`tamedpuma.robot.point_motion`, where numba is installed): one pass over
+        the joints, then the end effector's and the body spheres' placements, Jacobians and
+        curvature terms J̇q̇, three calls in all. Otherwise one pinocchio pass and one pinocchio
+        call per frame and quantity: the same numbers to rounding. Every array is fresh.
         """
-        q = np.asarray(q, dtype=float)
-        qd = np.asarray(qd, dtype=float)
+        q, qd = self._vector(q), self._vector(qd)
+        if self._fast is None:
+            return self._evaluate_per_frame(q, qd)
+        fast = self._fast
+        state = fast["joint_motion"](q, qd, *self._chain)
+        self._state = (state, qd)
+        R, p, J, acc = fast["frame_motion"](state, qd, *self._ee_table, 6)
+        _, centers, jacobians, jdqd = fast["frame_motion"](state, qd, *self._sphere_table, 3)
+        return KinematicState(
+            ee_position=p[0],
+            ee_rotation=R[0],
+            ee_quaternion=fast["quaternion"](R[0]),
+            ee_jacobian=J[0],
+            ee_jdqd=acc[0],  # [linear; angular]
+            sphere_centers=centers,
+            sphere_jacobians=jacobians,
+            sphere_jdqd=jdqd,
+            sphere_radii=self._radii,
+        )
+
+    def _evaluate_per_frame(self, q: np.ndarray, qd: np.ndarray) -> KinematicState:
+        """:meth:`evaluate` by pinocchio: its pass, then per frame the placement, the Jacobian
+        and the classical acceleration (where numba is missing)."""
         model, data = self.model, self.data
         pin.forwardKinematics(model, data, q, qd, self._zeros)
         pin.computeJointJacobians(model, data)  # from the placements just computed
@@ -290,20 +360,54 @@ class Kinematics:
             sphere_radii=self._radii,
         )
 
+    def frame_placements(self, frame_ids) -> tuple[np.ndarray, np.ndarray]:
+        """World rotations (k, 3, 3) and origins (k, 3) [m] of the frames at the q of the last
+        :meth:`evaluate` call (no new forward pass): the numbers of its own frames."""
+        ids = tuple(frame_ids)
+        if self._fast is None:
+            oMf = self.data.oMf
+            R, p = np.empty((len(ids), 3, 3)), np.empty((len(ids), 3))
+            for n, fid in enumerate(ids):
+                R[n], p[n] = oMf[fid].rotation, oMf[fid].translation
+            return R, p
+        state, qd = self._state
+        R, p, _, _ = self._fast["frame_motion"](state, qd, *self._table(ids), 3)
+        return R, p
+
+    def frame_motion(self, frame_ids) -> tuple[np.ndarray, np.ndarray]:
+        """World-aligned Jacobians (k, 6, n) ``[v; ω]`` of the frames' origins and their
+        classical accelerations at q̈ = 0, J̇q̇ (k, 6) [m/s², rad/s²], at the (q, q̇) of the last
+        :meth:`evaluate` call (no new forward pass): the arithmetic of its end effector."""
+        ids = tuple(frame_ids)
+        if self._fast is None:
+            model, data = self.model, self.data
+            J, acc = np.empty((len(ids), 6, model.nv)), np.empty((len(ids), 6))
+            for n, fid in enumerate(ids):
+                J[n] = pin.getFrameJacobian(model, data, fid, _WORLD)
+                acc[n] = pin.getFrameClassicalAcceleration(model, data, fid, _WORLD).vector
+            return J, acc
+        state, qd = self._state
+        _, _, J, acc = self._fast["frame_motion"](state, qd, *self._table(ids), 6)
+        return J, acc
+
     def ee_pose_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """End-effector position (3,) [m], rotation (3, 3) and world-aligned Jacobian (6, n) at
         q, fresh arrays: the numbers :meth:`evaluate` gives as ``ee_position``,
-        ``ee_rotation`` and ``ee_jacobian`` (at any q̇), bit for bit, from the placement pass
-        and the joint Jacobians alone (no velocities, accelerations or body spheres: what an
-        IK iteration needs, at a fraction of the cost). Like :meth:`evaluate` it leaves the
-        placements and joint Jacobians of q in the data (:meth:`link_position_jacobian`)."""
-        model, data = self.model, self.data
-        pin.forwardKinematics(model, data, np.asarray(q, dtype=float))
-        pin.computeJointJacobians(model, data)  # from the placements just computed
-        ee = pin.updateFramePlacement(model, data, self.ee_id)
-        pose = pin.SE3ToXYZQUAT(ee)  # fresh, as evaluate's ee_position
-        return (pose[:3], ee.rotation.copy(),
-                pin.getFrameJacobian(model, data, self.ee_id, _WORLD))
+        ``ee_rotation`` and ``ee_jacobian`` (at any q̇), bit for bit, without the body spheres
+        (what an IK iteration needs). Like :meth:`evaluate` it leaves the placements of q for
+        :meth:`link_position_jacobian`, :meth:`frame_placements` and :meth:`frame_motion`
+        (at q̇ = 0)."""
+        q = self._vector(q)
+        if self._fast is None:
+            model, data = self.model, self.data
+            pin.forwardKinematics(model, data, q)
+            pin.computeJointJacobians(model, data)  # from the placements just computed
+            ee = pin.updateFramePlacement(model, data, self.ee_id)
+            pose = pin.SE3ToXYZQUAT(ee)  # fresh, as evaluate's ee_position
+            return (pose[:3], ee.rotation.copy(),
+                    pin.getFrameJacobian(model, data, self.ee_id, _WORLD))
+        R, p, J, _ = self._frames(q, np.zeros(self.model.nv), self._ee_table, 6)
+        return p[0], R[0], J[0]
 
     def link_position_jacobian(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         """Origin (3,) [m] and its 3×n position Jacobian of ``link`` at the q of the last
@@ -311,21 +415,40 @@ class Kinematics:
         fid = self._link_ids.get(link)
         if fid is None:
             fid = self._link_ids[link] = self._frame_id(self.model, link)
-        jac = pin.getFrameJacobian(self.model, self.data, fid, _WORLD)[:3]
-        return self.data.oMf[fid].translation.copy(), np.array(jac)
+        if self._fast is None:
+            jac = pin.getFrameJacobian(self.model, self.data, fid, _WORLD)[:3]
+            return self.data.oMf[fid].translation.copy(), np.array(jac)
+        state, qd = self._state
+        _, p, J, _ = self._fast["frame_motion"](state, qd, *self._table((fid,)), 3)
+        return p[0], J[0]
+
+    def placements(self, q: np.ndarray, frame_ids) -> tuple[np.ndarray, np.ndarray]:
+        """World rotations (k, 3, 3) and origins (k, 3) [m] of the frames at q: the numbers of
+        :meth:`evaluate`'s frames (compiled, or pinocchio's placement pass)."""
+        q = self._vector(q)
+        if self._fast is None:
+            pin.framesForwardKinematics(self.model, self.data, q)
+            oMf = self.data.oMf
+            return (np.array([oMf[i].rotation for i in frame_ids]).reshape(-1, 3, 3),
+                    np.array([oMf[i].translation for i in frame_ids]).reshape(-1, 3))
+        R, p, _, _ = self._frames(q, np.zeros(self.model.nv), self._table(frame_ids), 3)
+        return R, p
+
+    def _quaternion(self, R: np.ndarray) -> np.ndarray:
+        """(x, y, z, w) of a rotation matrix, as :meth:`evaluate`'s ``ee_quaternion``."""
+        if self._fast is None:
+            return pin.Quaternion(R).coeffs().copy()
+        return self._fast["quaternion"](np.ascontiguousarray(R))
 
     def link_poses(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Poses of ``spec.link_names`` at q: positions (L, 3) [m], quaternions (L, 4) (x,y,z,w)."""
-        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
-        pos = np.array([self.data.oMf[i].translation for i in self.link_ids])
-        quat = np.array([pin.Quaternion(self.data.oMf[i].rotation).coeffs() for i in self.link_ids])
-        return pos, quat
+        R, p = self.placements(q, self.link_ids)
+        return p, np.array([self._quaternion(r) for r in R]).reshape(-1, 4)
 
     def ee_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """End-effector position (3,) [m] and quaternion (4,) (x, y, z, w) at q."""
-        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
-        pose = self.data.oMf[self.ee_id]
-        return pose.translation.copy(), pin.Quaternion(pose.rotation).coeffs().copy()
+        R, p = self.placements(q, (self.ee_id,))
+        return p[0], self._quaternion(R[0])
 
     @property
     def sphere_radii(self) -> np.ndarray:
@@ -336,11 +459,40 @@ class Kinematics:
         """End-effector position (3,) [m] and rotation (3, 3) at q, fresh arrays: the
         placement pass only (the same numbers as :meth:`evaluate`'s ``ee_position`` and
         ``ee_rotation``, without its Jacobians and accelerations)."""
-        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
-        pose = self.data.oMf[self.ee_id]
-        return pose.translation.copy(), pose.rotation.copy()
+        R, p = self.placements(q, (self.ee_id,))
+        return p[0], R[0]
 
     def sphere_centers(self, q: np.ndarray) -> np.ndarray:
         """Collision-sphere centres at q: (k, 3) [m]."""
-        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
-        return np.array([self.data.oMf[i].translation for i in self.sphere_ids]).reshape(-1, 3)
+        return self.placements(q, self.sphere_ids)[1]
+
+
+#: pinocchio's revolute joint models and their axes in the joint frame
+_AXES = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
+         "JointModelRZ": (0.0, 0.0, 1.0)}
+
+
+def _revolute_chain(model) -> tuple | None:
+    """The joints as :func:`point_motion.joint_motion` takes them (placements from the parent
+    joints (n, 3, 3), (n, 3), unit axes (n, 3), parent indices (n,), −1: the base), or None
+    where a joint is not a one-degree-of-freedom revolute joint in configuration order
+    (pinocchio's calls answer then)."""
+    n = model.njoints - 1
+    R0, p0, axes = np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3))
+    parents = np.empty(n, np.int64)
+    for j in range(1, model.njoints):
+        joint = model.joints[j]
+        name = joint.shortname()
+        if name == "JointModelRevoluteUnaligned":
+            axis = np.asarray(joint.extract().axis, dtype=float)
+        elif name in _AXES:
+            axis = np.array(_AXES[name])
+        else:
+            return None
+        if joint.nq != 1 or joint.nv != 1 or joint.idx_q != j - 1 or joint.idx_v != j - 1:
+            return None
+        placement = model.jointPlacements[j]
+        R0[j - 1], p0[j - 1] = placement.rotation, placement.translation
+        axes[j - 1] = axis / np.linalg.norm(axis)
+        parents[j - 1] = model.parents[j] - 1
+    return R0, p0, axes, parents
