@@ -30,6 +30,45 @@ def test_numba_kernel_without_numba_is_a_config_error(monkeypatch):
         FabricGains(kernel="numba")
 
 
+def test_auto_is_compiled_exactly_where_numba_is_installed(robot_spec, monkeypatch):
+    assert FabricGains().kernel == "auto"
+    fabric = Fabric(FabricGains(), robot_spec.q_min, robot_spec.q_max)
+    assert fabric.compiled is compiled.AVAILABLE
+    monkeypatch.setattr(compiled, "AVAILABLE", False)
+    assert Fabric(FabricGains(), robot_spec.q_min, robot_spec.q_max).compiled is False
+
+
+@pytest.mark.parametrize("method", ["fabrics", "fpm", "cpm"])
+def test_the_episode_start_compiles_what_the_steps_call(method, tmp_path):
+    """After the controller's reset (Fabric.prepare_at_start) a whole episode's steps add no
+    compiled version to any fabric kernel: nothing compiles inside a step."""
+    pytest.importorskip("numba")
+    from tamedpuma.app.compose import compose
+    from tamedpuma.app.sweep import build
+    from tamedpuma.episode import run_episode
+    from tamedpuma.worlds.bullet import Simulator
+
+    cfg = compose("sweep", [f"method={method}", "+experiment=table1", "case=tomato_03",
+                            "without_obstacles=false", "recorder=none"])
+    built = build(cfg)
+    scenario = dataclasses.replace(built.scenario, max_steps=100)
+    kernels = compiled.kernels()
+    names = ("pair_rows", "near_pair_rows", "kernel", "goal_rows", "systems_solve")
+    steps = []
+    step = built.controller.step
+
+    def counted(obs):
+        before = {k: len(getattr(kernels, k).signatures) for k in names}
+        command = step(obs)
+        steps.append({k: len(getattr(kernels, k).signatures) - before[k] for k in names})
+        return command
+
+    built.controller.step = counted
+    with Simulator(built.spec, built.sim_config, built.disturbance) as sim:
+        run_episode(scenario, built.controller, sim, (), None, stop_on_success=True)
+    assert steps and all(not any(d.values()) for d in steps), steps[:3]
+
+
 def _close(a, b, what, rtol=1e-9):
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     scale = 1.0 + np.abs(a).max() if a.size else 1.0
@@ -42,8 +81,9 @@ def _close(a, b, what, rtol=1e-9):
 def test_compiled_kernels_match_the_numpy_reference(kinematics, robot_spec, ground, activation):
     pytest.importorskip("numba")
     gains = FabricGains(ground_enabled=ground, ground_height=0.3 if ground else 0.0,
-                        obstacle_activation=activation)
+                        obstacle_activation=activation, kernel="numpy")
     ref = Fabric(gains, robot_spec.q_min, robot_spec.q_max)
+    assert ref.compiled is False
     fast = Fabric(dataclasses.replace(gains, kernel="numba"), robot_spec.q_min, robot_spec.q_max)
     rng = np.random.default_rng(11)
     seen_clamped = False

@@ -12,6 +12,7 @@ import pytest
 from tamedpuma.app.config import robot_config
 from tamedpuma.robot import point_motion
 from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
+from tamedpuma.robot.rotations import matrix_to_quat_eigen
 
 TOL = dict(rtol=1e-12, atol=1e-12)
 
@@ -82,7 +83,7 @@ def test_the_quaternion_is_eigens(kin):
     rng = np.random.default_rng(2)
     for _ in range(200):
         R = pin.Quaternion(*rng.normal(size=4)).normalized().matrix()  # every branch
-        np.testing.assert_allclose(point_motion.quaternion(R), pin.Quaternion(R).coeffs(),
+        np.testing.assert_allclose(matrix_to_quat_eigen(R), pin.Quaternion(R).coeffs(),
                                    rtol=0, atol=1e-15)
 
 

@@ -1,4 +1,5 @@
-"""Optional compiled (numba) kernels of the fabric's hot path: ``fabric.kernel=numba``.
+"""Compiled (numba) kernels of the fabric's hot path: ``fabric.kernel=auto`` (the default:
+compiled where numba is installed, the ``fast`` extra) or ``numba``; ``numpy``: the reference.
 
 The same maths as :class:`~tamedpuma.fabrics.fused.LayoutBuffers` (the sphere × obstacle pair
 rows of ``barrier_rows``, ``barrier_kernel``, the goal rows of ``goal_rows``) and of
@@ -7,8 +8,11 @@ loops that numba compiles: at a few obstacles the numpy version is ~60 small num
 costing more in call overhead than in arithmetic; here they are four. The numpy version stays
 the reference: the tests check both against each other (to rounding, ~1e-13 relative: sums are
 reassociated, products fused, and the 7 × 7 solves are Gaussian elimination instead of LAPACK's),
-and without numba installed (``pip install 'tamedpuma[fast]'``) :data:`AVAILABLE` is False and
-asking for the numba kernel is a configuration error. numba is imported only then.
+and without numba installed (``pip install 'tamedpuma[fast]'``) :data:`AVAILABLE` is False,
+``auto`` is the numpy version and asking for ``numba`` is a configuration error. numba is
+imported only when the compiled kernels are used. Each kernel compiles for the argument types of
+its first call (a few seconds, then from numba's on-disk cache): the methods make that call
+when an episode starts (:meth:`~tamedpuma.fabrics.fabric.Fabric.prepare`), never inside a step.
 
 Pair ``(i, j)``, with ``d = c_i − o_j``, ``v = J_i q̇ − ȯ_j``, ``a = J̇_i q̇``, ``R = r_i + r_j``
 (leaves.sphere_obstacle_pairs): ``x = ‖d‖/R − 1``, ``ẋ = dᵀv/(‖d‖R)``,
@@ -29,7 +33,7 @@ import numpy as np
 #: numba is installed (the optional ``fast`` extra); it is imported only when a fabric asks for
 #: the compiled kernels (importing it costs ~0.5 s), by :func:`kernels`
 AVAILABLE = importlib.util.find_spec("numba") is not None
-KERNELS = ("numpy", "numba")
+KERNELS = ("auto", "numpy", "numba")
 _COMPILED: SimpleNamespace | None = None
 
 
@@ -292,3 +296,9 @@ def check(kernel_name: str) -> None:
         raise ValueError(f"fabric.kernel must be one of {list(KERNELS)}, got {kernel_name!r}")
     if kernel_name == "numba" and not AVAILABLE:
         raise ValueError("fabric.kernel=numba needs numba: pip install 'tamedpuma[fast]'")
+
+
+def wanted(kernel_name: str) -> bool:
+    """Whether ``fabric.kernel`` asks for the compiled kernels: ``numba`` always, ``auto`` where
+    numba is installed, ``numpy`` never."""
+    return kernel_name == "numba" or (kernel_name == "auto" and AVAILABLE)

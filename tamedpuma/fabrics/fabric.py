@@ -33,6 +33,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from tamedpuma.fabrics import compiled
 from tamedpuma.fabrics.discrete import FarRows
 from tamedpuma.fabrics.energy import attractor_blocks
 from tamedpuma.fabrics.fused import LayoutBuffers, orientation_maps
@@ -207,6 +208,7 @@ class Fabric:
         self._offsets = gains.orientation_offset * np.eye(3)[axes]
         self._tx, self._tb = orientation_maps(axes, gains.orientation_offset)
         self._weight_list = [gains.goal_weight] + [gains.orientation_weight] * len(axes)
+        self.compiled = compiled.wanted(gains.kernel)  # the kernels of fabrics.compiled
 
     def buffers(self) -> FabricBuffers:
         """Fresh work buffers for this fabric's calls (what an episode state keeps)."""
@@ -216,10 +218,47 @@ class Fabric:
                   buffers: FabricBuffers | None):
         """Fill a layout's barrier rows; returns (its buffers, H_{L_e}, n_clamped, n_limit)."""
         own = buffers if buffers is not None else self.buffers()
+        if self.compiled:  # the compiled kernels' argument types: writable C arrays, always
+            qd, obstacle_centers = _own(qd), _own(obstacle_centers)
+            obstacle_radii, obstacle_velocities = _own(obstacle_radii), _own(obstacle_velocities)
         ws = own.layout(state.sphere_centers.shape[0], obstacle_centers.shape[0])
         n_clamped, n_limit = ws.barrier_rows(state, q, qd, obstacle_centers, obstacle_radii,
                                              obstacle_velocities, self.gains)
         return ws, ws.barrier_kernel(), n_clamped, n_limit
+
+    def prepare(self, state, q, obstacle_centers, obstacle_radii, obstacle_velocities,
+                goal_position=None, goal_rotation=None,
+                buffers: FabricBuffers | None = None) -> None:
+        """One :meth:`avoidance` (and with a goal one :meth:`evaluate`) at rest at (q, state)
+        among the obstacles, the results dropped: the compiled kernels (``kernel`` numba, or
+        auto with numba installed) compile, or load from numba's cache, for this layout's
+        argument types and the ``buffers`` are allocated for it, before an episode's first step
+        rather than inside it. A state the fabric refuses (FabricError) is left for the step."""
+        if not self.compiled:
+            return
+        rest = np.zeros(self.n)
+        try:
+            self.avoidance(state, q, rest, obstacle_centers, obstacle_radii,
+                           obstacle_velocities, buffers)
+            if goal_position is not None:
+                self.evaluate(state, q, rest, obstacle_centers, obstacle_radii,
+                              obstacle_velocities, goal_position, goal_rotation, buffers)
+        except FabricError:
+            pass
+
+    def prepare_at_start(self, kinematics, scenario, buffers: FabricBuffers | None,
+                         with_goal: bool = False) -> None:
+        """:meth:`prepare` at the scenario's start: q0 at rest, the obstacles at t = 0 and,
+        with ``with_goal``, the goal (kinematics: the controller's, whose ``evaluate`` gives
+        the state)."""
+        if not self.compiled:
+            return
+        q0 = np.asarray(scenario.q0, dtype=float)
+        state = kinematics.evaluate(q0, np.zeros_like(q0))
+        obstacles, goal = scenario.obstacles, scenario.goal
+        self.prepare(state, q0, obstacles.centers, obstacles.radii, obstacles.velocities,
+                     goal.position if with_goal else None,
+                     quat_to_matrix(goal.quaternion) if with_goal else None, buffers)
 
     def avoidance(self, state, q, qd, obstacle_centers, obstacle_radii,
                   obstacle_velocities, buffers: FabricBuffers | None = None) -> AvoidanceFabric:
@@ -284,6 +323,8 @@ class Fabric:
         non-finite input or output (never a silent zero acceleration).
         """
         g = self.gains
+        if self.compiled:  # as in _barriers
+            qd, goal_position, goal_rotation = _own(qd), _own(goal_position), _own(goal_rotation)
         ws, energy, n_clamped, n_limit = self._barriers(
             state, q, qd, obstacle_centers, obstacle_radii, obstacle_velocities, buffers)
         psi, r = ws.goal_rows(state, qd, goal_position, goal_rotation, g, self._tx, self._tb,
@@ -324,3 +365,9 @@ class Fabric:
             ground_clearance=ground, n_clamped=n_clamped, n_limit_clamped=n_limit,
             goal_distance=r[0], orientation_error=sum(r[1:]))
         return qdd, diag
+
+
+def _own(a) -> np.ndarray:
+    """A writable C-contiguous float copy of a (the one argument type the compiled kernels are
+    compiled for, whatever the caller's arrays: read-only observations, views)."""
+    return np.array(a, dtype=float)

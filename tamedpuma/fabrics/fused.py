@@ -180,9 +180,10 @@ class LayoutBuffers:
         self.barrier_index = np.r_[0:self.P + 2 * n, self.L:self.Rb]
         self.barrier_blocks = (slice(0, self.P + 2 * n), slice(self.L, self.Rb))
         self.q_min, self.q_max = np.array(q_min, dtype=float), np.array(q_max, dtype=float)
-        # fabric.kernel=numba: the pair rows, the kernel and the goal rows by :mod:`compiled`
-        # (the numpy code below is the reference it is tested against)
-        self.compiled = compiled.kernels() if gains.kernel == "numba" else None
+        # fabric.kernel numba (auto where numba is installed): the pair rows, the kernel and the
+        # goal rows by :mod:`compiled` (the numpy code below is the reference it is tested
+        # against)
+        self.compiled = compiled.kernels() if compiled.wanted(gains.kernel) else None
         self._build_design_matrix()
         self._build_kernel_inputs()
         self._build_kernel_constants(gains)

@@ -86,9 +86,10 @@ class FabricGains:
       ``β = ½ damping_close (tanh(−damping_slope (‖e‖ − damping_radius)) + 1) + damping_far
       + max(0, α_G − α_ex)`` [1/s].
     energization_eps: ε added to ``q̇ᵀMq̇`` in energization denominators [(rad/s)²].
-    kernel: ``numpy`` (the reference) or ``numba`` (:mod:`tamedpuma.fabrics.compiled`: the same
-      maths compiled, equal to rounding; needs the ``fast`` extra): how the pair rows and the
-      barrier kernel are computed.
+    kernel: how the pair rows, the barrier kernel, the goal rows and the solve are computed:
+      ``numpy`` (the reference), ``numba`` (:mod:`tamedpuma.fabrics.compiled`: the same maths
+      compiled, equal to rounding; needs the ``fast`` extra) or ``auto`` (numba where it is
+      installed, else numpy).
     """
 
     base_metric: float = 0.2
@@ -116,7 +117,7 @@ class FabricGains:
     damping_radius: float = 0.02
     damping_far: float = 0.01
     energization_eps: float = 1.0e-6
-    kernel: str = "numpy"
+    kernel: str = "auto"
 
     def __post_init__(self):
         positive = ("base_metric", "barrier_margin", "goal_potential_gain", "goal_sharpness",

@@ -243,6 +243,7 @@ class TamedController:
     def reset(self, scenario: Scenario) -> None:
         self.puma.reset(scenario)
         self.episode = self.new_episode(float(scenario.dt))
+        self.fabric.prepare_at_start(self.kinematics, scenario, self.episode.fabric)
         configuration = self.episode.configuration
         if configuration is not None:  # the goal's IK before the first step
             configuration.prepare(scenario.goal.position, scenario.goal.quaternion, scenario.q0)

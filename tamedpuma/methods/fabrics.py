@@ -61,6 +61,8 @@ class FabricsController:
     def reset(self, scenario: Scenario) -> None:
         """Start an episode: forget warnings and the cached goal; warn if q0 is on/past a limit."""
         self.episode = FabricsEpisode(self.fabric.buffers())
+        self.fabric.prepare_at_start(self.kinematics, scenario, self.episode.buffers,
+                                     with_goal=True)
         spec = self.kinematics.spec
         q0 = np.asarray(scenario.q0, dtype=float)
         margin = self.gains.barrier_margin

@@ -322,7 +322,7 @@ class Kinematics:
         return KinematicState(
             ee_position=p[0],
             ee_rotation=R[0],
-            ee_quaternion=fast["quaternion"](R[0]),
+            ee_quaternion=fast["matrix_to_quat_eigen"](R[0]),
             ee_jacobian=J[0],
             ee_jdqd=acc[0],  # [linear; angular]
             sphere_centers=centers,
@@ -438,7 +438,7 @@ class Kinematics:
         """(x, y, z, w) of a rotation matrix, as :meth:`evaluate`'s ``ee_quaternion``."""
         if self._fast is None:
             return pin.Quaternion(R).coeffs().copy()
-        return self._fast["quaternion"](np.ascontiguousarray(R))
+        return self._fast["matrix_to_quat_eigen"](np.ascontiguousarray(R))
 
     def link_poses(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Poses of ``spec.link_names`` at q: positions (L, 3) [m], quaternions (L, 4) (x,y,z,w)."""

@@ -19,7 +19,8 @@ and, summed over the joints k that support it (the mask s),
 acceleration at q̈ = 0, the numbers of pinocchio's ``getFrameJacobian`` and
 ``getFrameClassicalAcceleration`` (LOCAL_WORLD_ALIGNED) to rounding, without their Python call
 per frame and quantity (tests/test_point_motion.py holds them to 1e-12 and to finite
-differences). :func:`quaternion` is Eigen's conversion of a rotation matrix (x, y, z, w).
+differences). The end effector's quaternion is Eigen's conversion, as pinocchio's
+(:func:`~tamedpuma.robot.rotations.matrix_to_quat_eigen`).
 
 The functions are plain Python loops: compiled by numba the end effector and every body sphere
 are two calls of a few microseconds; run plain they are slower than pinocchio's own calls, so
@@ -34,6 +35,8 @@ import math
 import warnings
 
 import numpy as np
+
+from tamedpuma.robot.rotations import matrix_to_quat_eigen
 
 #: numba is installed (imported only by :func:`compiled`)
 AVAILABLE = importlib.util.find_spec("numba") is not None
@@ -141,36 +144,7 @@ def frame_motion(S, qd, parents, Rf, pf, support, rows):
     return Rw, p, jac, acc
 
 
-def quaternion(m):
-    """The unit quaternion (x, y, z, w) of the rotation matrix m (3, 3): Eigen's conversion
-    (the trace branch, else the largest diagonal entry's)."""
-    out = np.empty(4)
-    t = m[0, 0] + m[1, 1] + m[2, 2]
-    if t > 0.0:
-        t = math.sqrt(t + 1.0)
-        out[3] = 0.5 * t
-        t = 0.5 / t
-        out[0] = (m[2, 1] - m[1, 2]) * t
-        out[1] = (m[0, 2] - m[2, 0]) * t
-        out[2] = (m[1, 0] - m[0, 1]) * t
-    else:
-        i = 0
-        if m[1, 1] > m[0, 0]:
-            i = 1
-        if m[2, 2] > m[i, i]:
-            i = 2
-        j = (i + 1) % 3
-        k = (j + 1) % 3
-        t = math.sqrt(m[i, i] - m[j, j] - m[k, k] + 1.0)
-        out[i] = 0.5 * t
-        t = 0.5 / t
-        out[3] = (m[k, j] - m[j, k]) * t
-        out[j] = (m[j, i] + m[i, j]) * t
-        out[k] = (m[k, i] + m[i, k]) * t
-    return out
-
-
-FUNCTIONS = (joint_motion, frame_motion, quaternion)
+FUNCTIONS = (joint_motion, frame_motion, matrix_to_quat_eigen)
 
 
 def compiled() -> dict | None:
@@ -203,6 +177,6 @@ def _first_calls(fast: dict, n: int = 2) -> None:
     for rows in (3, 6):
         fast["frame_motion"](state, q, np.zeros(1, np.int64), eye[None], np.zeros((1, 3)),
                              np.ones((1, n), np.bool_), rows)
-    fast["quaternion"](eye)
+    fast["matrix_to_quat_eigen"](eye)
     for f in fast.values():
         f.disable_compile()

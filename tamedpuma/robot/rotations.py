@@ -242,6 +242,37 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     return q.reshape(*shape, 4)
 
 
+def matrix_to_quat_eigen(m: np.ndarray) -> np.ndarray:
+    """The quaternion (x, y, z, w) of one rotation matrix m (3, 3) by Eigen's conversion (the
+    trace branch, else the largest diagonal entry's; w not made ≥ 0), the numbers of
+    pinocchio's ``SE3ToXYZQUAT`` and ``Quaternion(R)``; scalar code that numba compiles
+    (:mod:`tamedpuma.robot.point_motion`)."""
+    out = np.empty(4)
+    t = m[0, 0] + m[1, 1] + m[2, 2]
+    if t > 0.0:
+        t = math.sqrt(t + 1.0)
+        out[3] = 0.5 * t
+        t = 0.5 / t
+        out[0] = (m[2, 1] - m[1, 2]) * t
+        out[1] = (m[0, 2] - m[2, 0]) * t
+        out[2] = (m[1, 0] - m[0, 1]) * t
+    else:
+        i = 0
+        if m[1, 1] > m[0, 0]:
+            i = 1
+        if m[2, 2] > m[i, i]:
+            i = 2
+        j = (i + 1) % 3
+        k = (j + 1) % 3
+        t = math.sqrt(m[i, i] - m[j, j] - m[k, k] + 1.0)
+        out[i] = 0.5 * t
+        t = 0.5 / t
+        out[3] = (m[k, j] - m[j, k]) * t
+        out[j] = (m[j, i] + m[i, j]) * t
+        out[k] = (m[k, i] + m[i, k]) * t
+    return out
+
+
 def quats_to_matrices(q: np.ndarray) -> np.ndarray:
     """Quaternions (..., 4) (x, y, z, w) → rotation matrices (..., 3, 3) (normalised first)."""
     q = np.asarray(q, float)
