@@ -199,6 +199,8 @@ def test_method_variants_add_their_overrides(monkeypatch):
     assert bench_timing.method_overrides("fpm") == ("fpm", [])
     with pytest.raises(ValueError, match="unknown variant"):
         bench_timing.method_overrides("fpm+fortran")
+    assert bench_timing.method_overrides("fabrics+numpy") == ("fabrics",
+                                                       ["method.fabric.kernel=numpy"])
     monkeypatch.setattr(compiled, "AVAILABLE", True)
     assert bench_timing.method_overrides("fabrics+numba") == ("fabrics",
                                                        ["method.fabric.kernel=numba"])

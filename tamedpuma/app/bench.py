@@ -59,8 +59,8 @@ from tamedpuma.app.bench_workers import time_episodes, time_side_by_side
 from tamedpuma.paths import CHECKOUT_ROOT
 
 COUNTS = (2, 10, 100, 1000)
-METHODS = ("puma", "fabrics", "fabrics+numba", "fpm", "fpm+numba", "cpm", "modulation_ik")
-PARTS = ("fabrics", "fabrics+numba", "puma", "fpm", "fpm+numba", "cpm", "modulation_ik")
+METHODS = ("puma", "fabrics", "fabrics+numpy", "fpm", "fpm+numpy", "cpm", "modulation_ik")
+PARTS = ("fabrics", "fabrics+numpy", "puma", "fpm", "fpm+numpy", "cpm", "modulation_ik")
 
 
 def load_averages() -> list[float] | None:
@@ -137,7 +137,7 @@ def new_report(args, command: str) -> dict:
     from tamedpuma.fabrics import compiled
 
     machine = machine_info()
-    if compiled.AVAILABLE:  # the optional fast extra (fabric.kernel=numba)
+    if compiled.AVAILABLE:  # the optional fast extra (the compiled fabric and kinematics)
         from importlib.metadata import version
 
         machine["numba"] = version("numba")

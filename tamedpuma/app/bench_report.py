@@ -11,8 +11,8 @@ SECTION = "Controller step"
 #: The speed targets: median [ms] per (method, obstacle count).
 TARGET_MS = {("fpm", 2): 0.2, ("cpm", 2): 0.3, ("fpm", 1000): 0.6, ("cpm", 1000): 0.8,
              ("fabrics", 2): 0.05, ("fabrics", 1000): 0.2, ("modulation_ik", 2): 1.0,
-             ("fabrics+numba", 2): 0.05, ("fabrics+numba", 1000): 0.2,
-             ("fpm+numba", 2): 0.2, ("fpm+numba", 1000): 0.6}
+             ("fabrics+numpy", 2): 0.05, ("fabrics+numpy", 1000): 0.2,
+             ("fpm+numpy", 2): 0.2, ("fpm+numpy", 1000): 0.6}
 #: The paper's laptop figures [ms] (i7-12700H): Table 1 (2 obstacles) and the 1000-obstacle claim.
 PAPER_MS = {("puma", 2): 4.41, ("modulation_ik", 2): 7.08, ("fabrics", 2): 0.39,
             ("fpm", 2): 5.22, ("cpm", 2): 6.55, ("fpm", 1000): 5.9, ("cpm", 1000): 7.0,
@@ -25,7 +25,9 @@ WHY = {
                "over the 5000 pairs' distances, then rows, kernel and products of the pairs "
                "within the activation distance x_a only (~2% of them on the bench's states: "
                "`fused.LayoutBuffers._gathered_pair_rows`; the others have metric 0). "
-               "`fabrics+numba` compiles that pass, the kernel and the products.",
+               "Where numba is installed the kinematics and that pass, the kernel and the "
+               "products are compiled (`fabric.kernel: auto`); `fabrics+numpy` computes the "
+               "fabric with the numpy reference.",
     "fpm": "Kinematics, fabric and network are the vanilla costs above; the rest is FPM's "
            "forcing (PUMA's obstacle-free pull, the directional metric, the "
            "weighted pullback, the control-rate barrier step over the barrier rows "
@@ -34,7 +36,8 @@ WHY = {
            "5000 pairs' distances. "
            "What is left at 2 obstacles is per-call overhead spread over ~290 function calls "
            "(cProfile; no part above the network's ~35 µs and the fabric's ~30 µs); the "
-           "`+numba` variant compiles the fabric; a compiled network is the next candidate "
+           "`+numpy` variant computes the fabric with the numpy reference instead of the "
+           "compiled kernels; a compiled network is the next candidate "
            "(not tried: its products would differ from BLAS's in the last bits).",
     "cpm": "As FPM, plus ψ and ∂ψ (the rest row of the network's pass and a hand-written "
            "backward pass) and the regulator.",

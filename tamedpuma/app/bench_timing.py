@@ -19,14 +19,16 @@ import numpy as np
 
 from tamedpuma.app.bench_fabrics import random_obstacles
 
-#: "<method>+<variant>": the method with extra overrides
-VARIANTS = {"numba": ["method.fabric.kernel=numba"]}
+#: "<method>+<variant>": the method with extra overrides (numpy: the fabric's reference
+#: computation; numba: its compiled kernels, what the default ``auto`` is where numba is
+#: installed)
+VARIANTS = {"numpy": ["method.fabric.kernel=numpy"], "numba": ["method.fabric.kernel=numba"]}
 N_STATES = 16  #: prepared joint states cycled through by every cell
 ROUNDS = 10  #: rounds of interleaved calls per part in :func:`time_parts` (one more warms up)
 
 
 def method_overrides(label: str) -> tuple[str, list[str]]:
-    """``"fabrics+numba"`` -> ``("fabrics", ["method.fabric.kernel=numba"])``; a plain method
+    """``"fabrics+numpy"`` -> ``("fabrics", ["method.fabric.kernel=numpy"])``; a plain method
     name -> (it, []). ValueError for an unknown variant, or numba asked for but not installed."""
     method, _, variant = label.partition("+")
     if not variant:

@@ -308,13 +308,21 @@ class Kinematics:
 
         Compiled (:mod:`tamedpuma.robot.point_motion`, where numba is installed): one pass over
         the joints, then the end effector's and the body spheres' placements, Jacobians and
-        curvature terms J̇q̇, three calls in all. Otherwise one pinocchio pass and one pinocchio
-        call per frame and quantity: the same numbers to rounding. Every array is fresh.
+        curvature terms J̇q̇, three calls in all. Otherwise one pinocchio call per frame and
+        quantity: the same numbers to rounding. Either way pinocchio's data holds its own pass
+        at (q, q̇) afterwards (placements, joint Jacobians, accelerations at q̈ = 0), for code
+        that reads the model's frames. Every array is fresh.
         """
         q, qd = self._vector(q), self._vector(qd)
         if self._fast is None:
             return self._evaluate_per_frame(q, qd)
         fast = self._fast
+        # pinocchio's own pass too (~2 µs): its data stays the pass at (q, q̇) for whoever reads
+        # the model's frames after evaluate (a method plugin's, e.g. pink's Configuration)
+        model, data = self.model, self.data
+        pin.forwardKinematics(model, data, q, qd, self._zeros)
+        pin.computeJointJacobians(model, data)
+        pin.updateFramePlacements(model, data)
         state = fast["joint_motion"](q, qd, *self._chain)
         self._state = (state, qd)
         R, p, J, acc = fast["frame_motion"](state, qd, *self._ee_table, 6)
@@ -406,6 +414,8 @@ class Kinematics:
             pose = pin.SE3ToXYZQUAT(ee)  # fresh, as evaluate's ee_position
             return (pose[:3], ee.rotation.copy(),
                     pin.getFrameJacobian(model, data, self.ee_id, _WORLD))
+        pin.forwardKinematics(self.model, self.data, q)  # pinocchio's data too, as evaluate
+        pin.computeJointJacobians(self.model, self.data)
         R, p, J, _ = self._frames(q, np.zeros(self.model.nv), self._ee_table, 6)
         return p[0], R[0], J[0]
 
@@ -431,6 +441,7 @@ class Kinematics:
             oMf = self.data.oMf
             return (np.array([oMf[i].rotation for i in frame_ids]).reshape(-1, 3, 3),
                     np.array([oMf[i].translation for i in frame_ids]).reshape(-1, 3))
+        pin.framesForwardKinematics(self.model, self.data, q)  # pinocchio's data too
         R, p, _, _ = self._frames(q, np.zeros(self.model.nv), self._table(frame_ids), 3)
         return R, p
 
