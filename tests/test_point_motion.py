@@ -124,3 +124,13 @@ def test_without_numba_the_kinematics_uses_pinocchios_calls(kin, monkeypatch):
         np.testing.assert_allclose(getattr(got, name), getattr(want, name), **TOL)
     _, _, jac = kin.ee_pose_jacobian(q)
     np.testing.assert_allclose(jac, want.ee_jacobian, **TOL)
+
+
+def test_a_vector_of_the_wrong_size_is_a_value_error(kin):
+    """The compiled functions do not check bounds: the kinematics does, before calling them."""
+    n = kin.model.nv
+    for bad in (np.zeros(n - 1), np.zeros(n + 1), np.zeros((n, 1))):
+        with pytest.raises(ValueError, match=f"expected a vector of {n} joint values"):
+            kin.evaluate(bad, np.zeros(n))
+        with pytest.raises(ValueError, match=f"expected a vector of {n} joint values"):
+            kin.ee_pose_jacobian(bad)
