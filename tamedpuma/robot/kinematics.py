@@ -323,10 +323,9 @@ class Kinematics:
         pin.forwardKinematics(model, data, q, qd, self._zeros)
         pin.computeJointJacobians(model, data)
         pin.updateFramePlacements(model, data)
-        state = fast["joint_motion"](q, qd, *self._chain)
-        self._state = (state, qd)
-        R, p, J, acc = fast["frame_motion"](state, qd, *self._ee_table, 6)
-        _, centers, jacobians, jdqd = fast["frame_motion"](state, qd, *self._sphere_table, 3)
+        R, p, J, acc = self._frames(q, qd, self._ee_table, 6)
+        _, centers, jacobians, jdqd = fast["frame_motion"](self._state[0], qd,
+                                                           *self._sphere_table, 3)
         return KinematicState(
             ee_position=p[0],
             ee_rotation=R[0],
@@ -379,7 +378,7 @@ class Kinematics:
                 R[n], p[n] = oMf[fid].rotation, oMf[fid].translation
             return R, p
         state, qd = self._state
-        R, p, _, _ = self._fast["frame_motion"](state, qd, *self._table(ids), 3)
+        R, p, _, _ = self._fast["frame_motion"](state, qd, *self._table(ids), 0)
         return R, p
 
     def frame_motion(self, frame_ids) -> tuple[np.ndarray, np.ndarray]:
@@ -442,7 +441,7 @@ class Kinematics:
             return (np.array([oMf[i].rotation for i in frame_ids]).reshape(-1, 3, 3),
                     np.array([oMf[i].translation for i in frame_ids]).reshape(-1, 3))
         pin.framesForwardKinematics(self.model, self.data, q)  # pinocchio's data too
-        R, p, _, _ = self._frames(q, np.zeros(self.model.nv), self._table(frame_ids), 3)
+        R, p, _, _ = self._frames(q, np.zeros(self.model.nv), self._table(frame_ids), 0)
         return R, p
 
     def _quaternion(self, R: np.ndarray) -> np.ndarray:

@@ -94,9 +94,9 @@ def joint_motion(q, qd, R0, p0, axes, parents):
 
 def frame_motion(S, qd, parents, Rf, pf, support, rows):
     """The frames' world rotations (F, 3, 3), origins (F, 3) [m], Jacobians (F, rows, n) and
-    J̇q̇ (F, rows) (rows 3: the position rows; 6: [linear; angular]) from :func:`joint_motion`'s
-    joint state S; each frame fixed to joint ``parents[f]`` at (Rf[f], pf[f]), moved by the
-    joints ``support[f]`` (bool (n,))."""
+    J̇q̇ (F, rows) (rows 0: the placements only; 3: the position rows; 6: [linear; angular])
+    from :func:`joint_motion`'s joint state S; each frame fixed to joint ``parents[f]`` at
+    (Rf[f], pf[f]), moved by the joints ``support[f]`` (bool (n,))."""
     F, n = parents.shape[0], S.shape[0]
     R, o, z, w, od = S[:, :3], S[:, 3], S[:, 4], S[:, 5], S[:, 6]
     Rw, p = np.empty((F, 3, 3)), np.empty((F, 3))
@@ -113,6 +113,8 @@ def frame_motion(S, qd, parents, Rf, pf, support, rows):
                                + R[j, a, 2] * Rf[f, 2, b])
             p[f, a] = (R[j, a, 0] * pf[f, 0] + R[j, a, 1] * pf[f, 1]
                        + R[j, a, 2] * pf[f, 2]) + o[j, a]
+        if rows == 0:  # placements only
+            continue
         px, py, pz = p[f, 0], p[f, 1], p[f, 2]
         rx, ry, rz = px - o[j, 0], py - o[j, 1], pz - o[j, 2]
         vx = od[j, 0] + (w[j, 1] * rz - w[j, 2] * ry)  # ṗ
@@ -174,7 +176,7 @@ def _first_calls(fast: dict, n: int = 2) -> None:
     q, eye = np.zeros(n), np.eye(3)
     state = fast["joint_motion"](q, q, np.stack([eye] * n), np.zeros((n, 3)),
                                  np.tile([0.0, 0.0, 1.0], (n, 1)), np.arange(n) - 1)
-    for rows in (3, 6):
+    for rows in (0, 3, 6):
         fast["frame_motion"](state, q, np.zeros(1, np.int64), eye[None], np.zeros((1, 3)),
                              np.ones((1, n), np.bool_), rows)
     fast["matrix_to_quat_eigen"](eye)
