@@ -55,9 +55,8 @@ def scalar_log():
 def point_scale_forcing(monkeypatch):
     """The metric forcing's constants at the point robot's scale: the task metric w = 20 and no
     elbow objective (the iiwa's w = 100 outweighs the point's 0.2 m barrier metric until the
-    point touches it), circulation from head-on out to 90°."""
+    point touches it)."""
     from tamedpuma.methods import _tamed
 
     monkeypatch.setattr(_tamed, "TASK_WEIGHT", 20.0)
     monkeypatch.setattr(_tamed, "NULL_METRIC", 0.0)
-    monkeypatch.setattr(_tamed, "CIRCULATION_ONSET", 0.0)

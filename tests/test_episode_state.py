@@ -168,7 +168,7 @@ def test_a_step_writes_nothing_outside_the_episode_state(method):
     built = _built(method)
     controller, scenario = built.controller, built.scenario
     controller.reset(scenario)
-    at = _roll(controller, scenario, 1)  # the first step's own work (e.g. CPM's tank) done
+    at = _roll(controller, scenario, 1)  # the first step's own work done
     kept = _fingerprint(controller)
     at = _roll(controller, scenario, STEPS, at)
     assert _fingerprint(controller) == kept

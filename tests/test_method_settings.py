@@ -12,7 +12,7 @@ import pytest
 from tamedpuma.app import schema
 
 #: the current counts; docs/method.md lists each addition behind them
-BUDGET = {"FpmMethod": 12, "CpmMethod": 16}
+BUDGET = {"FpmMethod": 8, "CpmMethod": 11}
 
 
 def leaves(cls, prefix: str = "") -> list[str]:

@@ -190,8 +190,6 @@ def test_a_value_out_of_range_is_refused(hydra_conf, override, match):
 
 @pytest.mark.parametrize("override,match", [
     ("method.beta=-1", r"method\.beta"),
-    ("method.tank=-1", r"method\.tank"),
-    ("method.alpha_bound=-1", r"method\.alpha_bound"),
     ("method.damping=soft", r"method\.damping must be constant or matched"),
     ("method.fabric.goal_weight=-1", r"fabric\.goal_weight"),
     ("method.fabric.obstacle.energy_gain=0", r"energy_gain must be positive"),
@@ -247,7 +245,7 @@ def test_defaults_are_typed_objects_and_complete(hydra_conf):
     run = schema.run_config(compose("sweep", overrides=["method=cpm_literal"]))
     assert run.method.damping == "constant" and run.method.label == "cpm_literal"
     plain = schema.as_dict(run.method)
-    assert {"beta", "tank", "variant", "alpha_bound", "control_rate", "pinv_damping",
+    assert {"beta", "variant", "control_rate", "pinv_damping",
             "checkpoint", "null_space", "fabric"} <= set(plain)
     from tamedpuma.worlds.bullet import SimConfig
 

@@ -199,11 +199,10 @@ def _controller(name: str, pull: float):
     fabric = Fabric(FabricGains.from_mapping(None), SPEC.q_min, SPEC.q_max)
     forcing = Forcing(mode="metric", stall_pull=pull)
     if name == "fpm":
-        return FpmController(puma, fabric, energy="execution", forcing=forcing)
+        return FpmController(puma, fabric, forcing=forcing)
     return CpmController(puma, fabric, beta=8.0, eps=1e-6, variant="paper", regulator_scale=1.0,
                          potential_scale=1.0, damping="matched",
-                         rate=ControlRate(semi_implicit=True), energy="execution",
-                         forcing=forcing)
+                         rate=ControlRate(semi_implicit=True), forcing=forcing)
 
 
 def test_cpm_held_at_its_potentials_minimum_on_an_obstacle_reaches_the_goal_with_the_pull():

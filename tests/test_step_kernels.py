@@ -12,7 +12,6 @@ import pytest
 from tamedpuma.fabrics.discrete import barrier_step
 from tamedpuma.fabrics.spec import FabricError
 from tamedpuma.methods import _kernels
-from tamedpuma.methods._circulation import Circulation, TangentSpecs
 from tamedpuma.methods._ground_rows import HullTable
 from tamedpuma.methods._ground_rows import hull_ground_rows as fused_ground_rows
 from tamedpuma.methods._policy import TaskAcceleration, pull_to_joints
@@ -53,11 +52,8 @@ def _case(seed: int):
     task = TaskAcceleration(rng.standard_normal(M_ROWS), rng.standard_normal((M_ROWS, N)),
                             rng.standard_normal(M_ROWS))
     null = rng.standard_normal(N) if seed % 3 else None
-    k = int(rng.integers(0, 3))
-    extra = TangentSpecs(rng.standard_normal((k, N)), rng.standard_normal(k),
-                         rng.random(k) * 100.0) if k else None
     forcing = Forcing(mode=("metric", "task_metric")[seed % 2], directional=seed % 5 != 0)
-    return rng, av, task, null, extra, forcing
+    return rng, av, task, null, forcing
 
 
 def _close(a, b, rel=1e-12):
@@ -69,12 +65,12 @@ def _close(a, b, rel=1e-12):
 
 @pytest.mark.parametrize("seed", range(40))
 def test_the_fused_forcing_is_the_numpy_forcing(seed):
-    rng, av, task, null, extra, forcing = _case(seed)
+    rng, av, task, null, forcing = _case(seed)
     target = task.xdd - task.jdqd
     qdd_free = free_pull(task, target, 0.01, null)
     assert _close(qdd_free, pull_to_joints(task, 0.01, null))
-    got = forced_through_metric(av, task, target, forcing, null, extra, qdd_free)
-    want = forced_reference(av, task, forcing, null, extra, qdd_free)
+    got = forced_through_metric(av, task, target, forcing, null, qdd_free)
+    want = forced_reference(av, task, forcing, null, qdd_free)
     for g, w in zip(got, want):
         assert _close(g, w)
 
@@ -88,16 +84,14 @@ def _plain_and_compiled(name, *args):
 
 @pytest.mark.parametrize("seed", range(40))
 def test_compiled_and_plain_kernels_agree_to_rounding(seed):
-    rng, av, task, null, extra, forcing = _case(seed)
+    rng, av, task, null, forcing = _case(seed)
     target = task.xdd - task.jdqd
     has_null = null is not None
     null = null if has_null else target[:0]
     plain, fast = _plain_and_compiled("damped_pull", task.J, target, 1e-4, null, has_null)
     assert _close(fast, plain)
-    ext = extra or TangentSpecs(np.empty((0, N)), np.empty(0), np.empty(0))
     args = (av.M, av.f, av.barrier_rows, av.barrier_metric, task.J, 100.0, target, 0.05, null,
-            has_null, ext.rows, ext.weights, ext.targets, plain, forcing.directional,
-            forcing.mode == "task_metric")
+            has_null, plain, forcing.directional, forcing.mode == "task_metric")
     plain, fast = _plain_and_compiled("metric_forcing", *args)
     for p, f in zip(plain, fast):
         assert _close(f, p)
@@ -149,22 +143,37 @@ def test_after_the_warm_up_nothing_compiles_and_new_types_run_plain():
     assert kernel.fast is None and "No matching definition" in kernel.demoted  # plain for good
 
 
-def test_the_step_passes_the_types_the_warm_up_compiled(kinematics, monkeypatch):
-    """Read-only radii (the kinematic state's, the simulator's) included: no kernel of the
-    circulation on the arm is demoted to plain."""
+@pytest.mark.parametrize("method", ["fpm", "cpm"])
+def test_the_step_passes_the_types_the_warm_up_compiled(method, monkeypatch):
+    """FPM's and CPM's steps among obstacles, the obstacles' radii read-only (as the kinematic
+    state's and the simulator's are), call every kernel with types the warm-up compiled: none
+    is demoted to plain."""
     pytest.importorskip("numba")
+    from omegaconf import OmegaConf
+
+    from tamedpuma.app.bench_timing import observation
+    from tamedpuma.app.compose import compose_dict
+    from tamedpuma.app.sweep import build
+
     assert _kernels.warm_up()
     for name, fast in _kernels._COMPILED.items():  # fresh wrappers: no earlier test's state
         fresh = _kernels.Kernel(getattr(_kernels, name))
         fresh.fast = fast
         monkeypatch.setitem(_kernels.STEP, name, fresh)
-    rng = np.random.default_rng(3)
-    radii = np.array([0.05, 0.1])
-    radii.flags.writeable = False
-    state = kinematics.evaluate(np.zeros(N), rng.standard_normal(N))
-    Circulation(10.0, 1.0, 100.0, 0.0).specs(state, np.zeros(N), rng.standard_normal(N),
-                                              state.sphere_centers[:2] + 0.01, radii)
-    assert not any(k.demoted for k in _kernels.STEP.values())
+    built = build(OmegaConf.create(compose_dict("sweep", [
+        "task=tomato", "scenario=random", "scenario.random_seed=2002",
+        "scenario.start_kind=anywhere", "recorder=none", f"method={method}"])))
+    controller, scenario = built.controller, built.scenario
+    controller.reset(scenario)
+    q, qd = scenario.q0.copy(), np.zeros_like(scenario.q0)
+    for k in range(150):
+        obs = observation(scenario, q.copy(), qd.copy(), scenario.obstacles, t=k * scenario.dt,
+                          step=k)
+        obs.obstacle_radii.flags.writeable = False
+        qd = np.clip(qd + controller.step(obs).qdd * scenario.dt, -1.0, 1.0)
+        q = q + qd * scenario.dt
+    assert not any(k.demoted for k in _kernels.STEP.values()), {
+        name: k.demoted for name, k in _kernels.STEP.items() if k.demoted}
     assert all(k.fast is not None for k in _kernels.STEP.values())
 
 
@@ -238,7 +247,7 @@ def test_a_numba_that_cannot_compile_leaves_the_plain_kernels(monkeypatch):
 def test_a_singular_geometry_raises_as_the_numpy_forcing_does():
     """M + JᵀwJ singular while the forcing's system is not (its m_null I): FabricError, as
     before the fusion (not the kernel's LinAlgError)."""
-    rng, av, task, null, extra, _ = _case(1)
+    rng, av, task, null, _ = _case(1)
     J = task.J.copy()
     J[:, -1] = 0.0  # the last joint moves no task row: JᵀwJ (and M = 0 + JᵀwJ) singular
     task = TaskAcceleration(task.xdd, J, task.jdqd)
@@ -246,6 +255,6 @@ def test_a_singular_geometry_raises_as_the_numpy_forcing_does():
     forcing = Forcing(mode="task_metric", directional=False)
     target = task.xdd - task.jdqd
     with pytest.raises(FabricError):
-        forced_reference(av, task, forcing, np.ones(N), None, None)
+        forced_reference(av, task, forcing, np.ones(N), None)
     with pytest.raises(FabricError):
-        forced_through_metric(av, task, target, forcing, np.ones(N), None, None)
+        forced_through_metric(av, task, target, forcing, np.ones(N), None)

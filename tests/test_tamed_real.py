@@ -69,8 +69,7 @@ CASES = [("tomato", "shipped"),
          ("tomato", "real"),  # needs fabric.obstacle_activation: without it FPM rests 0.49 m
                               # short behind the obstacle (model 2cb8ca976ad6)
          ("pouring", "real"),
-         ("pouring", "shipped")]  # needs FPM's braking_split: without it FPM sweeps its
-                                  # joints through their range and ends 0.9 m short
+         ("pouring", "shipped")]
 
 
 

@@ -21,14 +21,13 @@ more, and a kernel handed argument types the warm-up did not see runs as the pla
 (the same numbers) for the rest of the process (:class:`Kernel`). Without numba
 (``AVAILABLE`` False), or where it fails to compile, every call is plain.
 
-Kernels (n joints, m task rows, R barrier rows, K tangent specs):
+Kernels (n joints, m task rows, R barrier rows):
 
 - :func:`damped_pull`: ``q̈ = J⁺ t + (I − J⁺J) q̈_null``, ``J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹`` [rad/s²].
-- :func:`metric_forcing`: ``q̈_C = (W + w JᵀJ + m_null I + Σ w_k r_k r_kᵀ)⁻¹ (w Jᵀ t + m_null
-  q̈_null + Σ w_k r_k a_k)`` with W the avoidance metric M less the barrier rows q̈_P recedes
-  from (``a_r·q̈_P > 0``, m_r > 0), the rows q̈_C approaches put back until none is (directional),
+- :func:`metric_forcing`: ``q̈_C = (W + w JᵀJ + m_null I)⁻¹ (w Jᵀ t + m_null q̈_null)`` with W
+  the avoidance metric M less the barrier rows q̈_P recedes from (``a_r·q̈_P > 0``, m_r > 0), the
+  rows q̈_C approaches put back until none is (directional),
   and the geometry ``h = −(M + [task] w JᵀJ)⁻¹ f`` [rad/s²].
-- :func:`pair_pushes`: the circulation's pairs within d_a, their normals and pushes.
 - :func:`lowest_points`, :func:`ground_rows`: the links' lowest hull points and their ground
   rows (:func:`~tamedpuma.robot.ground.hull_ground_rows`).
 - :func:`rows_free`: whether v meets every barrier row ``a·v ≥ b`` (and ``a·v + drift ≥ b``),
@@ -62,17 +61,15 @@ def damped_pull(J, target, lam2, qdd_null, has_null):
     return qdd
 
 
-def _weighted_solve(W, JwJ, diag, ext, has_ext, rhs):
-    """``(W + JᵀwJ + diag·I + ext)⁻¹ rhs``, summed in that order (pull_through_metric's)."""
+def _weighted_solve(W, JwJ, diag, rhs):
+    """``(W + JᵀwJ + diag·I)⁻¹ rhs``, summed in that order (pull_through_metric's)."""
     A = W + JwJ
     for i in range(A.shape[0]):
         A[i, i] += diag
-    if has_ext:
-        A += ext
     return np.linalg.solve(A, rhs)
 
 
-def _restore(W, rows, metric, out, qdd_c, JwJ, diag, ext, has_ext, rhs):
+def _restore(W, rows, metric, out, qdd_c, JwJ, diag, rhs):
     """restore_approached: every left-out row q̈_C approaches (``a_r·q̈_C < 0``) put back
     with its metric, q̈_C solved again, until none is approached."""
     while out.any():
@@ -83,17 +80,16 @@ def _restore(W, rows, metric, out, qdd_c, JwJ, diag, ext, has_ext, rhs):
         r = rows[idx]
         W = W + (r.T * metric[idx]) @ r
         out &= ~back
-        qdd_c = _weighted_solve(W, JwJ, diag, ext, has_ext, rhs)
+        qdd_c = _weighted_solve(W, JwJ, diag, rhs)
     return qdd_c
 
 
-def metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null, ext_rows,
-                   ext_weights, ext_targets, qdd_free, directional, task_geometry):
+def metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null, qdd_free,
+                   directional, task_geometry):
     """``(q̈_C, h)`` [rad/s²] (see the module): M (n, n), f (n,) the avoidance fabric's metric
     and geometry force; rows (R, n), metric (R,) its barrier rows (R may be 0); J (m, n), w,
     target t = ẍ_d − J̇q̇ (m,): PUMA's task spec; m_null, q̈_null, has_null: the secondary
-    objective; ext_*: the tangent specs (K may be 0); qdd_free: q̈_P; task_geometry: h with
-    PUMA's task metric as a leaf."""
+    objective; qdd_free: q̈_P; task_geometry: h with PUMA's task metric as a leaf."""
     wJ = w * J
     JwJ = J.T @ wJ
     rhs = wJ.T @ target
@@ -101,12 +97,6 @@ def metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null,
     if has_null and m_null > 0.0:
         diag = m_null
         rhs = rhs + m_null * qdd_null
-    has_ext = ext_rows.shape[0] > 0
-    ext = np.zeros_like(M)
-    if has_ext:
-        wr = ext_weights.reshape(-1, 1) * ext_rows
-        ext = ext_rows.T @ wr
-        rhs = rhs + wr.T @ ext_targets
     if directional and rows.shape[0] > 0:
         out = (rows @ qdd_free > 0.0) & (metric > 0.0)
         W = M.copy()
@@ -114,10 +104,10 @@ def metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null,
             idx = np.nonzero(out)[0]
             r = rows[idx]
             W -= (r.T * metric[idx]) @ r
-        qdd_c = _weighted_solve(W, JwJ, diag, ext, has_ext, rhs)
-        qdd_c = _restore(W, rows, metric, out, qdd_c, JwJ, diag, ext, has_ext, rhs)
+        qdd_c = _weighted_solve(W, JwJ, diag, rhs)
+        qdd_c = _restore(W, rows, metric, out, qdd_c, JwJ, diag, rhs)
     else:
-        qdd_c = _weighted_solve(M, JwJ, diag, ext, has_ext, rhs)
+        qdd_c = _weighted_solve(M, JwJ, diag, rhs)
     G = M + JwJ if task_geometry else M
     return qdd_c, -np.linalg.solve(G, f)
 
@@ -153,33 +143,6 @@ def rows_free(v, rows, x, jdqd, xd, qd, has_drift, g_rows, g_heights, g_jdqd, g_
         return True
     drift = np.concatenate((xd - rows @ qd, np.zeros(g_heights.shape[0])))
     return (Av >= b - drift).all()
-
-
-def pair_pushes(c, r, J, jd, oc, orad, qdd_free, distance, cos_onset):
-    """The circulation's candidate pairs (:meth:`~tamedpuma.methods._circulation.Circulation.
-    specs`): every (body sphere i, obstacle j) with clearance ``‖c_i − o_j‖ − r_i − r_j < d_a``,
-    in (i, j) order: ``(i, j)`` (K, 2), the clearance (K,) [m], the unit normal
-    ``n = (c_i − o_j)/‖c_i − o_j‖`` (K, 3), the sphere's acceleration under q̈_P
-    ``p = J_i q̈_P + J̇_i q̇`` (K, 3) [m/s²], the push ``−p·n`` (K,) and how head-on it is,
-    ``(−p·n/‖p‖ − c₀)/(1 − c₀)`` (K,). c (k, 3), r (k,), J (k, 3, n), jd (k, 3): the spheres;
-    oc (m, 3), orad (m,): the obstacles."""
-    delta = c.reshape(-1, 1, 3) - oc.reshape(1, -1, 3)
-    dist = np.sqrt(delta[:, :, 0] * delta[:, :, 0] + delta[:, :, 1] * delta[:, :, 1]
-                   + delta[:, :, 2] * delta[:, :, 2])
-    clear = dist - r.reshape(-1, 1) - orad.reshape(1, -1)
-    ii, jj = np.nonzero(clear < distance)
-    K = len(ii)
-    pairs, cl, n = np.empty((K, 2), np.int64), np.empty(K), np.empty((K, 3))
-    p, push, head_on = np.empty((K, 3)), np.empty(K), np.empty(K)
-    for a in range(K):
-        i, j = ii[a], jj[a]
-        pairs[a, 0], pairs[a, 1], cl[a] = i, j, clear[i, j]
-        n[a] = delta[i, j] / max(dist[i, j], 1e-12)
-        p[a] = J[i] @ qdd_free + jd[i]
-        push[a] = -np.dot(p[a], n[a])
-        head_on[a] = (push[a] / max(np.sqrt(np.dot(p[a], p[a])), 1e-12) - cos_onset) / (
-            1.0 - cos_onset)
-    return pairs, cl, n, p, push, head_on
 
 
 def lowest_points(verts, starts, Rt, tz, radii, below):
@@ -221,8 +184,7 @@ def ground_rows(J, acc, r, qd):
     return rows, acc[:, 2] + acc[:, 3] * ry - acc[:, 4] * rx + wz * w_r - rz * w_w
 
 
-KERNELS = (damped_pull, metric_forcing, rows_free, pair_pushes, lowest_points,
-           ground_rows)
+KERNELS = (damped_pull, metric_forcing, rows_free, lowest_points, ground_rows)
 HELPERS = (_weighted_solve, _restore, _meets, _bounds)
 
 
@@ -304,16 +266,9 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
     M = np.eye(n) + 0.1 * np.ones((n, n))
     rows, none, metric = rng.standard_normal((3, n)), np.empty((0, n)), np.ones(3)
     kernels["damped_pull"](J, t, 1e-4, v, True)
-    for ext in (rows, none):
-        for r, mt in ((rows, metric), (none, np.empty(0))):
-            kernels["metric_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, ext,
-                                      np.ones(len(ext)), np.ones(len(ext)), v, True, True)
-    k3, fixed = rng.standard_normal((4, 3)), np.ones(4)
-    fixed.flags.writeable = False  # radii may be read-only (the state's, the simulator's)
-    for r in (fixed, np.ones(4)):
-        for orad in (fixed[:2], np.ones(2)):
-            kernels["pair_pushes"](k3, r, rng.standard_normal((4, 3, n)), k3, k3[:2], orad, v,
-                                   0.1, 0.7)
+    for r, mt in ((rows, metric), (none, np.empty(0))):
+        kernels["metric_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, v, True, True)
+    k3 = rng.standard_normal((4, 3))
     three = np.eye(3).reshape(1, 3, 3).repeat(2, 0)
     kernels["lowest_points"](k3, np.array([0, 2, 4]), three, np.ones(2), np.ones(2), 2.0)
     kernels["ground_rows"](rng.standard_normal((2, 6, n)), k3[:2].repeat(2, 1), k3[:2], v)

@@ -20,14 +20,12 @@ numpy only (the primitive may use torch inside).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from tamedpuma.fabrics.spec import linear_solve
 from tamedpuma.robot.kinematics import KinematicState
-from tamedpuma.robot.rotations import quat_conj, quat_exp, quat_log, quat_mul
 
 
 def episode_primitive(primitive):
@@ -48,128 +46,23 @@ class TaskAcceleration:
     jdqd: np.ndarray
 
 
-class OrientationReference:
-    """PUMA's orientation as a reference state (``orientation: reference``): near the goal the
-    primitive sees the hand's position and velocity and a reference orientation ``(ζ_r, ω_r)``
-    that it moves itself, ``ω̇_r = α(p, ζ_r, ṗ, ω_r)``, ``ζ_r ← exp(ω_r Δt) ζ_r``; the hand's
-    orientation rows track it,
-
-        ω̇_d = α + sat_{a_max}(k_p log(ζ_r ζ⁻¹) + k_d (ω_r − ω))                  [rad/s²]
-
-    (sat: the vector scaled down to the norm a_max where it is longer). Farther than ``radius``
-    from the goal, or with a body sphere within ``clearance`` of an obstacle, it is off (PUMA's
-    feedback law, the same computation); coming on it starts from the hand's ``(ζ, ω)``.
-
-    Why. PUMA's position field depends on the orientation it is evaluated at, and its
-    equilibrium is the goal *pose*: where joint limits hold the orientation off the goal's, the
-    position part of the learned field alone can come to rest well short of the goal, and
-    the arm circles there. Evaluated at the reference, (p, ζ_r) is PUMA's own system driven
-    through the hand's position, so the position goes on to the goal where the joints cannot
-    give the orientation. Where the hand follows the reference, ζ = ζ_r at every step and this
-    is PUMA's feedback law unchanged (tests/test_orientation_reference.py). Where obstacles hold
-    the hand it is off: a reference running on PUMA's field while the barriers hold the hand's
-    position leaves PUMA's own path (it turns the hand far from the goal orientation, or takes
-    it out and back beside an obstacle). The saturation keeps an unreachable reference from
-    driving the joints at k_p times a large error. Its ablation row:
-    docs/method.md, "How PUMA's forcing meets the fabric" (``orientation_reference``).
-    k_p [1/s²], k_d [1/s]: tracking gains; max_acceleration a_max [rad/s²]; radius [m];
-    clearance [m].
-    """
-
-    def __init__(self, stiffness: float = 16.0, damping: float = 8.0,
-                 max_acceleration: float = np.inf, radius: float = np.inf,
-                 clearance: float = 0.0, leash: float = np.inf):
-        self.stiffness, self.damping = float(stiffness), float(damping)
-        self.radius, self.clearance = float(radius), float(clearance)
-        self.leash = float(leash)
-        self.max_acceleration = float(max_acceleration)
-        self.reset()
-
-    def reset(self) -> None:
-        self.quat = self.omega = self.alpha = None
-        self.t = None
-        self.active = False  # on: the primitive sees the reference (see sync)
-
-    def sync(self, t: float, state: KinematicState, qd: np.ndarray,
-             goal_position: np.ndarray, clearance: float = np.inf) -> None:
-        """At an observation at time t [s]: off farther than ``radius`` [m] from the goal or
-        with a body sphere closer than ``clearance`` [m] to an obstacle (clearance: the least
-        one now, inf without obstacles); on otherwise, starting from the hand's (ζ, ω) when it
-        comes on, else integrated over the elapsed time with the last α."""
-        if (math.dist(state.ee_position, goal_position) > self.radius
-                or clearance < self.clearance):
-            self.active = False
-        elif not self.active:
-            self.quat = np.array(state.ee_quaternion, dtype=float)
-            self.omega = state.ee_jacobian[3:] @ qd
-            self.alpha = np.zeros(3)
-            self.active = True
-        elif t > self.t:
-            dt = t - self.t
-            self.omega = self.omega + dt * self.alpha
-            q = quat_mul(quat_exp(self.omega * dt), self.quat)
-            self.quat = q / np.linalg.norm(q)
-            if np.isfinite(self.leash):
-                self._hold_on_leash(np.asarray(state.ee_quaternion, dtype=float))
-        self.t = t
-
-    def _hold_on_leash(self, hand: np.ndarray) -> None:
-        """Keep ζ_r within ``leash`` [rad] of the hand's ζ: beyond it ζ_r is moved back along
-        the geodesic to the leash, and ω_r loses its component away from the hand."""
-        err = quat_log(quat_mul(self.quat, quat_conj(hand)))  # ζ_r relative to ζ, rotation vector
-        angle = float(np.linalg.norm(err))
-        if angle <= self.leash:
-            return
-        u = err / angle
-        self.quat = quat_mul(quat_exp(self.leash * u), hand)
-        away = float(self.omega @ u)
-        if away > 0.0:
-            self.omega = self.omega - away * u
-
-    def tracking(self, quat: np.ndarray, omega: np.ndarray, omega_r: np.ndarray
-                 ) -> np.ndarray:
-        """``sat(k_p log(ζ_r ζ⁻¹) + k_d (ω_r − ω))`` [rad/s²] (world frame) for the hand's
-        (ζ, ω) and the reference's angular velocity ω_r (its own, or 0 for a what-if at rest)."""
-        err = quat_log(quat_mul(self.quat, quat_conj(quat)))
-        acc = self.stiffness * err + self.damping * (omega_r - omega)
-        n = float(np.linalg.norm(acc))
-        return acc if n <= self.max_acceleration else acc * (self.max_acceleration / n)
-
-
 class PoseTask:
     """End-effector pose (position and orientation) task for a pose primitive; m = 6 rows
-    [v; ω] of the world-aligned frame Jacobian. reference: an :class:`OrientationReference`
-    the primitive sees instead of the hand's orientation where it is on (None: the hand's,
-    PUMA's own law)."""
+    [v; ω] of the world-aligned frame Jacobian."""
 
-    def __init__(self, primitive, reference: OrientationReference | None = None):
+    def __init__(self, primitive):
         self.primitive = primitive
-        self.reference = reference
 
     def acceleration(self, state: KinematicState, qd: np.ndarray, goal_position: np.ndarray,
                      goal_quaternion: np.ndarray,
-                     goal_velocity: np.ndarray | None = None,
-                     at_rest: bool = False) -> TaskAcceleration:
+                     goal_velocity: np.ndarray | None = None) -> TaskAcceleration:
         """goal_velocity (3,) [m/s]: if given, the primitive sees the end effector's velocity
-        relative to the (translating) goal, ``ṗ − v_g`` (its state is goal-relative).
-        at_rest: with a reference, evaluate it at rest too (ω_r = 0; qd is then the caller's
-        zeros) and do not keep this α for its next integration step (a what-if evaluation)."""
+        relative to the (translating) goal, ``ṗ − v_g`` (its state is goal-relative)."""
         twist = state.ee_jacobian @ qd
         v = twist[:3] if goal_velocity is None else twist[:3] - goal_velocity
-        ref = self.reference
-        if ref is None or not ref.active:
-            a, alpha = self.primitive.acceleration(state.ee_position, state.ee_quaternion, v,
-                                                   twist[3:], goal_position, goal_quaternion)
-            return TaskAcceleration(np.concatenate([a, alpha]), state.ee_jacobian,
-                                    state.ee_jdqd)
-        omega_r = np.zeros(3) if at_rest else ref.omega
-        a, alpha = self.primitive.acceleration(state.ee_position, ref.quat, v, omega_r,
-                                               goal_position, goal_quaternion)
-        alpha = np.asarray(alpha, dtype=float)
-        if not at_rest:
-            ref.alpha = alpha
-        target = alpha + ref.tracking(state.ee_quaternion, twist[3:], omega_r)
-        return TaskAcceleration(np.concatenate([a, target]), state.ee_jacobian, state.ee_jdqd)
+        a, alpha = self.primitive.acceleration(state.ee_position, state.ee_quaternion, v,
+                                               twist[3:], goal_position, goal_quaternion)
+        return TaskAcceleration(np.concatenate([a, alpha]), state.ee_jacobian, state.ee_jdqd)
 
     def potential(self, state: KinematicState, goal_position: np.ndarray,
                   goal_quaternion: np.ndarray) -> tuple[float, np.ndarray]:
@@ -195,12 +88,11 @@ class PlanarTask:
     def __init__(self, primitive, dims: int = 2):
         self.primitive = primitive
         self.dims = dims
-        self.reference = None  # no orientation: PoseTask's reference has no counterpart here
 
     def acceleration(self, state: KinematicState, qd: np.ndarray, goal_position: np.ndarray,
-                     goal_quaternion: np.ndarray, goal_velocity: np.ndarray | None = None,
-                     at_rest: bool = False) -> TaskAcceleration:
-        """As :meth:`PoseTask.acceleration` (at_rest: no state to keep, so no effect)."""
+                     goal_quaternion: np.ndarray, goal_velocity: np.ndarray | None = None
+                     ) -> TaskAcceleration:
+        """As :meth:`PoseTask.acceleration`."""
         d = self.dims
         J = state.ee_jacobian[:d]
         v = J @ qd if goal_velocity is None else J @ qd - goal_velocity[:d]
@@ -274,8 +166,7 @@ def weighted_rows(weight: float | np.ndarray, J: np.ndarray) -> np.ndarray:
 
 
 def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | np.ndarray,
-                        m_null: float, qdd_null: np.ndarray | None = None,
-                        extra=None) -> np.ndarray:
+                        m_null: float, qdd_null: np.ndarray | None = None) -> np.ndarray:
     """PUMA's task acceleration pulled to the joints through a metric (a weighted
     pseudo-inverse): the task spec ``(w I, −w ẍ_d)`` pulled back and summed with a joint-space
     spec ``(W, 0)`` and the secondary objective's ``(m_null I, −m_null q̈_null)``::
@@ -286,10 +177,7 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
     m_null [1]. Where W ≪ w JᵀJ q̈_C realises ẍ_d as the damped
     least-squares inverse with λ² = W/w does (W = m_b I: exactly that); along a direction in
     which W is large (an obstacle barrier's metric) q̈_C's component falls like 1/W. At ẍ_d = 0
-    and q̇ = 0 (PUMA's zero set) q̈_C = (…)⁻¹ m_null q̈_null, the damped elbow attractor.
-    extra: more acceleration specs summed in, rows R (K, n) with targets a and weights w_k (a
-    :class:`~tamedpuma.methods._circulation.TangentSpecs`): ``+ Σ w_k R_kᵀR_k`` in the metric,
-    ``+ Σ w_k R_kᵀ a_k`` on the right."""
+    and q̇ = 0 (PUMA's zero set) q̈_C = (…)⁻¹ m_null q̈_null, the damped elbow attractor."""
     J = task.J
     wJ = weighted_rows(weight, J)
     A = W + J.T @ wJ
@@ -297,10 +185,6 @@ def pull_through_metric(task: TaskAcceleration, W: np.ndarray, weight: float | n
     if qdd_null is not None and m_null > 0.0:
         A.flat[::A.shape[0] + 1] += m_null  # A is a fresh array
         rhs = rhs + m_null * qdd_null
-    if extra is not None:
-        wr = extra.weights[:, None] * extra.rows
-        A += extra.rows.T @ wr
-        rhs = rhs + wr.T @ extra.targets
     return linear_solve(A, rhs)
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics.gains import FabricGains
-from tamedpuma.methods._tamed import ENERGIES, ControlRate, Forcing
+from tamedpuma.methods._tamed import ControlRate, Forcing
 
 #: how a learned method finds its model with ``checkpoint`` null (:mod:`tamedpuma.puma.store`)
 MODEL_CHOICES = ("auto", "real", "shipped")
@@ -70,17 +70,6 @@ class PumaSettings:
     pinv_damping_max: float = 0.0     # λ_max of the singularity-robust inverse (0: constant λ₀)
     manipulability_threshold: float = 0.02  # w₀: λ grows below this manipulability
     goal_velocity: str = "feedforward"  # feedforward: the primitive sees ṗ − v_g | ignore
-    orientation: str = "feedback"     # feedback: the primitive sees the hand's orientation |
-    #                                   reference: a reference it moves itself, which the hand
-    #                                   tracks (methods/_policy.py OrientationReference)
-    orientation_stiffness: float = 16.0  # k_p [1/s²] of the tracking (reference only)
-    orientation_damping: float = 8.0     # k_d [1/s]
-    orientation_max_acc: float = 3.0     # [rad/s²] the tracking term's largest norm
-    orientation_clearance: float = 0.0   # [m] and while every body sphere is this clear
-    orientation_leash: float = math.inf  # [rad] the reference stays this close to the hand's
-    #                                      orientation (inf: free)
-    orientation_radius: float = 0.2      # [m] the reference runs on its own within this
-    #                                      distance of the goal (the hand's beyond)
     null_space: NullSpaceSettings | None = field(default_factory=NullSpaceSettings)
 
     def __post_init__(self):
@@ -90,15 +79,6 @@ class PumaSettings:
         positive("method.manipulability_threshold", self.manipulability_threshold)
         check(self.goal_velocity in ("feedforward", "ignore"), "method.goal_velocity",
               "feedforward or ignore", self.goal_velocity)
-        check(self.orientation in ("feedback", "reference"), "method.orientation",
-              "feedback or reference", self.orientation)
-        nonneg("method.orientation_stiffness", self.orientation_stiffness)
-        nonneg("method.orientation_damping", self.orientation_damping)
-        positive("method.orientation_max_acc", self.orientation_max_acc)
-        nonneg("method.orientation_clearance", self.orientation_clearance)
-        positive("method.orientation_radius", self.orientation_radius)
-        check(isinstance(self.orientation_leash, (int, float)) and self.orientation_leash > 0,
-              "method.orientation_leash", "> 0 [rad] (.inf: no leash)", self.orientation_leash)
 
 
 def tamed_fabric() -> FabricGains:
@@ -117,10 +97,9 @@ def all_control_rate_filters() -> ControlRate:
 
 
 def fpm_forcing() -> Forcing:
-    """How FPM's forcing meets the fabric: through its metric, directional, turned round the
-    obstacles within 0.1 m, a stall pull of 1.5 m/s² and the configuration pull near a limit."""
-    return Forcing(mode="metric", circulation=0.1, directional=True, stall_pull=1.5,
-                   configuration_pull="limits")
+    """How FPM's forcing meets the fabric: through its metric, directional, a stall pull of
+    1.5 m/s² and the configuration pull near a limit."""
+    return Forcing(mode="metric", directional=True, stall_pull=1.5, configuration_pull="limits")
 
 
 @dataclass(frozen=True)
@@ -129,23 +108,10 @@ class FpmSettings(PumaSettings):
     (:mod:`tamedpuma.methods.fpm`). The defaults are ``method=fpm``'s; ``conf/method/
     fpm_literal.yaml`` switches each addition off (paper eq. 9 as written)."""
 
-    orientation: str = "reference"    # feedback: the primitive sees the hand's orientation |
-    #                                   reference (FPM's): a reference it moves itself near the
-    #                                   goal, which the hand tracks (PumaSettings.orientation)
-    orientation_clearance: float = 0.1  # [m] the reference only while every body sphere is
-    #                                     this clear of the obstacles
     fabric: FabricGains = field(default_factory=tamed_fabric)  # the barriers' energies ×30
-    alpha_bound: float = 20.0         # [1/s] α ≥ −alpha_bound (.inf: unbounded, eq. 9 as written)
-    energy: str = "execution"         # the energy energized: fabric (H_{L_e} of the leaves) |
-    #                                   execution (½‖q̇‖²: M_e = I; methods/_tamed.py)
     control_rate: ControlRate = field(default_factory=all_control_rate_filters)  # safety at the
     #                                   control rate: every filter on (all off: eq. 9 as written)
     forcing: Forcing = field(default_factory=fpm_forcing)  # how PUMA's forcing meets the fabric
     #                                   (Forcing(), additive and nothing added: eq. 9 as written)
     limit_margin: float = 0.01        # [rad] the fabric's joint limits sit this far inside
 
-    def __post_init__(self):
-        super().__post_init__()
-        check(isinstance(self.alpha_bound, (int, float)) and self.alpha_bound >= 0,
-              "method.alpha_bound", ">= 0 [1/s] (.inf: unbounded)", self.alpha_bound)
-        check(self.energy in ENERGIES, "method.energy", " or ".join(ENERGIES), self.energy)

@@ -8,7 +8,7 @@ PUMA's task-space field asks for motion past them, or the hand near the goal whe
 metric outweighs PUMA's weak pull. A forced fabric only promises convergence to *a* local minimum
 of its forcing's potential plus the barriers (Ratliff et al. 2023, Prop. II.17-18); PUMA's field
 is not a gradient in joint space, so these rest points are real and no change of gains removes
-them (:mod:`tamedpuma.methods._circulation`). Law and ablation row: docs/method.md, "Ways out of
+them. Law and ablation row: docs/method.md, "Ways out of
 a local minimum"; its constants: "The fixed constants".
 
 What. Two measures of progress are watched: the hand's distance to the goal d = ‖p_g − p‖ [m]
@@ -37,8 +37,7 @@ distance would take longer than about ``window``/f to close at the current rate 
 f = 0.05), while PUMA's own approach, which closes a fixed fraction of the distance per
 second, counts as progress all the way in. CPM has it (0.05): where ψ climbs along the hand's
 way its regulator lets the hand crawl at about √ε, a few millimetres a second, which a fixed
-``progress`` per window counts as progress. FPM has it off: its circulation round an obstacle is
-a creep too, and a pull armed there pulls the hand back into the obstacle's shadow.
+``progress`` per window counts as progress. FPM has it off.
 
 It lets go on PUMA's own measure: once ψ has fallen below (1 − ``release``) times its value at
 arming. Where the stall is a local minimum of ψ on the barriers (the hand held against an

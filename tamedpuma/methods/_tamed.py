@@ -4,10 +4,9 @@ policy, its construction from a method config, and the avoidance fabric FPM and 
 Methods never import each other; what two of them share lives here.
 
 Episode state. Everything a reset or a step writes lives in the controller's ``episode`` (made
-afresh by ``reset``): :class:`PumaEpisode` (PUMA's task with this episode's orientation
-reference and its own network buffers) and :class:`TamedEpisode` (the fabric's work buffers, Δt,
-the circulation's sides, the stall monitor, the configuration pull's monitor; CPM adds its
-energy tank). The rest of a controller is its configuration, fixed after construction; a step is
+afresh by ``reset``): :class:`PumaEpisode` (PUMA's task with its own network buffers) and
+:class:`TamedEpisode` (the fabric's work buffers, Δt, the stall monitor, the configuration pull's
+monitor). The rest of a controller is its configuration, fixed after construction; a step is
 a function of (episode, observation) (``tests/test_episode_state.py``).
 """
 
@@ -28,8 +27,6 @@ from tamedpuma.fabrics.discrete import (
     limit_speed,
     linearly_implicit_step,
 )
-from tamedpuma.fabrics.energy import execution_alpha
-from tamedpuma.methods._circulation import Circulation, TangentSpecs
 from tamedpuma.methods._configuration_pull import MODES as CONFIGURATION_MODES
 from tamedpuma.methods._configuration_pull import ConfigurationMonitor, ConfigurationPull, Ground
 from tamedpuma.methods._ground_rows import HullTable, hull_ground_rows
@@ -38,9 +35,6 @@ from tamedpuma.methods._learned import load_task, null_objective
 from tamedpuma.methods._policy import (
     Damping,
     NullSpaceObjective,
-    OrientationReference,
-    PoseTask,
-    TaskAcceleration,
     episode_primitive,
     pull_through_metric,
     pull_to_joints,
@@ -57,21 +51,17 @@ from tamedpuma.types import NO_OBSTACLE_CLEARANCE, Command, Observation, Scenari
 def episode_task(task):
     """``task`` for one episode: a copy holding its own primitive wrapper
     (:func:`~tamedpuma.methods._policy.episode_primitive`: the network shared, its buffers the
-    episode's) and, with an orientation reference, its own reference, reset (``task`` itself,
-    the template, is never written)."""
+    episode's; ``task`` itself, the template, is never written)."""
     own = copy.copy(task)
     if getattr(task, "primitive", None) is not None:
         own.primitive = episode_primitive(task.primitive)
-    if getattr(task, "reference", None) is not None:
-        own.reference = copy.copy(task.reference)
-        own.reference.reset()
     return own
 
 
 @dataclass
 class PumaEpisode:
     """What :class:`PumaController`'s step writes (see the module docstring): ``task``, PUMA's
-    task with this episode's orientation reference and network buffers (:func:`episode_task`):
+    task with this episode's network buffers (:func:`episode_task`):
     every evaluation of the network in a step goes through it."""
 
     task: object
@@ -101,19 +91,15 @@ class PumaController:
         task, null = self.task_and_null(state, obs, stall=stall)
         return pull_to_joints(task, self.damping, null), task.xdd
 
-    def task_and_null(self, state, obs: Observation, clearance: float = np.inf,
-                      stall: StallMonitor | None = None,
+    def task_and_null(self, state, obs: Observation, stall: StallMonitor | None = None,
                       configuration: ConfigurationMonitor | None = None):
-        """(PUMA's TaskAcceleration, the secondary objective's q̈_null or None); clearance [m]:
-        the body spheres' least clearance from the obstacles (the orientation reference's);
-        stall: FPM's and CPM's stall pull (:mod:`tamedpuma.methods._stall`), added to the
+        """(PUMA's TaskAcceleration, the secondary objective's q̈_null or None); stall: FPM's
+        and CPM's stall pull (:mod:`tamedpuma.methods._stall`), added to the
         position rows while armed; configuration: the configuration pull
         (:mod:`tamedpuma.methods._configuration_pull`), a joint-space spec (J = I) replacing the
         task rows while engaged."""
         vg = obs.goal_velocity if self.feed_goal_velocity else None
         own = self.episode.task
-        if own.reference is not None:
-            own.reference.sync(obs.t, state, obs.qd, obs.goal_position, clearance)
         task = own.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         if stall is not None:
             task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
@@ -124,37 +110,20 @@ class PumaController:
         null = self.null_space.acceleration(self.kinematics, obs.qd) if self.null_space else None
         return task, null
 
-    def pull_at_rest(self, state, obs: Observation) -> np.ndarray:
-        """PUMA's pulled acceleration as if the arm were at rest (q̇ = 0, J̇q̇ = 0, no secondary
-        objective): its pull towards the goal without its damping [rad/s²]."""
-        vg = obs.goal_velocity if self.feed_goal_velocity else None
-        rest = np.zeros_like(obs.qd)
-        task = self.episode.task.acceleration(state, rest, obs.goal_position,
-                                              obs.goal_quaternion, vg, at_rest=True)
-        return pull_to_joints(TaskAcceleration(task.xdd, task.J, np.zeros_like(task.jdqd)),
-                              self.damping)
-
     def with_avoidance(self, state, obs: Observation, av, forcing: Forcing,
-                       circulation: Circulation | None = None, stall: StallMonitor | None = None,
+                       stall: StallMonitor | None = None,
                        configuration: ConfigurationMonitor | None = None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(h, q̈_C, ẍ_d): the avoidance geometry ``h = −M⁻¹f`` of ``av`` and PUMA's forcing,
         pulled by the damped pseudo-inverse (``additive``) or through the avoidance fabric's
-        metric M (``metric``; :class:`Forcing`), with the tangent specs of ``circulation``
-        (:mod:`tamedpuma.methods._circulation`) summed in when given, and the stall pull of
+        metric M (``metric``; :class:`Forcing`), with the stall pull of
         ``stall`` (:mod:`tamedpuma.methods._stall`) added to PUMA's position rows while armed
         (and the configuration pull's joint-space spec in their place while it is engaged)."""
         if forcing.metric:
-            task, null = self.task_and_null(state, obs, av.min_clearance, stall, configuration)
-            target, extra, qdd_free = task.xdd - task.jdqd, None, None
-            if circulation is not None or forcing.directional:
-                qdd_free = free_pull(task, target, self.damping, null)
-            if circulation is not None:
-                extra = circulation.specs(state, obs.qd, qdd_free, obs.obstacle_centers,
-                                          obs.obstacle_radii,
-                                          lambda: self.pull_at_rest(state, obs),
-                                          av.min_clearance)
-            qdd_c, h = forced_through_metric(av, task, target, forcing, null, extra, qdd_free)
+            task, null = self.task_and_null(state, obs, stall, configuration)
+            target = task.xdd - task.jdqd
+            qdd_free = free_pull(task, target, self.damping, null) if forcing.directional else None
+            qdd_c, h = forced_through_metric(av, task, target, forcing, null, qdd_free)
             return h, qdd_c, task.xdd
         qdd_c, xdd = self.joint_acceleration(state, obs, stall)
         return av.acceleration(), qdd_c, xdd
@@ -191,22 +160,20 @@ class Forced(NamedTuple):
 @dataclass
 class TamedEpisode:
     """What FPM's and CPM's step writes (see the module docstring), None where off: the
-    avoidance fabric's work buffers (:class:`~tamedpuma.fabrics.FabricBuffers`), the
-    circulation's chosen sides (:mod:`tamedpuma.methods._circulation`), the stall monitor
+    avoidance fabric's work buffers (:class:`~tamedpuma.fabrics.FabricBuffers`), the stall monitor
     (:mod:`tamedpuma.methods._stall`), the configuration pull's monitor
     (:mod:`tamedpuma.methods._configuration_pull`) and the control step Δt [s] (the scenario's;
     NaN before the first ``reset``)."""
 
     fabric: FabricBuffers
-    circulation: Circulation | None
     stall: StallMonitor | None
     configuration: ConfigurationMonitor | None
     dt: float = float("nan")
 
 
 class TamedController:
-    """What FPM and CPM share: PUMA pulled to the joints, the avoidance fabric, the energy
-    energized, the forcing (with its circulation), the α floor and the control-rate filters.
+    """What FPM and CPM share: PUMA pulled to the joints, the avoidance fabric energized, the
+    forcing and the control-rate filters.
     Subclasses implement ``step`` from :meth:`forced`; ``creep_fraction``: the stall pull's
     creep criterion (0: off; :mod:`tamedpuma.methods._stall`). ``episode``: the episode state
     (an ``Episode``, :class:`TamedEpisode` or a subclass's), made by :meth:`reset`."""
@@ -214,13 +181,11 @@ class TamedController:
     creep_fraction = 0.0
     Episode = TamedEpisode
 
-    def __init__(self, puma: PumaController, fabric: Fabric, alpha_min: float | None = None,
-                 rate: ControlRate | None = None, energy: str = "fabric",
+    def __init__(self, puma: PumaController, fabric: Fabric, rate: ControlRate | None = None,
                  forcing: Forcing | None = None):
         self.puma, self.fabric = puma, fabric
         self.kinematics = puma.kinematics
-        self.energy, self.forcing = check_energy(energy), forcing or Forcing()
-        self.alpha_min, self.rate = alpha_min, rate or ControlRate()
+        self.forcing, self.rate = forcing or Forcing(), rate or ControlRate()
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.hulls = link_hulls(self.kinematics) if self.rate.barrier_step else None
         self.hull_table = HullTable.of(self.hulls) if self.hulls is not None else None
@@ -230,10 +195,10 @@ class TamedController:
     def new_episode(self, dt: float = float("nan")) -> TamedEpisode:
         """A fresh episode state (the monitors of the forcing's settings, nothing seen yet) of
         control step dt [s]."""
-        return self.Episode(self.fabric.buffers(), self.forcing.make_circulation(),
-                            self.forcing.make_stall_monitor(self.creep_fraction),
-                            self.forcing.make_configuration_monitor(self.kinematics.spec,
-                                                                    self.ground()), dt)
+        forcing = self.forcing
+        return self.Episode(self.fabric.buffers(), forcing.make_stall_monitor(self.creep_fraction),
+                            forcing.make_configuration_monitor(self.kinematics.spec,
+                                                               self.ground()), dt)
 
     @property
     def dt(self) -> float:
@@ -260,8 +225,8 @@ class TamedController:
         ep = self.episode
         state, av = avoidance_at(self.kinematics, self.fabric, obs, ep.fabric)
         ground = self.ground_rows(state, obs.qd)  # from the pass that evaluated ``state``
-        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, ep.circulation,
-                                                 ep.stall, ep.configuration)
+        h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, ep.stall,
+                                                 ep.configuration)
         return Forced(state, av, h, qdd_c, xdd, ground)
 
     def ground_rows(self, state, qd: np.ndarray) -> GroundRows | None:
@@ -288,9 +253,9 @@ class TamedController:
         return out
 
 
-#: no barrier rows, no tangent specs (the kernels' empty arguments)
+#: no barrier rows (the kernels' empty arguments)
 _NO_ROWS = np.empty((0, 0))
-_NO_SPECS = TangentSpecs(_NO_ROWS, np.empty(0), np.empty(0))
+_NO_METRIC = np.empty(0)
 
 
 def free_pull(task, target: np.ndarray, damping, null: np.ndarray | None) -> np.ndarray:
@@ -303,8 +268,8 @@ def free_pull(task, target: np.ndarray, damping, null: np.ndarray | None) -> np.
                                has_null)
 
 
-def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, extra,
-                          qdd_free) -> tuple[np.ndarray, np.ndarray]:
+def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, qdd_free
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """(q̈_C, h) [rad/s²] of ``forcing.mode`` metric or task_metric: PUMA's forcing through
     the avoidance metric (directional: settled on q̈_C, :func:`restore_approached`) and the
     geometry (−M⁻¹f, or :func:`geometry_with_task_metric`), fused in one kernel
@@ -314,31 +279,28 @@ def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, 
     rows, m, weight = av.barrier_rows, av.barrier_metric, forcing.weight
     if type(weight) is float:
         if rows is None or m is None:
-            rows, m = _NO_ROWS, _NO_SPECS.weights
+            rows, m = _NO_ROWS, _NO_METRIC
         has_null = null is not None
-        if extra is None:
-            extra = _NO_SPECS
         try:
             qdd_c, h = STEP["metric_forcing"](
                 av.M, av.f, rows, m, task.J, weight, target, forcing.null_metric,
-                null if has_null else target[:0], has_null, extra.rows, extra.weights,
-                extra.targets, target[:0] if qdd_free is None else qdd_free,
-                forcing.directional, forcing.mode == "task_metric")
+                null if has_null else target[:0], has_null,
+                target[:0] if qdd_free is None else qdd_free, forcing.directional,
+                forcing.mode == "task_metric")
         except np.linalg.LinAlgError:  # a singular system: the reference path below raises it
             qdd_c = h = np.full(1, np.nan)
         if math.isfinite(float(qdd_c @ qdd_c + h @ h)):
             return qdd_c, h
-    return forced_reference(av, task, forcing, null, None if extra is _NO_SPECS else extra,
-                            qdd_free)
+    return forced_reference(av, task, forcing, null, qdd_free)
 
 
-def forced_reference(av, task, forcing: Forcing, null, extra, qdd_free
+def forced_reference(av, task, forcing: Forcing, null, qdd_free
                      ) -> tuple[np.ndarray, np.ndarray]:
     """(q̈_C, h) as :func:`forced_through_metric`, by the numpy functions it fuses."""
     weights = forcing.weight
 
     def solve(W: np.ndarray) -> np.ndarray:
-        return pull_through_metric(task, W, weights, forcing.null_metric, null, extra)
+        return pull_through_metric(task, W, weights, forcing.null_metric, null)
 
     if forcing.directional:
         receding = receding_rows(av, qdd_free)
@@ -446,15 +408,8 @@ def damping_rule(settings) -> Damping:
 def pulled_puma(settings, kinematics) -> PumaController:
     """The pulled PUMA policy of puma/fpm/cpm settings
     (:class:`~tamedpuma.methods._settings.PumaSettings`: checkpoint, pinv_damping and the
-    singularity-robust rule, null_space, goal_velocity, orientation)."""
+    singularity-robust rule, null_space, goal_velocity)."""
     task = load_task(settings)
-    if settings.orientation == "reference" and isinstance(task, PoseTask):
-        task.reference = OrientationReference(float(settings.orientation_stiffness),
-                                              float(settings.orientation_damping),
-                                              float(settings.orientation_max_acc),
-                                              float(settings.orientation_radius),
-                                              float(settings.orientation_clearance),
-                                              float(settings.orientation_leash))
     return PumaController(task, kinematics, damping_rule(settings),
                           null_objective(settings.null_space),
                           settings.goal_velocity == "feedforward")
@@ -603,10 +558,6 @@ def keeps_velocity(av, ground: GroundRows | None, v: np.ndarray, qd, dt: float) 
 TASK_WEIGHT = 100.0
 #: m_null [1]: the metric of the secondary (elbow) objective in the metric forcing
 NULL_METRIC = 0.05
-#: g [1]: the fraction of a body sphere's push into an obstacle given back along its tangent
-CIRCULATION_GAIN = 1.0
-#: c₀ [1]: only a push within arccos(c₀) of head-on is turned (about 46°)
-CIRCULATION_ONSET = 0.7
 #: how PUMA's forcing may meet the avoidance fabric (``method.forcing.mode``)
 FORCING_MODES = ("additive", "metric", "task_metric")
 
@@ -630,8 +581,6 @@ class Forcing:
     CPM's statements hold as with ``additive``. ``task_metric``: ``metric``, and PUMA's task
     metric one more leaf of the geometry, ``h = −(M + Jᵀ w J)⁻¹f``
     (:func:`geometry_with_task_metric`).
-    circulation: d_a [m], the clearance within which a body sphere's push into an obstacle is
-    turned around it (0: off; not with ``additive``; :mod:`tamedpuma.methods._circulation`);
     directional: leave out of the metric the barrier rows the forcing recedes from
     (:func:`approached_metric`, settled on q̈_C itself: rows q̈_C approaches are put back and
     q̈_C solved again, :func:`restore_approached`; not with ``additive``);
@@ -646,7 +595,6 @@ class Forcing:
     :func:`~tamedpuma.methods.cpm.cpm_forcing`)."""
 
     mode: str = "additive"
-    circulation: float = 0.0
     directional: bool = False
     stall_pull: float = 0.0
     configuration_pull: str = "off"
@@ -665,13 +613,6 @@ class Forcing:
     def metric(self) -> bool:
         """Whether PUMA's forcing is pulled through the avoidance fabric's metric."""
         return self.mode != "additive"
-
-    def make_circulation(self) -> Circulation | None:
-        """The stateful :class:`~tamedpuma.methods._circulation.Circulation` of this forcing
-        (None when ``circulation`` is 0, or with ``additive``)."""
-        if not self.metric or self.circulation <= 0.0:
-            return None
-        return Circulation(self.circulation, CIRCULATION_GAIN, TASK_WEIGHT, CIRCULATION_ONSET)
 
     def make_configuration_monitor(self, spec, ground: Ground | None = None
                                    ) -> ConfigurationMonitor | None:
@@ -697,9 +638,9 @@ class Forcing:
         if self.configuration_pull not in CONFIGURATION_MODES:
             raise ConfigError(f"method.forcing.configuration_pull must be one of "
                               f"{CONFIGURATION_MODES}, got {self.configuration_pull!r}")
-        if not (self.circulation >= 0 and self.stall_pull >= 0):
-            raise ConfigError(f"method.forcing.circulation [m] and stall_pull [m/s²] must be "
-                              f"≥ 0, got {self.circulation}, {self.stall_pull}")
+        if not self.stall_pull >= 0:
+            raise ConfigError(f"method.forcing.stall_pull [m/s²] must be ≥ 0, got "
+                              f"{self.stall_pull}")
 
     @staticmethod
     def from_mapping(cfg: Mapping | None) -> Forcing:
@@ -708,72 +649,3 @@ class Forcing:
         if unknown:
             raise ConfigError(f"unknown method.forcing keys {unknown}")
         return Forcing(**cfg)  # checked in __post_init__
-
-
-#: the energies a TamedPUMA method may energize (``method.energy``)
-ENERGIES = ("fabric", "execution")
-
-
-def check_energy(energy: str) -> str:
-    """``method.energy`` validated: ``fabric`` or ``execution`` (see :func:`energization_alpha`)."""
-    if energy not in ENERGIES:
-        raise ConfigError(f"method.energy must be one of {ENERGIES}, got {energy!r}")
-    return energy
-
-
-def energization_alpha(av, energy: str, qd: np.ndarray, qdd: np.ndarray, eps: float) -> float:
-    """α [1/s] such that ``q̈ = qdd − α q̇`` conserves the energy ``method.energy`` names.
-
-    ``fabric``: the avoidance fabric's own energy L_e (:meth:`AvoidanceFabric.alpha`), whose
-    metric grows without bound at a barrier (0.2/x per obstacle pair). ``execution``: the
-    execution energy ‖q̇‖² (:func:`~tamedpuma.fabrics.energy.execution_alpha`, metric ∝ I), as in
-    geometric fabrics' speed control (Ratliff et al. 2023): energization then leaves the speed
-    unchanged and only bends the path, so the forcing alone sets the speed. Any Finsler energy
-    leaves an HD2 geometry's paths unchanged (method.md §2), so the barrier and path-consistency
-    arguments hold for either; with ``execution`` CPM's metric is bounded and strictly positive
-    definite everywhere, the assumption of paper eq. 10 that M_{L_e} does not meet."""
-    if energy == "execution":
-        return execution_alpha(qd, qdd, eps)
-    return av.alpha(qd, qdd, eps)
-
-
-def energy_times_velocity(av, energy: str, qd: np.ndarray) -> np.ndarray:
-    """``M q̇`` for the metric M of ``method.energy`` (q̇ itself for the execution energy,
-    whose metric is taken as I: CPM's γ and H = ½ q̇ᵀMq̇ use this scale)."""
-    return qd if energy == "execution" else av.M @ qd
-
-
-def bounded_alpha(alpha: float, alpha_min: float | None) -> float:
-    """Energization coefficient bounded below, ``max(α, α_min)`` [1/s] (None: unbounded).
-
-    α < 0 injects energy (``−α q̇`` accelerates along q̇) to make up for a geometry that brakes;
-    raising it to α_min only adds the damping ``(α_min − α) q̇``, so H_{L_e} can only fall where
-    the bound acts: the fabric's boundedness (and barrier) argument still holds, the conservation
-    of H_{L_e} becomes "non-increasing"."""
-    return alpha if alpha_min is None or alpha >= alpha_min else float(alpha_min)
-
-
-def braking_split(a: np.ndarray, c: float, qd: np.ndarray, alpha_raw: float, alpha: float
-                  ) -> tuple[np.ndarray, float]:
-    """``q̈ = a + c q̇`` rewritten as ``(a − κ q̇) + (c + κ) q̇`` with κ = α_raw − α [1/s] when
-    the α bound acts (α_raw < α = α_min: the geometry itself brakes along q̇ at the rate
-    −α_raw, more than energization gives back), else unchanged. The same law [rad/s²]; the
-    split only moves that braking into the velocity-proportional part, which the semi-implicit
-    step takes implicitly.
-
-    Why: at a barrier the geometry h grows like x⁻⁵ (x: the barrier distance), and its part
-    along q̇ reaches α_raw ~ −10⁸ /s. Taken explicitly, ``q̇ + Δt h`` reverses q̇ with a gain of
-    ~10⁶, step after step; the barrier step can only zero such a velocity, so the arm stops and
-    a moving obstacle runs into it. Implicitly, ``(q̇ + Δt(a − κq̇))/(1 − Δt(c + κ))`` brakes
-    towards rest and never reverses q̇."""
-    if alpha_raw >= alpha:
-        return a, c
-    kappa = alpha_raw - alpha  # < 0
-    return a - kappa * qd, c + kappa
-
-
-def alpha_floor(settings) -> float | None:
-    """α_min [1/s] of fpm/cpm settings: −``alpha_bound``, or None (energization exact, α
-    unbounded) for ``alpha_bound: .inf``."""
-    bound = float(settings.alpha_bound)
-    return None if bound == np.inf else -bound

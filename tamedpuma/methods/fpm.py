@@ -43,15 +43,6 @@ Options (``conf/method/fpm.yaml``; each addition's law, setting and ablation row
   PUMA's forcing added after it, so near a barrier they can move the hand away from the goal
   faster than PUMA pulls it in. CPM's default; FPM keeps ``metric``, on which the leaf gains
   no more than the neutral change (docs/method.md, "What the ablation has measured so far").
-- ``orientation: reference`` (FPM's default; puma and cpm keep ``feedback``): within
-  ``orientation_radius`` of the goal, while every body sphere is ``orientation_clearance`` clear
-  of the obstacles, the primitive sees a reference orientation it moves itself and the hand
-  tracks (:class:`~tamedpuma.methods._policy.OrientationReference`). PUMA's position field
-  rests only at the goal *pose*, so where joint limits hold the hand's orientation off the
-  goal's, the feedback field's position part rests short of the goal; at the reference,
-  (p, ζ_r) is PUMA's own system and the position goes on. Where the hand follows the reference
-  this is the feedback law, so the statement above holds; the closed loop gains the reference's
-  state (ζ_r, ω_r), which PUMA itself drives to the goal's.
 - ``forcing.stall_pull`` (FPM's and CPM's default 1.5 m/s²; :mod:`tamedpuma.methods._stall`):
   once for 2 s neither the hand's distance to the goal (by 5 mm) nor PUMA's potential ψ (by
   10 %) has improved, a goal attractor is added to PUMA's position rows until ψ has fallen 5 %
@@ -82,10 +73,6 @@ import numpy as np
 from tamedpuma.methods._settings import FpmSettings
 from tamedpuma.methods._tamed import (
     TamedController,
-    alpha_floor,
-    bounded_alpha,
-    braking_split,
-    energization_alpha,
     fabric_scalars,
     puma_and_fabric,
 )
@@ -99,17 +86,15 @@ class FpmController(TamedController):
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av, h, qdd_c, xdd, ground = self.forced(obs)
-        alpha_raw = energization_alpha(av, self.energy, qd, h,
-                                       self.fabric.gains.energization_eps)
-        alpha = bounded_alpha(alpha_raw, self.alpha_min)
+        alpha = av.alpha(qd, h, self.fabric.gains.energization_eps)  # energize_{L_e}[h]
         if self.rate.semi_implicit:
-            a, c = braking_split(h + qdd_c, -alpha, qd, alpha_raw, alpha)
-            qd_next = self.rate.velocity_step(qd, a, c, self.dt, av, self.fabric.gains)
+            qd_next = self.rate.velocity_step(qd, h + qdd_c, -alpha, self.dt, av,
+                                              self.fabric.gains)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
         qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, ground, qd)
         qdd = (qd_next - qd) / self.dt
-        scalars = {**fabric_scalars(av), "alpha": alpha, "alpha_raw": alpha_raw, **extra,
+        scalars = {**fabric_scalars(av), "alpha": alpha, **extra,
                    **self.stall_scalars(), "task_acc_norm": float(np.linalg.norm(xdd))}
         # ψ: the stall monitor's sample where it runs, else computed for the log only
         return Command(qdd=qdd, scalars=scalars, logged_later=None if "psi" in scalars
@@ -121,5 +106,5 @@ SETTINGS = FpmSettings
 
 
 def make(settings: FpmSettings, kinematics) -> FpmController:
-    return FpmController(*puma_and_fabric(settings, kinematics), alpha_floor(settings),
-                         settings.control_rate, settings.energy, settings.forcing)
+    return FpmController(*puma_and_fabric(settings, kinematics), settings.control_rate,
+                         settings.forcing)
