@@ -44,7 +44,7 @@ def suite_of(scenario: str) -> str:
 
 def split_label(label: str) -> tuple[str, str] | None:
     """(base method, removed addition) of an ablation label: ``fpm`` → (fpm, none),
-    ``cpm-tank`` → (cpm, tank); None for a label of another method."""
+    ``cpm-eps`` → (cpm, eps); None for a label of another method."""
     base, _, addition = str(label).partition("-")
     if base not in BASES:
         return None
