@@ -162,8 +162,6 @@ class PinkCbf:
     def reset(self, scenario: Scenario) -> None:
         self.dt, self.failures = float(scenario.dt), 0
         self.posture.set_target(np.asarray(scenario.q0, float))
-        if self.task.reference is not None:
-            self.task.reference.reset()
 
     def step(self, obs: Observation) -> Command:
         q, qd, dt = np.asarray(obs.q, float), np.asarray(obs.qd, float), self.dt
