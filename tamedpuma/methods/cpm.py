@@ -81,7 +81,7 @@ import numpy as np
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
-from tamedpuma.methods._settings import FpmSettings, check, fpm_forcing, nonneg, tamed_fabric
+from tamedpuma.methods._settings import FpmSettings, check, fpm_forcing, nonneg
 from tamedpuma.methods._tamed import (
     ControlRate,
     Forcing,
@@ -179,10 +179,10 @@ class CpmController(TamedController):
 
 
 def cpm_fabric() -> FabricGains:
-    """CPM's avoidance fabric: FPM's (:func:`~tamedpuma.methods._settings.tamed_fabric`) with
+    """CPM's avoidance fabric: FPM's (the Fabrics method's gains) with
     the energization and regulator denominators' ε = 1e-3 [(rad/s)²], above the joint
     controller's velocity noise squared (the module docstring says why)."""
-    return replace(tamed_fabric(), energization_eps=1.0e-3)
+    return replace(FabricGains(), energization_eps=1.0e-3)
 
 
 def cpm_forcing() -> Forcing:
@@ -199,8 +199,7 @@ class CpmSettings(FpmSettings):
     ``conf/method/cpm_literal.yaml`` (paper eq. 10 as written) and ``cpm_original.yaml`` (the
     authors' code) override them."""
 
-    fabric: FabricGains = field(default_factory=cpm_fabric)  # the barriers' energies ×30 (as
-    #                                   FPM's) and ε = 1e-3 (cpm_fabric)
+    fabric: FabricGains = field(default_factory=cpm_fabric)  # FPM's with ε = 1e-3 (cpm_fabric)
     forcing: Forcing = field(default_factory=cpm_forcing)  # how PUMA's forcing meets the fabric:
     #                                   FPM's with task_metric and configuration_pull always
     variant: str = "paper"           # paper | original (the authors' code)
