@@ -179,7 +179,8 @@ class CpmController(TamedController):
 
 
 def cpm_fabric() -> FabricGains:
-    """CPM's avoidance fabric: FPM's (the Fabrics method's gains) with
+    """CPM's avoidance fabric: the Fabrics method's gains (not FPM's ×30 barrier energies: the
+    fabric's energy, barriers included, is the metric of CPM's regulator and damping) with
     the energization and regulator denominators' ε = 1e-3 [(rad/s)²], above the joint
     controller's velocity noise squared (the module docstring says why)."""
     return replace(FabricGains(), energization_eps=1.0e-3)
@@ -199,7 +200,7 @@ class CpmSettings(FpmSettings):
     ``conf/method/cpm_literal.yaml`` (paper eq. 10 as written) and ``cpm_original.yaml`` (the
     authors' code) override them."""
 
-    fabric: FabricGains = field(default_factory=cpm_fabric)  # FPM's with ε = 1e-3 (cpm_fabric)
+    fabric: FabricGains = field(default_factory=cpm_fabric)  # the Fabrics gains, ε = 1e-3
     forcing: Forcing = field(default_factory=cpm_forcing)  # how PUMA's forcing meets the fabric:
     #                                   FPM's with task_metric and configuration_pull always
     variant: str = "paper"           # paper | original (the authors' code)

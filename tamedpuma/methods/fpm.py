@@ -37,7 +37,7 @@ Options (``conf/method/fpm.yaml``; each addition's law, setting and ablation row
   (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`), instead of ``h = −M⁻¹f``. The
   leaf is ``ẍ = 0`` in PUMA's task space with the constant metric
   w, a Finsler energy with a zero geometry, so the sum is still a fabric and its energized
-  form has the same statement. Why: the barriers' metric (×30) exceeds the base's wherever a
+  form has the same statement. Why: the barriers' metric exceeds the base's wherever a
   barrier is near, and there h = −M⁻¹f carries their curvature terms (m_r J̇q̇ along each
   barrier row) and the joint-limit braking to the hand at full strength, unweighed against
   PUMA's forcing added after it, so near a barrier they can move the hand away from the goal
