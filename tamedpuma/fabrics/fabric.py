@@ -106,10 +106,12 @@ class AvoidanceFabric:
         """Geometry acceleration ``q̈_G = −M⁻¹ f`` [rad/s²] (linear solve)."""
         return solve_acceleration(self.M, self.f)
 
-    def alpha(self, qd, qdd, eps: float = 1e-6) -> float:
+    def alpha(self, qd, qdd, eps: float = 1e-6, Mqd=None) -> float:
         """Energization coefficient of ``q̈ = qdd`` w.r.t. the fabric energy L_e:
-        ``α = q̇ᵀ(M q̈ + f_L)/(q̇ᵀ M q̇ + ε)`` [1/s]; then ``qdd − α q̇`` conserves ``H_{L_e}``."""
-        Mqd = self.M @ qd
+        ``α = q̇ᵀ(M q̈ + f_L)/(q̇ᵀ M q̇ + ε)`` [1/s]; then ``qdd − α q̇`` conserves ``H_{L_e}``.
+        Mqd: ``M q̇`` where the caller has it already."""
+        if Mqd is None:
+            Mqd = self.M @ qd
         return float((Mqd @ qdd + qd @ self.f_energy) / (qd @ Mqd + eps))
 
 

@@ -473,9 +473,8 @@ class ControlRate:
     :data:`BARRIER_KAPPA` of itself per period, towards :data:`BARRIER_STANDOFF`.
     speed_limit: scale the next velocity uniformly onto ``(1 − SPEED_HEADROOM) q̇_max``
     (direction kept) instead of leaving the per-joint clamp to the simulator.
-    semi_implicit: take the velocity-proportional terms implicitly over the period (FPM: −α q̇,
-    and the geometry's own braking along q̇ beyond the α bound, :func:`braking_split`; CPM: its
-    whole coefficient c), so that a large |c|Δt brakes towards rest instead of reversing q̇.
+    semi_implicit: take the velocity-proportional terms implicitly over the period (FPM: −α q̇; CPM:
+    its whole coefficient c), so that a large |c|Δt brakes towards rest instead of reversing q̇.
 
     ``ControlRate()`` has every filter off (the paper's laws as written); FPM's and CPM's
     settings give their own, every filter on

@@ -150,7 +150,7 @@ class CpmController(TamedController):
         r_coef = -self.regulator_scale * (qd @ dpsi) / denom  # regulator: r q̇
         beta = self.beta
         if self.variant == "paper":
-            alpha = av.alpha(qd, h_plus_f, self.eps)  # energize_{L_e}[h + f_θ^C]
+            alpha = av.alpha(qd, h_plus_f, self.eps, Mqd)  # energize_{L_e}[h + f_θ^C]
             if self.matched:  # β = max(β_min, r − α): exactly h + f_C whenever that dissipates
                 beta = max(self.beta, r_coef - alpha)
             c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇

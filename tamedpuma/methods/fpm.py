@@ -7,18 +7,13 @@ h = −M⁻¹ f is the summed, pulled-back avoidance geometry (body spheres × o
 energization ``h̃ = h − α q̇`` with ``α = q̇ᵀ(M_L h + f_L)/(q̇ᵀ M_L q̇ + ε)`` keeps the energy H_L
 constant; f_θ^C is PUMA's task acceleration pulled to the joints.
 
+Energization is eq. 9's, w.r.t. the fabric's own energy L_e with α exact: h̃ has the paths of h
+(any Finsler energy; method.md §2) and conserves H_{L_e}, so the paper's statement (PUMA's zero
+set, once reached, is kept: Prop. II.17 of Ratliff et al. 2023) holds.
+
 Options (``conf/method/fpm.yaml``; each addition's law, setting and ablation row: docs/method.md,
 "The additions the defaults make"), and which of the paper's statements still holds with it:
 
-- ``energy``: ``fabric`` energizes w.r.t. the fabric's own energy L_e, whose metric grows without
-  bound at a barrier (0.2/x): energy the forcing injects there (where M_{L_e} is large) comes
-  back as speed when the arm leaves the barrier: a "slingshot" that drives the arm past the goal
-  faster than PUMA and, with α unbounded, through its whole joint range.
-  ``execution`` energizes w.r.t. ½‖q̇‖² (geometric fabrics' execution energy): h̃ ⟂ q̇, the
-  geometry bends the path and never changes the speed, which the forcing alone sets. Either way
-  h̃ has the paths of h (any Finsler energy; method.md §2) and conserves its energy, so the
-  paper's statement (PUMA's zero set, once reached, is kept: Prop. II.17 of Ratliff et al.
-  2023) holds unchanged.
 - ``forcing.mode``: ``additive`` is eq. 9 as written, f_θ^C = J⁺(ẍ_d − J̇q̇) + N q̈_null, blind to
   the obstacles: at low speed h (∝ ‖q̇‖²) vanishes and PUMA pushes the arm straight into a
   barrier, where it hovers until the time limit. ``metric`` pulls PUMA through the avoidance
@@ -57,8 +52,7 @@ Options (``conf/method/fpm.yaml``; each addition's law, setting and ablation row
   the attractor stops making progress. The limit box is convex, so it has no rest point made
   by the limits; its own rest point is the goal pose, in PUMA's zero set, and elsewhere the
   forcing is as above, so the statement holds; the path is not PUMA's while it acts.
-- ``alpha_bound`` (α ≥ −alpha_bound; ``.inf``: unbounded, eq. 9) only adds damping;
-  ``control_rate`` filters only remove energy (:mod:`tamedpuma.fabrics.discrete`);
+- ``control_rate`` filters only remove energy (:mod:`tamedpuma.fabrics.discrete`);
   ``limit_margin`` moves the joint-limit
   barriers inside the real limits.
 
