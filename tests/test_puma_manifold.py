@@ -79,3 +79,17 @@ def test_quat_mul_matches_rotation_composition():
     ab = rotations.quats_to_matrices(rotations.quat_mul(a, b))
     np.testing.assert_allclose(ab, rotations.quats_to_matrices(a) @ rotations.quats_to_matrices(b),
                                atol=1e-12)
+
+
+def test_fused_products_differentiable_after_first_use_in_inference_mode():
+    """The fused products' constant matrices are cached on first use; a first use inside
+    ``torch.inference_mode`` (an evaluation before a training in one process) must not leave an
+    inference tensor that a later training cannot save for backward."""
+    m._CONST.clear()
+    q = torch.tensor(random_quats(3), dtype=torch.float16)  # a dtype no other test caches
+    with torch.inference_mode():
+        m.quat_to_matrix_flat(q)
+        m.quat_mul_fused(q, q)
+    q = q.clone().requires_grad_(True)
+    (m.quat_to_matrix_flat(q).sum() + m.quat_mul_fused(q, q).sum()).backward()
+    assert q.grad is not None and torch.isfinite(q.grad.float()).all()

@@ -139,10 +139,13 @@ _CONST: dict = {}
 
 
 def _const(name: str, dtype: torch.dtype) -> torch.Tensor:
-    """The constant matrices of the fused products, one copy per dtype."""
+    """The constant matrices of the fused products, one copy per dtype (made outside inference
+    mode, so that a training after an evaluation in the same process can save them for
+    backward)."""
     key = (name, dtype)
     if key not in _CONST:
-        _CONST[key] = torch.as_tensor(_TABLES[name], dtype=dtype)
+        with torch.inference_mode(False):
+            _CONST[key] = torch.as_tensor(_TABLES[name], dtype=dtype)
     return _CONST[key]
 
 
