@@ -7,16 +7,16 @@ import sys
 from tamedpuma.app import bench_runs
 
 
-def _report(conv=1.0, dtw=0.015, comp=0.997, iterations=1200):
+def _report(conv=1.0, dtw=0.008, comp=0.997, iterations=1200, worst=0.02):
     return {"iterations": 2400, "iterations_run": iterations, "pipeline_seconds": 120.0,
             "pipeline_cpu_seconds": 118.0,
             "evaluation": {"convergence": {"converged_fraction": conv, "starts": 1000,
                                            "final_pos_error_max": 0.001},
-                           "imitation": {"dtw": dtw},
+                           "imitation": {"dtw": dtw, "dtw_max": worst},
                            "compatibility": {"compatible_fraction": comp, "samples": 2000}}}
 
 
-def _row(task="tomato", seed=0, wall=100.0, code=0, **kw):
+def _row(task="tomato", seed=0, wall=70.0, code=0, **kw):
     return {"task": task, "seed": seed, "wall_s": wall, "returncode": code,
             **bench_runs.training_figures(_report(**kw))}
 
@@ -31,15 +31,16 @@ def test_training_figures_are_read_from_the_report():
 def test_each_training_target_is_judged():
     assert bench_runs.training_verdict(_row()) == []
     assert bench_runs.training_verdict(_row(conv=0.999))[0].startswith("converged 99.9%")
-    assert bench_runs.training_verdict(_row(dtw=0.0201)) == ["DTW 2.01 cm"]
-    assert bench_runs.training_verdict(_row(comp=0.98)) == ["ψ-compatible 98.0%"]
-    assert bench_runs.training_verdict(_row(wall=181.0)) == ["181 s wall"]
+    assert bench_runs.training_verdict(_row(dtw=0.0101)) == ["DTW 1.01 cm"]
+    assert bench_runs.training_verdict(_row(worst=0.031)) == ["worst demonstration 3.10 cm"]
+    assert bench_runs.training_verdict(_row(comp=0.994)) == ["ψ-compatible 99.4%"]
+    assert bench_runs.training_verdict(_row(wall=91.0)) == ["91 s wall"]
     failed = {"task": "tomato", "seed": 0, "wall_s": 3.0, "returncode": 2, "error": "bad"}
     assert bench_runs.training_verdict(failed) == ["the command failed (bad)"]
 
 
 def test_the_training_line_names_every_miss_and_the_table_every_run():
-    rows = [_row(), _row(seed=1), _row("pouring", 0, wall=150.0),
+    rows = [_row(), _row(seed=1), _row("pouring", 0, wall=85.0),
             _row("pouring", 1, wall=200.0, conv=0.998)]
     line = bench_runs.training_target_line(rows)
     assert "**not met**" in line and "pouring seed 1: converged 99.8%" in line
