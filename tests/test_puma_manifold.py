@@ -85,8 +85,8 @@ def test_fused_products_differentiable_after_first_use_in_inference_mode():
     """The fused products' constant matrices are cached on first use; a first use inside
     ``torch.inference_mode`` (an evaluation before a training in one process) must not leave an
     inference tensor that a later training cannot save for backward."""
-    m._CONST.clear()
-    q = torch.tensor(random_quats(3), dtype=torch.float16)  # a dtype no other test caches
+    m._CONST.clear()  # the first use is the one below
+    q = torch.tensor(random_quats(3), dtype=torch.float32)
     with torch.inference_mode():
         m.quat_to_matrix_flat(q)
         m.quat_mul_fused(q, q)
