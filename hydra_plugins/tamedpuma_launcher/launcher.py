@@ -1,7 +1,7 @@
 """The ``cores`` launcher (``conf/hydra/launcher/cores.yaml``): Hydra's joblib launcher whose
-workers read each config file once per sweep, not once per job
-(:mod:`tamedpuma.app.config_loads`). It lives in the ``hydra_plugins`` namespace because Hydra
-instantiates launchers from there only.
+workers read each config file, and compose each distinct selection of config groups, once per
+process instead of once per job (:mod:`tamedpuma.app.config_loads`). It lives in the
+``hydra_plugins`` namespace because Hydra instantiates launchers from there only.
 """
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from tamedpuma.app.config_loads import share_loads
 
 class CoresLauncher(JoblibLauncher):
     """Hydra's joblib launcher (the same settings, processes and jobs) whose config loader, the
-    one every job composes with, shares the config files a process has read."""
+    one every job composes with, shares the config files a process has read and the selections
+    it has composed."""
 
     def setup(self, *, hydra_context, task_function, config) -> None:
         share_loads(hydra_context.config_loader)

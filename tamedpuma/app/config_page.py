@@ -447,7 +447,8 @@ GROUPS = {
     "experiment": "a whole experiment's sweep (`+experiment=`, docs/experiments.md)",
     "puma": "the PUMA network and its training (`python -m tamedpuma.train`)",
     "hydra/launcher": "how a sweep's jobs run: `cores` (all cores: Hydra's joblib launcher whose "
-                      "workers read each config file once per sweep), and the installed Hydra "
+                      "workers read each config file and compose each selection of groups once), "
+                      "and the installed Hydra "
                       "launcher plugins' `submitit_slurm`, `submitit_local`, `ray`",
 }
 
