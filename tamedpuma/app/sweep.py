@@ -80,29 +80,12 @@ def build(cfg: DictConfig) -> Built:
     ranges checked) -> robot, scenario, controller, simulator settings. Any invalid value becomes
     a :class:`ConfigError` with a one-line message."""
     from tamedpuma import methods
-    from tamedpuma.app.config import table1_starts
     from tamedpuma.app.schema import method_settings, run_config
     from tamedpuma.puma import store
-    from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
-    from tamedpuma.worlds import demo_scenarios
-    from tamedpuma.worlds.scenarios import build_scenario
 
     run = run_config(cfg)
     try:
-        spec = robot_spec_from_config(run.robot)
-        kinematics = Kinematics(spec)
-        # derived goal, generated scenario; a task without Table-1 starts: its demonstrations'
-        world, demo_starts = demo_scenarios.apply(run, kinematics)
-
-        def reference():  # clutter.keep_clear=path: the collision-free run to keep clear of
-            from tamedpuma.app.reference import reference_motion
-
-            return reference_motion(cfg, build)
-
-        def starts(task: str) -> list:  # scenario=random, start_kind=near_table1
-            return table1_starts(task) or demo_starts
-
-        scenario = build_scenario(world, spec, kinematics, reference, starts)
+        spec, kinematics, scenario = _world(cfg, run)
         settings = with_robot_null_space(method_settings(run.method), run.robot.null_space)
         model = store.resolve_for_method(run.method.name, settings)
         if model is not None:  # the method loads exactly the file that is recorded
@@ -116,6 +99,44 @@ def build(cfg: DictConfig) -> Built:
     except (ValueError, TypeError, KeyError) as exc:
         raise ConfigError(f"invalid configuration: {type(exc).__name__}: {exc}") from exc
     return Built(run, spec, scenario, controller, sim_config, disturbance, model)
+
+
+def _world(cfg: DictConfig, run) -> tuple:
+    """(robot spec, kinematics, scenario) of the typed run config ``run`` (``cfg``: the same,
+    untyped, for a clutter's reference run)."""
+    from tamedpuma.app.config import table1_starts
+    from tamedpuma.robot.kinematics import Kinematics, robot_spec_from_config
+    from tamedpuma.worlds import demo_scenarios
+    from tamedpuma.worlds.scenarios import build_scenario
+
+    spec = robot_spec_from_config(run.robot)
+    kinematics = Kinematics(spec)
+    # derived goal, generated scenario; a task without Table-1 starts: its demonstrations'
+    world, demo_starts = demo_scenarios.apply(run, kinematics)
+
+    def reference():  # clutter.keep_clear=path: the collision-free run to keep clear of
+        from tamedpuma.app.reference import reference_motion
+
+        return reference_motion(cfg, build)
+
+    def starts(task: str) -> list:  # scenario=random, start_kind=near_table1
+        return table1_starts(task) or demo_starts
+
+    return spec, kinematics, build_scenario(world, spec, kinematics, reference, starts)
+
+
+def world_of(cfg: DictConfig) -> tuple:
+    """(robot spec, kinematics, scenario) a run of ``cfg`` builds, without its controller (the
+    analyses that judge a scenario apart from the method). Config errors as :func:`build`."""
+    from tamedpuma.app.schema import run_config
+
+    run = run_config(cfg)
+    try:
+        return _world(cfg, run)
+    except TamedPumaError:
+        raise
+    except (ValueError, TypeError, KeyError) as exc:
+        raise ConfigError(f"invalid configuration: {type(exc).__name__}: {exc}") from exc
 
 
 def with_robot_null_space(settings, robot_null_space):

@@ -27,18 +27,22 @@ SOLUTIONS, MARGIN, TOLERANCE = 24, 0.05, 1e-5
 
 
 def goal_pose_spheres(kin, position, quaternion, seed: int,
-                      count: int = SOLUTIONS) -> np.ndarray:
+                      count: int = SOLUTIONS, q0=None) -> np.ndarray:
     """Body sphere centres (k, s, 3) [m] of the k ≤ ``count`` converged pose IK solutions of the
-    goal pose (position [m], quaternion (x, y, z, w)) from seeded random starts, each with every
-    body sphere above the ground (z > its radius). Deterministic for a seed."""
+    goal pose (position [m], quaternion (x, y, z, w)) from seeded random starts (the first from
+    ``q0`` [rad] instead, clipped inside the limits, where given), each with every body sphere
+    above the ground (z > its radius). Deterministic for a seed."""
     spec = kin.spec
     lo, hi = spec.q_min + MARGIN, spec.q_max - MARGIN
     rotation = quat_to_matrix(np.asarray(quaternion, dtype=float))
     rng = np.random.default_rng([int(seed), 31415])
     found = []
-    for _ in range(count):
+    for k in range(count):
+        start = rng.uniform(lo, hi)
+        if k == 0 and q0 is not None:
+            start = np.clip(np.asarray(q0, dtype=float), lo, hi)
         q, err, _ = pose_dls(kin, np.asarray(position, dtype=float), rotation,
-                             rng.uniform(lo, hi), lo, hi, 1e-2, TOLERANCE, 300)
+                             start, lo, hi, 1e-2, TOLERANCE, 300)
         if np.linalg.norm(err) < TOLERANCE:
             centers = kin.sphere_centers(q)
             if np.all(centers[:, 2] > spec.sphere_radii):
@@ -46,17 +50,26 @@ def goal_pose_spheres(kin, position, quaternion, seed: int,
     return np.asarray(found, dtype=float).reshape(-1, len(spec.sphere_radii), 3)
 
 
+def pose_gap(spheres: np.ndarray, sphere_radii: np.ndarray, obstacle_centers: np.ndarray,
+             obstacle_radii: np.ndarray) -> float | None:
+    """The best of the solutions' least clearances [m]: max over the solutions ``spheres``
+    (k, s, 3) of min over their body spheres and the obstacles (centres (m, 3), radii (m,)) of
+    the surface-to-surface distance; inf without obstacles, None without solutions."""
+    centers = np.asarray(obstacle_centers, dtype=float).reshape(-1, 3)
+    if not len(centers):
+        return np.inf
+    if not len(spheres):
+        return None
+    gaps = (np.linalg.norm(spheres[:, :, None, :] - centers[None, None], axis=-1)
+            - np.asarray(sphere_radii, dtype=float)[None, :, None]
+            - np.asarray(obstacle_radii, dtype=float).reshape(-1)[None, None, :])
+    return float(gaps.min(axis=(1, 2)).max())
+
+
 def pose_clear(spheres: np.ndarray, sphere_radii: np.ndarray, obstacle_centers: np.ndarray,
                obstacle_radii: np.ndarray, clearance: float) -> bool:
     """Whether one of the solutions' body spheres ``spheres`` (k, s, 3) keeps ``clearance`` [m]
     from every obstacle (centres (m, 3), radii (m,)); True without obstacles, False without
     solutions."""
-    centers = np.asarray(obstacle_centers, dtype=float).reshape(-1, 3)
-    if not len(centers):
-        return True
-    if not len(spheres):
-        return False
-    gaps = (np.linalg.norm(spheres[:, :, None, :] - centers[None, None], axis=-1)
-            - np.asarray(sphere_radii, dtype=float)[None, :, None]
-            - np.asarray(obstacle_radii, dtype=float).reshape(-1)[None, None, :])
-    return bool(np.any(gaps.min(axis=(1, 2)) >= clearance))
+    gap = pose_gap(spheres, sphere_radii, obstacle_centers, obstacle_radii)
+    return gap is not None and gap >= clearance
