@@ -269,3 +269,26 @@ def test_no_library_default_besides_the_schema():
             if _DEFAULTED_GET.search(line):
                 offenders.append(f"{path.relative_to(PKG)}:{n}: {line.strip()}")
     assert not offenders, "config defaults belong in app/schema.py:\n" + "\n".join(offenders)
+
+
+def test_run_config_types_equal_sections_once_and_hands_out_copies(hydra_conf, monkeypatch):
+    """The jobs of a sweep repeat their method and scenario sections: each is typed once per
+    process (schema._TYPED), every call gets an equal object of its own (setting a field of one
+    does not reach the next), and a bad value fails on every call, not only the first."""
+    monkeypatch.setattr(schema, "_TYPED", {})
+    calls = []
+    real = schema.typed
+    monkeypatch.setattr(schema, "typed", lambda *a, **k: calls.append(a[0]) or real(*a, **k))
+    cfg = compose("sweep", ["method=fpm", "+case=tomato_03"])
+    first, second = schema.run_config(cfg), schema.run_config(cfg)
+    assert first == second and first is not second and first.method is not second.method
+    assert len(calls) == 2  # the method's section and the rest, once each
+    first.scenario.max_steps = 7  # a caller's own object
+    third = schema.run_config(cfg)
+    assert third == second and third.scenario.max_steps == second.scenario.max_steps != 7
+    other = schema.run_config(compose("sweep", ["method=cpm", "+case=tomato_03"]))
+    assert other.method.name == "cpm" and len(calls) == 3  # the rest was typed already
+    bad = compose("sweep", ["method=fpm", "+case=tomato_03", "scenario.max_steps=-1"])
+    for _ in range(2):
+        with pytest.raises(ConfigError, match="max_steps"):
+            schema.run_config(bad)
