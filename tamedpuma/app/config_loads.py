@@ -47,6 +47,8 @@ _LOADED: dict[tuple, object] = {}
 #: (config name, structural override lines, the repository's sources, job name, Hydra's version
 #: base) -> that selection composed by Hydra, per process
 _COMPOSED: dict[tuple, DictConfig] = {}
+#: the most selections :data:`_COMPOSED` keeps (Table 1 has 240, the randomized suite 16)
+COMPOSED_KEPT = 1024
 
 #: (config name, Hydra's override lines, the repository's sources) -> the repository a job with
 #: them composes from (``hydra.searchpath`` included) and its answers to ``group_exists``
@@ -164,6 +166,8 @@ class SweepConfigLoader(ConfigLoaderImpl):
         key = (config_name, tuple(master_lines), tuple(structural), self._sources(),
                JobRuntime().get("name"), str(version.getbase()))
         if key not in _COMPOSED:
+            if len(_COMPOSED) >= COMPOSED_KEPT:  # the oldest selection makes room
+                _COMPOSED.pop(next(iter(_COMPOSED)))
             _COMPOSED[key] = super().load_sweep_config(master_config, structural)
         cfg = copy.deepcopy(_COMPOSED[key])
 
