@@ -604,7 +604,10 @@ def _typed_once(schema: type, plain: dict, where: str = ""):
     """:func:`typed` of the plain (resolved) mapping, computed once per process for equal
     input; each call gets its own deep copy (a caller may set its fields). Errors are raised
     every time (nothing is kept for them)."""
-    key = (schema, where, json.dumps(plain, sort_keys=True, default=repr))
+    try:
+        key = (schema, where, json.dumps(plain, sort_keys=True, default=repr))
+    except (TypeError, ValueError):  # keys JSON cannot sort (mixed types): typed afresh
+        return typed(schema, plain, where)
     if key not in _TYPED:
         if len(_TYPED) >= TYPED_KEPT:
             _TYPED.pop(next(iter(_TYPED)))
