@@ -578,6 +578,8 @@ def method_options(cfg) -> MethodSchema:
     name = str(cfg["name"])
     if name not in METHODS:
         raise ConfigError(f"unknown method {name!r}; choose one of {sorted(METHODS)}")
+    if isinstance(cfg, dict):  # plain values (run_config's): typed once per process
+        return _typed_once(METHODS[name], cfg, "method")
     return typed(METHODS[name], cfg, "method")
 
 
@@ -621,12 +623,7 @@ def run_config(cfg) -> RunConfig:
     if not isinstance(cfg, DictConfig):
         cfg = OmegaConf.create(cfg)
     plain = OmegaConf.to_container(cfg, resolve=True)
-    method_cfg = plain.get("method") or {}
-    if "name" not in method_cfg:
-        raise ConfigError("method.name is not set")
-    if str(method_cfg["name"]) not in METHODS:
-        method_options(method_cfg)  # the unknown method's one-line error
-    method = _typed_once(METHODS[str(method_cfg["name"])], method_cfg, "method")
+    method = method_options(plain.get("method") or {})
     run = _typed_once(RunConfig, {**plain, "method": {}})
     run.method = method
     return run

@@ -38,7 +38,7 @@ def goal_pose_spheres(kin, position, quaternion, seed: int,
     rng = np.random.default_rng([int(seed), 31415])
     found = []
     for k in range(count):
-        start = rng.uniform(lo, hi)
+        start = rng.uniform(lo, hi)  # drawn also when q0 replaces it: the other starts stay
         if k == 0 and q0 is not None:
             start = np.clip(np.asarray(q0, dtype=float), lo, hi)
         q, err, _ = pose_dls(kin, np.asarray(position, dtype=float), rotation,
