@@ -86,7 +86,7 @@ def test_the_cores_launcher_shares_the_reads_of_the_loader_its_jobs_compose_with
         assert type(launcher).__mro__[1].__name__ == "JoblibLauncher"
         assert isinstance(loader.repository, config_loads.SharedLoads)
         assert type(loader) is config_loads.SweepConfigLoader
-        assert launcher.joblib["n_jobs"] == -1 and str(launcher.joblib["batch_size"]) == "1"
+        assert launcher.joblib["n_jobs"] == -1 and str(launcher.joblib["batch_size"]) == "2"
 
 
 def test_everything_but_the_reads_is_the_inner_repositorys():
@@ -103,6 +103,49 @@ def test_everything_but_the_reads_is_the_inner_repositorys():
         assert shared.config_exists("method/fpm") and not shared.config_exists("method/none")
         assert shared.get_sources() == repo.get_sources()
         assert shared.load_config("method/none") is None
+
+
+def test_a_copy_of_the_shared_repository_is_independent_of_the_original():
+    """Hydra's per-compose cache deep-copies the repository and re-initialises the copy's
+    sources (a job's ``hydra.searchpath``); the shallow copy leaves the original's alone."""
+    import copy
+
+    from hydra._internal.config_repository import ConfigRepository
+    from hydra._internal.config_search_path_impl import ConfigSearchPathImpl
+
+    with session():
+        shared = GlobalHydra.instance().config_loader().repository
+        shared = shared if isinstance(shared, config_loads.SharedLoads) else \
+            config_loads.SharedLoads(shared)
+        assert type(shared._inner) is ConfigRepository
+        before = [(s.provider, s.path) for s in shared.get_sources()]
+        twin = copy.deepcopy(shared)
+        assert twin._inner is not shared._inner
+        twin.initialize_sources(ConfigSearchPathImpl())  # an empty search path
+        assert twin.get_sources() == [] and len(before) > 1
+        assert [(s.provider, s.path) for s in shared.get_sources()] == before
+        assert shared.load_config("method/fpm") is not None
+
+
+def test_a_cores_worker_keeps_its_plugin_registry_from_one_job_to_the_next(monkeypatch):
+    """The launcher's execute_job hands Hydra's the registry the worker already has (Hydra's
+    set_state would otherwise discover every plugin again), and nothing else of the state."""
+    from hydra.core.plugins import Plugins
+    from hydra.core.singleton import Singleton
+    from hydra_plugins.hydra_joblib_launcher import _core
+
+    from hydra_plugins.tamedpuma_launcher import launcher
+
+    seen = []
+    monkeypatch.setattr(_core, "execute_job", lambda *args: seen.append(args[-1]))
+    registry = Plugins.instance()
+    sent = {"instances": {"other": 1}, "omegaconf_resolvers": {}}
+    launcher.execute_job(0, [], None, None, None, sent)
+    assert seen[0]["instances"] == {"other": 1, Plugins: registry}
+    assert sent == {"instances": {"other": 1}, "omegaconf_resolvers": {}}  # not written
+    monkeypatch.setattr(Singleton, "_instances", {})  # a fresh worker: Hydra discovers them
+    launcher.execute_job(1, [], None, None, None, sent)
+    assert seen[1]["instances"] == {"other": 1}
 
 
 # --- the composed selections: a job's plain values applied to its structural selection composed

@@ -35,7 +35,7 @@ import copy
 import os
 
 from hydra._internal.config_loader_impl import ConfigLoaderImpl, get_overrides_dirname
-from hydra._internal.config_repository import IConfigRepository
+from hydra._internal.config_repository import ConfigRepository, IConfigRepository
 from hydra.core.object_type import ObjectType
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import OverrideType
@@ -64,13 +64,19 @@ class SharedLoads(IConfigRepository):
     job's values into the next. Copying a loaded result costs a third of reading it.
 
     Hydra wraps the repository in a per-compose cache that deep-copies it and re-initialises the
-    copy's sources; the copy keeps sharing :data:`_LOADED`."""
+    copy's sources; the copy keeps sharing :data:`_LOADED`, and copies Hydra's repository
+    shallowly (:meth:`__deepcopy__`)."""
 
     def __init__(self, inner: IConfigRepository):
         self._inner = inner
 
     def __deepcopy__(self, memo) -> SharedLoads:
-        return SharedLoads(copy.deepcopy(self._inner, memo))
+        inner = self._inner
+        if type(inner) is ConfigRepository:  # its one mutation, initialize_sources, replaces
+            # its list of sources (which read and hold nothing a compose changes): a shallow
+            # copy is as independent as Hydra's deep one, which copies the whole ConfigStore
+            return SharedLoads(copy.copy(inner))
+        return SharedLoads(copy.deepcopy(inner, memo))
 
     def _key(self, config_path: str) -> tuple:
         return (tuple((s.provider, s.path) for s in self._inner.get_sources()), config_path)
