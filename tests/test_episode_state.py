@@ -36,12 +36,14 @@ def _built(method: str):
 
 def _shared(obj) -> bool:
     """Objects a controller borrows and the walk below does not enter: the robot model
-    (pinocchio's buffers), torch modules (PUMA's network) and modules."""
+    (pinocchio's buffers), torch modules (PUMA's network), compiled kernels (numba's) and
+    modules."""
     import torch
 
     from tamedpuma.robot.kinematics import Kinematics
 
-    return isinstance(obj, (Kinematics, torch.nn.Module)) or type(obj).__name__ == "module"
+    return (isinstance(obj, (Kinematics, torch.nn.Module)) or type(obj).__name__ == "module"
+            or type(obj).__module__.startswith("numba."))
 
 
 def _fingerprint(obj, seen=None):

@@ -191,3 +191,35 @@ def test_psi_alone_is_the_potentials_and_leaves_the_step_as_it_was():
         ref = prim.potential(x, goal)[0]
         _close(psi1, ref, max(1.0, ref))
         _close(psi0, ref, max(1.0, ref))
+
+
+@pytest.mark.parametrize("spec", [StateSpec(3, True, 2), StateSpec(2, False, 1),
+                                  StateSpec(2, False, 2)], ids=["pose", "vector1", "vector2"])
+def test_the_compiled_passes_give_the_numpy_paths_numbers_to_rounding(spec):
+    """Where numba is installed the encoder, decoder and backward pass run compiled
+    (puma/single_kernels.py); the numpy path is the reference: 1e-12 relative, also for the
+    second row at rest (forward after potential) and with the skip part off."""
+    from tamedpuma.puma import single_kernels
+    from tamedpuma.puma.single import SingleState
+
+    if not single_kernels.AVAILABLE:
+        pytest.skip("numba is not installed (the `fast` extra): no compiled path to compare")
+    rng = np.random.default_rng(11)
+    for skip in (1.0, 0.0):
+        prim = _random_net(spec, seed=3, skip=skip)
+        fast, plain = prim.single, SingleState(prim.fast, compiled=False)
+        assert fast.kernels is not None and plain.kernels is None
+        n, t = spec.n_pos, spec.tangent_dim
+        for k in range(40):
+            e = (rng.normal(size=n) * 0.3).tolist()
+            rot = (rotations.exp_so3(rng.normal(size=3)).ravel().tolist()
+                   if spec.orientation else None)
+            vel = rng.normal(size=t).tolist() if spec.order == 2 else None
+            if k % 2:  # the potential first: the forward passes then encode the rest row too
+                got, ref = fast.potential(e, rot), plain.potential(e, rot)
+                for a, b in zip(got, ref):
+                    if b is not None:
+                        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max())
+            got, ref = fast.forward(e, rot, vel), plain.forward(e, rot, vel)
+            np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+            np.testing.assert_allclose(fast.psi(e, rot), plain.psi(e, rot), rtol=1e-12)

@@ -241,6 +241,35 @@ def test_truncated_and_corrupt_files(mcap_run, tmp_path):
         read_mcap(tmp_path / "missing.mcap")
 
 
+def test_a_whole_log_is_scanned_fast_to_the_stream_readers_records(mcap_run, tmp_path):
+    """read_mcap slices a whole file's records from its bytes (runlog._scan_whole): the same
+    schemas, channels, messages, metadata and attachment as the mcap library's stream reader;
+    a file that is not whole (cut, damaged, still being written) is left to the stream reader,
+    which reads up to the damage and says why it stops."""
+    from tamedpuma import runlog
+
+    path, _, _ = mcap_run
+    whole, stream = runlog._scan_whole(path), runlog._scan_stream(path)
+    assert whole is not None and whole.footer and whole.error is None
+    for name in ("schemas", "channels", "metadata", "attachments", "messages", "n_records"):
+        assert getattr(whole, name) == getattr(stream, name), name
+    assert sum(len(m) for m in whole.messages.values()) == 5 * 250
+    data = path.read_bytes()
+    damaged = bytearray(data)
+    damaged[len(data) // 2] ^= 0xFF  # one bit pattern inside the data section
+    for name, content in [("cut.mcap", data[:-1]), ("flipped.mcap", bytes(damaged)),
+                          ("half.mcap", data[: len(data) // 2])]:
+        p = tmp_path / name
+        p.write_bytes(content)
+        try:
+            whole = runlog._scan_whole(p)
+        except Exception:  # noqa: BLE001 - a damaged chunk's CRC: the stream reader's turn
+            whole = None
+        assert whole is None, name
+        scan = runlog._scan(p)
+        assert scan.error is not None or not scan.footer, name
+
+
 def test_a_missing_log_names_the_active_file_a_killed_run_left(tmp_path):
     """Both readers: a missing log is a LogError naming it, and the ``.active`` file beside it."""
     for read, name, what in ((read_mcap, "episode.mcap", "run log"),

@@ -35,10 +35,11 @@ WHY = {
            "each a few small-array numpy calls; at 1000 obstacles the fabric's pass over the "
            "5000 pairs' distances. "
            "What is left at 2 obstacles is per-call overhead spread over ~290 function calls "
-           "(cProfile; no part above the network's ~35 µs and the fabric's ~30 µs); the "
+           "(cProfile; no part above the network's and the fabric's ~30 µs; where numba is "
+           "installed the network's encoder, decoder and backward pass are one compiled call "
+           "each, `puma/single_kernels.py`); the "
            "`+numpy` variant computes the fabric with the numpy reference instead of the "
-           "compiled kernels; a compiled network is the next candidate "
-           "(not tried: its products would differ from BLAS's in the last bits).",
+           "compiled kernels.",
     "cpm": "As FPM, plus ψ and ∂ψ (the rest row of the network's pass and a hand-written "
            "backward pass) and the regulator.",
     "modulation_ik": "The IK solve (SNOPT through Drake, a fresh program each step) is the "

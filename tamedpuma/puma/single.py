@@ -18,7 +18,9 @@ calls on preallocated buffers (for one state the time is per-call overhead, not 
   rest ``(x, 0)`` as a second row of the same products, and :meth:`potential` at that same pose
   reuses it (only the backward pass is left): ψ costs CPM a few calls, not a second network pass.
 
-Tested against FastNet and against the torch network in float64 (1e-10).
+Tested against FastNet and against the torch network in float64 (1e-10). Where numba is
+installed the encoder, decoder and backward pass each run as one compiled call
+(:mod:`~tamedpuma.puma.single_kernels`, the numbers of this module's numpy path to 1e-12).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import math
 import numpy as np
 from scipy.special import ndtr
 
+from . import single_kernels
 from .fastnet import FastNet
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
@@ -52,12 +55,16 @@ class _Rows:
         self.t1, self.t2 = np.empty((B, w)), np.empty((B, w))
         self.u1, self.u2 = np.empty((B, w)), np.empty((B, w))
         self.y = np.empty((B, z + (d if skip else 0)))
+        self.sig = np.empty((B, 2))  # the two LayerNorms' σ per row (compiled path)
 
 
 class SingleState:
-    """One-state evaluation of a :class:`FastNet` (see the module docstring). Not thread-safe."""
+    """One-state evaluation of a :class:`FastNet` (see the module docstring). Not thread-safe.
+    compiled: the encoder, decoder and backward pass as numba kernels
+    (:mod:`~tamedpuma.puma.single_kernels`, the same numbers to rounding) where numba is
+    installed; False: this module's numpy path, the reference."""
 
-    def __init__(self, fast: FastNet):
+    def __init__(self, fast: FastNet, compiled: bool = True):
         spec = self.spec = fast.spec
         self.n = spec.n_pos
         self.ori = spec.orientation
@@ -93,7 +100,15 @@ class SingleState:
         self.e3T = fast.e3.w.T.copy()
         self.e2T, self.e1T = self.W2[:-1].T.copy(), self.W1[:-1].T.copy()
         self.pos_scale = np.asarray(fast.pos_scale, float).reshape(-1)
+        self.kernels = single_kernels.kernels() if compiled else None
         self._new_buffers()
+        if self.kernels is not None:  # compiled (or loaded) for these arrays now, not in a step
+            zero = [0.0] * self.n
+            rot = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0] if self.ori else None
+            vel = [0.0] * spec.tangent_dim if self.order == 2 else None
+            self.potential(zero, rot)
+            self.forward(zero, rot, vel)
+            self._new_buffers()
 
     def _new_buffers(self) -> None:
         """The buffers and the memo the calls write (everything else is fixed by __init__)."""
@@ -132,6 +147,12 @@ class SingleState:
     def _encode(self, rows: _Rows):
         """Encoder of every row of rows.f; fills rows.y = [ρ_net(f), c f] and the caches of the
         backward pass (x̂ in c, GELU inputs u, Φ(u) in t); returns the LayerNorms' σ per row."""
+        if self.kernels is not None:
+            self.kernels.encode(rows.f, self.W1, self.g1, self.b1, self.eps1, self.W2, self.g2,
+                                self.b2, self.eps2, self.W3, float(self.skip), rows.c1, rows.u1,
+                                rows.t1, rows.a1, rows.c2, rows.u2, rows.t2, rows.a2, rows.y,
+                                rows.sig)
+            return rows.sig[:, 0], rows.sig[:, 1]
         w = self.w
         _dot(rows.f, self.W1, out=rows.c1)
         s1 = self._ln_gelu(rows.c1, rows.u1, rows.t1, rows.a1, self.g1, self.b1, self.eps1, w)
@@ -145,6 +166,8 @@ class SingleState:
 
     def _decode(self, y) -> np.ndarray:
         """Fresh output ``(φ(y) − φ_g) ⊙ s_out`` (tangent,) for one latent y."""
+        if self.kernels is not None:
+            return self.kernels.decode(y, self.D1, self.D2, self.D3, self.eps0, self._h, self._t)
         c = y - _add.reduce(y) / y.shape[0]
         sig = math.sqrt(float(_dot(c, c)) / y.shape[0] + self.eps0)
         c *= 1.0 / sig
@@ -165,6 +188,12 @@ class SingleState:
 
     def _backward(self, rows: _Rows, i: int, sig1, sig2):
         """``(ψ, ∂ψ/∂f)`` of row i (a state at rest) from its forward caches."""
+        if self.kernels is not None:
+            psi, g = self.kernels.backward(rows.y[i], self.y_goal, self.e3T, rows.c2[i],
+                                           rows.u2[i], rows.t2[i], self.g2, float(sig2[i]),
+                                           self.e2T, rows.c1[i], rows.u1[i], rows.t1[i], self.g1,
+                                           float(sig1[i]), self.e1T, float(self.skip))
+            return float(psi), g
         z = self.z
         diff = rows.y[i] - self.y_goal
         psi = float(_dot(diff, diff))

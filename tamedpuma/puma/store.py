@@ -73,11 +73,12 @@ def file_sha256(path: str | Path) -> str:
 
 
 def training_code_version() -> str:
-    """sha256 over the sources of the training code (``tamedpuma/puma/*.py`` except this module
-    and the builder): a change there changes every cache key, so models are rebuilt."""
+    """sha256 over the sources of the training code (``tamedpuma/puma/*.py`` except this module,
+    the builder, the downloader and the one-state inference path, which training never calls):
+    a change there changes every cache key, so models are rebuilt."""
     h = hashlib.sha256()
     for path in sorted(PACKAGE_DIR.glob("*.py")):
-        if path.name in ("store.py", "build.py", "download.py"):
+        if path.name in ("store.py", "build.py", "download.py", "single.py", "single_kernels.py"):
             continue
         h.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()

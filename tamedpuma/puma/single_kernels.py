@@ -1,0 +1,160 @@
+"""The one-state network's three passes (:class:`~tamedpuma.puma.single.SingleState`: encoder,
+decoder, ψ's backward pass) as numba kernels: one compiled call each instead of ~10 numpy calls,
+whose per-call overhead (~1-2 µs each) is most of a one-state evaluation at width 128.
+
+The same maths as SingleState's numpy path, which stays the reference (the tests hold the two to
+1e-12 relative): the products are numba's calls of the same BLAS routines (one row at a time
+instead of a batch of one or two), the normal CDF is ``Φ(u) = ½ erfc(−u/√2)`` as scipy's
+``ndtr`` computes it but with the C library's ``erf``/``erfc`` instead of Cephes', and the
+decoder's mean is a plain sum (numpy's is pairwise): the last bits may differ.
+
+:func:`kernels` compiles them (a few seconds, then from numba's on-disk cache) when a network
+is loaded, never inside a control step; None where numba is not installed or fails to compile
+(then SingleState stays on its numpy path).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+
+#: numba is installed (the ``fast`` extra)
+AVAILABLE = importlib.util.find_spec("numba") is not None
+_SQRT1_2 = 0.7071067811865476  # 1/√2, as scipy's ndtr (NPY_SQRT1_2)
+_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+_COMPILED: list = []  # [namespace or None] once tried
+
+
+def _ndtr(u, out):
+    """``out = Φ(u)`` elementwise, by scipy's ``ndtr`` branches."""
+    for i in range(u.shape[0]):
+        x = u[i] * _SQRT1_2
+        z = abs(x)
+        if z < _SQRT1_2:
+            out[i] = 0.5 + 0.5 * math.erf(x)
+        else:
+            y = 0.5 * math.erfc(z)
+            out[i] = 1.0 - y if x > 0.0 else y
+
+
+def _ln_gelu(c, u, t, a, g, b, eps):
+    """One row, in place: ``σ = √(c·c/w + ε)``, ``c ← x̂ = c/σ``, ``u = x̂γ + β``, ``t = Φ(u)``,
+    ``a[:w] = u t`` (GELU); returns σ."""
+    w = c.shape[0]
+    s = math.sqrt(np.dot(c, c) / w + eps)
+    inv = 1.0 / s
+    for k in range(w):
+        c[k] *= inv
+        u[k] = c[k] * g[k] + b[k]
+    _ndtr(u, t)
+    for k in range(w):
+        a[k] = u[k] * t[k]
+    return s
+
+
+def encode(f, W1, g1, b1, eps1, W2, g2, b2, eps2, W3, skip, c1, u1, t1, a1, c2, u2, t2, a2,
+           y, sig):
+    """SingleState._encode for every row of f (B, d + 1): fills the row buffers (x̂ in c, u, Φ(u)
+    in t, GELU in a), the latent y = [ρ_net(f), skip f] and the LayerNorms' σ in sig (B, 2)."""
+    z = W3.shape[1]
+    for r in range(f.shape[0]):
+        c1[r, :] = np.dot(f[r], W1)
+        sig[r, 0] = _ln_gelu(c1[r], u1[r], t1[r], a1[r], g1, b1, eps1)
+        c2[r, :] = np.dot(a1[r], W2)
+        sig[r, 1] = _ln_gelu(c2[r], u2[r], t2[r], a2[r], g2, b2, eps2)
+        y[r, :z] = np.dot(a2[r], W3)
+        if skip > 0.0:
+            for k in range(f.shape[1] - 1):
+                y[r, z + k] = f[r, k] * skip
+
+
+def decode(y, D1, D2, D3, eps0, h, t):
+    """SingleState._decode: ``(φ(y) − φ_g) ⊙ s_out`` of the latent y (h: the hidden buffer with
+    its trailing 1, t: width scratch)."""
+    n = y.shape[0]
+    w = t.shape[0]
+    mean = 0.0
+    for k in range(n):
+        mean += y[k]
+    mean /= n
+    c = y - mean
+    sig = math.sqrt(np.dot(c, c) / n + eps0)
+    c *= 1.0 / sig
+    u = np.dot(c, D1[:-1])
+    for k in range(w):
+        u[k] += D1[-1, k]
+    _ndtr(u, t)
+    for k in range(w):
+        h[k] = u[k] * t[k]
+    u = np.dot(h, D2)
+    _ndtr(u, t)
+    for k in range(w):
+        h[k] = u[k] * t[k]
+    return np.dot(h, D3)
+
+
+def _ln_back(g, xh, u, t, gam, sig, WT):
+    """∂ψ through one GELU(LayerNorm(·)) layer and its centred weights (SingleState._backward)."""
+    w = g.shape[0]
+    for k in range(w):
+        uk = u[k]
+        g[k] *= (math.exp(-0.5 * (uk * uk)) * uk * _INV_SQRT_2PI + t[k]) * gam[k]
+    proj = np.dot(g, xh) / w
+    for k in range(w):
+        g[k] -= xh[k] * proj
+    out = np.dot(g, WT)
+    out *= 1.0 / sig
+    return out
+
+
+def backward(y, y_goal, e3T, xh2, u2, t2, g2, sig2, e2T, xh1, u1, t1, g1, sig1, e1T, skip):
+    """SingleState._backward of one row at rest: ``(ψ, ∂ψ/∂f)`` from its forward caches."""
+    z = e3T.shape[0]
+    diff = y - y_goal
+    psi = np.dot(diff, diff)
+    g = np.dot(diff[:z], e3T)
+    g *= 2.0
+    g = _ln_back(g, xh2, u2, t2, g2, sig2, e2T)
+    g = _ln_back(g, xh1, u1, t1, g1, sig1, e1T)
+    if skip > 0.0:
+        for k in range(diff.shape[0] - z):
+            g[k] += (2.0 * skip) * diff[z + k]
+    return psi, g
+
+
+def kernels() -> SimpleNamespace | None:
+    """encode, decode and backward compiled (once per process; None without numba or where it
+    fails, with a warning)."""
+    if _COMPILED:
+        return _COMPILED[0]
+    space = None
+    if AVAILABLE:
+        try:
+            space = _compile()
+        except Exception as exc:  # noqa: BLE001 - a broken numba install: the numpy path
+            warnings.warn(f"numba could not compile the network's kernels ({type(exc).__name__}: "
+                          f"{exc}); one-state evaluations use numpy", stacklevel=2)
+    _COMPILED.append(space)
+    return space
+
+
+def _compile() -> SimpleNamespace:
+    """The kernels compiled, calling compiled copies of the helpers (a namespace of their own:
+    the module's functions stay plain)."""
+    import types
+
+    import numba
+
+    space = dict(globals())
+
+    def jit(fn):
+        copy = types.FunctionType(fn.__code__, space, fn.__name__, fn.__defaults__)
+        return numba.njit(cache=True, nogil=True)(copy)
+
+    for helper in (_ndtr, _ln_gelu, _ln_back):
+        space[helper.__name__] = jit(helper)
+    return SimpleNamespace(**{k.__name__: jit(k) for k in (encode, decode, backward)})
