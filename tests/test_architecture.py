@@ -134,7 +134,7 @@ def test_the_config_read_scan_sees_every_form():
 
 
 #: the layers, lowest first: a module imports only from its own package or lower layers
-LAYERS = [{"errors", "startup", "termination", "parallel"},
+LAYERS = [{"errors", "startup", "termination", "parallel", "jit"},
           {"types", "records", "paths", "runlog"}, {"robot"},
           {"fabrics", "puma", "ik_solvers"},
           {"methods", "worlds"}, {"metrics"}, {"episode"}, {"recording"}, {"analysis"},

@@ -218,19 +218,9 @@ def _compiled():
     """The kernels compiled by numba (helpers resolved to compiled copies in a namespace of
     their own, so the plain functions stay plain); loaded from numba's on-disk cache after the
     first time."""
-    import types
+    from tamedpuma.jit import compile_kernels
 
-    import numba
-
-    space = dict(globals())
-
-    def jit(fn):
-        copy = types.FunctionType(fn.__code__, space, fn.__name__, fn.__defaults__)
-        return numba.njit(cache=True, nogil=True)(copy)
-
-    for helper in HELPERS:
-        space[helper.__name__] = jit(helper)
-    return {k.__name__: jit(k) for k in KERNELS}
+    return compile_kernels(globals(), KERNELS, HELPERS)
 
 
 def warm_up() -> bool:

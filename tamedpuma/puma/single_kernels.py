@@ -143,18 +143,9 @@ def kernels() -> SimpleNamespace | None:
 
 
 def _compile() -> SimpleNamespace:
-    """The kernels compiled, calling compiled copies of the helpers (a namespace of their own:
-    the module's functions stay plain)."""
-    import types
+    """The kernels compiled, calling compiled copies of the helpers (the module's functions stay
+    plain)."""
+    from tamedpuma.jit import compile_kernels
 
-    import numba
-
-    space = dict(globals())
-
-    def jit(fn):
-        copy = types.FunctionType(fn.__code__, space, fn.__name__, fn.__defaults__)
-        return numba.njit(cache=True, nogil=True)(copy)
-
-    for helper in (_ndtr, _ln_gelu, _ln_back):
-        space[helper.__name__] = jit(helper)
-    return SimpleNamespace(**{k.__name__: jit(k) for k in (encode, decode, backward)})
+    return SimpleNamespace(**compile_kernels(globals(), (encode, decode, backward),
+                                             (_ndtr, _ln_gelu, _ln_back)))
