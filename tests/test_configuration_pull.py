@@ -29,6 +29,7 @@ from tamedpuma.methods._configuration_pull import (
     goal_route,
 )
 from tamedpuma.methods._policy import PoseTask, TaskAcceleration
+from tamedpuma.methods._stall import StallMonitor, StallPull
 from tamedpuma.methods._tamed import Forcing
 from tamedpuma.methods.cpm import CpmController
 from tamedpuma.robot.ground import (
@@ -92,7 +93,8 @@ def test_an_unreachable_pose_gives_no_goal_configuration(kinematics):
 
 
 def _stall(t_armed, distance):
-    return SimpleNamespace(t_armed=t_armed, armed=t_armed is not None, distance=distance)
+    return SimpleNamespace(t_armed=t_armed, armed=t_armed is not None, distance=distance,
+                           hold=lambda searching: None)
 
 
 def _goal_without_obstacles(kinematics, t=0.0):
@@ -613,6 +615,43 @@ def test_a_prepared_monitor_solves_no_ik_at_engagement_and_spends_its_budget_per
         assert monitor.passes - before <= budget
     p, _ = kinematics.ee_frame(monitor.q_goal)
     assert np.linalg.norm(p - moved.goal_position) < 1e-3
+
+
+def test_the_stall_arming_stands_while_the_configuration_pull_searches_and_acts(kinematics):
+    """The route search spreads over steps (4 passes each) while ψ falls 3 % a step (the stall
+    pull's own approach): the arming stands until the search ends and the pull engages; ψ
+    falling further does not end the engagement, only its own ends do (here: the hand within
+    near_release), and the stall pull's release then counts from ψ there."""
+    spec = kinematics.spec
+    obs, task = _goal_without_obstacles(kinematics)
+    q0 = np.array([0.3, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])
+    q = np.array([spec.q_max[0] - 0.05, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])
+    monitor = ConfigurationMonitor(replace(PULL, budget=4), spec)
+    monitor.prepare(obs.goal_position, obs.goal_quaternion, q0)
+    stall = StallMonitor(StallPull(gain=1.5, hold_radius=0.0))
+    goal = np.asarray(obs.goal_position, dtype=float)
+    hand = goal - np.array([0.5, 0.0, 0.0])
+    for t in (0.0, 2.0):  # no progress over the window: armed
+        stall.acceleration(t, hand, goal, lambda: 1.0)
+    assert stall.armed
+    psi, steps = 1.0, 0
+    while not monitor.engaged:
+        steps += 1
+        obs.t, psi = 2.0 + 0.1 * steps, psi * 0.97  # one ψ sample per step
+        stall.acceleration(obs.t, hand, goal, lambda v=psi: v)
+        monitor.applied(q, np.zeros(7), 0.5, stall, obs, task)
+        assert stall.armed and steps < 1000
+    assert steps > 2 and psi < 0.9  # without the hold the arming was let go at step 2
+    for _ in range(10):  # engaged: ψ falling further ends neither the arming nor the pull
+        obs.t, psi = obs.t + 0.1, psi * 0.9
+        stall.acceleration(obs.t, hand, goal, lambda v=psi: v)
+        assert monitor.applied(q, np.zeros(7), 0.5, stall, obs, task) is not task
+        assert stall.armed
+    # within its release distance it lets go, and the stall pull's release counts from ψ there
+    obs.t += 0.1
+    stall.acceleration(obs.t, hand, goal, lambda v=psi: v)
+    assert monitor.applied(q, np.zeros(7), monitor.release_at, stall, obs, task) is task
+    assert not monitor.engaged and stall.armed and stall.psi_armed == psi
 
 
 def test_one_placement_pass_gives_the_heights_and_spheres_of_two(kinematics):

@@ -145,3 +145,23 @@ def test_random_suite_splits_the_rates_by_kind_of_start():
     assert anywhere["success (paper) [95% CI]"].startswith("0.40 [")
     assert anywhere["success (whole body) [95% CI]"].startswith("0.30 [")
     assert near["with orientation (paper) [95% CI]"].startswith("0.50 [")
+
+
+def test_random_suite_pools_every_step_of_the_runs_with_obstacles_per_method():
+    from tamedpuma.analysis.random_suite import step_table
+
+    runs = pd.DataFrame([
+        {"path": "a", "method_label": "fpm", "n_obstacles": 2},
+        {"path": "b", "method_label": "fpm", "n_obstacles": 1},
+        {"path": "c", "method_label": "fpm", "n_obstacles": 0},  # obstacle-free twin: not pooled
+        {"path": "d", "method_label": "cpm", "n_obstacles": 2}])
+    times = {"a": np.full(999, 0.5), "b": np.array([0.5, 12.0, 25.0]),
+             "c": np.array([90.0]), "d": np.array([1.0, 2.0, 3.0])}
+    table = step_table(runs, times).set_index("method")
+    assert list(table.index) == ["fpm", "cpm"]
+    fpm = table.loc["fpm"]
+    assert fpm["runs"] == 2 and fpm["steps"] == 1002 and fpm["max"] == 25.0
+    assert fpm["median [ms]"] == 0.5
+    assert fpm["steps > 10 ms"] == 2 and fpm["steps > 20 ms (the period)"] == 1
+    assert fpm["runs with a step over the period"] == 1
+    assert table.loc["cpm", "median [ms]"] == 2.0 and table.loc["cpm", "steps > 10 ms"] == 0

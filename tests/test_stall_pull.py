@@ -115,6 +115,23 @@ def test_it_lets_go_on_puma_potential_not_on_distance_and_watches_afresh():
     assert m.acceleration(7.0, GOAL - [0.3, 0.0, 0.0], GOAL, lambda: 0.94) is not None
 
 
+def test_the_arming_stands_while_the_configuration_pull_serves_it_and_counts_from_its_end():
+    """Armed with ψ = 1: while the configuration pull serves the arming (searches its route or
+    acts), ψ falling to 0.5 does not let go; from its end the release counts from ψ there
+    (0.5): 0.48 keeps it, 0.47 lets go."""
+    m = StallMonitor(PULL)
+    _feed(m, [0.0, 2.0], [0.5, 0.5], psi=lambda: 1.0)
+    assert m.armed and m.psi_armed == 1.0
+    m.hold(True)
+    assert m.acceleration(2.5, GOAL - [0.4, 0.0, 0.0], GOAL, lambda: 0.5) is not None
+    m.hold(False)  # the configuration pull ended: the release counts from ψ = 0.5
+    assert m.psi_armed == 0.5
+    assert m.acceleration(3.0, GOAL - [0.4, 0.0, 0.0], GOAL, lambda: 0.48) is not None
+    assert m.acceleration(3.5, GOAL - [0.4, 0.0, 0.0], GOAL, lambda: 0.47) is None
+    m.hold(False)  # not held: nothing changes
+    assert not m.armed and m.psi_armed == 0.5
+
+
 def test_near_the_goal_only_distance_is_progress_and_the_pull_holds():
     """Within hold_radius a falling ψ (the orientation converging) does not count as progress,
     and the pull armed there is not let go on ψ, nor inside the radius."""

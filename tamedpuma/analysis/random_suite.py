@@ -12,7 +12,11 @@ the obstacle-free runs of the same scenarios) and the whole-body failures by cla
 (sphere_penetration, obstacle_contact, ground_contact, joint_limit, stall, time, late); then the
 same three rates per kind of start (``near_table1``, ``anywhere``: read from the scenario's name,
 ``random_<task>_<kind>_<seed>``). Writes ``random_suite.md``/``.csv``,
-``random_suite_by_start.md``/``.csv`` and ``runs.csv``.
+``random_suite_by_start.md``/``.csv`` and ``runs.csv``. Last, the controller's time per step
+over every step of every run with obstacles, per method (both tasks pooled): median, p99, p99.9 and
+max [ms], the steps over the 10 ms bound and over the 20 ms control period, and the runs holding
+a step over the period (``random_suite_steps.md``/``.csv``); the time is the wall time of
+``controller.step`` that each run's log records.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import pandas as pd
 
 from tamedpuma.analysis import stats
 from tamedpuma.analysis.runs import parse_and_load, runs_parser, split_incomplete, write_table
+from tamedpuma.analysis.summaries import PERIOD_MS, step_stats
 from tamedpuma.analysis.tables import (
     _pm,
     column_rate,
@@ -77,6 +82,29 @@ def by_start_table(runs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def step_table(runs: pd.DataFrame, times: dict[str, np.ndarray]) -> pd.DataFrame:
+    """Per method label, over every step of its runs with obstacles (both tasks): the
+    controller time's median, p99, p99.9 and max [ms], the steps over the 10 ms bound and over
+    the control period, and the runs with a step over the period; ``times``: per-step times
+    [ms] by run path."""
+    scored = runs[runs["n_obstacles"] > 0]
+    rows = []
+    for label in ordered_labels(scored["method_label"]):
+        paths = [p for p in scored.loc[scored["method_label"] == label, "path"]
+                 if p in times and len(times[p])]
+        if not paths:
+            continue
+        st = step_stats(np.concatenate([times[p] for p in paths]))
+        rows.append({"method": label, "runs": len(paths), "steps": st["steps"],
+                     "median [ms]": round(st["median_ms"], 3), "p99": round(st["p99_ms"], 2),
+                     "p99.9": round(st["p99_9_ms"], 2), "max": round(st["max_ms"], 2),
+                     "steps > 10 ms": st["over_bound"],
+                     f"steps > {PERIOD_MS:g} ms (the period)": st["over_period"],
+                     "runs with a step over the period": sum(
+                         bool(np.max(times[p]) > PERIOD_MS) for p in paths)})
+    return pd.DataFrame(rows)
+
+
 def random_table(runs: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for task in sorted(runs["task"].unique()):
@@ -101,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     got = parse_and_load(parser, argv)
     if got is None:
         return 2
-    args, (every, paths, _) = got
+    args, (every, paths, times) = got
     # incomplete runs are not scored: the rule of every analysis
     runs, incomplete = split_incomplete(every, args.include_incomplete)
     if runs.empty:
@@ -114,6 +142,8 @@ def main(argv: list[str] | None = None) -> int:
     text = write_table(table, out, "random_suite")
     text += "\nBy kind of start:\n\n" + write_table(by_start_table(runs), out,
                                                       "random_suite_by_start")
+    text += "\nController time per step (every step of every run with obstacles):\n\n" + \
+        write_table(step_table(runs, times), out, "random_suite_steps")
     runs.to_csv(out / "runs.csv", index=False)
     print(text)
     how = "scored" if args.include_incomplete else "not scored"

@@ -22,6 +22,9 @@ from tamedpuma.runlog import upgrade_summary
 
 log = logging.getLogger(__name__)
 
+PERIOD_MS = 20.0  #: the control period [ms] (Δt = 0.02 s in every scenario)
+BOUND_MS = 10.0  #: the bound every step of FPM, CPM, Fabrics and PUMA is asked to keep [ms]
+
 
 def load_summaries(root: str | Path) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
     """Every ``summary.json`` below ``root``: a frame (one row per run, ``path`` = the run folder)
@@ -61,6 +64,18 @@ def pooled_step_times(paths, times: dict[str, np.ndarray]) -> dict:
     return {"median": float(np.median(every)), "p99": float(np.percentile(every, 99)),
             "mean": float(every.mean()), "std": float(every.std()), "steps": int(len(every)),
             "first_mean": float(np.mean([a[0] for a in arrays]))}
+
+
+def step_stats(ms) -> dict:
+    """Median, p99, p99.9, max [ms] of per-step times ``ms``, the step count and the steps over
+    :data:`PERIOD_MS` and :data:`BOUND_MS`."""
+    ms = np.asarray(ms, dtype=float)
+    if not len(ms):
+        return {"steps": 0}
+    return {"steps": int(len(ms)), "median_ms": float(np.median(ms)),
+            "p99_ms": float(np.percentile(ms, 99)), "p99_9_ms": float(np.percentile(ms, 99.9)),
+            "max_ms": float(ms.max()), "over_period": int(np.sum(ms > PERIOD_MS)),
+            "over_bound": int(np.sum(ms > BOUND_MS))}
 
 
 def bootstrap_ci(values, level: float = 0.95, samples: int = 10_000,

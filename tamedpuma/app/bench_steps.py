@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-PERIOD_MS = 20.0  #: the control period [ms] (Δt = 0.02 s in every scenario)
-BOUND_MS = 10.0  #: the bound every step of FPM, CPM, Fabrics and PUMA is asked to keep [ms]
+from tamedpuma.analysis.summaries import BOUND_MS, PERIOD_MS, step_stats
+
 METHODS = ("puma", "fabrics", "fpm", "cpm", "modulation_ik")
 TASKS = ("tomato", "pouring")
 START_KINDS = ("near_table1", "anywhere")
@@ -53,18 +53,6 @@ def random_cases(seeds) -> list[tuple[str, list[str]]]:
              ["+experiment=random", f"task={task}", f"scenario.start_kind={kind}",
               f"scenario.random_seed={seed}", "without_obstacles=false"])
             for seed in seeds for task in TASKS for kind in START_KINDS]
-
-
-def step_stats(ms) -> dict:
-    """Median, p99, p99.9, max [ms] of per-step times ``ms``, the step count and the steps over
-    :data:`PERIOD_MS` and :data:`BOUND_MS`."""
-    ms = np.asarray(ms, dtype=float)
-    if not len(ms):
-        return {"steps": 0}
-    return {"steps": int(len(ms)), "median_ms": float(np.median(ms)),
-            "p99_ms": float(np.percentile(ms, 99)), "p99_9_ms": float(np.percentile(ms, 99.9)),
-            "max_ms": float(ms.max()), "over_period": int(np.sum(ms > PERIOD_MS)),
-            "over_bound": int(np.sum(ms > BOUND_MS))}
 
 
 def summary_mismatch(summary: dict, stats: dict) -> float:

@@ -26,7 +26,10 @@ pulled through the same avoidance metric with the task weight w on each joint ro
 most once per arming, chooses q_g again when the goal moves :data:`REPLAN_DISTANCE_M`, and lets go
 within ``near_release`` of the goal, where the arm is nearly at rest and PUMA (the stall pull still
 armed) finishes; handed over while still cruising, the hand overshoots. It also lets go once
-‖q − q_g‖ has not fallen by ``progress`` [rad] for ``window`` [s] (a barrier holds it).
+‖q − q_g‖ has not fallen by ``progress`` [rad] for ``window`` [s] (a barrier holds it). These are
+its only ends: PUMA's ψ, the stall pull's measure of being over the ridge, does not end it (a
+reconfiguration may first lower ψ by a few per cent as the wrist turns, long before the arm is
+out of the stall's basin), so the stall pull's arming stands while the pull acts.
 
 Near the goal, too, a stall at a joint limit is left only by a reconfiguration (the elbow turned
 over, the hand first moving away): with ``near_release`` > 0 the pull engages within ``release`` as
@@ -48,8 +51,11 @@ When it is computed. The goal pose's IK solutions depend on neither the obstacle
 controller's reset solves them from q₀ and ``restarts`` seeded starts
 (:meth:`ConfigurationMonitor.prepare`). An engagement searches only the route among them, at most
 ``budget`` kinematic passes (:data:`SEARCH_BUDGET`) per control step, and engages when the search
-ends (a moved goal likewise, the last q_g pulling meanwhile). The price: the IK starts from q₀,
-not the q at engagement, and a long search engages some steps late.
+ends (a moved goal likewise, the last q_g pulling meanwhile). The stall pull's arming stands
+while the search runs too (``StallMonitor.hold``, :mod:`tamedpuma.methods._stall`): the search is
+the engagement's answer spread over steps, which the stall pull's own approach meanwhile,
+letting go once ψ falls by its ``release``, would otherwise drop. The price: the IK starts from
+q₀, not the q at engagement, and a long search engages some steps late.
 
 What holds. The barriers, the energization bound and the barrier step are unchanged: the pull cannot
 carry the arm through an obstacle or a limit. Away from these stalls the forcing is PUMA's, so FPM's
@@ -424,11 +430,9 @@ class ConfigurationMonitor:
         module). distance: the hand's distance to the goal [m]; stall: the
         :class:`~tamedpuma.methods._stall.StallMonitor` (its ``t_armed``)."""
         p = self.pull
-        if self.engaged and (distance <= self.release_at or not stall.armed
-                             or self._stuck(q, obs.t)):
+        if self.engaged and (distance <= self.release_at or self._stuck(q, obs.t)):
             self.engaged, self.search = False, None
-        if not self.engaged and self.search is not None and (
-                distance <= self.release_at or not stall.armed):
+        if not self.engaged and self.search is not None and distance <= self.release_at:
             self.search = None  # the engagement searched for is over before it began
         if not self.engaged and self.search is None and self._engages(q, distance,
                                                                       stall.t_armed, obs.t):
@@ -440,6 +444,7 @@ class ConfigurationMonitor:
             self._start(q, obs)  # the goal moved: the last q_g serves until the new one
         if self.search is not None:
             self._advance(obs.t)
+        stall.hold(self.search is not None or self.engaged)  # the arming stands meanwhile
         if not self.engaged:
             return task
         if self.route and np.linalg.norm(self.q_goal - q) < VIA_RADIUS:

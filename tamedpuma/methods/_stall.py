@@ -40,11 +40,15 @@ way its regulator lets the hand crawl at about √ε, a few millimetres a second
 ``progress`` per window counts as progress. FPM has it off.
 
 It lets go on PUMA's own measure: once ψ has fallen below (1 − ``release``) times its value at
-arming. Where the stall is a local minimum of ψ on the barriers (the hand held against an
-obstacle, PUMA's field pointing through it), ψ first rises as the pull takes the hand round, and
-the pull holds until the hand is over the ridge, in the part of ψ's sublevel set that no longer
-drains into the stall point; let go at the first millimetres of progress, PUMA's field returns the
-hand to the stall. Disarmed, the watch starts afresh from the hand's current distance.
+arming, and not while the configuration pull serves this arming
+(:mod:`tamedpuma.methods._configuration_pull`: while it searches the route of the engagement the
+arming asked for, over a few control steps, and while it acts, which ends on its own measures);
+from then on it measures the fall from ψ where the configuration pull ended. Where the stall is a
+local minimum of ψ on the barriers (the hand held against an obstacle, PUMA's field pointing
+through it), ψ first rises as the pull takes the hand round, and the pull holds until the hand is
+over the ridge, in the part of ψ's sublevel set that no longer drains into the stall point; let go
+at the first millimetres of progress, PUMA's field returns the hand to the stall. Disarmed, the
+watch starts afresh from the hand's current distance.
 
 Near the goal (``hold_radius`` [m], 0: off) the distance is the only measure: ψ is the latent
 distance of the whole pose, and there it is dominated by the orientation, falling as the wrist
@@ -112,11 +116,19 @@ class StallMonitor:
         self.t_armed: float | None = None
         self.psi_armed = np.nan
         self.armed_near = False  # armed within hold_radius: see _released
+        self.held = False  # the configuration pull serves this arming: see hold
         self.distance = np.inf  # the hand's distance to the goal at the last call [m]
 
     @property
     def armed(self) -> bool:
         return self.t_armed is not None
+
+    def hold(self, held: bool) -> None:
+        """Whether the configuration pull serves this arming (searches its route or acts): the
+        arming stands while it does, and once it ends the release is measured from ψ then."""
+        if self.held and not held:
+            self.psi_armed = self.psi
+        self.held = held
 
     def _potential(self, t: float, potential: Callable[[], float]) -> float:
         if not t - self.t_psi < PSI_SAMPLE_S - 1e-9:  # (rounding of t)
@@ -132,9 +144,11 @@ class StallMonitor:
         return max(self.pull.progress, self.pull.progress_fraction * self.best)
 
     def _released(self, psi: float) -> bool:
-        """Whether an armed pull lets go at potential ψ: armed near the goal, never; armed
-        elsewhere, once ψ is ``release`` below its value at arming."""
-        return not self.armed_near and psi < (1.0 - self.pull.release) * self.psi_armed
+        """Whether an armed pull lets go at potential ψ: armed near the goal, never; while the
+        configuration pull serves this arming (:meth:`hold`), not yet; otherwise once ψ is
+        ``release`` below its value at arming (or at the configuration pull's end)."""
+        return (not self.armed_near and not self.held
+                and psi < (1.0 - self.pull.release) * self.psi_armed)
 
     def acceleration(self, t: float, position: np.ndarray, goal: np.ndarray,
                      potential: Callable[[], float],
