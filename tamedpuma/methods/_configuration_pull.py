@@ -1,6 +1,6 @@
 """Configuration pull: when the stall pull arms with a joint at its limit, a joint-space
 attractor to a goal configuration takes the forcing over (``method.forcing.configuration_pull``:
-``off``, ``limits``, FPM's default, or ``always``, CPM's).
+``off``, ``limits``, or ``always``, FPM's and CPM's default).
 
 Why. A task-space attractor cannot leave a rest point made by the joint limits: where PUMA's
 field, pulled to the joints, has turned a joint into its limit (a goal behind the base, the base
@@ -35,9 +35,11 @@ Near the goal, too, a stall at a joint limit is left only by a reconfiguration (
 over, the hand first moving away): with ``near_release`` > 0 the pull engages within ``release`` as
 well, with a joint at a limit and the hand farther than ``near_release``, but only at the step the
 stall pull arms in (a joint reaching its band later, the hand still coming in, is no stall);
-``always`` needs no limit only farther than ``release``. ``always`` is CPM's: its regulator brakes
-every climb of ψ, so where the way round climbs ψ away from obstacles and limits CPM crawls at about
-√ε, the stall pull arms and ``limits`` never engages.
+``always`` needs no limit only farther than ``release``. ``always`` is the default: CPM's regulator
+brakes every climb of ψ, so where the way round climbs ψ away from obstacles and limits CPM crawls
+at about √ε, the stall pull arms and ``limits`` never engages; for FPM the two rules converge
+within a few scenarios of each other on the randomized suite (docs/method.md), and one rule
+serves both.
 
 A goal low over the table may put a link below the plane the barrier step keeps; q_g is then
 solved with the target raised by the deficit (at most ``release``), and PUMA's approach does the

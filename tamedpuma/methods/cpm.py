@@ -189,9 +189,8 @@ def cpm_fabric() -> FabricGains:
 
 def cpm_forcing() -> Forcing:
     """How CPM's forcing meets the fabric: FPM's (:func:`~tamedpuma.methods._settings.
-    fpm_forcing`) with PUMA's task metric one more leaf of the geometry (``task_metric``) and
-    the configuration pull at every arming (``always``)."""
-    return replace(fpm_forcing(), mode="task_metric", configuration_pull="always")
+    fpm_forcing`) with PUMA's task metric one more leaf of the geometry (``task_metric``)."""
+    return replace(fpm_forcing(), mode="task_metric")
 
 
 @dataclass(frozen=True)

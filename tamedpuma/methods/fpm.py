@@ -45,13 +45,13 @@ Options (``conf/method/fpm.yaml``; each addition's law, setting and ablation row
   forcing is PUMA's to the bit, so the statement above holds there;
   while armed the rest set is that of PUMA's forcing plus a convex attractor to the same goal,
   which no longer contains the stall point unless the barriers hold the attractor too.
-- ``forcing.configuration_pull: limits`` (:mod:`tamedpuma.methods._configuration_pull`): when
-  the stall pull arms with a joint within 0.1 rad of a limit, a joint-space attractor to the
-  nearest IK solution of the goal pose (inside the limits, clear, reached along a clear straight
-  segment) replaces PUMA's rows until the hand is within ``near_release`` (3 cm) of the goal or
-  the attractor stops making progress. The limit box is convex, so it has no rest point made
-  by the limits; its own rest point is the goal pose, in PUMA's zero set, and elsewhere the
-  forcing is as above, so the statement holds; the path is not PUMA's while it acts.
+- ``forcing.configuration_pull: always`` (:mod:`tamedpuma.methods._configuration_pull`): when the
+  stall pull arms, a joint-space attractor to the nearest IK solution of the goal pose (inside the
+  limits, clear, reached along a clear straight segment) replaces PUMA's rows until the hand is
+  within ``near_release`` (3 cm) of the goal or the attractor stops making progress. The limit box
+  is convex, so it has no rest point made by the limits; its own rest point is the goal pose, in
+  PUMA's zero set, and elsewhere the forcing is as above, so the statement holds; the path is not
+  PUMA's while it acts.
 - ``control_rate`` filters only remove energy (:mod:`tamedpuma.fabrics.discrete`);
   ``limit_margin`` moves the joint-limit
   barriers inside the real limits.
