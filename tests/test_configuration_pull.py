@@ -94,7 +94,7 @@ def test_an_unreachable_pose_gives_no_goal_configuration(kinematics):
 
 def _stall(t_armed, distance):
     return SimpleNamespace(t_armed=t_armed, armed=t_armed is not None, distance=distance,
-                           hold=lambda searching: None)
+                           hold=lambda held: None)
 
 
 def _goal_without_obstacles(kinematics, t=0.0):

@@ -430,7 +430,8 @@ class ConfigurationMonitor:
                 task: TaskAcceleration) -> TaskAcceleration:
         """``task``, or the joint-space spec (J = I) while the pull is engaged (see the
         module). distance: the hand's distance to the goal [m]; stall: the
-        :class:`~tamedpuma.methods._stall.StallMonitor` (its ``t_armed``)."""
+        :class:`~tamedpuma.methods._stall.StallMonitor` (its ``t_armed``; its arming is held while
+        this pull searches or acts)."""
         p = self.pull
         if self.engaged and (distance <= self.release_at or self._stuck(q, obs.t)):
             self.engaged, self.search = False, None
