@@ -45,7 +45,7 @@ from tamedpuma.worlds.bullet import Disturbance, SimConfig, Simulator
 from tamedpuma.worlds.scenarios import scenario_from_config
 
 #: the whole search in one step; straight segments only, and not engaging near the goal
-PULL = ConfigurationPull(mode="limits", budget=0, near_release=0.0, waypoints=0)
+PULL = ConfigurationPull(budget=0, near_release=0.0, waypoints=0)
 
 
 def test_the_goal_configuration_reaches_the_pose_inside_the_limits_clear_of_everything(
@@ -108,8 +108,7 @@ def _goal_without_obstacles(kinematics, t=0.0):
     return obs, TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
 
 
-def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go_near_the_goal(
-        kinematics):
+def test_the_monitor_engages_once_per_arming_and_lets_go_near_the_goal(kinematics):
     spec = kinematics.spec
     obs, task = _goal_without_obstacles(kinematics)
     monitor = ConfigurationMonitor(PULL, spec)
@@ -118,7 +117,6 @@ def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go
     at_limit[0] = spec.q_max[0] - 0.05
     qd = np.zeros(7)
     assert monitor.applied(at_limit, qd, 0.5, _stall(None, 0.5), obs, task) is task  # not armed
-    assert monitor.applied(free, qd, 0.5, _stall(3.0, 0.5), obs, task) is task  # no limit
     monitor = ConfigurationMonitor(PULL, spec)
     spec_q = monitor.applied(at_limit, qd, 0.5, _stall(3.0, 0.5), obs, task)
     assert monitor.engaged and spec_q is not task
@@ -130,10 +128,10 @@ def test_the_monitor_engages_once_per_arming_with_a_joint_at_a_limit_and_lets_go
     # the same arming with the hand at the release distance: let go, and not again for it
     assert monitor.applied(at_limit, qd, PULL.release, _stall(3.0, 0.15), obs, task) is task
     assert monitor.applied(at_limit, qd, 0.5, _stall(3.0, 0.5), obs, task) is task
-    # a new arming engages again; ``always`` needs no limit
+    # a new arming engages again; far from the goal no joint needs to be at a limit
     assert monitor.applied(at_limit, qd, 0.5, _stall(9.0, 0.5), obs, task) is not task
-    always = ConfigurationMonitor(replace(PULL, mode="always"), spec)
-    assert always.applied(free, qd, 0.5, _stall(3.0, 0.5), obs, task) is not task
+    free_monitor = ConfigurationMonitor(PULL, spec)
+    assert free_monitor.applied(free, qd, 0.5, _stall(3.0, 0.5), obs, task) is not task
 
 
 def test_near_the_goal_the_monitor_engages_only_with_a_near_release_and_lets_go_there(
@@ -170,13 +168,12 @@ def test_near_the_goal_the_monitor_engages_only_with_a_near_release_and_lets_go_
     assert plain.applied(q, qd, 0.5, _stall(1.0, 0.5), obs, task) is not task
     assert plain.release_at == PULL.release
     assert plain.applied(q, qd, PULL.release, _stall(1.0, PULL.release), obs, task) is task
-    # ``always`` asks for no limit far away, but near the goal it does, as ``limits``
+    # near the goal an arming engages only with a joint at a limit
     free = np.array([1.0, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])  # no joint within 0.1 rad of a limit
-    always = replace(pull, mode="always")
-    assert ConfigurationMonitor(always, spec).applied(free, qd, near, _stall(3.0, near), obs,
-                                                      task) is task
-    assert ConfigurationMonitor(always, spec).applied(q, qd, near, _stall(3.0, near), obs,
-                                                      task) is not task
+    assert ConfigurationMonitor(pull, spec).applied(free, qd, near, _stall(3.0, near), obs,
+                                                    task) is task
+    assert ConfigurationMonitor(pull, spec).applied(q, qd, near, _stall(3.0, near), obs,
+                                                    task) is not task
 
 
 def test_position_only_ik_reaches_the_position_and_leaves_the_orientation_free(kinematics):
@@ -386,7 +383,8 @@ def test_the_attractor_potential_is_the_pull_s_own_by_finite_differences(kinemat
 
 
 @pytest.mark.parametrize("bad", [{"configuration_pull": "sometimes"},
-                                 {"configuration_pull": True},
+                                 {"configuration_pull": "always"},
+                                 {"configuration_pull": 1},
                                  {"configuration_pull_gain": 4.0}])
 def test_bad_configuration_pull_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="configuration_pull"):
@@ -395,9 +393,9 @@ def test_bad_configuration_pull_settings_are_refused(bad):
 
 def test_without_the_stall_pull_or_switched_off_there_is_no_monitor(robot_spec):
     assert Forcing(stall_pull=1.5).make_configuration_monitor(robot_spec) is None
-    assert Forcing(stall_pull=0.0, configuration_pull="limits"
+    assert Forcing(stall_pull=0.0, configuration_pull=True
                    ).make_configuration_monitor(robot_spec) is None
-    assert Forcing(stall_pull=1.5, configuration_pull="limits"
+    assert Forcing(stall_pull=1.5, configuration_pull=True
                    ).make_configuration_monitor(robot_spec) is not None
 
 
@@ -456,8 +454,8 @@ def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_i
     method = _method_config("fpm")
     ik = _CountingIK(monkeypatch)
     results, in_steps = {}, []
-    for mode in ("off", "limits"):
-        method["forcing"] = {**method["forcing"], "configuration_pull": mode}
+    for pull in (False, True):
+        method["forcing"] = {**method["forcing"], "configuration_pull": pull}
         controller = make("fpm", method, kinematics)
         step = controller.step
 
@@ -469,34 +467,31 @@ def test_fpm_is_trapped_by_the_base_limit_without_it_and_reaches_the_goal_with_i
 
         controller.step = counted_step
         with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
-            run = run_episode(scenario, controller, world, [scalar_log] if mode == "limits"
-                              else [])
-        results[mode] = run
+            run = run_episode(scenario, controller, world, [scalar_log] if pull else [])
+        results[pull] = run
     assert len(in_steps) > 100 and ik.calls > 0 and sum(in_steps) == 0  # in reset only
     assert any(s.get("configuration_pull", 0.0) > 0 for s in scalar_log.rows)  # it engaged
-    trapped, freed = results["off"].metrics, results["limits"].metrics
+    trapped, freed = results[False].metrics, results[True].metrics
     assert not trapped.success_paper and trapped.final_position_error_m > 0.3
-    q = results["off"].q
+    q = results[False].q
     assert q[:, 0].max() > robot_spec.q_max[0] - 0.05  # the base on its limit
     assert freed.success_whole_body, freed.failure_whole_body
-    assert results["limits"].q[:, 0].max() <= robot_spec.q_max[0]
+    assert results[True].q[:, 0].max() <= robot_spec.q_max[0]
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("mode", ["limits", "always"])  # limits: FPM's default; always: CPM's
 def test_cpm_leaves_the_base_limit_trap_on_the_attractor_s_own_potential(
-        robot_spec, kinematics, monkeypatch, scalar_log, mode):
-    """CPM in the trap above (q₁ = 2.2 rad) with the configuration pull (engaging at a joint
-    limit only, or at every arming): while the pull acts, the regulator watches the
-    attractor's φ, whose total energy ½‖q̇‖² + φ does not rise (CPM's dH/dt ≤ −β‖q̇‖² with H
-    on φ), and the arm reaches the goal."""
+        robot_spec, kinematics, monkeypatch, scalar_log):
+    """CPM in the trap above (q₁ = 2.2 rad) with the configuration pull: while the pull acts, the
+    regulator watches the attractor's φ, whose total energy ½‖q̇‖² + φ does not rise (CPM's
+    dH/dt ≤ −β‖q̇‖² with H on φ), and the arm reaches the goal."""
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(StablePose()))
     # 60 s: CPM creeps along the limit for 22 s before the stall pull arms, and the way out is
     # 8 rad of joint travel at the attractor's cruise speed g/k (1 rad/s with the defaults)
     scenario = _obstacle_free_scenario(robot_spec, "pouring", max_steps=3000,
                                        q0=np.array([2.2, 0.6, 0.0, -1.2, 0.0, 0.6, 0.0]))
     method = _method_config("cpm")
-    method["forcing"] = {**method["forcing"], "configuration_pull": mode}
+    assert method["forcing"]["configuration_pull"] is True
     with Simulator(robot_spec, SimConfig(), Disturbance()) as world:
         run = run_episode(scenario, make("cpm", method, kinematics), world, [scalar_log])
     assert run.metrics.success_whole_body, run.metrics.failure_whole_body
@@ -530,19 +525,19 @@ class ClimbingPotential(StablePose):
 def test_cpm_crawling_up_its_potential_arms_the_stall_pull_and_the_attractor_takes_it_in(
         robot_spec, kinematics, monkeypatch):
     """Where ψ climbs along the way the forcing takes, CPM's regulator brakes the climb and the
-    arm crawls (the ε leak). Without the creep criterion and with ``limits`` the arm is left
-    crawling far from the goal at 40 s: the hand closes too slowly to reach but faster than the
-    stall pull's 5 mm per window. CPM's defaults (the creep criterion, ``always``) arm the
+    arm crawls (the ε leak). Without the creep criterion and the configuration pull the arm is
+    left crawling far from the goal at 40 s: the hand closes too slowly to reach but faster than
+    the stall pull's 5 mm per window. CPM's defaults (the creep criterion, the pull) arm the
     stall pull on the crawl and the configuration attractor, on its own potential, takes the
     arm in."""
     scenario = _obstacle_free_scenario(robot_spec, "tomato")
     centre = 0.5 * (kinematics.ee_pose(scenario.q0)[0] + scenario.goal.position)
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(ClimbingPotential(centre)))
     method = _method_config("cpm")
-    assert method["forcing"]["configuration_pull"] == "always"
+    assert method["forcing"]["configuration_pull"] is True
     assert CpmController.creep_fraction > 0
     runs = {}
-    for name, forcing, creep in (("without", {"configuration_pull": "limits"}, 0.0),
+    for name, forcing, creep in (("without", {"configuration_pull": False}, 0.0),
                                  ("default", {}, CpmController.creep_fraction)):
         m = {**method, "forcing": {**method["forcing"], **forcing}}
         with monkeypatch.context() as patch, Simulator(robot_spec, SimConfig(),

@@ -1,6 +1,6 @@
-"""Configuration pull: when the stall pull arms with a joint at its limit, a joint-space
-attractor to a goal configuration takes the forcing over (``method.forcing.configuration_pull``:
-``off``, ``limits``, or ``always``, FPM's and CPM's default).
+"""Configuration pull: when the stall pull arms, a joint-space attractor to a goal configuration
+takes the forcing over (``method.forcing.configuration_pull``: true, FPM's and CPM's default, or
+false).
 
 Why. A task-space attractor cannot leave a rest point made by the joint limits: where PUMA's
 field, pulled to the joints, has turned a joint into its limit (a goal behind the base, the base
@@ -9,14 +9,13 @@ PUMA nor the stall pull (:mod:`tamedpuma.methods._stall`) asks for. The joint-li
 so an attractor in joint space has no rest point made by the limits. Law and ablation row:
 docs/method.md, "Ways out of a local minimum"; its constants: "The fixed constants".
 
-What. Once the stall pull arms with a joint within ``limit_band`` [rad] of a limit (``always``:
-with or without one) and the hand farther than ``release`` [m] from the goal, a route to a goal
-configuration q_g is chosen (:func:`goal_route`): the goal pose's IK solution nearest to q that is
-inside the limits by ``margin`` [rad], ``clearance`` [m] clear of the obstacles where they are now,
-above the ground as the barrier step keeps it (:class:`Ground`), and reached along a clear
-straight segment or, where none is clear, through one waypoint (the shortest of ``waypoints``
-draws; the pull turns to q_g within :data:`VIA_RADIUS` of it); no route, no change. PUMA's task
-rows are replaced by the joint-space spec
+What. Once the stall pull arms with the hand farther than ``release`` [m] from the goal, a route to
+a goal configuration q_g is chosen (:func:`goal_route`): the goal pose's IK solution nearest to q
+that is inside the limits by ``margin`` [rad], ``clearance`` [m] clear of the obstacles where they
+are now, above the ground as the barrier step keeps it (:class:`Ground`), and reached along a clear
+straight segment or, where none is clear, through one waypoint (the shortest of ``waypoints`` draws;
+the pull turns to q_g within :data:`VIA_RADIUS` of it); no route, no change. PUMA's task rows are
+replaced by the joint-space spec
 
     q̈_q = g (q_g − q) / max(‖q_g − q‖, ℓ) − k q̇,    k = 2√(g/ℓ)                 [rad/s²]
 
@@ -34,12 +33,11 @@ out of the stall's basin), so the stall pull's arming stands while the pull acts
 Near the goal, too, a stall at a joint limit is left only by a reconfiguration (the elbow turned
 over, the hand first moving away): with ``near_release`` > 0 the pull engages within ``release`` as
 well, with a joint at a limit and the hand farther than ``near_release``, but only at the step the
-stall pull arms in (a joint reaching its band later, the hand still coming in, is no stall);
-``always`` needs no limit only farther than ``release``. ``always`` is the default: CPM's regulator
-brakes every climb of ψ, so where the way round climbs ψ away from obstacles and limits CPM crawls
-at about √ε, the stall pull arms and ``limits`` never engages; for FPM the two rules converge
-within a few scenarios of each other on the randomized suite (docs/method.md), and one rule
-serves both.
+stall pull arms in (a joint reaching its band later, the hand still coming in, is no stall).
+Farther than ``release`` no limit is asked for: CPM's regulator brakes every climb of ψ, so where
+the way round climbs ψ away from obstacles and limits CPM crawls at about √ε with no joint at a
+limit, and FPM converges in more scenarios of the randomized suite with every arming served than
+with only those at a limit (docs/method.md).
 
 A goal low over the table may put a link below the plane the barrier step keeps; q_g is then
 solved with the target raised by the deficit (at most ``release``), and PUMA's approach does the
@@ -81,8 +79,6 @@ from tamedpuma.robot.ik import pose_dls_steps, run_to_end
 from tamedpuma.robot.kinematics import Kinematics
 from tamedpuma.robot.rotations import quat_to_matrix
 
-#: modes of ``method.forcing.configuration_pull``
-MODES = ("off", "limits", "always")
 #: [m] the goal may move this far before q_g is chosen again
 REPLAN_DISTANCE_M = 0.02
 #: [m] a goal configuration below the ground is solved again with its target raised by its
@@ -109,10 +105,9 @@ _PREPARED: dict = {}
 
 @dataclass(frozen=True)
 class ConfigurationPull:
-    """The configuration pull: mode (``method.forcing.configuration_pull``: ``off``, ``limits``,
-    ``always``: no joint at a limit needed farther than ``release``), gain g [rad/s²], length
-    ℓ [rad], limit_band [rad], release [m] (farther than it an arming with a joint at a
-    limit engages the pull), margin [rad] (q_g's distance from the limits), near_release [m]
+    """The configuration pull: gain g [rad/s²], length ℓ [rad], limit_band [rad] (a joint this
+    near a limit is at it), release [m] (farther than it every arming engages the pull),
+    margin [rad] (q_g's distance from the limits), near_release [m]
     (every engagement lets go within it; an arming within ``release`` engages too, farther
     than it; 0: the pull never engages within ``release`` and lets go at it),
     clearance [m] (q_g's body spheres from the obstacles), restarts (random IK starts besides
@@ -122,7 +117,6 @@ class ConfigurationPull:
     ‖q − q_g‖ has not fallen by ``progress`` for ``window``), budget (the kinematic passes
     its search may spend per control step; 0: no bound, the whole search in one step)."""
 
-    mode: str = "off"
     gain: float = 4.0
     length: float = 1.0
     limit_band: float = 0.1
@@ -502,14 +496,14 @@ class ConfigurationMonitor:
     def _engages(self, q: np.ndarray, distance: float, armed_at: float | None,
                  t: float) -> bool:
         """Whether the pull engages now: at an arming of the stall pull (t_armed ``armed_at``
-        [s]) not served yet; farther than ``release`` [m] with a joint at a limit (``always``:
-        any), nearer only at the arming step, with a joint at a limit and the hand farther
-        than ``near_release`` [m] (0: never)."""
+        [s]) not served yet; farther than ``release`` [m] at once, nearer only at the arming
+        step, with a joint at a limit and the hand farther than ``near_release`` [m]
+        (0: never)."""
         p = self.pull
         if armed_at is None or armed_at == self.served:
             return False
         if distance > p.release:
-            return p.release > 0.0 and (p.mode == "always" or self.at_limit(q))
+            return p.release > 0.0
         return (distance > p.near_release > 0.0 and t - armed_at < ARMING_TOLERANCE_S
                 and self.at_limit(q))
 

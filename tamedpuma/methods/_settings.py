@@ -100,7 +100,7 @@ def all_control_rate_filters() -> ControlRate:
 def fpm_forcing() -> Forcing:
     """How FPM's forcing meets the fabric: through its metric, directional, a stall pull of
     1.5 m/s² and the configuration pull at every arming of it."""
-    return Forcing(mode="metric", directional=True, stall_pull=1.5, configuration_pull="always")
+    return Forcing(mode="metric", directional=True, stall_pull=1.5, configuration_pull=True)
 
 
 @dataclass(frozen=True)

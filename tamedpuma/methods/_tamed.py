@@ -27,7 +27,6 @@ from tamedpuma.fabrics.discrete import (
     limit_speed,
     linearly_implicit_step,
 )
-from tamedpuma.methods._configuration_pull import MODES as CONFIGURATION_MODES
 from tamedpuma.methods._configuration_pull import ConfigurationMonitor, ConfigurationPull, Ground
 from tamedpuma.methods._ground_rows import HullTable, hull_ground_rows
 from tamedpuma.methods._kernels import STEP, warm_up
@@ -585,9 +584,8 @@ class Forcing:
     q̈_C solved again, :func:`restore_approached`; not with ``additive``);
     stall_pull: g [m/s²] of the goal attractor added to PUMA's position rows once the hand
     stops making progress (0: off; :mod:`tamedpuma.methods._stall`); configuration_pull:
-    ``off``, ``limits`` or ``always``, when a joint-space attractor to a clear goal
-    configuration replaces PUMA's rows after the stall pull arms (with a joint within 0.1 rad
-    of a limit, or at every arming; :mod:`tamedpuma.methods._configuration_pull`).
+    whether a joint-space attractor to a clear goal configuration replaces PUMA's rows after
+    the stall pull arms (:mod:`tamedpuma.methods._configuration_pull`).
 
     ``Forcing()`` is the paper's (``additive``, nothing added); FPM's and CPM's settings give
     their own (:func:`~tamedpuma.methods._settings.fpm_forcing`,
@@ -596,7 +594,7 @@ class Forcing:
     mode: str = "additive"
     directional: bool = False
     stall_pull: float = 0.0
-    configuration_pull: str = "off"
+    configuration_pull: bool = False
 
     @property
     def weight(self) -> float:
@@ -618,10 +616,9 @@ class Forcing:
         """A fresh :class:`~tamedpuma.methods._configuration_pull.ConfigurationMonitor` for the
         robot ``spec`` and the controller's ``ground`` (None when ``configuration_pull`` is off
         or there is no stall pull)."""
-        if self.configuration_pull == "off" or self.stall_pull <= 0.0:
+        if not self.configuration_pull or self.stall_pull <= 0.0:
             return None
-        return ConfigurationMonitor(ConfigurationPull(mode=self.configuration_pull), spec,
-                                    ground)
+        return ConfigurationMonitor(ConfigurationPull(), spec, ground)
 
     def make_stall_monitor(self, progress_fraction: float = 0.0) -> StallMonitor | None:
         """A fresh :class:`~tamedpuma.methods._stall.StallMonitor` (None when ``stall_pull``
@@ -634,9 +631,9 @@ class Forcing:
         if self.mode not in FORCING_MODES:
             raise ConfigError(f"method.forcing.mode must be one of {FORCING_MODES}, got "
                               f"{self.mode!r}")
-        if self.configuration_pull not in CONFIGURATION_MODES:
-            raise ConfigError(f"method.forcing.configuration_pull must be one of "
-                              f"{CONFIGURATION_MODES}, got {self.configuration_pull!r}")
+        if not isinstance(self.configuration_pull, bool):
+            raise ConfigError(f"method.forcing.configuration_pull must be true or false, got "
+                              f"{self.configuration_pull!r}")
         if not self.stall_pull >= 0:
             raise ConfigError(f"method.forcing.stall_pull [m/s²] must be ≥ 0, got "
                               f"{self.stall_pull}")

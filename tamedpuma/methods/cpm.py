@@ -38,14 +38,13 @@ attractor added to PUMA's position rows while the hand has stopped approaching t
 part of f_θ^C, whose power along q̇ energization takes away, so dH/dt = −β q̇ᵀMq̇ holds with it as
 without it: the pull steers CPM out of the direction it was pressing into a barrier.
 ``forcing.configuration_pull`` (:mod:`tamedpuma.methods._configuration_pull`): the joint-space
-attractor that replaces PUMA's rows after such a stall (CPM's default ``always``: at every
-arming farther than 0.15 m from the goal; ``limits``: only with a joint at a limit) is part of
-f_θ^C too. Were the regulator to watch ψ meanwhile, the pull would only steer CPM where ψ's
-energy lets it (the way out climbs ψ: CPM crawls); so the regulator watches the attractor's own
-potential φ(q) = g ρ_ℓ(‖q − q_g‖) while it acts (−∂φ is its pull: compatible), so
-dH/dt ≤ −β q̇ᵀq̇ holds with H = ½‖q̇‖² + φ then and with ψ elsewhere; the argument holds on
-every interval on one potential and, after the last engagement, ψ's (scalar
-``potential_attractor``: 1 while φ is used).
+attractor that replaces PUMA's rows after such a stall (at every arming farther than 0.15 m from the
+goal) is part of f_θ^C too. Were the regulator to watch ψ meanwhile, the pull would only steer CPM
+where ψ's energy lets it (the way out climbs ψ: CPM crawls); so the regulator watches the
+attractor's own potential φ(q) = g ρ_ℓ(‖q − q_g‖) while it acts (−∂φ is its pull: compatible), so
+dH/dt ≤ −β q̇ᵀq̇ holds with H = ½‖q̇‖² + φ then and with ψ elsewhere; the argument holds on every
+interval on one potential and, after the last engagement, ψ's (scalar ``potential_attractor``: 1
+while φ is used).
 
 ε [(rad/s)²] (the fabric's ``energization_eps``, as FPM's energization; conf/method/cpm.yaml
 sets 1e-3, cpm_literal the fabric's 1e-6): the regulariser of the energization and regulator
@@ -202,7 +201,7 @@ class CpmSettings(FpmSettings):
 
     fabric: FabricGains = field(default_factory=cpm_fabric)  # the Fabrics gains, ε = 1e-3
     forcing: Forcing = field(default_factory=cpm_forcing)  # how PUMA's forcing meets the fabric:
-    #                                   FPM's with task_metric and configuration_pull always
+    #                                   FPM's with task_metric
     variant: str = "paper"           # paper | original (the authors' code)
     beta: float = 0.5                # β [1/s] > 0: the damping (its floor with damping: matched)
     damping: str = "matched"         # matched: β(q, q̇) = max(β, r − α) | constant: the paper's β

@@ -45,7 +45,7 @@ Options (``conf/method/fpm.yaml``; each addition's law, setting and ablation row
   forcing is PUMA's to the bit, so the statement above holds there;
   while armed the rest set is that of PUMA's forcing plus a convex attractor to the same goal,
   which no longer contains the stall point unless the barriers hold the attractor too.
-- ``forcing.configuration_pull: always`` (:mod:`tamedpuma.methods._configuration_pull`): when the
+- ``forcing.configuration_pull`` (:mod:`tamedpuma.methods._configuration_pull`): when the
   stall pull arms, a joint-space attractor to the nearest IK solution of the goal pose (inside the
   limits, clear, reached along a clear straight segment) replaces PUMA's rows until the hand is
   within ``near_release`` (3 cm) of the goal or the attractor stops making progress. The limit box
