@@ -10,11 +10,11 @@ from tamedpuma.app import bench_steps
 
 def test_step_statistics_count_the_steps_over_the_period_and_the_bound():
     ms = np.r_[np.full(997, 1.0), 12.0, 25.0, 400.0]
-    s = step_stats(ms)
+    s = step_stats([ms])
     assert s["steps"] == 1000 and s["median_ms"] == 1.0 and s["max_ms"] == 400.0
     assert s["over_period"] == 2 and s["over_bound"] == 3
     assert s["p99_ms"] == pytest.approx(1.0) and 25.0 < s["p99_9_ms"] < 400.0
-    assert step_stats([]) == {"steps": 0}
+    assert step_stats([]) == step_stats([[]]) == {"steps": 0}
 
 
 def test_the_pooled_figures_hold_every_step_of_every_run():
@@ -28,10 +28,11 @@ def test_the_pooled_figures_hold_every_step_of_every_run():
     assert out["summary_mismatch"] == 1e-6
     assert out["cpu"]["steps"] == 5 and out["cpu"]["max_ms"] == 11.0
     assert out["cpu"]["over_bound"] == 1 and out["cpu"]["median_ms"] == 1.9
+    assert tuple(out["cpu"]) == bench_steps.REPORT_KEYS  # the report keeps its keys
 
 
 def test_a_mismatch_with_the_summary_is_reported():
-    stats = step_stats([1.0, 2.0, 3.0])
+    stats = step_stats([[1.0, 2.0, 3.0]])
     same = {"compute_ms_median": 2.0, "compute_ms_p99": stats["p99_ms"], "compute_ms_max": 3.0}
     assert bench_steps.summary_mismatch(same, stats) == 0.0
     assert bench_steps.summary_mismatch({**same, "compute_ms_max": 6.0}, stats) == 0.5
@@ -66,8 +67,8 @@ def test_without_the_reference_the_report_says_its_figure_is_cited(monkeypatch):
     report = {"cases": ["table1/tomato_00"], "date": "d", "period_ms": 20.0, "bound_ms": 10.0,
               "reference": {"reference_median_ms": 0.25, "reference_note": note,
                             "fabric_median_ms": 0.1},
-              "methods": {"fpm": {"runs": 1, **step_stats([0.5, 0.5, 25.0]),
-                                  "cpu": step_stats([0.4, 0.4, 3.0]),
+              "methods": {"fpm": {"runs": 1, **step_stats([[0.5, 0.5, 25.0]]),
+                                  "cpu": step_stats([[0.4, 0.4, 3.0]]),
                                   "ratio_to_reference": 2.0, "runs_over_period": 1,
                                   "summary_mismatch": 0.0}},
               "machine": {"cpu_model": "c", "load_average_1min": 1.0}}

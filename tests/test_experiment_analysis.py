@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from tamedpuma.analysis import disturbance, scaling
-from tamedpuma.analysis.summaries import bootstrap_ci, load_summaries, pooled_step_times
+from tamedpuma.analysis.summaries import bootstrap_ci, load_summaries, step_stats
 from tamedpuma.metrics import run_metrics
 
 REPO = Path(__file__).resolve().parents[1]
@@ -48,11 +48,10 @@ def test_bootstrap_interval_contains_the_rate_and_narrows_with_more_scenarios():
     assert large[1] - large[0] == pytest.approx(2 * 1.96 * np.sqrt(0.25 / 400), rel=0.1)
 
 
-def test_pooled_step_times_count_every_step_of_every_run():
-    times = {"a": np.array([9.0, 1.0, 1.0]), "b": np.array([5.0, 3.0])}
-    st = pooled_step_times(["a", "b"], times)
-    assert st["steps"] == 5 and st["median"] == 3.0 and st["first_mean"] == 7.0
-    assert st["mean"] == pytest.approx(19 / 5)
+def test_step_stats_count_every_step_of_every_run():
+    st = step_stats([np.array([9.0, 1.0, 1.0]), np.array([5.0, 3.0])])
+    assert st["steps"] == 5 and st["median_ms"] == 3.0 and st["first_mean_ms"] == 7.0
+    assert st["mean_ms"] == pytest.approx(19 / 5)
 
 
 def test_scaling_table_and_figure_from_summaries(tmp_path):

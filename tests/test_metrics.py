@@ -7,7 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tamedpuma.analysis.tables import step_time_stats, table1
+from tamedpuma.analysis.summaries import step_stats
+from tamedpuma.analysis.tables import table1
 from tamedpuma.metrics import RestMonitor, at_rest, rest_step, run_metrics
 
 DT = 0.02
@@ -136,11 +137,12 @@ def test_recovery_time_counts_from_the_disturbance_onset():
 def test_step_time_statistics_cover_every_step_and_show_the_warm_up():
     a = np.array([50.0, 1.0, 1.0, 1.0])
     b = np.array([30.0, 2.0, 2.0, 2.0, 2.0, 2.0])
-    st = step_time_stats([a, b])
+    st = step_stats([a, b])
     every = np.concatenate([a, b])
-    assert st["steps"] == 10 and st["mean"] == pytest.approx(every.mean())
-    assert st["std"] == pytest.approx(every.std()) and st["median"] == pytest.approx(2.0)
-    assert st["first_mean"] == pytest.approx(40.0) and st["first_max"] == pytest.approx(50.0)
+    assert st["steps"] == 10 and st["mean_ms"] == pytest.approx(every.mean())
+    assert st["std_ms"] == pytest.approx(every.std()) and st["median_ms"] == pytest.approx(2.0)
+    assert st["first_mean_ms"] == pytest.approx(40.0)
+    assert st["first_max_ms"] == pytest.approx(50.0)
 
 
 def test_table_rows_are_keyed_by_method_label_with_both_criteria():

@@ -94,7 +94,7 @@ def step_table(runs: pd.DataFrame, times: dict[str, np.ndarray]) -> pd.DataFrame
                  if p in times and len(times[p])]
         if not paths:
             continue
-        st = step_stats(np.concatenate([times[p] for p in paths]))
+        st = step_stats([times[p] for p in paths])
         rows.append({"method": label, "runs": len(paths), "steps": st["steps"],
                      "median [ms]": round(st["median_ms"], 3), "p99": round(st["p99_ms"], 2),
                      "p99.9": round(st["p99_9_ms"], 2), "max": round(st["max_ms"], 2),

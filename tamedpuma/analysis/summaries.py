@@ -53,29 +53,32 @@ def load_summaries(root: str | Path) -> tuple[pd.DataFrame, dict[str, np.ndarray
     return frame, times
 
 
-def pooled_step_times(paths, times: dict[str, np.ndarray]) -> dict:
-    """Controller time over every step of the runs ``paths`` [ms]: median, p99, mean, std, the
-    step count, and the first step of each run (mean) shown apart."""
-    arrays = [times[p] for p in paths if p in times and len(times[p])]
+def step_stats(runs) -> dict:
+    """The controller's time per step pooled over every step of ``runs`` (per run, its steps'
+    times [ms]; runs without steps are left out):
+
+    - ``steps``: the number of steps pooled;
+    - ``median_ms``, ``p99_ms``, ``p99_9_ms``, ``max_ms``: their median, 99th and 99.9th
+      percentile and largest [ms];
+    - ``mean_ms``, ``std_ms``: their mean and standard deviation (ddof 0) [ms];
+    - ``first_mean_ms``, ``first_max_ms``: each run's first step (the warm-up), mean and largest
+      over the runs [ms];
+    - ``over_period``, ``over_bound``: the steps longer than :data:`PERIOD_MS` and
+      :data:`BOUND_MS`.
+
+    With no step at all, ``{"steps": 0}`` alone."""
+    arrays = [a for a in (np.asarray(r, dtype=float) for r in runs) if len(a)]
     if not arrays:
-        return {"median": np.nan, "p99": np.nan, "mean": np.nan, "std": np.nan, "steps": 0,
-                "first_mean": np.nan}
-    every = np.concatenate(arrays)
-    return {"median": float(np.median(every)), "p99": float(np.percentile(every, 99)),
-            "mean": float(every.mean()), "std": float(every.std()), "steps": int(len(every)),
-            "first_mean": float(np.mean([a[0] for a in arrays]))}
-
-
-def step_stats(ms) -> dict:
-    """Median, p99, p99.9, max [ms] of per-step times ``ms``, the step count and the steps over
-    :data:`PERIOD_MS` and :data:`BOUND_MS`."""
-    ms = np.asarray(ms, dtype=float)
-    if not len(ms):
         return {"steps": 0}
-    return {"steps": int(len(ms)), "median_ms": float(np.median(ms)),
-            "p99_ms": float(np.percentile(ms, 99)), "p99_9_ms": float(np.percentile(ms, 99.9)),
-            "max_ms": float(ms.max()), "over_period": int(np.sum(ms > PERIOD_MS)),
-            "over_bound": int(np.sum(ms > BOUND_MS))}
+    every = np.concatenate(arrays)
+    first = np.array([a[0] for a in arrays])
+    return {"steps": int(len(every)), "median_ms": float(np.median(every)),
+            "p99_ms": float(np.percentile(every, 99)),
+            "p99_9_ms": float(np.percentile(every, 99.9)), "max_ms": float(every.max()),
+            "mean_ms": float(every.mean()), "std_ms": float(every.std()),
+            "first_mean_ms": float(first.mean()), "first_max_ms": float(first.max()),
+            "over_period": int(np.sum(every > PERIOD_MS)),
+            "over_bound": int(np.sum(every > BOUND_MS))}
 
 
 def bootstrap_ci(values, level: float = 0.95, samples: int = 10_000,

@@ -30,6 +30,7 @@ import pandas as pd
 
 from tamedpuma.analysis.path_difference import path_difference
 from tamedpuma.analysis.runs import add_scoring_flags, parse_and_load, runs_parser, scored_runs
+from tamedpuma.analysis.summaries import step_stats
 
 METHOD_ORDER = ["puma", "modulation_ik", "fabrics", "fpm", "cpm", "fpm_literal", "cpm_literal",
                 "cpm_original"]
@@ -64,19 +65,6 @@ def _pm(values: pd.Series, digits: int = 2) -> str:
     if len(values) == 1:
         return f"{values.iloc[0]:.{digits}f} (1 run)"
     return f"{values.mean():.{digits}f} ± {values.std(ddof=0):.{digits}f}"
-
-
-def step_time_stats(step_times: list[np.ndarray]) -> dict:
-    """Controller time over all steps of all runs [ms]: mean, std, median, p99, plus the first
-    step of each run (mean and max over runs) and the number of steps."""
-    arrays = [np.asarray(a, dtype=float) for a in step_times if len(a)]
-    if not arrays:
-        return {}
-    every = np.concatenate(arrays)
-    first = np.array([a[0] for a in arrays])
-    return {"mean": every.mean(), "std": every.std(), "median": float(np.median(every)),
-            "p99": float(np.percentile(every, 99)), "first_mean": first.mean(),
-            "first_max": first.max(), "steps": len(every)}
 
 
 def column_rate(runs: pd.DataFrame, column: str) -> pd.Series:
@@ -144,13 +132,14 @@ def table1(runs: pd.DataFrame, step_times: dict | None = None) -> pd.DataFrame:
         scored = r[r["n_obstacles"] > 0] if (r["n_obstacles"] > 0).any() else r
         ok = scored[scored["success_paper"]]
         if step_times is not None:
-            st = step_time_stats([step_times[p] for p in scored["path"] if p in step_times])
+            st = step_stats([step_times[p] for p in scored["path"] if p in step_times])
         else:  # no per-step data: the per-run figures (documented as such)
-            st = {"mean": scored["compute_ms_mean"].mean(), "std": float("nan"),
-                  "median": scored["compute_ms_median"].median(),
-                  "p99": scored["compute_ms_p99"].max(),
-                  "first_mean": scored["compute_ms_first"].mean(),
-                  "first_max": scored["compute_ms_first"].max()}
+            st = {"mean_ms": scored["compute_ms_mean"].mean(), "std_ms": float("nan"),
+                  "median_ms": scored["compute_ms_median"].median(),
+                  "p99_ms": scored["compute_ms_p99"].max(),
+                  "first_mean_ms": scored["compute_ms_first"].mean(),
+                  "first_max_ms": scored["compute_ms_first"].max()}
+        timed = "median_ms" in st  # the statistics of no step hold the count alone
         rows.append({
             "method": label,
             "runs": len(scored),
@@ -162,10 +151,11 @@ def table1(runs: pd.DataFrame, step_times: dict | None = None) -> pd.DataFrame:
             **converged_cells(scored),
             "time-to-success [s]": _pm(ok["time_to_success_s"]),
             "computation [ms] mean ± std (all steps)":
-                f"{st['mean']:.2f} ± {st['std']:.2f}" if st else "—",
-            "median / p99 [ms]": f"{st['median']:.2f} / {st['p99']:.2f}" if st else "—",
-            "first step [ms] mean / max": (f"{st['first_mean']:.2f} / {st['first_max']:.2f}"
-                                           if st else "—"),
+                f"{st['mean_ms']:.2f} ± {st['std_ms']:.2f}" if timed else "—",
+            "median / p99 [ms]": (f"{st['median_ms']:.2f} / {st['p99_ms']:.2f}" if timed
+                                  else "—"),
+            "first step [ms] mean / max":
+                f"{st['first_mean_ms']:.2f} / {st['first_max_ms']:.2f}" if timed else "—",
             "CPU time [ms] median / max": cpu_cell(scored),
             "whole-body failures": failure_counts(scored["failure_whole_body"]),
             "path difference to PUMA [m]": _pm(r["path_difference_m"]),

@@ -27,8 +27,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from tamedpuma.analysis.summaries import BOUND_MS, PERIOD_MS, step_stats
 
 METHODS = ("puma", "fabrics", "fpm", "cpm", "modulation_ik")
@@ -36,6 +34,8 @@ TASKS = ("tomato", "pouring")
 START_KINDS = ("near_table1", "anywhere")
 SECTION = "Controller step in episodes"
 COMMAND = "python -m tamedpuma.bench --steps"
+#: the statistics of :func:`~tamedpuma.analysis.summaries.step_stats` the report holds
+REPORT_KEYS = ("steps", "median_ms", "p99_ms", "p99_9_ms", "max_ms", "over_period", "over_bound")
 
 
 def table1_cases(per_task: int) -> list[tuple[str, list[str]]]:
@@ -53,6 +53,13 @@ def random_cases(seeds) -> list[tuple[str, list[str]]]:
              ["+experiment=random", f"task={task}", f"scenario.start_kind={kind}",
               f"scenario.random_seed={seed}", "without_obstacles=false"])
             for seed in seeds for task in TASKS for kind in START_KINDS]
+
+
+def report_stats(runs) -> dict:
+    """:func:`~tamedpuma.analysis.summaries.step_stats` of ``runs`` (per run, its steps' times
+    [ms]), the :data:`REPORT_KEYS` alone."""
+    st = step_stats(runs)
+    return {k: st[k] for k in REPORT_KEYS if k in st}
 
 
 def summary_mismatch(summary: dict, stats: dict) -> float:
@@ -80,10 +87,10 @@ def run_case(method: str, overrides: list[str], extra=()) -> dict:
         run_dir.mkdir()
         summary = run_one(cfg, run_dir)
     ms = summary["step_compute_ms"]
-    stats = step_stats(ms)
+    stats = report_stats([ms])
     return {"method": method, "success": summary.get("success_paper"),
             "stop_reason": summary.get("stop_reason"), **stats,
-            "cpu": step_stats(summary["step_compute_cpu_ms"]),
+            "cpu": report_stats([summary["step_compute_cpu_ms"]]),
             "summary_mismatch": summary_mismatch(summary, stats), "ms": ms,
             "cpu_ms": summary["step_compute_cpu_ms"]}
 
@@ -95,8 +102,8 @@ def pooled(rows: list[dict]) -> dict:
     out = {}
     for method in dict.fromkeys(r["method"] for r in rows):
         mine = [r for r in rows if r["method"] == method]
-        stats = step_stats(np.concatenate([np.asarray(r["ms"], dtype=float) for r in mine]))
-        cpu = step_stats(np.concatenate([np.asarray(r["cpu_ms"], dtype=float) for r in mine]))
+        stats = report_stats([r["ms"] for r in mine])
+        cpu = report_stats([r["cpu_ms"] for r in mine])
         out[method] = {"runs": len(mine), **stats, "cpu": cpu,
                        "runs_over_period": sum(r["over_period"] > 0 for r in mine),
                        "runs_over_bound": sum(r["over_bound"] > 0 for r in mine),
