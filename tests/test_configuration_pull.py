@@ -23,6 +23,7 @@ from tamedpuma.methods._configuration_pull import (
     ConfigurationMonitor,
     ConfigurationPull,
     Ground,
+    PoseSolutions,
     _segment_clear,
     goal_candidates,
     goal_configuration,
@@ -81,7 +82,9 @@ def test_the_goal_configuration_reaches_the_pose_inside_the_limits_clear_of_ever
         np.testing.assert_array_equal(qg, again)
         local = goal_configuration(kinematics, p_goal, quat, q, obstacle[None],
                                    np.array([0.05]), replace(PULL, restarts=0))
-        if local is not None:
+        if local is not None and np.linalg.norm(rotation_error(kinematics.ee_frame(local)[1],
+                                                               rot_goal)) < 1e-3:
+            # (q's own solution of the pose, where it is clear; else one of the position)
             assert np.linalg.norm(qg - q) <= np.linalg.norm(local - q) + 1e-12
     assert found >= 2
 
@@ -92,9 +95,9 @@ def test_an_unreachable_pose_gives_no_goal_configuration(kinematics):
                               np.zeros((0, 3)), np.zeros(0), replace(PULL, restarts=2)) is None
 
 
-def _stall(t_armed, distance):
+def _stall(t_armed, distance, stuck=False):
     return SimpleNamespace(t_armed=t_armed, armed=t_armed is not None, distance=distance,
-                           hold=lambda held: None)
+                           hold=lambda held: None, stuck=lambda t: stuck)
 
 
 def _goal_without_obstacles(kinematics, t=0.0):
@@ -190,8 +193,10 @@ def test_position_only_ik_reaches_the_position_and_leaves_the_orientation_free(k
     assert np.linalg.norm(rotation_error(rot, rot_goal)) > 0.05  # not the goal's orientation
 
 
-def test_where_every_solution_of_the_pose_collides_the_fallback_frees_the_orientation(
-        kinematics):
+def _blocked_pose(kinematics):
+    """(goal position, quaternion, obstacle centres (1, 3), radii (1,)): a reachable goal pose
+    with an obstacle on the body sphere rigid with the hand farthest from the task point, so
+    that every solution of the pose collides with it."""
     target = np.array([0.2, 0.5, 0.0, -1.3, 0.0, 0.9, 0.3])
     p_goal, rot_goal = kinematics.ee_frame(target)
     quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
@@ -208,19 +213,114 @@ def test_where_every_solution_of_the_pose_collides_the_fallback_frees_the_orient
     r_k = kinematics.sphere_radii[k]
     out = (centers[0][k] - p_goal) / reach[k]
     obstacle = (centers[0][k] + out * r_k)[None]
-    radius = np.array([0.8 * r_k])
+    return p_goal, quat, obstacle, np.array([0.8 * r_k])
+
+
+def test_where_every_solution_of_the_pose_collides_the_position_alone_frees_the_orientation(
+        kinematics):
+    p_goal, quat, obstacle, radius = _blocked_pose(kinematics)
     pull = replace(PULL, restarts=8)
-    assert goal_candidates(kinematics, p_goal, quat, np.zeros(7), obstacle, radius,
-                           pull) == []
-    found = goal_candidates(kinematics, p_goal, quat, np.zeros(7), obstacle, radius,
-                            replace(pull, position_fallback=True))
+    free = goal_candidates(kinematics, p_goal, quat, np.zeros(7), np.zeros((0, 3)),
+                           np.zeros(0), pull)
+    goal = quat_to_matrix(quat)
+    assert free and all(np.linalg.norm(rotation_error(kinematics.ee_frame(qg)[1], goal)) < 0.01
+                        for qg in free)  # without the obstacle: the pose's own solutions
+    found = goal_candidates(kinematics, p_goal, quat, np.zeros(7), obstacle, radius, pull)
     assert found
+    assert all(np.linalg.norm(rotation_error(kinematics.ee_frame(qg)[1], goal)) > 0.01
+               for qg in found)  # the position's solutions, the orientation off the goal's
     for qg in found:
         p, _ = kinematics.ee_frame(qg)
         assert np.linalg.norm(p - p_goal) < 1e-3
         gap = np.min(np.linalg.norm(kinematics.sphere_centers(qg)[:, None] - obstacle[None],
                                     axis=2) - kinematics.sphere_radii[:, None] - radius)
         assert gap >= pull.clearance
+
+
+def test_where_the_goal_pose_is_blocked_an_arming_near_the_goal_engages_on_the_position_and_holds(
+        kinematics):
+    """No clear configuration holds the goal pose: an arming within ``release`` engages without a
+    joint at a limit once the stall pull has itself stopped making progress, towards the goal
+    position alone solved from the arm's configuration (no farther from it than any prepared
+    solution of the position), and holds there (PUMA, handed the arm back, would carry it into
+    the obstacle again) until the pose comes clear; with the pose clear the same arming leaves
+    PUMA's rows alone."""
+    spec = kinematics.spec
+    p_goal, quat, obstacle, radius = _blocked_pose(kinematics)
+    pull = replace(PULL, restarts=8, near_release=0.03)
+    found = goal_candidates(kinematics, p_goal, quat, np.zeros(7), obstacle, radius, pull)
+    assert found
+    q = found[0] + 0.03  # near the best solution, the segment to it clear
+    qd = np.zeros(7)
+    obs = SimpleNamespace(t=3.0, goal_position=p_goal, goal_quaternion=quat,
+                          obstacle_centers=obstacle, obstacle_radii=radius)
+    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    near = 0.5 * pull.release
+    monitor = ConfigurationMonitor(pull, spec)
+    monitor.prepare(p_goal, quat, np.zeros(7))
+    assert not monitor.at_limit(q) and monitor.pose_blocked(obs)
+    # not at the arming: first the stall pull itself must stop making progress
+    assert monitor.applied(q, qd, near, _stall(3.0, near), obs, task) is task
+    obs.t = 5.0
+    assert monitor.applied(q, qd, near, _stall(3.0, near, stuck=True), obs, task) is not task
+    assert monitor.engaged and monitor.holding
+    p, _ = kinematics.ee_frame(monitor.q_goal)
+    assert np.linalg.norm(p - p_goal) < 1e-3
+    assert np.min(np.linalg.norm(kinematics.sphere_centers(monitor.q_goal)[:, None] - obstacle,
+                                 axis=2) - kinematics.sphere_radii[:, None] - radius) >= 0.01
+    assert np.linalg.norm(monitor.q_goal - q) <= min(np.linalg.norm(qg - q) for qg in found)
+    # it does not let go within near_release, nor resting at q_g for longer than the window
+    for t in (3.5, 4.0, 9.0):
+        obs.t = t
+        assert monitor.applied(monitor.q_goal, qd, 0.0, _stall(3.0, 0.0), obs,
+                               task) is not task
+    assert monitor.holding
+    # the obstacle moves away: a window after the last check the pull turns to the pose
+    obs.obstacle_centers, obs.t = obstacle + np.array([0.0, 0.0, 1.0]), 9.0 + pull.window
+    assert monitor.applied(monitor.q_goal, qd, 0.05, _stall(3.0, 0.05), obs,
+                           task) is not task
+    assert monitor.engaged and not monitor.holding
+    p, _ = kinematics.ee_frame(monitor.q_goal)
+    assert np.linalg.norm(p - p_goal) < 1e-3 and not monitor.pose_blocked(obs)
+    # the pose clear: the same arming engages not
+    free = SimpleNamespace(**{**vars(obs), "t": 3.0, "obstacle_centers": np.zeros((0, 3)),
+                              "obstacle_radii": np.zeros(0)})
+    clear = ConfigurationMonitor(pull, spec)
+    clear.prepare(p_goal, quat, np.zeros(7))
+    assert not clear.pose_blocked(free)
+    assert clear.applied(q, qd, near, _stall(3.0, near, stuck=True), free, task) is task
+
+
+def test_a_pose_the_prepared_solutions_miss_is_not_taken_for_blocked(kinematics):
+    """The prepared solutions are a sample of the pose's self-motion: where all of them are
+    blocked but the pose solved from the arm's own configuration is clear, an arming near the
+    goal leaves PUMA's rows alone."""
+    spec = kinematics.spec
+    target = np.array([0.2, 0.5, 0.0, -1.3, 0.0, 0.9, 0.3])
+    p_goal, _ = kinematics.ee_frame(target)
+    quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
+    pull = replace(PULL, restarts=8, near_release=0.03)
+    other = goal_candidates(kinematics, p_goal, quat, np.zeros(7), np.zeros((0, 3)),
+                            np.zeros(0), pull, seed=5)
+    radii = np.asarray(kinematics.sphere_radii)
+    own = kinematics.sphere_centers(target)
+    # a solution of the pose with a body sphere far from every sphere of the target's: an
+    # obstacle there blocks that solution and leaves the target clear
+    far = [(np.min(np.linalg.norm(c - own, axis=1) - radii - r), qg, c)
+           for qg in other for c, r in zip(kinematics.sphere_centers(qg), radii)]
+    gap, blocked, centre = max(far, key=lambda f: f[0])
+    assert gap > 0.1
+    obs = SimpleNamespace(t=3.0, goal_position=p_goal, goal_quaternion=quat,
+                          obstacle_centers=centre[None], obstacle_radii=np.array([0.05]))
+    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    monitor = ConfigurationMonitor(pull, spec)
+    monitor.solutions = PoseSolutions(p_goal, quat, (blocked,), (target,))
+    q = target + 0.02
+    near = 0.5 * pull.release
+    assert not monitor.at_limit(q) and monitor.pose_blocked(obs)
+    assert monitor.applied(q, np.zeros(7), near, _stall(3.0, near, stuck=True), obs,
+                           task) is task
+    assert not monitor.engaged and monitor.search is None
 
 
 def test_a_goal_configuration_behind_an_obstacle_on_the_straight_segment_is_not_chosen(

@@ -245,3 +245,21 @@ def test_a_run_that_keeps_approaching_is_unchanged_by_the_pull():
 def test_bad_stall_settings_are_refused(bad):
     with pytest.raises(ConfigError, match="stall"):
         Forcing.from_mapping({"mode": "metric", **bad})
+
+
+def test_an_armed_pull_is_stuck_once_it_has_not_brought_the_hand_nearer_for_a_window():
+    """Armed at 8 cm after a 2 s stall: while the pull brings the hand nearer by more than
+    ``progress`` per window it is not stuck; held at 6 cm (from 4 s), it is stuck a window
+    later."""
+    near = StallPull(gain=1.5, window=2.0, progress=0.005, psi_progress=0.1, radius=0.045,
+                     ramp=1.0, release=0.05, hold_radius=0.15)
+    t = np.round(np.arange(0.0, 9.0, 0.1), 6)
+    d = np.where(t < 2.0, 0.08, np.maximum(0.06, 0.08 - 0.01 * (t - 2.0)))  # 6 cm at 4 s
+    m = StallMonitor(near)
+    stuck = []
+    for ti, di in zip(t, d, strict=True):
+        m.acceleration(ti, GOAL - [di, 0.0, 0.0], GOAL, lambda: 1.0)
+        stuck.append(m.stuck(ti))
+    stuck = np.array(stuck)
+    assert m.armed and not stuck[t < 5.0].any() and stuck[t >= 6.0].all()
+    assert not StallMonitor(near).stuck(10.0)  # never armed

@@ -32,8 +32,9 @@ out of the stall's basin), so the stall pull's arming stands while the pull acts
 
 Near the goal, too, a stall at a joint limit is left only by a reconfiguration (the elbow turned
 over, the hand first moving away): with ``near_release`` > 0 the pull engages within ``release`` as
-well, with a joint at a limit and the hand farther than ``near_release``, but only at the step the
-stall pull arms in (a joint reaching its band later, the hand still coming in, is no stall).
+well, with a joint at a limit (or the goal pose blocked, below) and the hand farther than
+``near_release``, but only at the step the stall pull arms in (a joint reaching its band later,
+the hand still coming in, is no stall).
 Farther than ``release`` no limit is asked for: CPM's regulator brakes every climb of ψ, so where
 the way round climbs ψ away from obstacles and limits CPM crawls at about √ε with no joint at a
 limit, and FPM converges in more scenarios of the randomized suite with every arming served than
@@ -43,9 +44,24 @@ A goal low over the table may put a link below the plane the barrier step keeps;
 solved with the target raised by the deficit (at most ``release``), and PUMA's approach does the
 rest. The ground check is the controller's own (its link hulls): body spheres kept 1 cm above
 z = 0 would reject the hand's sphere (7 cm round the task point) at every goal lower than 8 cm.
-Where every solution of the pose puts a body sphere rigid with the hand inside an obstacle,
-``position_fallback`` takes the clear solutions of the goal position alone (the orientation off
-the goal's, as the obstacles force).
+
+A blocked goal pose. Where every solution of the goal pose puts a body sphere inside an obstacle
+(``clearance`` short of it: the prepared solutions, :meth:`ConfigurationMonitor.pose_blocked`,
+and, before the pull engages for it, the pose solved from the arm's own configuration, which a
+sample of the self-motion may miss), no controller that keeps the body clear can rest at the
+pose; PUMA's rows, which ask for the pose, hold the hand short of the goal, centimetres away.
+Once the stall pull, armed there (within ``release``), has itself stopped bringing the hand
+nearer (:meth:`~tamedpuma.methods._stall.StallMonitor.stuck`; no joint at a limit needed), the
+pull targets the goal position alone, solved from the arm's own configuration (the least
+reconfiguration; else the nearest clear one of the prepared solutions of the position), and
+holds there instead of handing the arm back to PUMA, which would carry it into the obstacle
+again; every ``window`` it checks the pose again and, once an obstacle has moved off it, turns
+to a solution of the pose and hands back as above. The rest point is then the goal position with
+the orientation the obstacles leave, not PUMA's zero set: the paper's success (the position) is
+kept, the goal orientation given up where no clear configuration holds it. Only near the goal,
+and only once the stall pull has stalled: farther out, or at the arming itself, the prepared
+solutions (a sample of the self-motion) missed clear configurations that the arm, left to PUMA
+and the stall pull, went on to reach with the goal orientation (docs/method.md).
 
 When it is computed. The goal pose's IK solutions depend on neither the obstacles nor q: the
 controller's reset solves them from q₀ and ``restarts`` seeded starts
@@ -111,8 +127,7 @@ class ConfigurationPull:
     (every engagement lets go within it; an arming within ``release`` engages too, farther
     than it; 0: the pull never engages within ``release`` and lets go at it),
     clearance [m] (q_g's body spheres from the obstacles), restarts (random IK starts besides
-    q), position_fallback (where no IK solution of the goal pose is clear, q_g solves the goal
-    position alone), waypoints (per goal configuration, for a two-segment route where no
+    q), waypoints (per goal configuration, for a two-segment route where no
     straight one is clear; 0: straight only), window [s] and progress [rad] (let go when
     ‖q − q_g‖ has not fallen by ``progress`` for ``window``), budget (the kinematic passes
     its search may spend per control step; 0: no bound, the whole search in one step)."""
@@ -125,7 +140,6 @@ class ConfigurationPull:
     margin: float = 0.1
     clearance: float = 0.01
     restarts: int = 24
-    position_fallback: bool = False
     waypoints: int = 32
     window: float = 2.0
     progress: float = 0.05
@@ -189,7 +203,7 @@ class PoseSolutions:
     """The IK solutions of one goal pose (position [m], quaternion (x, y, z, w)) inside the
     limits by the pull's margin and above the ground, in the order of their starts, before any
     obstacle is looked at: ``pose`` (the full pose) and ``position`` (the position alone, the
-    orientation free; empty without ``position_fallback``)."""
+    orientation free: where the pose is blocked)."""
 
     position_m: np.ndarray
     quaternion: np.ndarray
@@ -225,7 +239,7 @@ def pose_solutions(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray
     starts = [np.clip(np.asarray(q, dtype=float), lo, hi)]
     starts += [rng.uniform(lo, hi) for _ in range(pull.restarts)]
     found: dict[float, list[np.ndarray]] = {}
-    for rotation_weight in (1.0, 0.0) if pull.position_fallback else (1.0,):
+    for rotation_weight in (1.0, 0.0):
         found[rotation_weight] = []
         for start in starts:
             qg = yield from _pose_above_ground(kin, position, goal_rot, start, lo, hi, ground,
@@ -237,12 +251,13 @@ def pose_solutions(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray
 
 
 def _clear_of_obstacles(kin: Kinematics, solutions: PoseSolutions, q: np.ndarray,
-                        centers: np.ndarray, radii: np.ndarray, pull: ConfigurationPull):
+                        centers: np.ndarray, radii: np.ndarray, pull: ConfigurationPull,
+                        position: bool = True):
     """The solutions ``pull.clearance`` clear of the obstacles, nearest to q first: the full
-    pose's, or where none is clear, the position's (``position_fallback``). A generator
-    yielding before each kinematic pass."""
+    pose's, or where none is clear (and ``position``), the position's. A generator yielding
+    before each kinematic pass."""
     found = []
-    for group in (solutions.pose, solutions.position):
+    for group in (solutions.pose, solutions.position) if position else (solutions.pose,):
         for qg in group:
             yield
             if _obstacle_gap(kin, qg, centers, radii) >= pull.clearance:
@@ -264,8 +279,8 @@ def goal_candidates(kin: Kinematics, position: np.ndarray, quaternion: np.ndarra
     ``pull.clearance`` above z = 0). Where the goal pose itself reaches below the ground (a
     goal low over the table: the controller cannot put the hand there either), the pose raised
     until it is above, by at most ``pull.release``.
-    Where no solution of the pose is clear and ``pull.position_fallback``: the solutions of the
-    goal position alone (the orientation free; see the module). Deterministic for a seed."""
+    Where no solution of the pose is clear: the solutions of the goal position alone (see the
+    module). Deterministic for a seed."""
     solutions = run_to_end(pose_solutions(kin, position, quaternion, q, pull, seed, ground))
     centers = np.asarray(obstacle_centers, dtype=float).reshape(-1, 3)
     radii = np.asarray(obstacle_radii, dtype=float).reshape(-1)
@@ -302,15 +317,17 @@ def goal_route(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray, q:
 
 def route_steps(kin: Kinematics, solutions: PoseSolutions, q: np.ndarray,
                 obstacle_centers: np.ndarray, obstacle_radii: np.ndarray,
-                pull: ConfigurationPull, seed: int = 0, ground: Ground | None = None):
+                pull: ConfigurationPull, seed: int = 0, ground: Ground | None = None,
+                position: bool = True):
     """:func:`goal_route` from the goal pose's ``solutions`` (:func:`pose_solutions`), with
-    the obstacles where they are now: a generator yielding before each kinematic pass,
+    the obstacles where they are now (``position``: the goal position's solutions where no
+    solution of the pose is clear): a generator yielding before each kinematic pass,
     returning the route (or None)."""
     ground = ground or Ground(pull.clearance)
     centers = np.asarray(obstacle_centers, dtype=float).reshape(-1, 3)
     radii = np.asarray(obstacle_radii, dtype=float).reshape(-1)
     q = np.asarray(q, dtype=float)
-    goals = yield from _clear_of_obstacles(kin, solutions, q, centers, radii, pull)
+    goals = yield from _clear_of_obstacles(kin, solutions, q, centers, radii, pull, position)
     yield
     floor = min(0.0, float(np.min(ground.margins(kin, q)))) - GROUND_SLACK_M
     for qg in goals:
@@ -389,6 +406,9 @@ class ConfigurationMonitor:
         self.served: float | None = None  # t_armed of the stall pull last engaged for
         self.engaged = False
         self.release_at = pull.release  # [m] this engagement lets go within it
+        self.holding = False  # q_g holds the goal position alone (the pose is blocked)
+        self.judged: float | None = None  # the arming whose blocked pose was last judged
+        self.t_checked = -np.inf  # when the blocked pose was last checked while holding [s]
         self.best = np.inf  # the least ‖q − q_g‖ while engaged [rad], and when it was reached
         self.t_best = -np.inf
         self.solutions: PoseSolutions | None = None  # the goal pose's IK solutions
@@ -406,7 +426,7 @@ class ConfigurationMonitor:
         key = (repr(self.kin.spec), np.asarray(position, dtype=float).tobytes(),
                np.asarray(quaternion, dtype=float).tobytes(),
                np.asarray(q0, dtype=float).tobytes(), self.pull.margin, self.pull.release,
-               self.pull.restarts, self.pull.position_fallback, ground.height,
+               self.pull.restarts, ground.height,
                None if ground.hulls is None else ground.hulls.links)
         if key not in _PREPARED:
             if len(_PREPARED) >= PREPARED_KEPT:
@@ -414,6 +434,15 @@ class ConfigurationMonitor:
             _PREPARED[key] = run_to_end(pose_solutions(self.kin, position, quaternion, q0,
                                                        self.pull, ground=self.ground))
         self.solutions = _PREPARED[key]
+
+    def pose_blocked(self, obs) -> bool:
+        """Whether no prepared IK solution of the goal pose is clear of the obstacles where
+        they are now."""
+        sols = self.solutions.pose if self.solutions is not None else ()
+        c = np.array(obs.obstacle_centers, dtype=float).reshape(-1, 3)
+        r = np.array(obs.obstacle_radii, dtype=float).reshape(-1)
+        return bool(len(r)) and bool(sols) and all(
+            _obstacle_gap(self.kin, qg, c, r) < self.pull.clearance for qg in sols)
 
     def at_limit(self, q: np.ndarray) -> bool:
         """A joint within ``limit_band`` [rad] of a limit."""
@@ -431,14 +460,18 @@ class ConfigurationMonitor:
             self.engaged, self.search = False, None
         if not self.engaged and self.search is not None and distance <= self.release_at:
             self.search = None  # the engagement searched for is over before it began
-        if not self.engaged and self.search is None and self._engages(q, distance,
-                                                                      stall.t_armed, obs.t):
+        if not self.engaged and self.search is None and self._engages(q, distance, stall, obs):
             self.served = stall.t_armed
             self.release_at = p.near_release if p.near_release > 0.0 else p.release
-            self._start(q, obs)
+            self._start(q, obs, position=distance <= p.release)
         if self.engaged and self.search is None and np.linalg.norm(
                 np.asarray(obs.goal_position) - self.goal_for) > REPLAN_DISTANCE_M:
-            self._start(q, obs)  # the goal moved: the last q_g serves until the new one
+            self._start(q, obs, self.holding)  # the goal moved: the last q_g serves meanwhile
+        if (self.engaged and self.holding and self.search is None
+                and obs.t - self.t_checked >= p.window):
+            self.t_checked = obs.t
+            if not self.pose_blocked(obs):
+                self._start(q, obs, position=False)  # the pose has come clear: to it
         if self.search is not None:
             self._advance(obs.t)
         stall.hold(self.search is not None or self.engaged)  # the arming stands meanwhile
@@ -453,21 +486,43 @@ class ConfigurationMonitor:
             - 2.0 * np.sqrt(p.gain / p.length) * qd
         return TaskAcceleration(acc, np.eye(n), np.zeros(n))
 
-    def _start(self, q: np.ndarray, obs) -> None:
+    def _start(self, q: np.ndarray, obs, position: bool) -> None:
         """Begin the search for a route from q to the goal of ``obs`` (its obstacles where they
-        are now); the goal pose is solved again first where :meth:`prepare` solved another."""
+        are now; ``position``: to the goal position alone where the pose is blocked); the goal
+        pose is solved again first where :meth:`prepare` solved another."""
         self.search_goal = np.array(obs.goal_position, dtype=float)
         self.search = self._search(np.array(q, dtype=float), self.search_goal,
                                    np.array(obs.goal_quaternion, dtype=float),
                                    np.array(obs.obstacle_centers, dtype=float),
-                                   np.array(obs.obstacle_radii, dtype=float))
+                                   np.array(obs.obstacle_radii, dtype=float), position)
 
-    def _search(self, q, position, quaternion, centers, radii):
+    def _search(self, q, position, quaternion, centers, radii, position_alone):
         if self.solutions is None or not self.solutions.serves(position, quaternion):
             self.solutions = yield from pose_solutions(self.kin, position, quaternion, q,
                                                        self.pull, ground=self.ground)
+        if position_alone and not self.at_limit(q):
+            # engaged for a blocked pose: the pose's solution nearest the arm, solved from q
+            # itself, may be clear where the prepared ones (a sample) are not: then it is not
+            # blocked, and PUMA keeps the arm
+            lo, hi = _limits(self.kin, self.pull)
+            own = yield from _pose_above_ground(self.kin, position, quat_to_matrix(quaternion),
+                                                np.clip(q, lo, hi), lo, hi,
+                                                self.ground or Ground(self.pull.clearance),
+                                                self.pull.release)
+            if own is not None and (_obstacle_gap(self.kin, own, centers, radii)
+                                    >= self.pull.clearance):
+                return None
+            # the goal position alone solved from q: the least reconfiguration (the prepared
+            # solutions of the position, from random starts, may turn every joint)
+            near = yield from _pose_above_ground(self.kin, position, quat_to_matrix(quaternion),
+                                                 np.clip(q, lo, hi), lo, hi,
+                                                 self.ground or Ground(self.pull.clearance),
+                                                 self.pull.release, rotation_weight=0.0)
+            if near is not None:
+                self.solutions = replace(self.solutions,
+                                         position=(near, *self.solutions.position))
         return (yield from route_steps(self.kin, self.solutions, q, centers, radii, self.pull,
-                                       ground=self.ground))
+                                       ground=self.ground, position=position_alone))
 
     def _advance(self, t: float) -> bool:
         """Run the search for at most ``pull.budget`` kinematic passes (0: to its end); once
@@ -488,24 +543,37 @@ class ConfigurationMonitor:
         self.engaged = route is not None
         if route is not None:
             self.q_goal, self.route = route[0], route[1:]
+            self.holding = not any(route[-1] is qg for qg in self.solutions.pose)
+            self.t_checked = t
+            if self.holding:
+                self.release_at = -np.inf  # it holds: no distance lets it go
+            else:
+                p = self.pull
+                self.release_at = p.near_release if p.near_release > 0.0 else p.release
         else:
             self.q_goal, self.route = None, ()
         self.best, self.t_best = np.inf, t
         return True
 
-    def _engages(self, q: np.ndarray, distance: float, armed_at: float | None,
-                 t: float) -> bool:
-        """Whether the pull engages now: at an arming of the stall pull (t_armed ``armed_at``
-        [s]) not served yet; farther than ``release`` [m] at once, nearer only at the arming
-        step, with a joint at a limit and the hand farther than ``near_release`` [m]
-        (0: never)."""
-        p = self.pull
+    def _engages(self, q: np.ndarray, distance: float, stall, obs) -> bool:
+        """Whether the pull engages now: at an arming of the stall pull (its ``t_armed`` [s])
+        not served yet; farther than ``release`` [m] at once; nearer, with the hand farther
+        than ``near_release`` [m] (0: never), at the arming step with a joint at a limit, or
+        once the armed stall pull has itself stopped making progress (``stall.stuck``) with
+        the goal pose blocked (:meth:`pose_blocked`, judged once per arming)."""
+        p, armed_at, t = self.pull, stall.t_armed, obs.t
         if armed_at is None or armed_at == self.served:
             return False
         if distance > p.release:
             return p.release > 0.0
-        return (distance > p.near_release > 0.0 and t - armed_at < ARMING_TOLERANCE_S
-                and self.at_limit(q))
+        if not distance > p.near_release > 0.0:
+            return False
+        if t - armed_at < ARMING_TOLERANCE_S and self.at_limit(q):
+            return True
+        if self.judged != armed_at and stall.stuck(t):
+            self.judged = armed_at
+            return self.pose_blocked(obs)
+        return False
 
     def potential(self, q: np.ndarray) -> tuple[float, np.ndarray]:
         """The attractor's own potential while engaged (what CPM's regulator
@@ -526,6 +594,8 @@ class ConfigurationMonitor:
         """No progress towards q_g: ‖q − q_g‖ has not fallen by ``progress`` [rad] below its
         least value for ``window`` [s] (the attractor held by a barrier: let go)."""
         d = float(np.linalg.norm(self.q_goal - q))
+        if self.holding and d < self.pull.progress:
+            self.best, self.t_best = d, t  # at q_g: it holds there
         if d < self.best - self.pull.progress:
             self.best, self.t_best = d, t
         return t - self.t_best >= self.pull.window

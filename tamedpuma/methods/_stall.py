@@ -116,12 +116,18 @@ class StallMonitor:
         self.t_armed: float | None = None
         self.psi_armed = np.nan
         self.armed_near = False  # armed within hold_radius: see _released
+        self.best_armed, self.t_best_armed = np.inf, -np.inf  # the least distance while armed
         self.held = False  # the configuration pull serves this arming: see hold
         self.distance = np.inf  # the hand's distance to the goal at the last call [m]
 
     @property
     def armed(self) -> bool:
         return self.t_armed is not None
+
+    def stuck(self, t: float) -> bool:
+        """Whether the armed pull has itself made no progress: the distance has not fallen by
+        ``progress`` below its least value since the arming for ``window`` [s]."""
+        return self.t_armed is not None and t - self.t_best_armed >= self.pull.window
 
     def hold(self, held: bool) -> None:
         """Whether the configuration pull serves this arming (searches its route or acts): the
@@ -172,8 +178,11 @@ class StallMonitor:
             last = self.t_best if near else max(self.t_best, self.t_best_psi)
             if d > p.radius and t - last >= p.window:
                 self.t_armed, self.psi_armed, self.armed_near = t, psi, near
+                self.best_armed, self.t_best_armed = d, t
         if self.t_armed is None:
             return None
+        if d < self.best_armed - p.progress:
+            self.best_armed, self.t_best_armed = d, t
         a = 1.0 if p.ramp <= 0.0 else min(1.0, (t - self.t_armed) / p.ramp)
         k = p.gain / max(d, PULL_LENGTH_M)
         if velocity is None:
