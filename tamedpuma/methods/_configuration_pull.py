@@ -407,7 +407,6 @@ class ConfigurationMonitor:
         self.engaged = False
         self.release_at = pull.release  # [m] this engagement lets go within it
         self.holding = False  # q_g holds the goal position alone (the pose is blocked)
-        self.judged: float | None = None  # the arming whose blocked pose was last judged
         self.t_checked = -np.inf  # when the blocked pose was last checked while holding [s]
         self.best = np.inf  # the least ‖q − q_g‖ while engaged [rad], and when it was reached
         self.t_best = -np.inf
@@ -437,7 +436,7 @@ class ConfigurationMonitor:
 
     def pose_blocked(self, obs) -> bool:
         """Whether no prepared IK solution of the goal pose is clear of the obstacles where
-        they are now."""
+        they are now, in one call (the control path judges it inside its budgeted search)."""
         sols = self.solutions.pose if self.solutions is not None else ()
         c = np.array(obs.obstacle_centers, dtype=float).reshape(-1, 3)
         r = np.array(obs.obstacle_radii, dtype=float).reshape(-1)
@@ -469,9 +468,11 @@ class ConfigurationMonitor:
             self._start(q, obs, self.holding)  # the goal moved: the last q_g serves meanwhile
         if (self.engaged and self.holding and self.search is None
                 and obs.t - self.t_checked >= p.window):
-            self.t_checked = obs.t
-            if not self.pose_blocked(obs):
-                self._start(q, obs, position=False)  # the pose has come clear: to it
+            self.t_checked = obs.t  # has the pose come clear (an obstacle moved)? then to it
+            self.search_goal = np.array(obs.goal_position, dtype=float)
+            self.search = self._recheck(np.array(q, dtype=float),
+                                        np.array(obs.obstacle_centers, dtype=float),
+                                        np.array(obs.obstacle_radii, dtype=float))
         if self.search is not None:
             self._advance(obs.t)
         stall.hold(self.search is not None or self.engaged)  # the arming stands meanwhile
@@ -501,9 +502,12 @@ class ConfigurationMonitor:
             self.solutions = yield from pose_solutions(self.kin, position, quaternion, q,
                                                        self.pull, ground=self.ground)
         if position_alone and not self.at_limit(q):
-            # engaged for a blocked pose: the pose's solution nearest the arm, solved from q
-            # itself, may be clear where the prepared ones (a sample) are not: then it is not
-            # blocked, and PUMA keeps the arm
+            # engaged for a stalled stall pull: only where the pose is blocked. A clear prepared
+            # solution, or the pose solved from q itself (the prepared ones are a sample), and
+            # PUMA keeps the arm
+            if (yield from _clear_of_obstacles(self.kin, self.solutions, q, centers, radii,
+                                               self.pull, position=False)):
+                return None
             lo, hi = _limits(self.kin, self.pull)
             own = yield from _pose_above_ground(self.kin, position, quat_to_matrix(quaternion),
                                                 np.clip(q, lo, hi), lo, hi,
@@ -523,6 +527,15 @@ class ConfigurationMonitor:
                                          position=(near, *self.solutions.position))
         return (yield from route_steps(self.kin, self.solutions, q, centers, radii, self.pull,
                                        ground=self.ground, position=position_alone))
+
+    def _recheck(self, q, centers, radii):
+        """While holding the goal position: the route to a clear solution of the pose where
+        one has come clear, else the current targets (a generator of :meth:`_search`'s kind)."""
+        if not (yield from _clear_of_obstacles(self.kin, self.solutions, q, centers, radii,
+                                               self.pull, position=False)):
+            return (self.q_goal, *self.route)
+        return (yield from route_steps(self.kin, self.solutions, q, centers, radii, self.pull,
+                                       ground=self.ground, position=False))
 
     def _advance(self, t: float) -> bool:
         """Run the search for at most ``pull.budget`` kinematic passes (0: to its end); once
@@ -559,8 +572,8 @@ class ConfigurationMonitor:
         """Whether the pull engages now: at an arming of the stall pull (its ``t_armed`` [s])
         not served yet; farther than ``release`` [m] at once; nearer, with the hand farther
         than ``near_release`` [m] (0: never), at the arming step with a joint at a limit, or
-        once the armed stall pull has itself stopped making progress (``stall.stuck``) with
-        the goal pose blocked (:meth:`pose_blocked`, judged once per arming)."""
+        once the armed stall pull has itself stopped making progress (``stall.stuck``): the
+        search then engages only where the goal pose is blocked (see the module)."""
         p, armed_at, t = self.pull, stall.t_armed, obs.t
         if armed_at is None or armed_at == self.served:
             return False
@@ -570,10 +583,7 @@ class ConfigurationMonitor:
             return False
         if t - armed_at < ARMING_TOLERANCE_S and self.at_limit(q):
             return True
-        if self.judged != armed_at and stall.stuck(t):
-            self.judged = armed_at
-            return self.pose_blocked(obs)
-        return False
+        return stall.stuck(t)
 
     def potential(self, q: np.ndarray) -> tuple[float, np.ndarray]:
         """The attractor's own potential while engaged (what CPM's regulator
