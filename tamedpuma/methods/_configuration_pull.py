@@ -71,7 +71,9 @@ ends (a moved goal likewise, the last q_g pulling meanwhile). The stall pull's a
 while the search runs too (``StallMonitor.hold``, :mod:`tamedpuma.methods._stall`): the search is
 the engagement's answer spread over steps, which the stall pull's own approach meanwhile,
 letting go once ψ falls by its ``release``, would otherwise drop. The price: the IK starts from
-q₀, not the q at engagement, and a long search engages some steps late.
+q₀, not the q at engagement, and a long search engages some steps late. The goal position's own
+solutions are solved only inside the search that finds the pose blocked (from q, and the seeded
+starts where that one is not clear).
 
 What holds. The barriers, the energization bound and the barrier step are unchanged: the pull cannot
 carry the arm through an obstacle or a limit. Away from these stalls the forcing is PUMA's, so FPM's
@@ -226,10 +228,11 @@ def _limits(kin: Kinematics, pull: ConfigurationPull) -> tuple[np.ndarray, np.nd
 
 def pose_solutions(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray,
                    q: np.ndarray, pull: ConfigurationPull, seed: int = 0,
-                   ground: Ground | None = None):
+                   ground: Ground | None = None, weights: tuple[float, ...] = (1.0, 0.0)):
     """The :class:`PoseSolutions` of the goal pose from q and from ``pull.restarts`` seeded
     random starts (the raised pose where it reaches below the ground, see
-    :func:`goal_candidates`). A generator yielding before each kinematic pass (run it with
+    :func:`goal_candidates`); weights: the orientation rows' weights solved for (1: the pose,
+    0: the position alone). A generator yielding before each kinematic pass (run it with
     :func:`~tamedpuma.robot.ik.run_to_end`, or a step budget at a time)."""
     ground = ground or Ground(pull.clearance)
     lo, hi = _limits(kin, pull)
@@ -239,7 +242,7 @@ def pose_solutions(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray
     starts = [np.clip(np.asarray(q, dtype=float), lo, hi)]
     starts += [rng.uniform(lo, hi) for _ in range(pull.restarts)]
     found: dict[float, list[np.ndarray]] = {}
-    for rotation_weight in (1.0, 0.0):
+    for rotation_weight in weights:
         found[rotation_weight] = []
         for start in starts:
             qg = yield from _pose_above_ground(kin, position, goal_rot, start, lo, hi, ground,
@@ -247,7 +250,7 @@ def pose_solutions(kin: Kinematics, position: np.ndarray, quaternion: np.ndarray
             if qg is not None:
                 found[rotation_weight].append(qg)
     return PoseSolutions(position.copy(), np.asarray(quaternion, dtype=float).copy(),
-                         tuple(found[1.0]), tuple(found.get(0.0, ())))
+                         tuple(found.get(1.0, ())), tuple(found.get(0.0, ())))
 
 
 def _clear_of_obstacles(kin: Kinematics, solutions: PoseSolutions, q: np.ndarray,
@@ -431,7 +434,8 @@ class ConfigurationMonitor:
             if len(_PREPARED) >= PREPARED_KEPT:
                 _PREPARED.pop(next(iter(_PREPARED)))
             _PREPARED[key] = run_to_end(pose_solutions(self.kin, position, quaternion, q0,
-                                                       self.pull, ground=self.ground))
+                                                       self.pull, ground=self.ground,
+                                                       weights=(1.0,)))
         self.solutions = _PREPARED[key]
 
     def pose_blocked(self, obs) -> bool:
@@ -500,7 +504,8 @@ class ConfigurationMonitor:
     def _search(self, q, position, quaternion, centers, radii, position_alone):
         if self.solutions is None or not self.solutions.serves(position, quaternion):
             self.solutions = yield from pose_solutions(self.kin, position, quaternion, q,
-                                                       self.pull, ground=self.ground)
+                                                       self.pull, ground=self.ground,
+                                                       weights=(1.0,))
         if position_alone and not self.at_limit(q):
             # engaged for a stalled stall pull: only where the pose is blocked. A clear prepared
             # solution, or the pose solved from q itself (the prepared ones are a sample), and
@@ -522,9 +527,16 @@ class ConfigurationMonitor:
                                                  np.clip(q, lo, hi), lo, hi,
                                                  self.ground or Ground(self.pull.clearance),
                                                  self.pull.release, rotation_weight=0.0)
-            if near is not None:
-                self.solutions = replace(self.solutions,
-                                         position=(near, *self.solutions.position))
+            if near is not None and (_obstacle_gap(self.kin, near, centers, radii)
+                                     >= self.pull.clearance):
+                others = ()
+            else:  # the seeded solutions of the position, solved now (a blocked pose is rare)
+                near = None
+                others = (yield from pose_solutions(self.kin, position, quaternion, q,
+                                                    self.pull, ground=self.ground,
+                                                    weights=(0.0,))).position
+            self.solutions = replace(self.solutions,
+                                     position=(near, *others) if near is not None else others)
         return (yield from route_steps(self.kin, self.solutions, q, centers, radii, self.pull,
                                        ground=self.ground, position=position_alone))
 
