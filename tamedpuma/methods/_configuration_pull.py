@@ -506,39 +506,43 @@ class ConfigurationMonitor:
             self.solutions = yield from pose_solutions(self.kin, position, quaternion, q,
                                                        self.pull, ground=self.ground,
                                                        weights=(1.0,))
-        if position_alone and not self.at_limit(q):
+        if not position_alone:
+            return (yield from route_steps(self.kin, self.solutions, q, centers, radii,
+                                           self.pull, ground=self.ground, position=False))
+        lo, hi = _limits(self.kin, self.pull)
+        ground = self.ground or Ground(self.pull.clearance)
+        rotation = quat_to_matrix(quaternion)
+        if not self.at_limit(q):
             # engaged for a stalled stall pull: only where the pose is blocked. A clear prepared
             # solution, or the pose solved from q itself (the prepared ones are a sample), and
             # PUMA keeps the arm
             if (yield from _clear_of_obstacles(self.kin, self.solutions, q, centers, radii,
                                                self.pull, position=False)):
                 return None
-            lo, hi = _limits(self.kin, self.pull)
-            own = yield from _pose_above_ground(self.kin, position, quat_to_matrix(quaternion),
-                                                np.clip(q, lo, hi), lo, hi,
-                                                self.ground or Ground(self.pull.clearance),
-                                                self.pull.release)
+            own = yield from _pose_above_ground(self.kin, position, rotation, np.clip(q, lo, hi),
+                                                lo, hi, ground, self.pull.release)
             if own is not None and (_obstacle_gap(self.kin, own, centers, radii)
                                     >= self.pull.clearance):
                 return None
-            # the goal position alone solved from q: the least reconfiguration (the prepared
-            # solutions of the position, from random starts, may turn every joint)
-            near = yield from _pose_above_ground(self.kin, position, quat_to_matrix(quaternion),
-                                                 np.clip(q, lo, hi), lo, hi,
-                                                 self.ground or Ground(self.pull.clearance),
-                                                 self.pull.release, rotation_weight=0.0)
-            if near is not None and (_obstacle_gap(self.kin, near, centers, radii)
-                                     >= self.pull.clearance):
-                others = ()
-            else:  # the seeded solutions of the position, solved now (a blocked pose is rare)
-                near = None
-                others = (yield from pose_solutions(self.kin, position, quaternion, q,
-                                                    self.pull, ground=self.ground,
-                                                    weights=(0.0,))).position
-            self.solutions = replace(self.solutions,
-                                     position=(near, *others) if near is not None else others)
+        else:  # a joint at a limit: the pose's own solutions first, as farther out
+            route = yield from route_steps(self.kin, self.solutions, q, centers, radii,
+                                           self.pull, ground=self.ground, position=False)
+            if route is not None:
+                return route
+        # the goal position alone, solved from q: the least reconfiguration; where that is not
+        # clear, from the seeded starts (solved only now: a blocked pose is rare)
+        near = yield from _pose_above_ground(self.kin, position, rotation, np.clip(q, lo, hi),
+                                             lo, hi, ground, self.pull.release,
+                                             rotation_weight=0.0)
+        if near is not None and (_obstacle_gap(self.kin, near, centers, radii)
+                                 >= self.pull.clearance):
+            alone = (near,)
+        else:
+            alone = (yield from pose_solutions(self.kin, position, quaternion, q, self.pull,
+                                               ground=self.ground, weights=(0.0,))).position
+        self.solutions = replace(self.solutions, position=alone)
         return (yield from route_steps(self.kin, self.solutions, q, centers, radii, self.pull,
-                                       ground=self.ground, position=position_alone))
+                                       ground=self.ground, position=True))
 
     def _recheck(self, q, centers, radii):
         """While holding the goal position: the route to a clear solution of the pose where
