@@ -95,6 +95,14 @@ def test_an_unreachable_pose_gives_no_goal_configuration(kinematics):
                               np.zeros((0, 3)), np.zeros(0), replace(PULL, restarts=2)) is None
 
 
+def _blocked(monitor, obs) -> bool:
+    """Whether no prepared solution of the goal pose is clear of ``obs``'s obstacles (the
+    judgement the monitor's search makes)."""
+    return not run_to_end(cpull._clear_of_obstacles(
+        monitor.kin, monitor.solutions, np.zeros(7), np.asarray(obs.obstacle_centers, float),
+        np.asarray(obs.obstacle_radii, float), monitor.pull, position=False))
+
+
 def _stall(t_armed, distance, stuck=False):
     return SimpleNamespace(t_armed=t_armed, armed=t_armed is not None, distance=distance,
                            hold=lambda held: None, stuck=lambda t: stuck)
@@ -258,7 +266,7 @@ def test_where_the_goal_pose_is_blocked_an_arming_near_the_goal_engages_on_the_p
     near = 0.5 * pull.release
     monitor = ConfigurationMonitor(pull, spec)
     monitor.prepare(p_goal, quat, np.zeros(7))
-    assert not monitor.at_limit(q) and monitor.pose_blocked(obs)
+    assert not monitor.at_limit(q) and _blocked(monitor, obs)
     # not at the arming: first the stall pull itself must stop making progress
     assert monitor.applied(q, qd, near, _stall(3.0, near), obs, task) is task
     obs.t = 5.0
@@ -281,13 +289,13 @@ def test_where_the_goal_pose_is_blocked_an_arming_near_the_goal_engages_on_the_p
                            task) is not task
     assert monitor.engaged and not monitor.holding
     p, _ = kinematics.ee_frame(monitor.q_goal)
-    assert np.linalg.norm(p - p_goal) < 1e-3 and not monitor.pose_blocked(obs)
+    assert np.linalg.norm(p - p_goal) < 1e-3 and not _blocked(monitor, obs)
     # the pose clear: the same arming engages not
     free = SimpleNamespace(**{**vars(obs), "t": 3.0, "obstacle_centers": np.zeros((0, 3)),
                               "obstacle_radii": np.zeros(0)})
     clear = ConfigurationMonitor(pull, spec)
     clear.prepare(p_goal, quat, np.zeros(7))
-    assert not clear.pose_blocked(free)
+    assert not _blocked(clear, free)
     assert clear.applied(q, qd, near, _stall(3.0, near, stuck=True), free, task) is task
 
 
@@ -317,7 +325,7 @@ def test_a_pose_the_prepared_solutions_miss_is_not_taken_for_blocked(kinematics)
     monitor.solutions = PoseSolutions(p_goal, quat, (blocked,), (target,))
     q = target + 0.02
     near = 0.5 * pull.release
-    assert not monitor.at_limit(q) and monitor.pose_blocked(obs)
+    assert not monitor.at_limit(q) and _blocked(monitor, obs)
     assert monitor.applied(q, np.zeros(7), near, _stall(3.0, near, stuck=True), obs,
                            task) is task
     assert not monitor.engaged and monitor.search is None

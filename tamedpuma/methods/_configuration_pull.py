@@ -46,7 +46,7 @@ rest. The ground check is the controller's own (its link hulls): body spheres ke
 z = 0 would reject the hand's sphere (7 cm round the task point) at every goal lower than 8 cm.
 
 A blocked goal pose. Where every solution of the goal pose puts a body sphere inside an obstacle
-(``clearance`` short of it: the prepared solutions, :meth:`ConfigurationMonitor.pose_blocked`,
+(``clearance`` short of it: the prepared solutions,
 and, before the pull engages for it, the pose solved from the arm's own configuration, which a
 sample of the self-motion may miss), no controller that keeps the body clear can rest at the
 pose; PUMA's rows, which ask for the pose, hold the hand short of the goal, centimetres away.
@@ -438,15 +438,6 @@ class ConfigurationMonitor:
                                                        weights=(1.0,)))
         self.solutions = _PREPARED[key]
 
-    def pose_blocked(self, obs) -> bool:
-        """Whether no prepared IK solution of the goal pose is clear of the obstacles where
-        they are now, in one call (the control path judges it inside its budgeted search)."""
-        sols = self.solutions.pose if self.solutions is not None else ()
-        c = np.array(obs.obstacle_centers, dtype=float).reshape(-1, 3)
-        r = np.array(obs.obstacle_radii, dtype=float).reshape(-1)
-        return bool(len(r)) and bool(sols) and all(
-            _obstacle_gap(self.kin, qg, c, r) < self.pull.clearance for qg in sols)
-
     def at_limit(self, q: np.ndarray) -> bool:
         """A joint within ``limit_band`` [rad] of a limit."""
         band = self.pull.limit_band
@@ -466,7 +457,7 @@ class ConfigurationMonitor:
         if not self.engaged and self.search is None and self._engages(q, distance, stall, obs):
             self.served = stall.t_armed
             self.release_at = p.near_release if p.near_release > 0.0 else p.release
-            self._start(q, obs, position=distance <= p.release)
+            self._start(q, obs, position_alone=distance <= p.release)
         if self.engaged and self.search is None and np.linalg.norm(
                 np.asarray(obs.goal_position) - self.goal_for) > REPLAN_DISTANCE_M:
             self._start(q, obs, self.holding)  # the goal moved: the last q_g serves meanwhile
@@ -491,15 +482,15 @@ class ConfigurationMonitor:
             - 2.0 * np.sqrt(p.gain / p.length) * qd
         return TaskAcceleration(acc, np.eye(n), np.zeros(n))
 
-    def _start(self, q: np.ndarray, obs, position: bool) -> None:
+    def _start(self, q: np.ndarray, obs, position_alone: bool) -> None:
         """Begin the search for a route from q to the goal of ``obs`` (its obstacles where they
-        are now; ``position``: to the goal position alone where the pose is blocked); the goal
+        are now; ``position_alone``: to the goal position alone where the pose is blocked); the goal
         pose is solved again first where :meth:`prepare` solved another."""
         self.search_goal = np.array(obs.goal_position, dtype=float)
         self.search = self._search(np.array(q, dtype=float), self.search_goal,
                                    np.array(obs.goal_quaternion, dtype=float),
                                    np.array(obs.obstacle_centers, dtype=float),
-                                   np.array(obs.obstacle_radii, dtype=float), position)
+                                   np.array(obs.obstacle_radii, dtype=float), position_alone)
 
     def _search(self, q, position, quaternion, centers, radii, position_alone):
         if self.solutions is None or not self.solutions.serves(position, quaternion):
