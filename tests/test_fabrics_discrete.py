@@ -10,10 +10,9 @@ import pytest
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.fabrics.discrete import (
     barrier_step,
-    geometry_damping,
+    energized_velocity_step,
     implicit_velocity_step,
     limit_speed,
-    linearly_implicit_step,
 )
 
 Q0 = np.array([-0.702, 0.355, -0.016, -1.212, 0.012, -0.502, -0.010])
@@ -229,84 +228,46 @@ def test_the_speed_limit_keeps_the_headroom_and_the_direction():
             assert np.array_equal(w, v)
 
 
-def test_the_linearly_implicit_step_is_the_implicit_step_without_geometry():
-    rng = np.random.default_rng(3)
-    M = _spd(rng, 7)
-    for c in (-30.0, -0.5, 0.0, 2.0):
-        qd, a = rng.normal(size=7), rng.normal(size=7)
-        np.testing.assert_allclose(linearly_implicit_step(qd, a, c, 0.02, M, None),
-                                   implicit_velocity_step(qd, a, c, 0.02), atol=1e-12)
-        np.testing.assert_allclose(linearly_implicit_step(qd, a, c, 0.02, M, np.zeros((7, 7))),
-                                   implicit_velocity_step(qd, a, c, 0.02), atol=1e-12)
-
-
-def _limit_fabric_at(q, qd):
-    """The joint-limit part of the default fabric (no obstacle) at (q, q̇) of a 7-joint arm."""
-    from types import SimpleNamespace
-
-    gains = FabricGains.from_mapping(None)
-    lim = np.full(7, 1.0)
-    state = SimpleNamespace(sphere_centers=np.zeros((0, 3)), sphere_radii=np.zeros(0),
-                            sphere_jacobians=np.zeros((0, 3, 7)), sphere_jdqd=np.zeros((0, 3)))
-    fabric = Fabric(gains, -lim, lim)
-    av = fabric.avoidance(state, q, qd, np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
-    return gains, av
-
-
-def test_geometry_damping_is_the_velocity_jacobian_of_the_limit_geometry():
-    """Every joint approaching its upper limit (1 rad): the geometry q̈ = −M⁻¹f changes with q̇
-    as −M⁻¹D_M (central differences), the joint-limit rows having no curvature term."""
-    q = np.array([0.9, 0.95, 0.8, 0.97, 0.85, 0.92, 0.99])
-    qd = np.array([0.3, 0.1, 0.5, 0.2, 0.4, 0.15, 0.05])
-    gains, av = _limit_fabric_at(q, qd)
-    D_M = geometry_damping(av.barrier_rows, av.barrier_x, av.barrier_xd, av.barrier_metric, 7,
-                           gains.obstacle, gains.joint_limit, gains.barrier_margin)
-    jac = np.empty((7, 7))
-    for i in range(7):
-        e = np.zeros(7)
-        e[i] = 1e-6
-        jac[:, i] = (_limit_fabric_at(q, qd + e)[1].acceleration()
-                     - _limit_fabric_at(q, qd - e)[1].acceleration()) / 2e-6
-    np.testing.assert_allclose(jac, -np.linalg.solve(av.M, D_M), rtol=1e-5, atol=1e-6)
-
-
-def test_a_stiff_barrier_geometry_is_braked_implicitly_never_reversed():
-    """A joint 0.01 rad from its limit at 0.5 rad/s: the explicit step of its geometry throws it
-    back at several times its speed; the linearly implicit step brakes it, never reverses it."""
-    q = np.array([0.99, 0, 0, 0, 0, 0, 0])
-    for speed in (0.05, 0.5, 2.0):
-        qd = np.array([speed, 0, 0, 0, 0, 0, 0])
-        gains, av = _limit_fabric_at(q, qd)
-        h = av.acceleration()
-        D_M = geometry_damping(av.barrier_rows, av.barrier_x, av.barrier_xd, av.barrier_metric,
-                               7, gains.obstacle, gains.joint_limit, gains.barrier_margin)
-        explicit = qd + 0.02 * h
-        implicit = linearly_implicit_step(qd, h, 0.0, 0.02, av.M, D_M)
-        if speed >= 0.5:
-            assert explicit[0] < -speed  # reversed and faster
-        assert 0.0 <= implicit[0] < speed
-
-
-def test_geometry_damping_leaves_the_ground_rows_out():
-    """With the ground leaf on, its rows come last in the barrier rows: the damping of the pair
-    and joint-limit rows is the one of the same fabric without the ground leaf."""
-    from types import SimpleNamespace
-
+def test_the_energized_step_solves_the_rank_one_implicit_system():
+    """(I + αΔt P) q̇⁺ = q̇ + Δt a with P x = q̇ (q̇ᵀM x)/(q̇ᵀMq̇ + ε), checked by a dense solve;
+    α ≤ 0 is the explicit step."""
     rng = np.random.default_rng(5)
-    jac = rng.normal(size=(2, 3, 7))
-    state = SimpleNamespace(sphere_centers=np.array([[0.3, 0.0, 0.08], [0.5, 0.1, 0.12]]),
-                            sphere_radii=np.array([0.05, 0.05]), sphere_jacobians=jac,
-                            sphere_jdqd=np.zeros((2, 3)))
-    q = np.array([0.9, 0.95, 0.8, 0.97, 0.85, 0.92, 0.99])
-    qd = np.array([0.3, 0.1, 0.5, 0.2, 0.4, 0.15, 0.05])
-    lim = np.full(7, 1.0)
-    damping = []
-    for ground in (False, True):
-        gains = FabricGains.from_mapping({"ground_enabled": ground})
-        av = Fabric(gains, -lim, lim).avoidance(state, q, qd, np.zeros((0, 3)), np.zeros(0),
-                                                np.zeros((0, 3)))
-        assert av.n_ground_rows == (2 if ground else 0)
-        damping.append(geometry_damping(av.barrier_rows, av.barrier_x, av.barrier_xd,
-                                        av.barrier_metric, 7, gains.obstacle, gains.joint_limit,
-                                        gains.barrier_margin, av.n_ground_rows))
-    np.testing.assert_allclose(damping[1], damping[0], rtol=1e-12, atol=1e-12)
+    dt, eps = 0.02, 1e-6
+    for scale in (1e-4, 1e-2, 1.0):
+        M = _spd(rng, 7)
+        qd, a = scale * rng.normal(size=7), rng.normal(size=7)
+        Mqd = M @ qd
+        for alpha in (1e-3, 3.0, 1e4, 1e9):
+            P = np.outer(qd, Mqd) / (qd @ Mqd + eps)
+            want = np.linalg.solve(np.eye(7) + alpha * dt * P, qd + dt * a)
+            got = energized_velocity_step(qd, a, alpha, dt, Mqd, eps)
+            np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9 * np.abs(want).max())
+        for alpha in (0.0, -4.0):
+            np.testing.assert_allclose(energized_velocity_step(qd, a, alpha, dt, Mqd, eps),
+                                       qd + dt * (a - alpha * qd), atol=1e-15)
+
+
+def test_the_energized_step_keeps_the_push_across_the_velocity():
+    """Energization acts along q̇ only: along q̇ the step is the implicit one (never reverses
+    q̇, whatever α), and the M-orthogonal part of Δt a is applied in full, however large α is
+    (the isotropic (q̇ + Δt a)/(1 + αΔt) would divide it by 1 + αΔt and hold the arm still)."""
+    rng = np.random.default_rng(6)
+    dt, eps = 0.02, 1e-12
+    for _ in range(50):
+        M = _spd(rng, 7)
+        qd = 1e-3 * rng.normal(size=7)
+        Mqd = M @ qd
+        u = qd / np.sqrt(qd @ Mqd)
+        across = rng.normal(size=7)
+        across -= u * (u @ M @ across)  # M-orthogonal to q̇
+        along = rng.normal() * 10.0
+        a = along * u + across
+        alpha = float(Mqd @ a) / (qd @ Mqd + eps)  # α of the law (f_L = 0)
+        nxt = energized_velocity_step(qd, a, alpha, dt, Mqd, eps)
+        dq = nxt - qd
+        np.testing.assert_allclose(dq - u * (u @ M @ dq), dt * across, rtol=1e-6, atol=1e-12)
+        speed_along = u @ M @ nxt
+        assert speed_along * (u @ M @ qd) >= 0  # never reversed along q̇
+        if alpha > 0:
+            iso = implicit_velocity_step(qd, a, -alpha, dt)
+            assert np.linalg.norm(iso - u * (u @ M @ iso)) < np.linalg.norm(dt * across)

@@ -21,7 +21,9 @@ The simulator (and a real velocity-controlled arm) turns q̈ into the next joint
    the path of an HD2 geometry) does not. The arm then never needs the simulator's clamp.
 3. **Velocity-proportional terms.** Energization and damping act as ``q̈ = a + c q̇``; with
    ``|c| Δt > 1`` the explicit step flips or amplifies q̇. :func:`implicit_velocity_step` takes the
-   ``c q̇`` part implicitly, ``q̇⁺ = (q̇ + Δt a)/(1 − Δt c)`` for c ≤ 0.
+   ``c q̇`` part implicitly, ``q̇⁺ = (q̇ + Δt a)/(1 − Δt c)`` for c ≤ 0; energization, whose
+   ``α q̇`` is the acceleration's component along q̇, implicitly along q̇ alone
+   (:func:`energized_velocity_step`).
 
 What is kept: both filters only remove energy. The projection is onto a convex set that contains
 q̇⁺ = 0 (the right-hand sides are ≤ 0), so ``‖q̇⁺‖_M`` never grows (non-expansive projection in
@@ -235,55 +237,27 @@ def implicit_velocity_step(qd: np.ndarray, a: np.ndarray, c: float, dt: float) -
     return qd + dt * (a + c * qd)
 
 
-def geometry_damping(rows: np.ndarray | None, x: np.ndarray | None, xd: np.ndarray | None,
-                     metric: np.ndarray | None, n_joints: int, obstacle, joint_limit,
-                     margin: float, n_ground: int = 0) -> np.ndarray | None:
-    """The barrier geometries' velocity stiffness in the metric, ``D_M = Σ_r m_r κ_r a_r a_rᵀ``
-    (n, n) [1/s], over the rows approaching their barrier (ẋ_r < 0); None when no row does.
+def energized_velocity_step(qd: np.ndarray, a: np.ndarray, alpha: float, dt: float,
+                            Mqd: np.ndarray, eps: float) -> np.ndarray:
+    """Next velocity of ``q̈ = a − α q̇`` over Δt, the ``α q̇`` part taken implicitly along q̇
+    alone (α > 0; explicitly otherwise).
 
-    A barrier row r (Jacobian row a_r, distance x_r, rate ẋ_r, metric m_r) adds the geometry
-    ``ẍ_r = k_h ẋ_r²/x_r^p`` along itself (pushes x up; ``obstacle``/``joint_limit``:
-    :class:`~tamedpuma.fabrics.gains.BarrierGains`, the pairs first, then 2n joint-limit rows,
-    then ``n_ground`` ground rows, which are left out); while approaching this is a brake with rate
-    ``κ_r = −∂ẍ_r/∂ẋ_r = 2 k_h |ẋ_r|/x_r^p`` [1/s], and the joint-space geometry
-    ``q̈ = −M⁻¹Σ a_r m_r h_r`` changes with q̇ as ``−M⁻¹ D_M``. x is clamped to ``margin``."""
-    if rows is None or metric is None or rows.shape[0] == 0:
-        return None
-    if n_ground:
-        rows, x, xd, metric = rows[:-n_ground], x[:-n_ground], xd[:-n_ground], metric[:-n_ground]
-    n_pairs = rows.shape[0] - 2 * n_joints
-    if n_pairs < 0:
-        return None
-    gain = np.empty(rows.shape[0])
-    power = np.empty(rows.shape[0])
-    gain[:n_pairs], power[:n_pairs] = obstacle.geometry_gain, obstacle.geometry_exponent
-    gain[n_pairs:], power[n_pairs:] = joint_limit.geometry_gain, joint_limit.geometry_exponent
-    approach = (xd < 0.0) & (metric > 0.0)
-    if not approach.any():
-        return None
-    r = rows[approach]
-    x_r = np.maximum(x[approach], margin)
-    kappa = 2.0 * gain[approach] * -xd[approach] / x_r ** power[approach]
-    return (r.T * (metric[approach] * kappa)) @ r
+    Energization (and every term of the laws proportional to q̇: CPM's regulator and damping)
+    acts along q̇ only: energization removes the M-component of the acceleration along q̇,
+    ``α q̇ = P a`` with the rank-one ``P x = q̇ (q̇ᵀM x)/(q̇ᵀM q̇ + ε)``. Its implicit step is
+    ``(I + αΔt P) q̇⁺ = q̇ + Δt a``, by Sherman-Morrison (w = Mq̇/(q̇ᵀMq̇ + ε), s = wᵀq̇ < 1)::
 
+        q̇⁺ = b − q̇ αΔt (wᵀb)/(1 + αΔt s),   b = q̇ + Δt a
 
-def linearly_implicit_step(qd: np.ndarray, a: np.ndarray, c: float, dt: float, M: np.ndarray,
-                           D_M: np.ndarray | None) -> np.ndarray:
-    """Next velocity of ``q̈ = a + c q̇`` over Δt, with the ``c q̇`` part (c < 0) and the
-    geometry's own braking ``−M⁻¹D_M`` (:func:`geometry_damping`) taken implicitly (one
-    linearly implicit Euler step, Rosenbrock's W-method of order 1)::
-
-        (M(1 − Δt min(c, 0)) + Δt D_M) (q̇⁺ − q̇) = Δt M (a + c q̇)
-
-    Why: near an obstacle the barrier geometry brakes along its row at a rate ``κ = 2k_h|ẋ|/x⁵``
-    that is large even at low speed (x⁵ ~ 10⁻⁵ a centimetre from the surface); stepped
-    explicitly with κΔt > 1 it reverses the approach, the barrier (directional: on only while
-    approaching) switches off, the forcing pushes the arm back in, and the arm chatters at the
-    obstacle with period 2Δt, making no progress along it (α alternating in sign from step to
-    step). Implicitly the approach is braked to rest along the row, never reversed, and the arm
-    slides on.
-    D_M = None: :func:`implicit_velocity_step`."""
-    if D_M is None:
-        return implicit_velocity_step(qd, a, c, dt)
-    lhs = M * (1.0 - dt * min(c, 0.0)) + dt * D_M
-    return qd + dt * np.linalg.solve(lhs, M @ (a + c * qd))
+    Along q̇ it is :func:`implicit_velocity_step` (never reverses q̇); across q̇ the acceleration
+    acts in full, as in the law. Why: α ~ ‖a‖/‖q̇‖ grows without bound at low speed where the
+    geometry does not vanish with q̇ (a barrier to an obstacle that moves towards a resting arm),
+    and the isotropic ``(q̇ + Δt a)/(1 + αΔt)`` then divides the whole step, the forcing and the
+    barriers' push across q̇ with it, by 1 + αΔt: the arm is held still while the obstacle closes
+    in. Mqd: ``M q̇`` [M: the energized energy's metric]; eps: ε [(rad/s)²] of α's denominator."""
+    b = qd + dt * a
+    if not alpha > 0.0:
+        return b - dt * alpha * qd
+    denom = float(qd @ Mqd) + eps
+    k = alpha * dt
+    return b - qd * (k * float(Mqd @ b) / denom / (1.0 + k * float(qd @ Mqd) / denom))

@@ -25,7 +25,6 @@ from tamedpuma.fabrics import Fabric, FabricBuffers, solve_acceleration
 from tamedpuma.fabrics.discrete import (
     barrier_step,
     limit_speed,
-    linearly_implicit_step,
 )
 from tamedpuma.methods._configuration_pull import ConfigurationMonitor, ConfigurationPull, Ground
 from tamedpuma.methods._ground_rows import HullTable, hull_ground_rows
@@ -472,8 +471,10 @@ class ControlRate:
     :data:`BARRIER_KAPPA` of itself per period, towards :data:`BARRIER_STANDOFF`.
     speed_limit: scale the next velocity uniformly onto ``(1 − SPEED_HEADROOM) q̇_max``
     (direction kept) instead of leaving the per-joint clamp to the simulator.
-    semi_implicit: take the velocity-proportional terms implicitly over the period (FPM: −α q̇; CPM:
-    its whole coefficient c), so that a large |c|Δt brakes towards rest instead of reversing q̇.
+    semi_implicit: take the velocity-proportional terms implicitly along q̇ over the period (FPM:
+    −α q̇; CPM: its whole coefficient c), so that a large |c|Δt brakes towards rest instead of
+    reversing q̇, and leaves the push across q̇ whole
+    (:func:`~tamedpuma.fabrics.discrete.energized_velocity_step`).
 
     ``ControlRate()`` has every filter off (the paper's laws as written); FPM's and CPM's
     settings give their own, every filter on
@@ -490,12 +491,6 @@ class ControlRate:
         if unknown:
             raise ConfigError(f"unknown method.control_rate keys {unknown}")
         return ControlRate(**cfg)  # missing keys: the dataclass defaults
-
-    def velocity_step(self, qd: np.ndarray, a: np.ndarray, c: float, dt: float, av,
-                      gains) -> np.ndarray:
-        """q̇⁺ of ``q̈ = a + c q̇`` with ``c q̇`` implicit when c < 0
-        (:func:`~tamedpuma.fabrics.discrete.linearly_implicit_step`)."""
-        return linearly_implicit_step(qd, a, c, dt, av.M, None)
 
     def next_velocity(self, qd_next, av, dt: float, qd_max, ground: GroundRows | None = None,
                       qd=None) -> tuple[np.ndarray, dict]:

@@ -59,10 +59,11 @@ touches an obstacle once more (docs/method.md, "What the ablation has measured s
 
 Discretisation (``control_rate.semi_implicit``, default): over one control period Δt the law is
 q̈ = a + c q̇ with a = h + f_θ^C and c = r − α − β ≤ 0 (the regulator, energization and damping
-all act along q̇); the velocity-proportional part is taken implicitly,
-q̇⁺ = (q̇ + Δt a)/(1 − Δt c), a first-order step like the explicit one, which instead flips q̇
-whenever |c| Δt > 1 and amplifies it beyond 2 (α ~ ‖a‖/‖q̇‖ is large at low speed; matched β
-reaches 100 /s): the arm chatters and moves by numerical noise rather than by the law.
+all act along q̇); the velocity-proportional part is taken implicitly along q̇
+(:func:`~tamedpuma.fabrics.discrete.energized_velocity_step`), a first-order step like the
+explicit one, which instead flips q̇ whenever |c| Δt > 1 and amplifies it beyond 2
+(α ~ ‖a‖/‖q̇‖ is large at low speed; matched β reaches 100 /s): the arm chatters and moves by
+numerical noise rather than by the law. Across q̇ the step is the law's, undivided.
 
 ``variant: original`` reproduces the authors' public code instead, for comparison: no
 energization, β = 0, and the regulator scaled by 0.05: ``q̈ = h + f_θ^C − 0.05 (q̇q̇ᵀ/(q̇ᵀMq̇)) ∂ψ``
@@ -81,6 +82,7 @@ import numpy as np
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
+from tamedpuma.fabrics.discrete import energized_velocity_step
 from tamedpuma.methods._settings import FpmSettings, check, fpm_forcing, nonneg
 from tamedpuma.methods._tamed import (
     ControlRate,
@@ -155,10 +157,9 @@ class CpmController(TamedController):
                 beta = max(self.beta, r_coef - alpha)
             c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇
             if self.rate.semi_implicit and c < 0.0:
-                # the velocity-proportional part taken implicitly over the control period:
-                # q̇⁺ = (q̇ + Δt a) / (1 − Δt c): it damps, never reverses q̇
-                qd_next = self.rate.velocity_step(qd, h_plus_f, c, self.dt, av,
-                                                  self.fabric.gains)
+                # the velocity-proportional part taken implicitly along q̇ over the control
+                # period: it damps, never reverses q̇, and leaves the push across q̇ whole
+                qd_next = energized_velocity_step(qd, h_plus_f, -c, self.dt, Mqd, self.eps)
                 qdd = (qd_next - qd) / self.dt
             else:
                 qdd = h_plus_f + c * qd

@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tamedpuma.fabrics.discrete import energized_velocity_step
 from tamedpuma.methods._settings import FpmSettings
 from tamedpuma.methods._tamed import (
     TamedController,
@@ -80,10 +81,10 @@ class FpmController(TamedController):
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av, h, qdd_c, xdd, ground = self.forced(obs)
-        alpha = av.alpha(qd, h, self.fabric.gains.energization_eps)  # energize_{L_e}[h]
-        if self.rate.semi_implicit:
-            qd_next = self.rate.velocity_step(qd, h + qdd_c, -alpha, self.dt, av,
-                                              self.fabric.gains)
+        eps, Mqd = self.fabric.gains.energization_eps, av.M @ qd
+        alpha = av.alpha(qd, h, eps, Mqd)  # energize_{L_e}[h]
+        if self.rate.semi_implicit:  # −α q̇ implicit along q̇ alone
+            qd_next = energized_velocity_step(qd, h + qdd_c, alpha, self.dt, Mqd, eps)
         else:
             qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
         qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, ground, qd)
