@@ -15,7 +15,7 @@ CPM's settings extend in :mod:`tamedpuma.methods.cpm`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics.gains import FabricGains
@@ -81,6 +81,17 @@ class PumaSettings:
               "feedforward or ignore", self.goal_velocity)
 
 
+def tamed_fabric() -> FabricGains:
+    """FPM's avoidance fabric: the Fabrics method's gains
+    (:class:`~tamedpuma.fabrics.gains.FabricGains`) with the barriers' energies ×30 (obstacle
+    0.1 → 3, joint limit 0.05 → 1.5): PUMA's forcing metric w = 100 outweighs the Fabrics goal
+    metric (0.3-2) those gains are tuned against (CPM keeps the Fabrics gains: there the
+    barriers' energy also enters the regulator's metric, docs/method.md)."""
+    gains = FabricGains()
+    return replace(gains, obstacle=replace(gains.obstacle, energy_gain=3.0),
+                   joint_limit=replace(gains.joint_limit, energy_gain=1.5))
+
+
 def all_control_rate_filters() -> ControlRate:
     """FPM's and CPM's safety at the control rate: every filter of :class:`ControlRate` on."""
     return ControlRate(barrier_step=True, speed_limit=True, semi_implicit=True)
@@ -98,7 +109,7 @@ class FpmSettings(PumaSettings):
     (:mod:`tamedpuma.methods.fpm`). The defaults are ``method=fpm``'s; ``conf/method/
     fpm_literal.yaml`` switches each addition off (paper eq. 9 as written)."""
 
-    fabric: FabricGains = field(default_factory=FabricGains)  # the Fabrics method's gains
+    fabric: FabricGains = field(default_factory=tamed_fabric)  # the barriers' energies ×30
     control_rate: ControlRate = field(default_factory=all_control_rate_filters)  # safety at the
     #                                   control rate: every filter on (all off: eq. 9 as written)
     forcing: Forcing = field(default_factory=fpm_forcing)  # how PUMA's forcing meets the fabric
