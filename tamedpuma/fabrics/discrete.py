@@ -20,10 +20,8 @@ The simulator (and a real velocity-controlled arm) turns q̈ into the next joint
    ``s = min(1, min_j q̇_max,j / |q̇⁺_j|)``: the speed along the path changes, the direction (and
    the path of an HD2 geometry) does not. The arm then never needs the simulator's clamp.
 3. **Velocity-proportional terms.** Energization and damping act as ``q̈ = a + c q̇``; with
-   ``|c| Δt > 1`` the explicit step flips or amplifies q̇. :func:`implicit_velocity_step` takes the
-   ``c q̇`` part implicitly, ``q̇⁺ = (q̇ + Δt a)/(1 − Δt c)`` for c ≤ 0; energization, whose
-   ``α q̇`` is the acceleration's component along q̇, implicitly along q̇ alone
-   (:func:`energized_velocity_step`).
+   ``|c| Δt > 1`` the explicit step flips or amplifies q̇. :func:`energized_velocity_step` takes
+   the ``c q̇`` part implicitly along q̇ alone (c ≤ 0), where it acts.
 
 What is kept: both filters only remove energy. The projection is onto a convex set that contains
 q̇⁺ = 0 (the right-hand sides are ≤ 0), so ``‖q̇⁺‖_M`` never grows (non-expansive projection in
@@ -229,14 +227,6 @@ def nnls(E: np.ndarray, f: np.ndarray, max_iter: int | None = None) -> np.ndarra
     return z
 
 
-def implicit_velocity_step(qd: np.ndarray, a: np.ndarray, c: float, dt: float) -> np.ndarray:
-    """Next velocity of ``q̈ = a + c q̇`` over Δt with the ``c q̇`` part implicit when c < 0:
-    ``q̇⁺ = (q̇ + Δt a)/(1 − Δt c)`` (never reverses q̇); explicit ``q̇ + Δt(a + c q̇)`` for c ≥ 0."""
-    if c < 0.0:
-        return (qd + dt * a) / (1.0 - dt * c)
-    return qd + dt * (a + c * qd)
-
-
 def energized_velocity_step(qd: np.ndarray, a: np.ndarray, alpha: float, dt: float,
                             Mqd: np.ndarray, eps: float) -> np.ndarray:
     """Next velocity of ``q̈ = a − α q̇`` over Δt, the ``α q̇`` part taken implicitly along q̇
@@ -249,7 +239,7 @@ def energized_velocity_step(qd: np.ndarray, a: np.ndarray, alpha: float, dt: flo
 
         q̇⁺ = b − q̇ αΔt (wᵀb)/(1 + αΔt s),   b = q̇ + Δt a
 
-    Along q̇ it is :func:`implicit_velocity_step` (never reverses q̇); across q̇ the acceleration
+    Along q̇ it is ``(q̇ + Δt a)/(1 + αΔt)`` (never reverses q̇); across q̇ the acceleration
     acts in full, as in the law. Why: α ~ ‖a‖/‖q̇‖ grows without bound at low speed where the
     geometry does not vanish with q̇ (a barrier to an obstacle that moves towards a resting arm),
     and the isotropic ``(q̇ + Δt a)/(1 + αΔt)`` then divides the whole step, the forcing and the
