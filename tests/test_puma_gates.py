@@ -97,7 +97,9 @@ def test_a_rollout_on_another_demonstrations_route_is_the_datas_conflict_not_the
     follows = gates.followed_routes(rollouts, d)
     assert list(follows) == [0] and follows[0].other == 1
     assert follows[0].start_gap == pytest.approx(0.0, abs=1e-9)
-    assert follows[0].to_other < 0.002 < follows[0].to_own and follows[0].route_gap > 0.1
+    assert follows[0].to_other < 0.002 < follows[0].to_own
+    assert follows[0].route_gap == pytest.approx(
+        evaluation.dtw_per_point(routes[0], routes[1]), rel=0.05) and follows[0].route_gap > 0.05
     # d2 on d3's route: d3 starts farther from d2 than the two routes ever come apart
     far = gates.followed_routes([routes[0], routes[1], routes[3], routes[3]], d)
     assert 2 not in far and 3 not in far
@@ -107,7 +109,7 @@ def test_a_rollout_on_another_demonstrations_route_is_the_datas_conflict_not_the
                                                 follows=follows)}
     assert set(failures) == {"conflicting_demos", "worst_demo"}
     assert failures["conflicting_demos"].demos == ("d0.csv", "d1.csv")
-    assert "d0.csv follows d1.csv (starts 0.00 cm apart, routes up to" in failures[
+    assert "d0.csv follows d1.csv (starts 0.00 cm apart, routes " in failures[
         "conflicting_demos"].line
     assert "mean DTW/point of the other 3: 1.13 cm" in failures["conflicting_demos"].line
     assert failures["worst_demo"].demos == ("d3.csv",)
@@ -189,3 +191,18 @@ def test_a_model_that_failed_its_gates_is_named_where_it_is_loaded(tmp_path):
     assert len(said) == 2 and "b (3.00 cm" in said[1]
     passed = {"gates": gates.as_report([], np.array([0.05] * 4), EvalConfig())}
     assert warn_failed_gates(tmp_path / "other.pt", passed, said.append) == [] and len(said) == 2
+
+
+@pytest.mark.parametrize("bend, conflict", [(0.06, False), (0.2, True)])
+def test_routes_conflict_only_when_they_part_by_more_than_twice_their_start_gap(bend, conflict):
+    # starts 5 cm apart: routes 4.4 cm apart on average are the learner's to follow (a rollout
+    # on the other's route is under-fitted, not contradicted); 11 cm apart, a smooth field
+    # cannot take both
+    d = _prepared({"a": _path(GOAL + [0.3, 0.0, 0.0], 0.0),
+                   "b": _path(GOAL + [0.3, 0.05, 0.0], bend),
+                   "c": _path(GOAL + [-0.25, 0.3, 0.0], 0.0)})
+    routes = [d.trimmed(i)[0] for i in range(3)]
+    follows = gates.followed_routes([routes[1], routes[1], routes[2]], d)
+    assert (0 in follows) == conflict
+    separation = evaluation.dtw_per_point(routes[0], routes[1])
+    assert (separation > gates.CONFLICT_RATIO * 0.05) == conflict
