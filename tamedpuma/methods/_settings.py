@@ -83,13 +83,14 @@ class PumaSettings:
 
 def tamed_fabric() -> FabricGains:
     """FPM's avoidance fabric: the Fabrics method's gains
-    (:class:`~tamedpuma.fabrics.gains.FabricGains`) with the barriers' energies ×30 (obstacle
-    0.1 → 3, joint limit 0.05 → 1.5): PUMA's forcing metric w = 100 outweighs the Fabrics goal
-    metric (0.3-2) those gains are tuned against (CPM keeps the Fabrics gains: there the
-    barriers' energy also enters the regulator's metric, docs/method.md)."""
+    (:class:`~tamedpuma.fabrics.gains.FabricGains`) with the joint-limit energy ×30 (0.05 →
+    1.5): PUMA's forcing metric w = 100 outweighs the Fabrics goal metric (0.3-2) that gain is
+    tuned against, and joints run into their limits. The obstacle energy stays 0.1: at ×30 the
+    obstacle barriers hold the hand off the goal where an obstacle stands near it (CPM keeps
+    the Fabrics gains: there the barriers' energy also enters the regulator's metric,
+    docs/method.md)."""
     gains = FabricGains()
-    return replace(gains, obstacle=replace(gains.obstacle, energy_gain=3.0),
-                   joint_limit=replace(gains.joint_limit, energy_gain=1.5))
+    return replace(gains, joint_limit=replace(gains.joint_limit, energy_gain=1.5))
 
 
 def all_control_rate_filters() -> ControlRate:
@@ -109,7 +110,7 @@ class FpmSettings(PumaSettings):
     (:mod:`tamedpuma.methods.fpm`). The defaults are ``method=fpm``'s; ``conf/method/
     fpm_literal.yaml`` switches each addition off (paper eq. 9 as written)."""
 
-    fabric: FabricGains = field(default_factory=tamed_fabric)  # the barriers' energies ×30
+    fabric: FabricGains = field(default_factory=tamed_fabric)  # the joint-limit energy ×30
     control_rate: ControlRate = field(default_factory=all_control_rate_filters)  # safety at the
     #                                   control rate: every filter on (all off: eq. 9 as written)
     forcing: Forcing = field(default_factory=fpm_forcing)  # how PUMA's forcing meets the fabric

@@ -180,7 +180,7 @@ class CpmController(TamedController):
 
 
 def cpm_fabric() -> FabricGains:
-    """CPM's avoidance fabric: the Fabrics method's gains (not FPM's ×30 barrier energies: the
+    """CPM's avoidance fabric: the Fabrics method's gains (not FPM's joint-limit energy ×30: the
     fabric's energy, barriers included, is the metric of CPM's regulator and damping) with
     the energization and regulator denominators' ε = 1e-3 [(rad/s)²], above the joint
     controller's velocity noise squared (the module docstring says why)."""
