@@ -532,8 +532,10 @@ class ConfigurationMonitor:
             alone = (yield from pose_solutions(self.kin, position, quaternion, q, self.pull,
                                                ground=self.ground, weights=(0.0,))).position
         self.solutions = replace(self.solutions, position=alone)
-        return (yield from route_steps(self.kin, self.solutions, q, centers, radii, self.pull,
-                                       ground=self.ground, position=True))
+        # the position's solutions alone: the pose's have just been found blocked (or, at a
+        # limit, without a clear route)
+        return (yield from route_steps(self.kin, replace(self.solutions, pose=()), q, centers,
+                                       radii, self.pull, ground=self.ground, position=True))
 
     def _recheck(self, q, centers, radii):
         """While holding the goal position: the route to a clear solution of the pose where
