@@ -100,7 +100,7 @@ def test_a_rollout_on_another_demonstrations_route_is_the_datas_conflict_not_the
     assert follows[0].to_other < 0.002 < follows[0].to_own
     assert follows[0].route_gap == pytest.approx(
         evaluation.dtw_per_point(routes[0], routes[1]), rel=0.05) and follows[0].route_gap > 0.05
-    # d2 on d3's route: d3 starts farther from d2 than the two routes ever come apart
+    # d2 on d3's route: the two routes lie less than twice their start gap apart on average
     far = gates.followed_routes([routes[0], routes[1], routes[3], routes[3]], d)
     assert 2 not in far and 3 not in far
     spread, names = np.array([0.1, 0.1, 0.2, 0.05]), gates.demo_names(d)

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..errors import TamedPumaError
 from .data import Demonstrations
-from .evaluation import dtw_per_point_batch, rollout_paths
+from .evaluation import dtw_per_point, dtw_per_point_batch, rollout_paths
 from .settings import EvalConfig
 
 
@@ -92,8 +92,7 @@ def followed_routes(paths: list[np.ndarray], demos: Demonstrations,
         others = np.delete(np.arange(len(refs)), i)
         j = int(others[np.argmin(d[others])])
         gap = float(np.linalg.norm(refs[i][0] - refs[j][0]))
-        if d[j] <= d[i] and CONFLICT_RATIO * gap < (
-                route := float(dtw_per_point_batch([refs[i]], [refs[j]])[0])):
+        if d[j] <= d[i] and CONFLICT_RATIO * gap < (route := dtw_per_point(refs[i], refs[j])):
             out[i] = Follow(j, float(d[j]), float(d[i]), gap, float(route))
     return out
 
