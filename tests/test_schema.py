@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
+from omegaconf import OmegaConf
 
 from tamedpuma import methods
 from tamedpuma.app import schema
@@ -62,8 +63,14 @@ def test_every_yaml_is_covered():
 
 @pytest.mark.parametrize("group,option", RUN_CASES, ids=lambda v: str(v))
 def test_run_yaml_loads_against_the_schema(hydra_conf, group, option):
-    run = schema.run_config(compose("sweep", overrides=_run_overrides(group, option)))
+    cfg = compose("sweep", overrides=_run_overrides(group, option))
+    run = schema.run_config(cfg)
     assert isinstance(run.method, schema.METHODS[run.method.name])
+    # typed section by section: the object typing the whole config at once gives
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    whole = schema.typed(schema.RunConfig, {**plain, "method": {}})
+    whole.method = schema.method_options(plain["method"])
+    assert type(run) is type(whole) and run == whole
     assert run.scenario.dt > 0 and run.sim.substep > 0
     sc = run.scenario
     if sc.random is not None:  # typed by the schema: the generator's own parameters
@@ -282,12 +289,14 @@ def test_run_config_types_equal_sections_once_and_hands_out_copies(hydra_conf, m
     cfg = compose("sweep", ["method=fpm", "+case=tomato_03"])
     first, second = schema.run_config(cfg), schema.run_config(cfg)
     assert first == second and first is not second and first.method is not second.method
-    assert len(calls) == 2  # the method's section and the rest, once each
+    sections, _ = schema._split_schema(schema.RunConfig)
+    typed_once = 1 + len(sections) + 1  # the method, each section and the other values
+    assert len(calls) == typed_once
     first.scenario.max_steps = 7  # a caller's own object
     third = schema.run_config(cfg)
     assert third == second and third.scenario.max_steps == second.scenario.max_steps != 7
     other = schema.run_config(compose("sweep", ["method=cpm", "+case=tomato_03"]))
-    assert other.method.name == "cpm" and len(calls) == 3  # the rest was typed already
+    assert other.method.name == "cpm" and len(calls) == typed_once + 1  # the rest is known
     bad = compose("sweep", ["method=fpm", "+case=tomato_03", "scenario.max_steps=-1"])
     for _ in range(2):
         with pytest.raises(ConfigError, match="max_steps"):

@@ -617,14 +617,56 @@ def _typed_once(schema: type, plain: dict, where: str = ""):
     return copy.deepcopy(_TYPED[key])
 
 
+#: schema -> (its dataclass-typed fields by name, a dataclass of its other fields), per process
+_SPLIT: dict[type, tuple[dict[str, type], type]] = {}
+
+
+def _split_schema(schema: type) -> tuple[dict[str, type], type]:
+    """``schema``'s sections (its fields whose type is a dataclass, by name) and a dataclass of
+    the same name holding its other fields (the same names, types and defaults)."""
+    if schema not in _SPLIT:
+        hints = typing.get_type_hints(schema)
+        fields = dataclasses.fields(schema)
+        sections = {f.name: hints[f.name] for f in fields
+                    if dataclasses.is_dataclass(hints[f.name])}
+        rest = [(f.name, hints[f.name],
+                 field(default=f.default) if f.default is not dataclasses.MISSING
+                 else field(default_factory=f.default_factory))
+                for f in fields if f.name not in sections]
+        _SPLIT[schema] = (sections, dataclasses.make_dataclass(schema.__name__, rest))
+    return _SPLIT[schema]
+
+
+def _typed_by_section(schema: type, plain: dict):
+    """:func:`typed` of ``plain`` as ``schema``, each section typed on its own and once per
+    process for equal values (:func:`_typed_once`), then ``schema``'s own checks: the jobs of a
+    sweep share most sections (Table 1: the robot, simulator and recorder sections in all 480
+    jobs, each scenario's in 16), so a job types little of its config afresh (about a third of
+    the time of typing it whole). The same object as :func:`typed`
+    (``tests/test_schema.py``); any error is :func:`typed`'s own, raised by typing the whole
+    mapping."""
+    sections, values = _split_schema(schema)
+    try:
+        if any(name not in plain and schema.__dataclass_fields__[name].default is MISSING
+               for name in sections):
+            raise LookupError("a required section is missing")
+        parts = {name: _typed_once(tp, plain[name], name)
+                 for name, tp in sections.items() if name in plain}
+        rest = _typed_once(values, {k: v for k, v in plain.items() if k not in sections})
+        return schema(**parts, **{f.name: getattr(rest, f.name)
+                                  for f in dataclasses.fields(values)})
+    except Exception:  # noqa: BLE001 - typing the whole mapping raises the error to report
+        return typed(schema, plain)
+
+
 def run_config(cfg) -> RunConfig:
     """The whole run config (resolved), typed and range-checked (each section typed once per
-    process for equal values, :func:`_typed_once`)."""
+    process for equal values, :func:`_typed_by_section`)."""
     if not isinstance(cfg, DictConfig):
         cfg = OmegaConf.create(cfg)
     plain = OmegaConf.to_container(cfg, resolve=True)
     method = method_options(plain.get("method") or {})
-    run = _typed_once(RunConfig, {**plain, "method": {}})
+    run = _typed_by_section(RunConfig, {**plain, "method": {}})
     run.method = method
     return run
 
