@@ -69,6 +69,7 @@ class SharedLoads(IConfigRepository):
 
     def __init__(self, inner: IConfigRepository):
         self._inner = inner
+        self._sources: tuple | None = None  # the search path's key, until it changes
 
     def __deepcopy__(self, memo) -> SharedLoads:
         inner = self._inner
@@ -79,7 +80,9 @@ class SharedLoads(IConfigRepository):
         return SharedLoads(copy.deepcopy(inner, memo))
 
     def _key(self, config_path: str) -> tuple:
-        return (tuple((s.provider, s.path) for s in self._inner.get_sources()), config_path)
+        if self._sources is None:
+            self._sources = tuple((s.provider, s.path) for s in self._inner.get_sources())
+        return (self._sources, config_path)
 
     def load_config(self, config_path: str):
         key = self._key(config_path)
@@ -105,6 +108,7 @@ class SharedLoads(IConfigRepository):
 
     def initialize_sources(self, config_search_path) -> None:
         self._inner.initialize_sources(config_search_path)
+        self._sources = None
 
 
 class SweepConfigLoader(ConfigLoaderImpl):
