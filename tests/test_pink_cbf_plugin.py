@@ -191,7 +191,7 @@ def test_the_plugin_runs_through_the_randomized_suite_and_its_analysis(fresh_env
     assert done.returncode == 0, done.stderr[-3000:]
     (path,) = out.rglob("summary.json")
     summary = json.loads(path.read_text())
-    assert (summary["method"], summary["suite"]) == ("pink_cbf", {"name": "random", "version": 1})
+    assert (summary["method"], summary["suite"]) == ("pink_cbf", {"name": "random", "version": 2})
     table = _run(fresh_env, "-m", "tamedpuma.analysis.random_suite", str(out / "random"),
                  cwd=tmp_path)
     assert table.returncode == 0, table.stderr[-2000:]

@@ -9,6 +9,7 @@ import pytest
 from tamedpuma.app.config import load_group, robot_config, table1_starts
 from tamedpuma.app.schema import ScenarioSchema
 from tamedpuma.errors import ScenarioError
+from tamedpuma.robot.ik import solve_pose_ik
 from tamedpuma.worlds.random_scenarios import (
     REJECT_REASONS,
     START_KINDS,
@@ -68,6 +69,24 @@ def test_every_generated_scenario_is_valid(kinematics, task, kind):
         for t in np.linspace(0.0, horizon, 41):
             d = np.linalg.norm(obs.at(t) - sc.goal.at(t), axis=1) - obs.radii
             assert d.min() >= params.goal_clearance - 1e-9
+        # the goal pose stays within reach: solved afresh at the end of the episode
+        end = solve_pose_ik(kinematics, sc.goal.at(horizon), sc.goal.quaternion, sc.q0,
+                            tolerance=1e-4, margin=params.limit_margin, restarts=32, seed=7)
+        assert end.converged, (seed, end.position_error, end.orientation_error)
+
+
+def test_a_goal_that_moves_out_of_reach_is_redrawn(kinematics):
+    """A goal moving at up to 10 m/s leaves the arm's reach within the 40 s episode in every
+    draw of this seed: no scenario, the draws counted as ``goal_unreachable``; over 1 s one of
+    them stays within reach."""
+    region, starts = _region("pouring"), table1_starts("pouring")
+    params = RandomParams(goal_moving_prob=1.0, goal_speed_max=10.0, max_tries=300)
+    with pytest.raises(ScenarioError, match="goal_unreachable"):
+        generate(region, kinematics, 3, params, starts, start_kind="near_table1", **EPISODE)
+    short = {**EPISODE, "max_steps": 2}
+    sc = generate(region, kinematics, 3, params, starts, start_kind="near_table1",
+                  **short).scenario
+    assert np.linalg.norm(sc.goal.velocity) > 0
 
 
 def test_same_seed_same_scenario_other_seed_other_scenario(kinematics):

@@ -37,9 +37,10 @@ SUITES = {
         "9750188ddf55d456c495be3564181f73ab9ba9b952a7f2f4e8364859fe1f0cc5"),
     "ablation": ("table1", 1,
         "8587c8809d9f47ca14cb35929342b19b11253eb6f8c6e48a3281368d8e50c764"),
-    "random": ("random", 1,
+    # version 2: the generator redraws a goal that moves out of the arm's reach
+    "random": ("random", 2,
         "f0687b2ec7c406b1a49dbb7cb2a2b3053def03e0f58b0751d99287843469e32d"),
-    "ablation_random": ("random", 1,
+    "ablation_random": ("random", 2,
         "e7e862b848039f29fe7ef7a8f2b3a308d62bfb03b2e2d39cd0fabc6ae1d7f09f"),
     "scaling": ("scaling", 1,
         "41d08cf24cf9bf97a4b0c73530e111f88ecfee8a69837b81259ce9577d9925c5"),

@@ -24,9 +24,14 @@ A draw is rejected, and the reason counted, when: q0 is outside the joint limits
 below ``ground_clearance`` (``ground``), a body sphere is within ``start_clearance`` of an
 obstacle at t = 0 (``start_collision``), an obstacle reaches below the ground (``obstacle_ground``),
 an obstacle comes within ``goal_clearance`` [m] (surface to point) of the goal at any time of the
-episode (``goal_blocked``: the goal would be unreachable without contact), or an obstacle comes
+episode (``goal_blocked``: the goal would be unreachable without contact), an obstacle comes
 within ``base_clearance`` of the fixed base column (links 0-2, the z axis up to ``base_height``;
-no body sphere covers it, so nothing could avoid it: ``base``).
+no body sphere covers it, so nothing could avoid it: ``base``), or the goal pose has no inverse
+kinematics solution inside the joint limits (by ``limit_margin``) at t = 0 or, for a moving goal,
+at a quarter, half, three quarters or the end of the episode (``goal_unreachable``: a goal that
+moves out of the arm's reach, at up to 0.4 m over 40 s, ends a scenario no controller can
+finish). The check draws nothing from the generator's random stream, so a draw it accepts is
+the one the generator accepted without it.
 
 numpy and the kinematics only (no simulator). The Hydra side is ``conf/scenario/random.yaml``
 (``scenario=random scenario.random_seed=N scenario.start_kind=near_table1|anywhere``), built by
@@ -43,12 +48,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from tamedpuma.errors import ScenarioError
+from tamedpuma.robot.ik import solve_pose_ik
 from tamedpuma.robot.rotations import orientation_error
 from tamedpuma.types import Goal, Obstacles, Scenario
 
 START_KINDS = ("near_table1", "anywhere")
 REJECT_REASONS = ("joint_limits", "workspace", "ground", "start_collision", "obstacle_ground",
-                  "goal_blocked", "base")
+                  "goal_blocked", "base", "goal_unreachable")
+#: the goal pose's IK (:func:`~tamedpuma.robot.ik.solve_pose_ik`): tolerance [m, rad] and the
+#: seeded random starts besides the previous solution
+REACH_TOLERANCE = 1e-4
+REACH_RESTARTS = 16
 
 
 @dataclass(frozen=True)
@@ -181,6 +191,24 @@ def _check_obstacles(obstacles: Obstacles, goal: Goal, centers, radii, p: Random
     return None
 
 
+def goal_reachable(goal: Goal, kinematics, q0: np.ndarray, p: RandomParams,
+                   horizon: float) -> bool:
+    """Whether the goal pose has an IK solution inside the joint limits by ``limit_margin`` at
+    t = 0 and, for a moving goal, at each quarter of the ``horizon`` [s] (each solved from the
+    one before, starting at q0, then from seeded starts: deterministic, and independent of the
+    generator's random stream)."""
+    times = np.linspace(0.0, horizon, 5) if np.any(goal.velocity != 0) else np.zeros(1)
+    q = np.asarray(q0, dtype=float)
+    for t in times:
+        sol = solve_pose_ik(kinematics, goal.position + t * goal.velocity, goal.quaternion, q,
+                            tolerance=REACH_TOLERANCE, margin=p.limit_margin,
+                            restarts=REACH_RESTARTS)
+        if not sol.converged:
+            return False
+        q = sol.q
+    return True
+
+
 def generate(region: TaskRegion, kinematics, seed: int, params: RandomParams,
              table1_starts: Sequence[Sequence[float]] = (), *, start_kind: str, dt: float,
              max_steps: int, goal_tolerance: float) -> Generated:
@@ -223,6 +251,9 @@ def generate(region: TaskRegion, kinematics, seed: int, params: RandomParams,
             obstacles = Obstacles(np.array(c), np.array(r), np.array(v))
             reason = _check_obstacles(obstacles, goal, centers, radii, params,
                                       max_steps * dt)
+            if reason is None and not goal_reachable(goal, kinematics, q0, params,
+                                                     max_steps * dt):
+                reason = "goal_unreachable"
         if reason is None:
             scenario = Scenario(name=f"random_{region.name}_{kind}_{seed}", task=region.name,
                                 q0=q0, goal=goal, obstacles=obstacles, dt=dt, max_steps=max_steps,
