@@ -319,3 +319,47 @@ def test_the_default_parallelism_follows_the_cores_the_process_may_use(monkeypat
     assert seen == [1]
     models.ensure_real_models(parallel=3, log=lambda line: None)
     assert seen == [1, 3]
+
+
+def test_a_model_folder_is_locked_across_processes(tmp_path):
+    """``key_lock``: while one process holds a model folder's lock, another cannot take it
+    without waiting; once released it can."""
+    from tamedpuma.app.models import key_lock
+
+    folder = tmp_path / "models" / "abc"
+    probe = ("import sys; from pathlib import Path; from tamedpuma.app.models import key_lock; "
+             "print(key_lock(Path(sys.argv[1]), wait=False) is None)")
+
+    def busy() -> bool:
+        out = subprocess.run([sys.executable, "-c", probe, str(folder)], capture_output=True,
+                             text=True, check=True)
+        return out.stdout.strip() == "True"
+
+    held = key_lock(folder)
+    assert busy()
+    held.close()
+    assert not busy()
+
+
+def test_a_build_waits_for_another_process_building_the_same_model(tmp_path):
+    """Two builds of one cache key: the second waits for the first's lock and takes its model
+    instead of training into the same ``.partial`` folder (no training is started)."""
+    from tamedpuma.app.models import Job, key_lock, run_jobs
+
+    folder = tmp_path / "models" / "key"
+    job = Job("tomato", "tomato", 2, ("task=tomato",), folder, "python -m tamedpuma.train")
+    held = key_lock(folder)  # "the other process"
+    lines, result = [], {}
+    builder = threading.Thread(
+        target=lambda: result.update(done=run_jobs([job], 1, log=lines.append)))
+    builder.start()
+    builder.join(timeout=2.0)
+    assert builder.is_alive() and lines and lines[0].startswith("waiting for another process")
+    folder.mkdir(parents=True)
+    (folder / "puma.pt").write_bytes(b"model")
+    (folder / "manifest.json").write_text("{}")
+    held.close()
+    builder.join(timeout=30.0)
+    assert not builder.is_alive() and result["done"] == [folder]
+    assert not any(line.startswith("training") for line in lines), lines
+    assert not folder.with_name("key.partial").exists()

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import fcntl
 import json
 import os
 import shutil
@@ -166,10 +167,28 @@ def write_manifest(job: Job, folder: Path, seconds: float | None = None) -> dict
     return manifest
 
 
+def key_lock(out_dir: Path, wait: bool = True):
+    """An exclusive lock on the model folder ``out_dir`` across processes (``<out_dir>.lock``,
+    ``flock``): the open lock file, or None when another process holds it and ``wait`` is
+    false. Two builds of one cache key (two sweeps, or ``models build`` beside a sweep) would
+    otherwise train into the same ``.partial`` folder, each deleting the other's work; the
+    second waits for the first and takes its model. Closing the file releases the lock."""
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    handle = open(out_dir.with_name(out_dir.name + ".lock"), "w")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+    except BlockingIOError:
+        handle.close()
+        return None
+    return handle
+
+
 def run_jobs(jobs: list[Job], parallel: int, log=print, staged: bool = True) -> list[Path]:
     """Train ``jobs`` with at most ``parallel`` at once (one torch thread each). With ``staged``
     each trains into ``<out_dir>.partial`` and is renamed when complete (a killed build leaves
-    no half model in the cache). Returns the model folders; a failed training is an error."""
+    no half model in the cache), holding the folder's :func:`key_lock`: a job whose model
+    another process is building waits for it and takes that model. Returns the model folders;
+    a failed training is an error."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(paths.CHECKOUT_ROOT), env.get("PYTHONPATH", "")])
     pending, running, done, failed = list(jobs), [], [], []
@@ -177,6 +196,17 @@ def run_jobs(jobs: list[Job], parallel: int, log=print, staged: bool = True) -> 
     while pending or running:
         while pending and len(running) < max(1, parallel):
             job = pending.pop(0)
+            lock = None
+            if staged:
+                lock = key_lock(job.out_dir, wait=False)
+                if lock is None:
+                    log(f"waiting for another process building {job.name} -> {job.out_dir}")
+                    lock = key_lock(job.out_dir)
+                if not missing([job]):  # built meanwhile by the process that held the lock
+                    lock.close()
+                    done.append(job.out_dir)
+                    log(f"{job.name}: built by another process ({job.out_dir})")
+                    continue
             work = job.out_dir.with_name(job.out_dir.name + ".partial") if staged else job.out_dir
             if staged and work.exists():
                 shutil.rmtree(work)
@@ -186,33 +216,44 @@ def run_jobs(jobs: list[Job], parallel: int, log=print, staged: bool = True) -> 
             proc = subprocess.Popen([sys.executable, "-m", "tamedpuma.train", *ov,
                                      f"out_dir={work}", "progress=false"],
                                     stdout=logf, stderr=subprocess.STDOUT, env=env)
-            running.append((job, work, proc, logf, time.perf_counter()))
+            running.append((job, work, proc, logf, time.perf_counter(), lock))
             log(f"training {job.name} ({job.data.get('kind')} data) -> {job.out_dir}")
         time.sleep(1.0)
         for item in list(running):
-            job, work, proc, logf, start = item
+            job, work, proc, logf, start, lock = item
             if proc.poll() is None:
                 continue
             running.remove(item)
             logf.close()
-            seconds = time.perf_counter() - start
-            if proc.returncode != 0:
-                tail = (work / "train.log").read_text().strip().splitlines()[-1:] or ["?"]
-                failed.append(f"{job.name}: {tail[0]} (log: {work / 'train.log'})")
-                log(f"FAILED {job.name} after {seconds:.0f} s: {tail[0]}")
-                continue
-            write_manifest(job, work, seconds)
-            if staged:
-                if job.out_dir.exists():
-                    shutil.rmtree(job.out_dir)
-                work.rename(job.out_dir)
-            done.append(job.out_dir)
-            log(f"built {job.name} in {seconds:.0f} s "
-                f"({len(done)}/{len(jobs)}, {time.perf_counter() - t0:.0f} s so far)")
-            gate_warnings(job.name, job.out_dir, log)
+            try:
+                _finish(job, work, proc, start, staged, log, done, failed, len(jobs), t0)
+            finally:
+                if lock is not None:
+                    lock.close()
     if failed:
         raise TamedPumaError("training failed: " + "; ".join(failed))
     return done
+
+
+def _finish(job: Job, work: Path, proc, start: float, staged: bool, log, done: list,
+            failed: list, n_jobs: int, t0: float) -> None:
+    """Record one ended training: its failure, or its manifest and (staged) its folder renamed
+    into place."""
+    seconds = time.perf_counter() - start
+    if proc.returncode != 0:
+        tail = (work / "train.log").read_text().strip().splitlines()[-1:] or ["?"]
+        failed.append(f"{job.name}: {tail[0]} (log: {work / 'train.log'})")
+        log(f"FAILED {job.name} after {seconds:.0f} s: {tail[0]}")
+        return
+    write_manifest(job, work, seconds)
+    if staged:
+        if job.out_dir.exists():
+            shutil.rmtree(job.out_dir)
+        work.rename(job.out_dir)
+    done.append(job.out_dir)
+    log(f"built {job.name} in {seconds:.0f} s "
+        f"({len(done)}/{n_jobs}, {time.perf_counter() - t0:.0f} s so far)")
+    gate_warnings(job.name, job.out_dir, log)
 
 
 def gate_warnings(name: str, folder: Path, log=print) -> list[str]:
