@@ -32,6 +32,7 @@ from tamedpuma.methods._configuration_pull import (
 from tamedpuma.methods._policy import PoseTask, TaskAcceleration
 from tamedpuma.methods._stall import StallMonitor, StallPull
 from tamedpuma.methods._tamed import Forcing
+from tamedpuma.methods.cpm import CpmController
 from tamedpuma.robot.ground import (
     hull_ground_rows,
     hull_heights,
@@ -634,7 +635,7 @@ def test_cpm_crawling_up_its_potential_arms_the_stall_pull_and_the_attractor_tak
     """Where ψ climbs along the way the forcing takes, CPM's regulator brakes the climb and the
     arm crawls (the ε leak). Without the creep criterion and the configuration pull the arm is
     left crawling far from the goal at 40 s: the hand closes too slowly to reach but faster than
-    the stall pull's 5 mm per window. The defaults (the creep criterion, the pull) arm the
+    the stall pull's 5 mm per window. CPM's defaults (the creep criterion, the pull) arm the
     stall pull on the crawl and the configuration attractor, on its own potential, takes the
     arm in."""
     scenario = _obstacle_free_scenario(robot_spec, "tomato")
@@ -642,16 +643,14 @@ def test_cpm_crawling_up_its_potential_arms_the_stall_pull_and_the_attractor_tak
     monkeypatch.setattr(tamed, "load_task", lambda cfg: PoseTask(ClimbingPotential(centre)))
     method = _method_config("cpm")
     assert method["forcing"]["configuration_pull"] is True
-    creep = StallPull().progress_fraction
-    assert creep > 0
+    assert CpmController.creep_fraction > 0
     runs = {}
-    for name, forcing, fraction in (("without", {"configuration_pull": False}, 0.0),
-                                    ("default", {}, creep)):
+    for name, forcing, creep in (("without", {"configuration_pull": False}, 0.0),
+                                 ("default", {}, CpmController.creep_fraction)):
         m = {**method, "forcing": {**method["forcing"], **forcing}}
         with monkeypatch.context() as patch, Simulator(robot_spec, SimConfig(),
                                                        Disturbance()) as world:
-            patch.setattr(tamed, "StallPull",
-                          lambda gain, f=fraction: StallPull(gain=gain, progress_fraction=f))
+            patch.setattr(CpmController, "creep_fraction", creep)
             runs[name] = run_episode(scenario, make("cpm", m, kinematics), world)
     crawl = runs["without"]
     assert not crawl.metrics.success_paper and crawl.metrics.final_position_error_m > 0.3

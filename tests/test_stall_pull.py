@@ -25,8 +25,7 @@ from tamedpuma.worlds.pointmass import PointKinematics, PointMassWorld, point_sp
 SPEC = point_spec(speed_limit=50.0)
 GOAL = np.array([1.0, 0.0, 0.0])
 PULL = StallPull(gain=1.5, window=2.0, progress=0.005, psi_progress=0.1, radius=0.045, ramp=1.0,
-                 release=0.05, hold_radius=0.0,  # without the hold near the goal
-                 progress_fraction=0.0)  # nor the creep criterion
+                 release=0.05, hold_radius=0.0)  # without the hold near the goal
 
 
 def _feed(monitor, times, distances, psi=lambda: 1.0):
@@ -75,8 +74,7 @@ def test_a_creeping_hand_arms_the_pull_only_with_a_progress_fraction():
     psi = np.full(len(t), 2.0)
     creep = 0.5 - 0.004 * t
     assert all(a is None for a in _feed(StallMonitor(PULL), t, creep, psi=psi))
-    fraction = replace(PULL, progress_fraction=StallPull().progress_fraction)  # the default
-    assert fraction.progress_fraction == 0.05
+    fraction = replace(PULL, progress_fraction=0.05)
     out = _feed(StallMonitor(fraction), t, creep, psi=psi)
     assert [a is None for a in out] == list(t < 2.0)
     approach = 0.045 + 0.5 * np.exp(-t / 3.0)

@@ -35,9 +35,9 @@ A creep is no progress either (f = ``progress_fraction``, 0: off): the distance 
 progress only when it falls by ``max(progress, f · d_best)``, so the pull arms once the remaining
 distance would take longer than about ``window``/f to close at the current rate (40 s for
 f = 0.05), while PUMA's own approach, which closes a fixed fraction of the distance per
-second, counts as progress all the way in. A hand crawls a few millimetres a second where ψ
-climbs along its way (CPM's regulator brakes the climb to about √ε) or where it slides along an
-obstacle's barrier (FPM), which a fixed ``progress`` per window counts as progress.
+second, counts as progress all the way in. CPM has it (0.05): where ψ climbs along the hand's
+way its regulator lets the hand crawl at about √ε, a few millimetres a second, which a fixed
+``progress`` per window counts as progress. FPM has it off.
 
 It lets go on PUMA's own measure: once ψ has fallen below (1 − ``release``) times its value at
 arming, and not while the configuration pull serves this arming
@@ -90,13 +90,13 @@ PSI_SAMPLE_S = 0.1
 @dataclass(frozen=True)
 class StallPull:
     """The stall pull: gain g [m/s²] (``method.forcing.stall_pull``; 0: off), and its fixed
-    window [s], progress [m], progress_fraction [1] (the creep criterion), psi_progress [1],
+    window [s], progress [m], progress_fraction [1] (CPM's creep criterion), psi_progress [1],
     radius [m], ramp [s], release [1] and hold_radius [m] (see the module)."""
 
     gain: float = 0.0
     window: float = 2.0
     progress: float = 0.005
-    progress_fraction: float = 0.05
+    progress_fraction: float = 0.0
     psi_progress: float = 0.1
     radius: float = 0.045
     ramp: float = 1.0

@@ -172,9 +172,11 @@ class TamedEpisode:
 class TamedController:
     """What FPM and CPM share: PUMA pulled to the joints, the avoidance fabric energized, the
     forcing and the control-rate filters.
-    Subclasses implement ``step`` from :meth:`forced`. ``episode``: the episode state
+    Subclasses implement ``step`` from :meth:`forced`; ``creep_fraction``: the stall pull's
+    creep criterion (0: off; :mod:`tamedpuma.methods._stall`). ``episode``: the episode state
     (an ``Episode``, :class:`TamedEpisode` or a subclass's), made by :meth:`reset`."""
 
+    creep_fraction = 0.0
     Episode = TamedEpisode
 
     def __init__(self, puma: PumaController, fabric: Fabric, rate: ControlRate | None = None,
@@ -192,7 +194,7 @@ class TamedController:
         """A fresh episode state (the monitors of the forcing's settings, nothing seen yet) of
         control step dt [s]."""
         forcing = self.forcing
-        return self.Episode(self.fabric.buffers(), forcing.make_stall_monitor(),
+        return self.Episode(self.fabric.buffers(), forcing.make_stall_monitor(self.creep_fraction),
                             forcing.make_configuration_monitor(self.kinematics.spec,
                                                                self.ground()), dt)
 
@@ -613,12 +615,12 @@ class Forcing:
             return None
         return ConfigurationMonitor(ConfigurationPull(), spec, ground)
 
-    def make_stall_monitor(self) -> StallMonitor | None:
+    def make_stall_monitor(self, progress_fraction: float = 0.0) -> StallMonitor | None:
         """A fresh :class:`~tamedpuma.methods._stall.StallMonitor` (None when ``stall_pull``
-        is 0)."""
+        is 0); progress_fraction: the creep criterion (CPM's, :mod:`tamedpuma.methods._stall`)."""
         if self.stall_pull <= 0.0:
             return None
-        return StallMonitor(StallPull(gain=self.stall_pull))
+        return StallMonitor(StallPull(gain=self.stall_pull, progress_fraction=progress_fraction))
 
     def __post_init__(self):
         if self.mode not in FORCING_MODES:

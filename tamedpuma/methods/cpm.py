@@ -99,6 +99,9 @@ DAMPINGS = ("constant", "matched")
 #: k_ψ [1]: the regulator watches k_ψ ψ (still a compatible potential); with β it sets the speed
 #: along the path, about k_ψ|∂ψ/∂q·u|/(β uᵀMu)
 POTENTIAL_SCALE = 0.3
+#: the creep criterion of CPM's stall pull (:mod:`tamedpuma.methods._stall`): the hand's
+#: distance counts as progress only when it falls by this fraction of what is left
+CREEP_FRACTION = 0.05
 
 
 class CpmController(TamedController):
@@ -109,6 +112,8 @@ class CpmController(TamedController):
     regulator_scale: factor on the ψ term (1 in the paper, 0.05 in the original code). While
     the configuration pull acts the regulator watches that pull's own potential (the potential
     compatible with what then forces the arm)."""
+
+    creep_fraction = CREEP_FRACTION
 
     def __init__(self, puma: PumaController, fabric: Fabric, *, beta: float, variant: str,
                  damping: str, eps: float | None = None,
