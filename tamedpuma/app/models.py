@@ -225,35 +225,28 @@ def run_jobs(jobs: list[Job], parallel: int, log=print, staged: bool = True) -> 
                 continue
             running.remove(item)
             logf.close()
-            try:
-                _finish(job, work, proc, start, staged, log, done, failed, len(jobs), t0)
+            try:  # the folder's lock is released however the job ends
+                seconds = time.perf_counter() - start
+                if proc.returncode != 0:
+                    tail = (work / "train.log").read_text().strip().splitlines()[-1:] or ["?"]
+                    failed.append(f"{job.name}: {tail[0]} (log: {work / 'train.log'})")
+                    log(f"FAILED {job.name} after {seconds:.0f} s: {tail[0]}")
+                    continue
+                write_manifest(job, work, seconds)
+                if staged:
+                    if job.out_dir.exists():
+                        shutil.rmtree(job.out_dir)
+                    work.rename(job.out_dir)
             finally:
                 if lock is not None:
                     lock.close()
+            done.append(job.out_dir)
+            log(f"built {job.name} in {seconds:.0f} s "
+                f"({len(done)}/{len(jobs)}, {time.perf_counter() - t0:.0f} s so far)")
+            gate_warnings(job.name, job.out_dir, log)
     if failed:
         raise TamedPumaError("training failed: " + "; ".join(failed))
     return done
-
-
-def _finish(job: Job, work: Path, proc, start: float, staged: bool, log, done: list,
-            failed: list, n_jobs: int, t0: float) -> None:
-    """Record one ended training: its failure, or its manifest and (staged) its folder renamed
-    into place."""
-    seconds = time.perf_counter() - start
-    if proc.returncode != 0:
-        tail = (work / "train.log").read_text().strip().splitlines()[-1:] or ["?"]
-        failed.append(f"{job.name}: {tail[0]} (log: {work / 'train.log'})")
-        log(f"FAILED {job.name} after {seconds:.0f} s: {tail[0]}")
-        return
-    write_manifest(job, work, seconds)
-    if staged:
-        if job.out_dir.exists():
-            shutil.rmtree(job.out_dir)
-        work.rename(job.out_dir)
-    done.append(job.out_dir)
-    log(f"built {job.name} in {seconds:.0f} s "
-        f"({len(done)}/{n_jobs}, {time.perf_counter() - t0:.0f} s so far)")
-    gate_warnings(job.name, job.out_dir, log)
 
 
 def gate_warnings(name: str, folder: Path, log=print) -> list[str]:
