@@ -208,15 +208,8 @@ def run_jobs(jobs: list[Job], parallel: int, log=print, staged: bool = True) -> 
                     log(f"{job.name}: built by another process ({job.out_dir})")
                     continue
             work = job.out_dir.with_name(job.out_dir.name + ".partial") if staged else job.out_dir
-            if staged and work.exists():
-                shutil.rmtree(work)
-            work.mkdir(parents=True, exist_ok=True)
-            ov = [o for o in job.overrides if not o.startswith("out_dir=")]
-            logf = open(work / "train.log", "w")
-            proc = subprocess.Popen([sys.executable, "-m", "tamedpuma.train", *ov,
-                                     f"out_dir={work}", "progress=false"],
-                                    stdout=logf, stderr=subprocess.STDOUT, env=env)
-            running.append((job, work, proc, logf, time.perf_counter(), lock))
+            running.append((job, work, *_launch(job, work, env, fresh=staged),
+                            time.perf_counter(), lock))
             log(f"training {job.name} ({job.data.get('kind')} data) -> {job.out_dir}")
         time.sleep(1.0)
         for item in list(running):
@@ -247,6 +240,20 @@ def run_jobs(jobs: list[Job], parallel: int, log=print, staged: bool = True) -> 
     if failed:
         raise TamedPumaError("training failed: " + "; ".join(failed))
     return done
+
+
+def _launch(job: Job, work: Path, env: dict, fresh: bool) -> tuple[subprocess.Popen, object]:
+    """Start ``job``'s training into ``work`` (emptied first with ``fresh``), its output to
+    ``train.log``; returns the process and the open log file."""
+    if fresh and work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True, exist_ok=True)
+    ov = [o for o in job.overrides if not o.startswith("out_dir=")]
+    logf = open(work / "train.log", "w")
+    proc = subprocess.Popen([sys.executable, "-m", "tamedpuma.train", *ov,
+                             f"out_dir={work}", "progress=false"],
+                            stdout=logf, stderr=subprocess.STDOUT, env=env)
+    return proc, logf
 
 
 def gate_warnings(name: str, folder: Path, log=print) -> list[str]:
