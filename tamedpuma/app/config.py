@@ -8,6 +8,7 @@ scenario groups (:func:`robot_config`, :func:`typed_scenario`).
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 from omegaconf import OmegaConf
@@ -125,9 +126,16 @@ def workspace_starts(task: dict) -> list[tuple[str, object, object, list | None,
 def table1_starts(task: str) -> list[list[float]]:
     """The start configurations q0 [rad] of the task's Table-1 scenarios
     (``conf/scenario/<task>/NN.yaml``); empty for a task without them."""
+    return [list(q0) for q0 in _table1_starts(task)]
+
+
+@functools.cache
+def _table1_starts(task: str) -> tuple[tuple[float, ...], ...]:
+    """:func:`table1_starts`, read once per process (a sweep's worker builds hundreds of random
+    scenarios; reading the 15 files took 0.2 s of each)."""
     folder = CONF_DIR / "scenario" / task
-    return [[float(v) for v in OmegaConf.load(p)["q0"]]
-            for p in sorted(folder.glob("[0-9][0-9].yaml"))]
+    return tuple(tuple(float(v) for v in OmegaConf.load(p)["q0"])
+                 for p in sorted(folder.glob("[0-9][0-9].yaml")))
 
 
 def default_kinematics():
