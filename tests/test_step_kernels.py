@@ -258,3 +258,31 @@ def test_a_singular_geometry_raises_as_the_numpy_forcing_does():
         forced_reference(av, task, forcing, np.ones(N), None)
     with pytest.raises(FabricError):
         forced_through_metric(av, task, target, forcing, np.ones(N), None)
+
+
+@pytest.mark.parametrize("below", [np.inf, 0.4, 0.1])
+def test_the_one_call_ground_rows_are_the_two_kernel_ones(kinematics, hulls, below, monkeypatch):
+    """The compiled one-call ground rows (_kernels.hull_ground, from the chain's joint state)
+    are the two-kernel path's, bit for bit, and robot/ground.py's link-by-link ones to
+    rounding."""
+    pytest.importorskip("numba")
+    assert _kernels.warm_up()
+    table = HullTable.of(hulls)
+    one = _kernels.STEP["hull_ground"]
+    two = _kernels.Kernel(_kernels.hull_ground)  # not compiled: the two-kernel path
+    rng = np.random.default_rng(9)
+    lo, hi = np.asarray(kinematics.spec.q_min), np.asarray(kinematics.spec.q_max)
+    found = 0
+    for _ in range(100):
+        qd = rng.standard_normal(N)
+        kinematics.evaluate(rng.uniform(lo, hi), qd)
+        got = fused_ground_rows(kinematics, table, qd, below)
+        with monkeypatch.context() as m:
+            m.setitem(_kernels.STEP, "hull_ground", two)
+            want = fused_ground_rows(kinematics, table, qd, below)
+        ref = ground.hull_ground_rows(kinematics, hulls, qd, below)
+        found += len(want.heights)
+        for g, w, r in ((got.heights, want.heights, ref.heights), (got.rows, want.rows, ref.rows),
+                        (got.jdqd, want.jdqd, ref.jdqd)):
+            assert g.shape == w.shape and np.array_equal(g, w) and _close(g, r)
+    assert one.fast is not None and found > 0

@@ -381,6 +381,15 @@ class Kinematics:
         R, p, _, _ = self._fast["frame_motion"](state, qd, *self._table(ids), 0)
         return R, p
 
+    def chain_state(self, frame_ids) -> tuple | None:
+        """The compiled chain's state at the last :meth:`evaluate` and the frames' table, as
+        :func:`~tamedpuma.robot.point_motion.frame_motion` takes them: ``(S, q̇, parents, R_f,
+        p_f, support)``; None where the kinematics is pinocchio's (no compiled chain)."""
+        if self._fast is None or self._state is None:
+            return None
+        state, qd = self._state
+        return (state, qd, *self._table(tuple(frame_ids)))
+
     def frame_motion(self, frame_ids) -> tuple[np.ndarray, np.ndarray]:
         """World-aligned Jacobians (k, 6, n) ``[v; ω]`` of the frames' origins and their
         classical accelerations at q̈ = 0, J̇q̇ (k, 6) [m/s², rad/s²], at the (q, q̇) of the last
