@@ -83,7 +83,7 @@ from tamedpuma.methods._policy import TaskAcceleration
 
 #: ℓ [m]: below this distance the attractor's strength falls linearly to 0 at the goal
 PULL_LENGTH_M = 0.1
-#: [s] PUMA's potential is evaluated at most this often (a network pass with its gradient)
+#: [s] PUMA's potential ψ is evaluated at most this often (ψ alone: one encoder pass at rest)
 PSI_SAMPLE_S = 0.1
 
 

@@ -101,7 +101,7 @@ class PumaController:
         task = own.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         if stall is not None:
             task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
-                own.potential(state, obs.goal_position, obs.goal_quaternion)[0]),
+                own.psi(state, obs.goal_position, obs.goal_quaternion)),
                 lambda: state.ee_jacobian[:3] @ obs.qd - np.asarray(obs.goal_velocity)[:3])
             if configuration is not None:
                 task = configuration.applied(obs.q, obs.qd, stall.distance, stall, obs, task)
