@@ -28,6 +28,7 @@ Kernels (n joints, m task rows, R barrier rows):
   the avoidance metric M less the barrier rows q̈_P recedes from (``a_r·q̈_P > 0``, m_r > 0), the
   rows q̈_C approaches put back until none is (directional),
   and the geometry ``h = −(M + [task] w JᵀJ)⁻¹ f`` [rad/s²].
+- :func:`pulled_forcing`: :func:`metric_forcing` with its q̈_P (:func:`damped_pull`) in one call.
 - :func:`lowest_points`, :func:`ground_rows`: the links' lowest hull points and their ground
   rows (:func:`~tamedpuma.robot.ground.hull_ground_rows`).
 - :func:`rows_free`: whether v meets every barrier row ``a·v ≥ b`` (and ``a·v + drift ≥ b``),
@@ -112,6 +113,20 @@ def metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null,
         qdd_c = _weighted_solve(M, JwJ, diag, rhs)
     G = M + JwJ if task_geometry else M
     return qdd_c, -np.linalg.solve(G, f)
+
+
+def pulled_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null, lam2,
+                   directional, task_geometry):
+    """``(q̈_C, h, ‖q̈_C‖² + ‖h‖²)``: :func:`metric_forcing` with its q̈_P, PUMA's free pull
+    :func:`damped_pull` (λ² = lam2), computed in the same call where the directional forcing
+    reads it (directional, and barrier rows); the squared norms sum tells the caller whether
+    both are finite."""
+    qdd_free = np.empty(0)
+    if directional and rows.shape[0] > 0:
+        qdd_free = damped_pull(J, target, lam2, qdd_null, has_null)
+    qdd_c, h = metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null,
+                              qdd_free, directional, task_geometry)
+    return qdd_c, h, qdd_c @ qdd_c + h @ h
 
 
 def _meets(Av, b, x, standoff):
@@ -212,8 +227,10 @@ def hull_ground(S, qd_chain, parents, Rf, pf, support, verts, starts, radii, bel
     return hk, rows, jdqd
 
 
-KERNELS = (damped_pull, metric_forcing, rows_free, lowest_points, ground_rows, hull_ground)
-HELPERS = (_weighted_solve, _restore, _meets, _bounds, lowest_points, ground_rows, frame_motion)
+KERNELS = (damped_pull, metric_forcing, pulled_forcing, rows_free, lowest_points, ground_rows,
+           hull_ground)
+HELPERS = (_weighted_solve, _restore, _meets, _bounds, lowest_points, ground_rows, frame_motion,
+           damped_pull, metric_forcing)
 
 
 class Kernel:
@@ -286,6 +303,7 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
     kernels["damped_pull"](J, t, 1e-4, v, True)
     for r, mt in ((rows, metric), (none, np.empty(0))):
         kernels["metric_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, v, True, True)
+        kernels["pulled_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, 1e-4, True, True)
     k3 = rng.standard_normal((4, 3))
     three = np.eye(3).reshape(1, 3, 3).repeat(2, 0)
     kernels["lowest_points"](k3, np.array([0, 2, 4]), three, np.ones(2), np.ones(2), 2.0)

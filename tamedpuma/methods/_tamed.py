@@ -119,9 +119,7 @@ class PumaController:
         (and the configuration pull's joint-space spec in their place while it is engaged)."""
         if forcing.metric:
             task, null = self.task_and_null(state, obs, stall, configuration)
-            target = task.xdd - task.jdqd
-            qdd_free = free_pull(task, target, self.damping, null) if forcing.directional else None
-            qdd_c, h = forced_through_metric(av, task, target, forcing, null, qdd_free)
+            qdd_c, h = pulled_through_metric(av, task, forcing, null, self.damping)
             return h, qdd_c, task.xdd
         qdd_c, xdd = self.joint_acceleration(state, obs, stall)
         return av.acceleration(), qdd_c, xdd
@@ -264,6 +262,33 @@ def free_pull(task, target: np.ndarray, damping, null: np.ndarray | None) -> np.
     has_null = null is not None
     return STEP["damped_pull"](task.J, target, lam**2, null if has_null else target[:0],
                                has_null)
+
+
+def pulled_through_metric(av, task, forcing: Forcing, null, damping
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """(q̈_C, h) [rad/s²] of ``forcing.mode`` metric or task_metric with the directional
+    forcing's q̈_P (:func:`free_pull`, damping: PUMA's pseudo-inverse damping): one kernel call
+    (:func:`_kernels.pulled_forcing`), the numbers of :func:`free_pull` then
+    :func:`forced_through_metric`, which answer (and raise) where the system is singular or the
+    result not finite."""
+    target = task.xdd - task.jdqd
+    rows, m, weight = av.barrier_rows, av.barrier_metric, forcing.weight
+    if type(weight) is float:
+        if rows is None or m is None:
+            rows, m = _NO_ROWS, _NO_METRIC
+        lam = damping(task.J) if callable(damping) else damping
+        has_null = null is not None
+        try:
+            qdd_c, h, size = STEP["pulled_forcing"](
+                av.M, av.f, rows, m, task.J, weight, target, forcing.null_metric,
+                null if has_null else target[:0], has_null, lam**2, forcing.directional,
+                forcing.mode == "task_metric")
+            if math.isfinite(float(size)):
+                return qdd_c, h
+        except np.linalg.LinAlgError:  # a singular system: the calls below answer or raise
+            pass
+    qdd_free = free_pull(task, target, damping, null) if forcing.directional else None
+    return forced_through_metric(av, task, target, forcing, null, qdd_free)
 
 
 def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, qdd_free
