@@ -308,7 +308,7 @@ class Kinematics:
 
         Compiled (:mod:`tamedpuma.robot.point_motion`, where numba is installed): one pass over
         the joints, then the end effector's and the body spheres' placements, Jacobians and
-        curvature terms J̇q̇, three calls in all. Otherwise one pinocchio call per frame and
+        curvature terms J̇q̇, in one call. Otherwise one pinocchio call per frame and
         quantity: the same numbers to rounding. Either way pinocchio's data holds its own pass
         at (q, q̇) afterwards (placements, joint Jacobians, accelerations at q̈ = 0), for code
         that reads the model's frames. Every array is fresh.
@@ -323,13 +323,13 @@ class Kinematics:
         pin.forwardKinematics(model, data, q, qd, self._zeros)
         pin.computeJointJacobians(model, data)
         pin.updateFramePlacements(model, data)
-        R, p, J, acc = self._frames(q, qd, self._ee_table, 6)
-        _, centers, jacobians, jdqd = fast["frame_motion"](self._state[0], qd,
-                                                           *self._sphere_table, 3)
+        S, R, p, J, acc, centers, jacobians, jdqd, quat = fast["chain_evaluate"](
+            q, qd, *self._chain, *self._ee_table, *self._sphere_table)
+        self._state = (S, qd)
         return KinematicState(
             ee_position=p[0],
             ee_rotation=R[0],
-            ee_quaternion=fast["matrix_to_quat_eigen"](R[0]),
+            ee_quaternion=quat,
             ee_jacobian=J[0],
             ee_jdqd=acc[0],  # [linear; angular]
             sphere_centers=centers,
