@@ -74,6 +74,7 @@ imitation is suspended where it has stopped delivering the goal).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -145,7 +146,7 @@ class StallMonitor:
         """How much nearer [m] than its best so far the hand must come to count as progress:
         ``max(progress, f · best)``, f = ``progress_fraction`` (the first distance always
         counts)."""
-        if not np.isfinite(self.best):
+        if not math.isfinite(self.best):
             return 0.0
         return max(self.pull.progress, self.pull.progress_fraction * self.best)
 
@@ -163,7 +164,7 @@ class StallMonitor:
         ``goal`` [m]; ``potential()``: PUMA's ψ there, called at most every
         :data:`PSI_SAMPLE_S`), or None while disarmed. Updates the monitor's state."""
         e = np.asarray(goal, dtype=float) - np.asarray(position, dtype=float)
-        d = self.distance = float(np.linalg.norm(e))
+        d = self.distance = math.sqrt(float(e.dot(e)))  # ‖e‖, as np.linalg.norm computes it
         p = self.pull
         psi = self._potential(t, potential)
         if self.t_armed is not None and self._released(psi):

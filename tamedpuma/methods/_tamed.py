@@ -127,8 +127,8 @@ class PumaController:
     def step(self, obs: Observation) -> Command:
         state = self.kinematics.evaluate(obs.q, obs.qd)
         qdd, xdd = self.joint_acceleration(state, obs)
-        return Command(qdd=qdd, scalars={"task_acc_norm": float(np.linalg.norm(xdd)),
-                                         "joint_acc_norm": float(np.linalg.norm(qdd))},
+        return Command(qdd=qdd, scalars={"task_acc_norm": vector_norm(xdd),
+                                         "joint_acc_norm": vector_norm(qdd)},
                        logged_later=self.psi_later(state, obs))
 
     def psi_later(self, state, obs: Observation):
@@ -233,7 +233,7 @@ class TamedController:
             return None
         below = self.hulls.speed_bound * self.dt / BARRIER_KAPPA  # higher: no row needed
         return hull_ground_rows(self.kinematics, self.hull_table, qd,
-                                below if np.isfinite(below) else np.inf)
+                                below if math.isfinite(below) else np.inf)
 
     def stall_scalars(self) -> dict[str, float]:
         """``stall_pull``: 1 while the stall pull is armed, else 0; with the configuration pull
@@ -242,7 +242,7 @@ class TamedController:
         costs nothing) (log scalars)."""
         stall, configuration = self.episode.stall, self.episode.configuration
         out = {"stall_pull": float(stall is not None and stall.armed)}
-        if stall is not None and np.isfinite(stall.psi):
+        if stall is not None and math.isfinite(stall.psi):
             out["psi"] = float(stall.psi)
         if configuration is not None:
             out["configuration_pull"] = float(configuration.engaged)
@@ -463,10 +463,16 @@ def avoidance_at(kinematics, fabric: Fabric, obs: Observation,
     return state, av
 
 
+def vector_norm(x: np.ndarray) -> float:
+    """‖x‖ of a vector, as ``np.linalg.norm`` computes it (√(x·x), the same number) without
+    its Python wrapper."""
+    return math.sqrt(float(x.dot(x)))
+
+
 def fabric_scalars(av) -> dict[str, float]:
     """The avoidance fabric's log scalars (shared by FPM and CPM); ``min_clearance_m`` is
     :data:`~tamedpuma.types.NO_OBSTACLE_CLEARANCE` without obstacles."""
-    clearance = av.min_clearance if np.isfinite(av.min_clearance) else NO_OBSTACLE_CLEARANCE
+    clearance = av.min_clearance if math.isfinite(av.min_clearance) else NO_OBSTACLE_CLEARANCE
     return {"energy_fabric": float(av.energy), "min_clearance_m": float(clearance),
             "n_clamped": float(av.n_clamped), "n_limit_clamped": float(av.n_limit_clamped)}
 
