@@ -103,6 +103,30 @@ def test_the_plain_functions_are_the_compiled_ones(kin):
                 np.testing.assert_allclose(f, p, rtol=1e-14, atol=1e-14)
 
 
+def test_the_one_call_pass_is_the_calls_one_by_one(kin):
+    """chain_evaluate (evaluate's one compiled call) gives the numbers of joint_motion, the two
+    frame_motion calls and matrix_to_quat_eigen made one by one (compiled: bit for bit; plain:
+    the plain functions' numbers, to rounding of the compiled ones)."""
+    if kin._fast is None:
+        pytest.skip("numba is not installed: the kinematics uses pinocchio's calls")
+    fast = kin._fast
+    tables = (*kin._chain, *kin._ee_table, *kin._sphere_table)
+    for q, qd in _states(kin, n=20):
+        S = fast["joint_motion"](q, qd, *kin._chain)
+        ee = fast["frame_motion"](S, qd, *kin._ee_table, 6)
+        spheres = fast["frame_motion"](S, qd, *kin._sphere_table, 3)
+        want = (S, *ee, *spheres[1:], fast["matrix_to_quat_eigen"](ee[0][0]))
+        got = fast["chain_evaluate"](q, qd, *tables)
+        plain = point_motion.chain_evaluate(q, qd, *tables)
+        assert len(got) == len(want) == len(plain)
+        for g, w, p in zip(got, want, plain):
+            np.testing.assert_array_equal(g, w)
+            np.testing.assert_allclose(p, w, rtol=1e-14, atol=1e-14)
+        state = kin.evaluate(q, qd)
+        np.testing.assert_array_equal(state.ee_jacobian, ee[2][0])
+        np.testing.assert_array_equal(state.sphere_jdqd, spheres[3])
+
+
 def test_jdqd_is_the_time_derivative_of_the_jacobian_along_the_motion(kin):
     """J̇q̇ = d/dt (J(q(t))) q̇ at q(t) = q + t q̇: central differences of J q̇."""
     h = 1e-6

@@ -24,6 +24,7 @@ from tamedpuma.methods._tamed import (
     forced_through_metric,
     free_pull,
     keeps_velocity,
+    pulled_through_metric,
 )
 from tamedpuma.robot import ground
 from tamedpuma.robot.ground import GroundRows, link_hulls
@@ -95,6 +96,37 @@ def test_compiled_and_plain_kernels_agree_to_rounding(seed):
     plain, fast = _plain_and_compiled("metric_forcing", *args)
     for p, f in zip(plain, fast):
         assert _close(f, p)
+
+
+@pytest.mark.parametrize("seed", range(40))
+@pytest.mark.parametrize("compiled", [False, True])
+def test_the_one_call_forcing_is_the_free_pull_then_the_fused_forcing(seed, compiled):
+    """pulled_through_metric (q̈_P and the forcing in one kernel call) gives the numbers of
+    free_pull then forced_through_metric, bit for bit, plain and compiled (and the compiled
+    kernel the plain one's to rounding)."""
+    rng, av, task, null, forcing = _case(seed)
+    if compiled:
+        pytest.importorskip("numba")
+        assert _kernels.warm_up()
+    kernels = {k: _kernels.Kernel(getattr(_kernels, k)) for k in
+               ("pulled_forcing", "damped_pull", "metric_forcing")}
+    for name, kernel in kernels.items():
+        kernel.fast = _kernels.STEP[name].fast if compiled else None
+    with pytest.MonkeyPatch.context() as m:
+        for name, kernel in kernels.items():
+            m.setitem(_kernels.STEP, name, kernel)
+        got = pulled_through_metric(av, task, forcing, null, 0.01)
+        target = task.xdd - task.jdqd
+        qdd_free = free_pull(task, target, 0.01, null) if forcing.directional else None
+        want = forced_through_metric(av, task, target, forcing, null, qdd_free)
+    for g, w in zip(got, want):
+        assert np.array_equal(g, w)
+    for name, kernel in kernels.items():
+        assert kernel.demoted is None and (kernel.fast is not None) == compiled, name
+    if compiled:
+        ref = forced_reference(av, task, forcing, null, qdd_free)
+        for g, w in zip(got, ref):
+            assert _close(g, w)
 
 
 def _rows_case(seed: int):
@@ -258,3 +290,31 @@ def test_a_singular_geometry_raises_as_the_numpy_forcing_does():
         forced_reference(av, task, forcing, np.ones(N), None)
     with pytest.raises(FabricError):
         forced_through_metric(av, task, target, forcing, np.ones(N), None)
+
+
+@pytest.mark.parametrize("below", [np.inf, 0.4, 0.1])
+def test_the_one_call_ground_rows_are_the_two_kernel_ones(kinematics, hulls, below, monkeypatch):
+    """The compiled one-call ground rows (_kernels.hull_ground, from the chain's joint state)
+    are the two-kernel path's, bit for bit, and robot/ground.py's link-by-link ones to
+    rounding."""
+    pytest.importorskip("numba")
+    assert _kernels.warm_up()
+    table = HullTable.of(hulls)
+    one = _kernels.STEP["hull_ground"]
+    two = _kernels.Kernel(_kernels.hull_ground)  # not compiled: the two-kernel path
+    rng = np.random.default_rng(9)
+    lo, hi = np.asarray(kinematics.spec.q_min), np.asarray(kinematics.spec.q_max)
+    found = 0
+    for _ in range(100):
+        qd = rng.standard_normal(N)
+        kinematics.evaluate(rng.uniform(lo, hi), qd)
+        got = fused_ground_rows(kinematics, table, qd, below)
+        with monkeypatch.context() as m:
+            m.setitem(_kernels.STEP, "hull_ground", two)
+            want = fused_ground_rows(kinematics, table, qd, below)
+        ref = ground.hull_ground_rows(kinematics, hulls, qd, below)
+        found += len(want.heights)
+        for g, w, r in ((got.heights, want.heights, ref.heights), (got.rows, want.rows, ref.rows),
+                        (got.jdqd, want.jdqd, ref.jdqd)):
+            assert g.shape == w.shape and np.array_equal(g, w) and _close(g, r)
+    assert one.fast is not None and found > 0

@@ -1,9 +1,11 @@
 """The ground rows of the control-rate barrier step, fused: the numbers of
-:func:`tamedpuma.robot.ground.hull_ground_rows` (bit for bit) with its per-link array
-arithmetic in two kernels (:func:`~tamedpuma.methods._kernels.lowest_points`,
-:func:`~tamedpuma.methods._kernels.ground_rows`) and the link origins' Jacobians in one call
-(:meth:`~tamedpuma.robot.kinematics.Kinematics.frame_motion`); only the placement reads stay
-per link.
+:func:`tamedpuma.robot.ground.hull_ground_rows` (bit for bit). Where the kinematics is the
+compiled chain's and the step kernels are compiled, one call
+(:func:`~tamedpuma.methods._kernels.hull_ground`: the hull frames' placements, Jacobians and
+J̇q̇, the lowest points and their rows); otherwise the per-link array arithmetic in two kernels
+(:func:`~tamedpuma.methods._kernels.lowest_points`,
+:func:`~tamedpuma.methods._kernels.ground_rows`) between the placement reads and the link
+origins' Jacobians (:meth:`~tamedpuma.robot.kinematics.Kinematics.frame_motion`).
 
 Per moving link l (hull vertices v in the link frame, placement (R_l, p_l)): the lowest point
 ``x_l = min_v (R_l v + p_l)_z`` [m], its row ``(J_p)_z + (J_ω)_x r_y − (J_ω)_y r_x`` (r = R_l v)
@@ -44,6 +46,11 @@ def hull_ground_rows(kinematics, table: HullTable, qd: np.ndarray,
     the lowest point of each hull lower than ``below`` [m] at the kinematics' last
     ``evaluate(q, q̇)``, its height, row and curvature term; qd: that q̇ [rad/s]."""
     model, ids = kinematics.model, table.hulls.frame_ids
+    qd = np.asarray(qd, dtype=float)
+    chain = kinematics.chain_state(ids) if STEP["hull_ground"].fast is not None else None
+    if chain is not None:  # one compiled call: the placements and the rows (the same numbers)
+        return GroundRows(*STEP["hull_ground"](*chain, table.vertices, table.starts, table.radii,
+                                               float(below), qd))
     R, origins = kinematics.frame_placements(ids)
     Rt, tz = np.ascontiguousarray(R.transpose(0, 2, 1)), np.ascontiguousarray(origins[:, 2])
     found, heights, points = STEP["lowest_points"](table.vertices, table.starts, Rt, tz,
@@ -53,5 +60,5 @@ def hull_ground_rows(kinematics, table: HullTable, qd: np.ndarray,
     if not k:
         return GroundRows(np.empty(0), np.empty((0, model.nv)), np.empty(0))
     J, acc = kinematics.frame_motion([ids[i] for i in links])
-    rows, jdqd = STEP["ground_rows"](J, acc, points[links], np.asarray(qd, dtype=float))
+    rows, jdqd = STEP["ground_rows"](J, acc, points[links], qd)
     return GroundRows(heights[links], rows, jdqd)

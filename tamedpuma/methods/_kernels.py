@@ -28,6 +28,7 @@ Kernels (n joints, m task rows, R barrier rows):
   the avoidance metric M less the barrier rows q̈_P recedes from (``a_r·q̈_P > 0``, m_r > 0), the
   rows q̈_C approaches put back until none is (directional),
   and the geometry ``h = −(M + [task] w JᵀJ)⁻¹ f`` [rad/s²].
+- :func:`pulled_forcing`: :func:`metric_forcing` with its q̈_P (:func:`damped_pull`) in one call.
 - :func:`lowest_points`, :func:`ground_rows`: the links' lowest hull points and their ground
   rows (:func:`~tamedpuma.robot.ground.hull_ground_rows`).
 - :func:`rows_free`: whether v meets every barrier row ``a·v ≥ b`` (and ``a·v + drift ≥ b``),
@@ -40,6 +41,8 @@ import importlib.util
 import warnings
 
 import numpy as np
+
+from tamedpuma.robot.point_motion import frame_motion
 
 #: numba is installed: the kernels are compiled (imported only by :func:`warm_up`)
 AVAILABLE = importlib.util.find_spec("numba") is not None
@@ -110,6 +113,20 @@ def metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null,
         qdd_c = _weighted_solve(M, JwJ, diag, rhs)
     G = M + JwJ if task_geometry else M
     return qdd_c, -np.linalg.solve(G, f)
+
+
+def pulled_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null, lam2,
+                   directional, task_geometry):
+    """``(q̈_C, h, ‖q̈_C‖² + ‖h‖²)``: :func:`metric_forcing` with its q̈_P, PUMA's free pull
+    :func:`damped_pull` (λ² = lam2), computed in the same call where the directional forcing
+    reads it (directional, and barrier rows); the squared norms sum tells the caller whether
+    both are finite."""
+    qdd_free = np.empty(0)
+    if directional and rows.shape[0] > 0:
+        qdd_free = damped_pull(J, target, lam2, qdd_null, has_null)
+    qdd_c, h = metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null,
+                              qdd_free, directional, task_geometry)
+    return qdd_c, h, qdd_c @ qdd_c + h @ h
 
 
 def _meets(Av, b, x, standoff):
@@ -184,8 +201,36 @@ def ground_rows(J, acc, r, qd):
     return rows, acc[:, 2] + acc[:, 3] * ry - acc[:, 4] * rx + wz * w_r - rz * w_w
 
 
-KERNELS = (damped_pull, metric_forcing, rows_free, lowest_points, ground_rows)
-HELPERS = (_weighted_solve, _restore, _meets, _bounds)
+def hull_ground(S, qd_chain, parents, Rf, pf, support, verts, starts, radii, below, qd):
+    """The ground rows of the hulls in one call (:mod:`~tamedpuma.methods._ground_rows`): the
+    hull frames' placements, Jacobians and J̇q̇ from the chain's joint state S at q̇_chain
+    (:func:`~tamedpuma.robot.point_motion.frame_motion`, its frame table parents, R_f, p_f,
+    support), each hull's lowest point (:func:`lowest_points`; hull l's vertices
+    ``verts[starts[l]:starts[l + 1]]``, radii, below) and, for the hulls found, the rows and
+    curvature terms (:func:`ground_rows` at qd): the same arithmetic, array for array, as
+    those calls one by one. Returns (heights (k,), rows (k, n), J̇q̇ (k,))."""
+    R, p, J, acc = frame_motion(S, qd_chain, parents, Rf, pf, support, 6)
+    L = parents.shape[0]
+    Rt, tz = np.empty((L, 3, 3)), np.empty(L)
+    for i in range(L):
+        Rt[i] = R[i].T
+        tz[i] = p[i, 2]
+    found, heights, points = lowest_points(verts, starts, Rt, tz, radii, below)
+    links = np.nonzero(found)[0]
+    k = links.shape[0]
+    Jk, acck = np.empty((k, 6, J.shape[2])), np.empty((k, 6))
+    rk, hk = np.empty((k, 3)), np.empty(k)
+    for i in range(k):
+        j = links[i]
+        Jk[i], acck[i], rk[i], hk[i] = J[j], acc[j], points[j], heights[j]
+    rows, jdqd = ground_rows(Jk, acck, rk, qd)
+    return hk, rows, jdqd
+
+
+KERNELS = (damped_pull, metric_forcing, pulled_forcing, rows_free, lowest_points, ground_rows,
+           hull_ground)
+HELPERS = (_weighted_solve, _restore, _meets, _bounds, lowest_points, ground_rows, frame_motion,
+           damped_pull, metric_forcing)
 
 
 class Kernel:
@@ -258,9 +303,13 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
     kernels["damped_pull"](J, t, 1e-4, v, True)
     for r, mt in ((rows, metric), (none, np.empty(0))):
         kernels["metric_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, v, True, True)
+        kernels["pulled_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, 1e-4, True, True)
     k3 = rng.standard_normal((4, 3))
     three = np.eye(3).reshape(1, 3, 3).repeat(2, 0)
     kernels["lowest_points"](k3, np.array([0, 2, 4]), three, np.ones(2), np.ones(2), 2.0)
     kernels["ground_rows"](rng.standard_normal((2, 6, n)), k3[:2].repeat(2, 1), k3[:2], v)
     kernels["rows_free"](v, rows, metric, metric, metric, v, True, none, np.empty(0),
                          np.empty(0), 0.01, 0.02, 0.5, 1e-3)
+    S = rng.standard_normal((n, 7, 3))
+    table = (np.arange(2, dtype=np.int64), three, k3[:2], np.ones((2, n), np.bool_))
+    kernels["hull_ground"](S, v, *table, k3, np.array([0, 2, 4]), np.ones(2), 2.0, v)

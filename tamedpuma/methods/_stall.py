@@ -74,6 +74,7 @@ imitation is suspended where it has stopped delivering the goal).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -83,7 +84,7 @@ from tamedpuma.methods._policy import TaskAcceleration
 
 #: ℓ [m]: below this distance the attractor's strength falls linearly to 0 at the goal
 PULL_LENGTH_M = 0.1
-#: [s] PUMA's potential is evaluated at most this often (a network pass with its gradient)
+#: [s] PUMA's potential ψ is evaluated at most this often (ψ alone: one encoder pass at rest)
 PSI_SAMPLE_S = 0.1
 
 
@@ -145,7 +146,7 @@ class StallMonitor:
         """How much nearer [m] than its best so far the hand must come to count as progress:
         ``max(progress, f · best)``, f = ``progress_fraction`` (the first distance always
         counts)."""
-        if not np.isfinite(self.best):
+        if not math.isfinite(self.best):
             return 0.0
         return max(self.pull.progress, self.pull.progress_fraction * self.best)
 
@@ -163,7 +164,7 @@ class StallMonitor:
         ``goal`` [m]; ``potential()``: PUMA's ψ there, called at most every
         :data:`PSI_SAMPLE_S`), or None while disarmed. Updates the monitor's state."""
         e = np.asarray(goal, dtype=float) - np.asarray(position, dtype=float)
-        d = self.distance = float(np.linalg.norm(e))
+        d = self.distance = math.sqrt(float(e.dot(e)))  # ‖e‖, as np.linalg.norm computes it
         p = self.pull
         psi = self._potential(t, potential)
         if self.t_armed is not None and self._released(psi):

@@ -101,7 +101,7 @@ class PumaController:
         task = own.acceleration(state, obs.qd, obs.goal_position, obs.goal_quaternion, vg)
         if stall is not None:
             task = stall.applied(obs.t, state.ee_position, obs.goal_position, task, lambda: (
-                own.potential(state, obs.goal_position, obs.goal_quaternion)[0]),
+                own.psi(state, obs.goal_position, obs.goal_quaternion)),
                 lambda: state.ee_jacobian[:3] @ obs.qd - np.asarray(obs.goal_velocity)[:3])
             if configuration is not None:
                 task = configuration.applied(obs.q, obs.qd, stall.distance, stall, obs, task)
@@ -119,9 +119,7 @@ class PumaController:
         (and the configuration pull's joint-space spec in their place while it is engaged)."""
         if forcing.metric:
             task, null = self.task_and_null(state, obs, stall, configuration)
-            target = task.xdd - task.jdqd
-            qdd_free = free_pull(task, target, self.damping, null) if forcing.directional else None
-            qdd_c, h = forced_through_metric(av, task, target, forcing, null, qdd_free)
+            qdd_c, h = pulled_through_metric(av, task, forcing, null, self.damping)
             return h, qdd_c, task.xdd
         qdd_c, xdd = self.joint_acceleration(state, obs, stall)
         return av.acceleration(), qdd_c, xdd
@@ -129,8 +127,8 @@ class PumaController:
     def step(self, obs: Observation) -> Command:
         state = self.kinematics.evaluate(obs.q, obs.qd)
         qdd, xdd = self.joint_acceleration(state, obs)
-        return Command(qdd=qdd, scalars={"task_acc_norm": float(np.linalg.norm(xdd)),
-                                         "joint_acc_norm": float(np.linalg.norm(qdd))},
+        return Command(qdd=qdd, scalars={"task_acc_norm": vector_norm(xdd),
+                                         "joint_acc_norm": vector_norm(qdd)},
                        logged_later=self.psi_later(state, obs))
 
     def psi_later(self, state, obs: Observation):
@@ -235,7 +233,7 @@ class TamedController:
             return None
         below = self.hulls.speed_bound * self.dt / BARRIER_KAPPA  # higher: no row needed
         return hull_ground_rows(self.kinematics, self.hull_table, qd,
-                                below if np.isfinite(below) else np.inf)
+                                below if math.isfinite(below) else np.inf)
 
     def stall_scalars(self) -> dict[str, float]:
         """``stall_pull``: 1 while the stall pull is armed, else 0; with the configuration pull
@@ -244,7 +242,7 @@ class TamedController:
         costs nothing) (log scalars)."""
         stall, configuration = self.episode.stall, self.episode.configuration
         out = {"stall_pull": float(stall is not None and stall.armed)}
-        if stall is not None and np.isfinite(stall.psi):
+        if stall is not None and math.isfinite(stall.psi):
             out["psi"] = float(stall.psi)
         if configuration is not None:
             out["configuration_pull"] = float(configuration.engaged)
@@ -264,6 +262,33 @@ def free_pull(task, target: np.ndarray, damping, null: np.ndarray | None) -> np.
     has_null = null is not None
     return STEP["damped_pull"](task.J, target, lam**2, null if has_null else target[:0],
                                has_null)
+
+
+def pulled_through_metric(av, task, forcing: Forcing, null, damping
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """(q̈_C, h) [rad/s²] of ``forcing.mode`` metric or task_metric with the directional
+    forcing's q̈_P (:func:`free_pull`, damping: PUMA's pseudo-inverse damping): one kernel call
+    (:func:`_kernels.pulled_forcing`), the numbers of :func:`free_pull` then
+    :func:`forced_through_metric`, which answer (and raise) where the system is singular or the
+    result not finite."""
+    target = task.xdd - task.jdqd
+    rows, m, weight = av.barrier_rows, av.barrier_metric, forcing.weight
+    if type(weight) is float:
+        if rows is None or m is None:
+            rows, m = _NO_ROWS, _NO_METRIC
+        lam = damping(task.J) if callable(damping) else damping
+        has_null = null is not None
+        try:
+            qdd_c, h, size = STEP["pulled_forcing"](
+                av.M, av.f, rows, m, task.J, weight, target, forcing.null_metric,
+                null if has_null else target[:0], has_null, lam**2, forcing.directional,
+                forcing.mode == "task_metric")
+            if math.isfinite(float(size)):
+                return qdd_c, h
+        except np.linalg.LinAlgError:  # a singular system: the calls below answer or raise
+            pass
+    qdd_free = free_pull(task, target, damping, null) if forcing.directional else None
+    return forced_through_metric(av, task, target, forcing, null, qdd_free)
 
 
 def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, qdd_free
@@ -438,10 +463,16 @@ def avoidance_at(kinematics, fabric: Fabric, obs: Observation,
     return state, av
 
 
+def vector_norm(x: np.ndarray) -> float:
+    """‖x‖ of a vector, as ``np.linalg.norm`` computes it (√(x·x), the same number) without
+    its Python wrapper."""
+    return math.sqrt(float(x.dot(x)))
+
+
 def fabric_scalars(av) -> dict[str, float]:
     """The avoidance fabric's log scalars (shared by FPM and CPM); ``min_clearance_m`` is
     :data:`~tamedpuma.types.NO_OBSTACLE_CLEARANCE` without obstacles."""
-    clearance = av.min_clearance if np.isfinite(av.min_clearance) else NO_OBSTACLE_CLEARANCE
+    clearance = av.min_clearance if math.isfinite(av.min_clearance) else NO_OBSTACLE_CLEARANCE
     return {"energy_fabric": float(av.energy), "min_clearance_m": float(clearance),
             "n_clamped": float(av.n_clamped), "n_limit_clamped": float(av.n_limit_clamped)}
 

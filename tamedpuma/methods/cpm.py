@@ -78,8 +78,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-import numpy as np
-
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.fabrics.discrete import energized_velocity_step
@@ -91,6 +89,7 @@ from tamedpuma.methods._tamed import (
     TamedController,
     fabric_scalars,
     puma_and_fabric,
+    vector_norm,
 )
 from tamedpuma.types import Command, Observation
 
@@ -176,7 +175,7 @@ class CpmController(TamedController):
             "energy_total": float(av.energy + psi), "alpha": float(alpha),
             "beta": float(beta),
             "potential_attractor": float(attractor),
-            "task_acc_norm": float(np.linalg.norm(xdd))})
+            "task_acc_norm": vector_norm(xdd)})
 
 
 def cpm_fabric() -> FabricGains:

@@ -62,14 +62,13 @@ spheres vs obstacles, 1e3 without obstacles), ``n_clamped``, ``n_limit_clamped``
 
 from __future__ import annotations
 
-import numpy as np
-
 from tamedpuma.fabrics.discrete import energized_velocity_step
 from tamedpuma.methods._settings import FpmSettings
 from tamedpuma.methods._tamed import (
     TamedController,
     fabric_scalars,
     puma_and_fabric,
+    vector_norm,
 )
 from tamedpuma.types import Command, Observation
 
@@ -90,7 +89,7 @@ class FpmController(TamedController):
         qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, ground, qd)
         qdd = (qd_next - qd) / self.dt
         scalars = {**fabric_scalars(av), "alpha": alpha, **extra,
-                   **self.stall_scalars(), "task_acc_norm": float(np.linalg.norm(xdd))}
+                   **self.stall_scalars(), "task_acc_norm": vector_norm(xdd)}
         # ψ: the stall monitor's sample where it runs, else computed for the log only
         return Command(qdd=qdd, scalars=scalars, logged_later=None if "psi" in scalars
                        else self.puma.psi_later(state, obs))

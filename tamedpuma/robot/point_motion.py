@@ -23,9 +23,9 @@ differences). The end effector's quaternion is Eigen's conversion, as pinocchio'
 (:func:`~tamedpuma.robot.rotations.matrix_to_quat_eigen`).
 
 The functions are plain Python loops: compiled by numba the end effector and every body sphere
-are two calls of a few microseconds; run plain they are slower than pinocchio's own calls, so
-:class:`~tamedpuma.robot.kinematics.Kinematics` uses pinocchio where numba is missing
-(:func:`compiled` is None) or the model has a joint other than a revolute one.
+are one call of a few microseconds (:func:`chain_evaluate`); run plain they are slower than
+pinocchio's own calls, so :class:`~tamedpuma.robot.kinematics.Kinematics` uses pinocchio where
+numba is missing (:func:`compiled` is None) or the model has a joint other than a revolute one.
 """
 
 from __future__ import annotations
@@ -146,6 +146,20 @@ def frame_motion(S, qd, parents, Rf, pf, support, rows):
     return Rw, p, jac, acc
 
 
+def chain_evaluate(q, qd, R0, p0, axes, parents, ee_parents, ee_Rf, ee_pf, ee_support,
+                   s_parents, s_Rf, s_pf, s_support):
+    """One kinematics pass in one call: :func:`joint_motion` at (q, q̇), then
+    :func:`frame_motion` of the end effector (rows 6) and of the body spheres (rows 3) and the
+    end effector's quaternion (:func:`~tamedpuma.robot.rotations.matrix_to_quat_eigen`), the
+    calls :class:`~tamedpuma.robot.kinematics.Kinematics` would make one by one. Returns
+    (S, R_ee (1, 3, 3), p_ee (1, 3), J_ee (1, 6, n), J̇q̇_ee (1, 6), sphere centres (F, 3),
+    their Jacobians (F, 3, n), their J̇q̇ (F, 3), quaternion (4,))."""
+    S = joint_motion(q, qd, R0, p0, axes, parents)
+    R, p, J, acc = frame_motion(S, qd, ee_parents, ee_Rf, ee_pf, ee_support, 6)
+    _, centers, jacobians, jdqd = frame_motion(S, qd, s_parents, s_Rf, s_pf, s_support, 3)
+    return S, R, p, J, acc, centers, jacobians, jdqd, matrix_to_quat_eigen(R[0])
+
+
 FUNCTIONS = (joint_motion, frame_motion, matrix_to_quat_eigen)
 
 
@@ -160,7 +174,10 @@ def compiled() -> dict | None:
             try:
                 import numba
 
+                from tamedpuma.jit import compile_kernels
+
                 fast = {f.__name__: numba.njit(cache=True, nogil=True)(f) for f in FUNCTIONS}
+                fast.update(compile_kernels(globals(), (chain_evaluate,), FUNCTIONS))
                 _first_calls(fast)
             except Exception as exc:  # noqa: BLE001 - a broken numba install: pinocchio's calls
                 warnings.warn(f"numba could not compile the chain kinematics "
@@ -180,5 +197,8 @@ def _first_calls(fast: dict, n: int = 2) -> None:
         fast["frame_motion"](state, q, np.zeros(1, np.int64), eye[None], np.zeros((1, 3)),
                              np.ones((1, n), np.bool_), rows)
     fast["matrix_to_quat_eigen"](eye)
+    frame = (np.zeros(1, np.int64), eye[None], np.zeros((1, 3)), np.ones((1, n), np.bool_))
+    fast["chain_evaluate"](q, q, np.stack([eye] * n), np.zeros((n, 3)),
+                           np.tile([0.0, 0.0, 1.0], (n, 1)), np.arange(n) - 1, *frame, *frame)
     for f in fast.values():
         f.disable_compile()
