@@ -79,9 +79,6 @@ def test_a_creeping_hand_arms_the_pull_only_with_a_progress_fraction():
     assert [a is None for a in out] == list(t < 2.0)
     approach = 0.045 + 0.5 * np.exp(-t / 3.0)
     assert all(a is None for a in _feed(StallMonitor(fraction), t, approach, psi=psi))
-    unheld = StallMonitor(fraction)  # its controller says the creep does not count now (FPM
-    unheld.creep_counts = False  # away from an obstacle's barrier)
-    assert all(a is None for a in _feed(unheld, t, creep, psi=psi))
 
 
 def test_the_potential_is_evaluated_at_most_every_sample_period():
@@ -233,29 +230,6 @@ def test_cpm_held_at_its_potentials_minimum_on_an_obstacle_reaches_the_goal_with
     m = run_episode(_scenario(), _controller("cpm", 1.5), PointMassWorld(SPEC)).metrics
     assert m.success_paper and m.success_whole_body, (m.failure_paper, m.final_position_error_m)
     assert m.min_clearance_m > 0
-
-
-def test_fpm_counts_a_creep_only_while_an_obstacle_barrier_holds_the_hand():
-    """FPM's creep criterion applies while an obstacle's barrier outweighs the base metric:
-    on its way round the obstacle (the body within 0.2 m of it), never 0.6 m or more from it;
-    CPM's applies everywhere."""
-    seen = {}
-    for name in ("fpm", "cpm"):
-        controller, seen[name] = _controller(name, 1.5), []
-        own = controller.creep_counts
-
-        def spy(av, own=own, out=seen[name]):
-            counts = own(av)
-            out.append((av.min_clearance, counts))
-            return counts
-
-        controller.creep_counts = spy
-        run_episode(_scenario(), controller, PointMassWorld(SPEC))
-    fpm = np.array(seen["fpm"])
-    near, far = fpm[fpm[:, 0] < 0.2, 1], fpm[fpm[:, 0] >= 0.6, 1]
-    assert len(near) > 20 and near.all()
-    assert len(far) > 20 and not far.any()
-    assert all(counts for _, counts in seen["cpm"])
 
 
 def test_a_run_that_keeps_approaching_is_unchanged_by_the_pull():

@@ -31,17 +31,13 @@ is there because near the goal the undamped attractor is a spring of k = g/ℓ =
 of 1.6 s), and where the goal lies just beyond what the ground barrier lets the hand reach, the
 hand circles it at that period and never comes to rest.
 
-A creep is no progress either (f = ``progress_fraction``, :data:`CREEP_FRACTION` = 0.05 for FPM
-and CPM, 0: off): the distance counts as progress only when it falls by
-``max(progress, f · d_best)``, so the pull arms once the remaining distance would take longer
-than about ``window``/f to close at the current rate (40 s for f = 0.05), while PUMA's own
-approach, which closes a fixed fraction of the distance per second, counts as progress all the
-way in. A fixed ``progress`` per window counts a crawl of a few millimetres a second as
-progress, and two things make the hand crawl where PUMA's field does not: CPM's regulator, which
-lets the hand climb ψ at about √ε, so CPM counts a creep everywhere; and an obstacle's barrier
-that the hand slides along, so FPM counts a creep only while one holds it (its controller's
-``creep_counts``: an obstacle pair's metric above the base metric). Elsewhere FPM's slow
-approach is PUMA's own (a field that rests short of the goal in free space), and it is kept.
+A creep is no progress either (f = ``progress_fraction``, 0: off): the distance counts as
+progress only when it falls by ``max(progress, f · d_best)``, so the pull arms once the remaining
+distance would take longer than about ``window``/f to close at the current rate (40 s for
+f = 0.05), while PUMA's own approach, which closes a fixed fraction of the distance per
+second, counts as progress all the way in. CPM has it (0.05): where ψ climbs along the hand's
+way its regulator lets the hand crawl at about √ε, a few millimetres a second, which a fixed
+``progress`` per window counts as progress. FPM has it off.
 
 It lets go on PUMA's own measure: once ψ has fallen below (1 − ``release``) times its value at
 arming, and not while the configuration pull serves this arming
@@ -88,9 +84,6 @@ from tamedpuma.methods._policy import TaskAcceleration
 
 #: ℓ [m]: below this distance the attractor's strength falls linearly to 0 at the goal
 PULL_LENGTH_M = 0.1
-#: f [1]: the creep criterion of FPM's and CPM's stall pulls: a fall of the hand's distance
-#: counts as progress only above this fraction of what is left (see the module)
-CREEP_FRACTION = 0.05
 #: [s] PUMA's potential ψ is evaluated at most this often (ψ alone: one encoder pass at rest)
 PSI_SAMPLE_S = 0.1
 
@@ -98,7 +91,7 @@ PSI_SAMPLE_S = 0.1
 @dataclass(frozen=True)
 class StallPull:
     """The stall pull: gain g [m/s²] (``method.forcing.stall_pull``; 0: off), and its fixed
-    window [s], progress [m], progress_fraction [1] (the creep criterion), psi_progress [1],
+    window [s], progress [m], progress_fraction [1] (CPM's creep criterion), psi_progress [1],
     radius [m], ramp [s], release [1] and hold_radius [m] (see the module)."""
 
     gain: float = 0.0
@@ -127,7 +120,6 @@ class StallMonitor:
         self.best_armed, self.t_best_armed = np.inf, -np.inf  # the least distance while armed
         self.held = False  # the configuration pull serves this arming: see hold
         self.distance = np.inf  # the hand's distance to the goal at the last call [m]
-        self.creep_counts = True  # whether the creep criterion applies now (its controller's)
 
     @property
     def armed(self) -> bool:
@@ -156,8 +148,6 @@ class StallMonitor:
         counts)."""
         if not math.isfinite(self.best):
             return 0.0
-        if not self.creep_counts:
-            return self.pull.progress
         return max(self.pull.progress, self.pull.progress_fraction * self.best)
 
     def _released(self, psi: float) -> bool:

@@ -171,8 +171,7 @@ class TamedController:
     """What FPM and CPM share: PUMA pulled to the joints, the avoidance fabric energized, the
     forcing and the control-rate filters.
     Subclasses implement ``step`` from :meth:`forced`; ``creep_fraction``: the stall pull's
-    creep criterion (0: off; :mod:`tamedpuma.methods._stall`), applied where
-    :meth:`creep_counts` says. ``episode``: the episode state
+    creep criterion (0: off; :mod:`tamedpuma.methods._stall`). ``episode``: the episode state
     (an ``Episode``, :class:`TamedEpisode` or a subclass's), made by :meth:`reset`."""
 
     creep_fraction = 0.0
@@ -222,17 +221,9 @@ class TamedController:
         ep = self.episode
         state, av = avoidance_at(self.kinematics, self.fabric, obs, ep.fabric)
         ground = self.ground_rows(state, obs.qd)  # from the pass that evaluated ``state``
-        if ep.stall is not None:
-            ep.stall.creep_counts = self.creep_counts(av)
         h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, ep.stall,
                                                  ep.configuration)
         return Forced(state, av, h, qdd_c, xdd, ground)
-
-    def creep_counts(self, av) -> bool:
-        """Whether the stall pull's creep criterion (``creep_fraction``,
-        :mod:`tamedpuma.methods._stall`) applies at this step of the avoidance fabric ``av``:
-        always (CPM); FPM overrides it."""
-        return True
 
     def ground_rows(self, state, qd: np.ndarray) -> GroundRows | None:
         """The heights above the ground the barrier step keeps (each moving link's lowest hull

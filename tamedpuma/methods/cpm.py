@@ -82,7 +82,6 @@ from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
 from tamedpuma.fabrics.discrete import energized_velocity_step
 from tamedpuma.methods._settings import FpmSettings, check, fpm_forcing, nonneg
-from tamedpuma.methods._stall import CREEP_FRACTION
 from tamedpuma.methods._tamed import (
     ControlRate,
     Forcing,
@@ -99,6 +98,9 @@ DAMPINGS = ("constant", "matched")
 #: k_ψ [1]: the regulator watches k_ψ ψ (still a compatible potential); with β it sets the speed
 #: along the path, about k_ψ|∂ψ/∂q·u|/(β uᵀMu)
 POTENTIAL_SCALE = 0.3
+#: the creep criterion of CPM's stall pull (:mod:`tamedpuma.methods._stall`): the hand's
+#: distance counts as progress only when it falls by this fraction of what is left
+CREEP_FRACTION = 0.05
 
 
 class CpmController(TamedController):

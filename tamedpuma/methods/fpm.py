@@ -64,7 +64,6 @@ from __future__ import annotations
 
 from tamedpuma.fabrics.discrete import energized_velocity_step
 from tamedpuma.methods._settings import FpmSettings
-from tamedpuma.methods._stall import CREEP_FRACTION
 from tamedpuma.methods._tamed import (
     TamedController,
     fabric_scalars,
@@ -77,17 +76,6 @@ from tamedpuma.types import Command, Observation
 class FpmController(TamedController):
     """FPM on one robot: ``fabric`` (a :class:`Fabric`) for avoidance, ``puma`` for forcing
     (constructor: :class:`~tamedpuma.methods._tamed.TamedController`)."""
-
-    creep_fraction = CREEP_FRACTION
-
-    def creep_counts(self, av) -> bool:
-        """Whether FPM's stall pull counts a creep as a stall now: while an obstacle's barrier
-        holds the hand, an obstacle pair's metric m_r above the base metric m_b (where along
-        its row the barrier outweighs the base), the hand sliding along it at a few mm/s;
-        elsewhere a slow approach is PUMA's own (:mod:`tamedpuma.methods._stall`)."""
-        m, pairs = av.barrier_metric, av.n_pair_rows
-        return (m is not None and pairs > 0
-                and float(m[:pairs].max()) > self.fabric.gains.base_metric)
 
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
