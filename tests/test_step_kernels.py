@@ -221,6 +221,17 @@ def test_without_numba_every_kernel_is_the_plain_function(monkeypatch):
     assert _kernels.warm_up() is False
 
 
+def _evaluated_at_random(kinematics, seed: int, n: int = 100):
+    """Yield q̇ after ``kinematics.evaluate`` at each of n random (q, q̇), q within the joint
+    limits."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.asarray(kinematics.spec.q_min), np.asarray(kinematics.spec.q_max)
+    for _ in range(n):
+        qd = rng.standard_normal(N)
+        kinematics.evaluate(rng.uniform(lo, hi), qd)
+        yield qd
+
+
 @pytest.fixture(scope="module")
 def hulls(kinematics):
     return link_hulls(kinematics)
@@ -229,12 +240,8 @@ def hulls(kinematics):
 @pytest.mark.parametrize("below", [np.inf, 0.4, 0.1])
 def test_the_fused_ground_rows_are_the_robot_modules(kinematics, hulls, below):
     table = HullTable.of(hulls)
-    rng = np.random.default_rng(7)
-    lo, hi = np.asarray(kinematics.spec.q_min), np.asarray(kinematics.spec.q_max)
     found = 0
-    for _ in range(100):
-        qd = rng.standard_normal(N)
-        kinematics.evaluate(rng.uniform(lo, hi), qd)
+    for qd in _evaluated_at_random(kinematics, seed=7):
         want = ground.hull_ground_rows(kinematics, hulls, qd, below)
         got = fused_ground_rows(kinematics, table, qd, below)
         found += len(want.heights)
@@ -302,12 +309,8 @@ def test_the_one_call_ground_rows_are_the_two_kernel_ones(kinematics, hulls, bel
     table = HullTable.of(hulls)
     one = _kernels.STEP["hull_ground"]
     two = _kernels.Kernel(_kernels.hull_ground)  # not compiled: the two-kernel path
-    rng = np.random.default_rng(9)
-    lo, hi = np.asarray(kinematics.spec.q_min), np.asarray(kinematics.spec.q_max)
     found = 0
-    for _ in range(100):
-        qd = rng.standard_normal(N)
-        kinematics.evaluate(rng.uniform(lo, hi), qd)
+    for qd in _evaluated_at_random(kinematics, seed=9):
         got = fused_ground_rows(kinematics, table, qd, below)
         with monkeypatch.context() as m:
             m.setitem(_kernels.STEP, "hull_ground", two)
