@@ -28,6 +28,13 @@ the learner's to follow. (The routes' largest separation is no test: it is never
 start gap.) Those are the ``conflicting_demos`` line (the
 data's cause: remove one, or record demonstrations between them), the others stay in
 ``worst_demo`` (the learner's: train longer or wider).
+
+A first-order model (velocity from position alone) is judged against what a first-order field
+can do with the data (:mod:`tamedpuma.puma.data_field`, smooth at h = ``gate_floor`` ×
+``pos_tol``): a failing demonstration that this field fails to follow too is the
+``first_order_data`` line (demonstrations that pass within millimetres of each other with
+different velocities: a second-order model follows them), and the imitation line says where
+the field's own mean is above the gate.
 """
 
 from __future__ import annotations
@@ -174,8 +181,34 @@ def imitation_limit(spread, extent, cfg: EvalConfig) -> float:
                0.5 * cfg.gate_extent * float(np.median(extent)), cfg.gate_floor * cfg.pos_tol)
 
 
+def field_bandwidth(cfg: EvalConfig) -> float:
+    """h [unit] of the first-order field the gates compare a first-order model with:
+    ``gate_floor`` × ``pos_tol`` (differences below it are within the convergence tolerance)."""
+    return cfg.gate_floor * cfg.pos_tol
+
+
+def _first_order_data(bad, field, limits, names, unit: str, bandwidth: float
+                      ) -> tuple[list[Failure], np.ndarray]:
+    """(the ``first_order_data`` failure of the demonstrations in ``bad`` that the data's own
+    first-order field ``field`` (DTW/point per demonstration, :mod:`.data_field`) misses too,
+    the rest of ``bad``)."""
+    if field is None or not len(bad):
+        return [], bad
+    data = np.array([k for k in bad if field[k] > limits[k]], int)
+    if not len(data):
+        return [], bad
+    shown = _listed([names[k] for k in data], field[data], limits[data], unit)
+    return [Failure("first_order_data", tuple(names[k] for k in data), (
+        f"{len(data)} demonstration(s) no first-order field follows: the field of the "
+        f"demonstrations' own velocities, smooth at {_fmt(bandwidth, unit)}, misses them "
+        f"too ({shown}); they pass within millimetres of other "
+        "demonstrations with other velocities, which a velocity commanded from the position "
+        "alone cannot take both of: train a second-order model (puma.order=2), or remove the "
+        "crossing demonstrations"))], np.setdiff1d(bad, data)
+
+
 def _imitation(im: dict, spread, names, cfg: EvalConfig, unit: str, nearest=None,
-               extent=None, follows=None) -> list[Failure]:
+               extent=None, follows=None, field=None) -> list[Failure]:
     extent = np.zeros_like(spread) if extent is None else np.asarray(extent, float)
     floor = cfg.gate_floor * cfg.pos_tol
     dtw = np.asarray(im.get("dtw_per_demo", [im["dtw"]]), float)
@@ -188,6 +221,9 @@ def _imitation(im: dict, spread, names, cfg: EvalConfig, unit: str, nearest=None
         if len(data):
             out.append(_conflicts(follows, data, dtw, names, unit))
             bad = np.setdiff1d(bad, data)
+        first_order, bad = _first_order_data(bad, field, limits, names, unit,
+                                              field_bandwidth(cfg))
+        out += first_order
         if len(bad):
             out.append(Failure("worst_demo", tuple(names[k] for k in bad), (
                 f"{len(bad)} of {len(dtw)} demonstration(s) not reproduced (DTW/point > "
@@ -208,21 +244,29 @@ def _imitation(im: dict, spread, names, cfg: EvalConfig, unit: str, nearest=None
                 f"demonstrations' own spread ({_fmt(float(np.median(spread)), unit)}) = "
                 f"{_fmt(limit, unit)}; worst: "
                 + ", ".join(f"{names[k]} ({_fmt(dtw[k], unit)})" for k in worst)
-                + "; try a longer schedule (puma.train.iterations, puma.train.patience; a "
-                "wider network learnt slower per iteration on pouring_v2)")))
+                + (f"; a first-order field of the demonstrations' own velocities reaches "
+                   f"{_fmt(float(np.mean(field)), unit)}: the data asks for a second-order "
+                   "model (puma.order=2)" if field is not None and np.mean(field) > limit else
+                   "; try a longer schedule (puma.train.iterations, puma.train.patience; a "
+                   "wider network learnt slower per iteration on pouring_v2)"))))
     return out
 
 
 def check(evaluation: dict, spread: np.ndarray, names: list[str], cfg: EvalConfig,
           unit: str = "m", nearest: np.ndarray | None = None,
           extent: np.ndarray | None = None,
-          follows: dict[int, Follow] | None = None) -> list[Failure]:
+          follows: dict[int, Follow] | None = None,
+          field: np.ndarray | None = None) -> list[Failure]:
     """The failed gates of one evaluation (``evaluation.evaluate``'s dict); [] when all pass.
     ``nearest``: each demonstration's nearest other one (index), named in the messages;
     ``extent``: e_i (None: 0); ``follows``: :func:`followed_routes` (the failing demonstrations
-    among them get the ``conflicting_demos`` line instead of ``worst_demo``)."""
+    among them get the ``conflicting_demos`` line instead of ``worst_demo``); ``field``: for a
+    first-order model, the DTW/point of the data's own first-order field per demonstration
+    (:func:`~tamedpuma.puma.data_field.first_order_dtw` at :func:`field_bandwidth`; the
+    failing demonstrations it misses too get the ``first_order_data`` line)."""
+    field = None if field is None else np.asarray(field, float)
     out = _imitation(evaluation["imitation"], np.asarray(spread, float), names, cfg, unit,
-                     nearest, extent, follows)
+                     nearest, extent, follows, field)
     cv = evaluation["convergence"]
     if cv["converged_fraction"] < cfg.gate_converged:
         out.append(Failure("convergence", (), (

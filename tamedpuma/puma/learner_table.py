@@ -44,18 +44,32 @@ def row(job: Job, report: dict) -> dict:
             "compatible": cp["compatible_fraction"], "iterations": report["iterations_run"],
             "train_s": report["train_seconds"], "wall_s": report["pipeline_seconds"],
             "cpu_s": report["pipeline_cpu_seconds"],
-            "gates_failed": [f["gate"] for f in gates.get("failures", [])]}
+            "gates_failed": [f["gate"] for f in gates.get("failures", [])],
+            "field_dtw": (report.get("first_order_field") or {}).get("dtw"),
+            "field_dtw_worst": (report.get("first_order_field") or {}).get("dtw_max")}
 
 
 def _scale(r: dict) -> tuple[float, str]:
     return (100.0, "cm") if r["unit"] == "m" else (1.0, r["unit"])
 
 
+def _field(r: dict) -> str:
+    """The data's first-order field (mean / worst demonstration DTW) of a first-order row."""
+    if r.get("field_dtw") is None:
+        return "—"
+    k, u = _scale(r)
+    return f"{k * r['field_dtw']:.2f} / {k * r['field_dtw_worst']:.2f} {u}"
+
+
 def markdown(rows: list[dict], note: str = "") -> str:
-    """The table, one row per training, then the medians of the times and the share met."""
+    """The table, one row per training, then the medians of the times and the share met; with
+    first-order rows, a column of what the data's own first-order field reaches
+    (:mod:`.data_field`: no first-order model is expected to imitate more closely)."""
+    field = any(r.get("field_dtw") is not None for r in rows)
     lines = ["| set | order | seed | demos | DTW mean | DTW worst demo | Fréchet | converged | "
-             "ψ-compatible | iterations | train [s] | wall [s] | CPU [s] | gates failed |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "ψ-compatible | iterations | train [s] | wall [s] | CPU [s] | gates failed |"
+             + (" first-order field of the data (mean / worst) |" if field else ""),
+             "|" + "---|" * (14 + field)]
     for r in rows:
         k, u = _scale(r)
         lines.append(
@@ -63,7 +77,7 @@ def markdown(rows: list[dict], note: str = "") -> str:
             f"{k * r['dtw']:.2f} {u} | {k * r['dtw_worst']:.2f} {u} | {k * r['frechet']:.2f} {u}"
             f" | {100 * r['converged']:.1f}% | {100 * r['compatible']:.2f}% | {r['iterations']} | "
             f"{r['train_s']:.0f} | {r['wall_s']:.0f} | {r['cpu_s']:.0f} | "
-            f"{', '.join(r['gates_failed']) or 'none'} |")
+            f"{', '.join(r['gates_failed']) or 'none'} |" + (f" {_field(r)} |" if field else ""))
     if rows:
         med = lambda key: float(np.median([r[key] for r in rows]))  # noqa: E731
         lines.append(f"\nMedians over {len(rows)} runs: train {med('train_s'):.0f} s, wall "

@@ -16,7 +16,16 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..paths import resolve, writable_problem, write_atomic
-from . import checkpoint, data, demo_formats, demos_synthetic, evaluation, gates, task_from_demos
+from . import (
+    checkpoint,
+    data,
+    data_field,
+    demo_formats,
+    demos_synthetic,
+    evaluation,
+    gates,
+    task_from_demos,
+)
 from .network import NetConfig, StateSpec
 from .training import TrainConfig, Workspace, train
 
@@ -386,8 +395,15 @@ def _evaluate(p: Prepared, path: Path, net, meta, report: dict, log) -> None:
 def _gate(p: Prepared, report: dict, log, follows=None) -> list[gates.Failure]:
     """Judge the evaluation (:mod:`.gates`; ``follows``: :func:`gates.routes_followed_by`), store
     the verdict in ``report["gates"]`` and log one warning line per failed gate."""
+    field = (data_field.first_order_dtw(p.demos, gates.field_bandwidth(p.eval_cfg))
+             if p.spec.order == 1 else None)
     failures = gates.check(report["evaluation"], p.spread, gates.demo_names(p.demos), p.eval_cfg,
-                           p.demos.unit, p.nearest, gates.demo_extent(p.demos), follows)
+                           p.demos.unit, p.nearest, gates.demo_extent(p.demos), follows, field)
+    if field is not None:
+        report["first_order_field"] = {"bandwidth": gates.field_bandwidth(p.eval_cfg),
+                                       "dtw": float(np.mean(field)),
+                                       "dtw_max": float(np.max(field)),
+                                       "dtw_per_demo": [float(v) for v in field]}
     report["gates"] = gates.as_report(failures, p.spread, p.eval_cfg)
     report["stop_target"] = stop_target(p)
     for f in failures:
