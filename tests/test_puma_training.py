@@ -3,6 +3,7 @@ replaces, early stopping ends the run on the validator's word, the weights' movi
 kept, resumed and returned."""
 
 import copy
+import shutil
 
 import numpy as np
 import pytest
@@ -132,6 +133,30 @@ def test_joint_rollouts_equal_separate_ones(window, horizon):
         assert got.shape == want.shape and torch.allclose(got, want, atol=1e-12)
     y_ref = net.encode(*st_ref)  # the reused latents are the rollout states' own
     assert st_y.shape == y_ref.shape and torch.allclose(st_y, y_ref, atol=1e-12)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("g++") is None, reason="torch.compile (inductor) needs g++")
+def test_the_compiled_step_gives_the_plain_rollouts_values_and_gradients():
+    net = _net()
+    net.train()
+    start = _state(6, seed=4)
+
+    def run(step):
+        net.zero_grad(set_to_none=True)
+        net.share_goal()
+        states, ys = dynamics.rollout_latents(net, start, 0.03, 4, step)
+        states, ys = dynamics.stack(states), torch.stack(ys, dim=1)
+        loss = sum((x ** 2).sum() + x.sum() for x in states) + (ys.sin()).sum()
+        loss.backward()
+        net.release_goal()
+        return [*states, ys], [p.grad.clone() for p in net.parameters()]
+
+    values, grads = run(None)
+    values_c, grads_c = run(training.compiled_step())
+    assert all(torch.allclose(a, b, rtol=1e-12, atol=1e-13) for a, b in zip(values_c, values))
+    assert all(torch.allclose(a, b, rtol=1e-10, atol=1e-13) for a, b in zip(grads_c, grads))
+    assert training.TrainConfig().compile is False  # opt-in
 
 
 def _tiny(*overrides):
@@ -315,3 +340,11 @@ def test_on_a_plateau_the_validation_checks_but_only_stops_where_told():
                               and flat["compatible_fraction"] >= 0.5)
     assert ending["stop"] == ending["passed"] == (ending["converged_fraction"] == 1.0
                                                   and ending["compatible_fraction"] >= 0.5)
+
+
+def test_compile_without_a_cpp_compiler_is_a_one_line_config_error(monkeypatch):
+    from tamedpuma.errors import ConfigError
+
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    with pytest.raises(ConfigError, match=r"puma\.train\.compile=true needs a C\+\+ compiler"):
+        training.compiled_step()

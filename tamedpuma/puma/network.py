@@ -151,15 +151,22 @@ class PumaNet(nn.Module):
         """The output for a latent ``y = ρ(x, ẋ)``: ``s ⊙ (φ(y) − φ(y_g))`` (training reuses the
         latents of its rollouts in the stability loss instead of encoding the states again)."""
         out = self.decoder(y)
-        if self.cfg.pin_goal:
-            if self._shared_goal is not None:
-                goal_out = self._shared_goal[1]
-            elif self.training or self._goal_out is None:
-                goal_out = self.decoder(self.goal_latent())
-            else:
-                goal_out = self._goal_out
+        goal_out = self.goal_offset()
+        if goal_out is not None:
             out = out - goal_out
         return out * self.out_scale
+
+    def goal_offset(self) -> torch.Tensor | None:
+        """``φ(ρ(x_g, 0))`` (1, tangent), which ``pin_goal`` subtracts from the output (None
+        without it): the shared one in training (:meth:`share_goal`), else computed (training
+        mode) or the cached one (:meth:`cache_goal`)."""
+        if not self.cfg.pin_goal:
+            return None
+        if self._shared_goal is not None:
+            return self._shared_goal[1]
+        if self.training or self._goal_out is None:
+            return self.decoder(self.goal_latent())
+        return self._goal_out
 
     def train(self, mode: bool = True):
         self._goal_out = None

@@ -89,6 +89,7 @@ class TrainConfig:
     grad_clip: float = 1.0
     ema: float = 0.0
     threads: int = 1
+    compile: bool = False
     log_every: int = 25
 
     def __post_init__(self):

@@ -246,6 +246,7 @@ class _Run:
     chain: tuple | None = None
     chain_rest: torch.Tensor | None = None
     ema: PumaNet | None = None  # exponential moving average of the weights (cfg.ema > 0)
+    step: Callable | None = None  # the compiled rollout step (cfg.compile)
     anneal_from: int | None = None  # iteration the final learning-rate decay started at
     anneal_lr: float = 0.0          # the learning rate it started from
     history: list[dict] = field(default_factory=list)
@@ -297,13 +298,14 @@ def _cat(a, b, dim=0):
     return None if a is None else torch.cat((a, b), dim=dim)
 
 
-def _rollouts(net: PumaNet, target, starts, dt: float, window: int, horizon: int):
+def _rollouts(net: PumaNet, target, starts, dt: float, window: int, horizon: int, step=None):
     """The imitation windows (from the first sample of each ``target`` window, ``window`` steps)
     and the stability rollouts (from ``starts``, ``horizon`` steps), stacked (B, T+1, ·) each,
     and the stability rollouts' latents (B, T+1, ·) (the steps' own, the last one encoded).
 
     Both run as one batch for their common steps (rows are independent: the same states as two
-    separate rollouts, at about half the per-operation cost), the longer one then alone."""
+    separate rollouts, at about half the per-operation cost), the longer one then alone.
+    ``step``: the compiled step (:func:`dynamics.latent_step`, ``compile``) or None."""
     pos_t, quat_t, vel_t = target
     order2 = net.spec.order == 2
     il0 = (pos_t[:, 0], quat_t[:, 0] if quat_t is not None else None,
@@ -311,7 +313,7 @@ def _rollouts(net: PumaNet, target, starts, dt: float, window: int, horizon: int
     b = len(pos_t)
     common = min(window, horizon)
     states, ys = dynamics.rollout_latents(net, tuple(_cat(a, c) for a, c in zip(il0, starts)),
-                                          dt, common)
+                                          dt, common, step)
     both = dynamics.stack(states)
     il = tuple(None if x is None else x[:b] for x in both)
     st = tuple(None if x is None else x[b:] for x in both)
@@ -319,7 +321,7 @@ def _rollouts(net: PumaNet, target, starts, dt: float, window: int, horizon: int
 
     def extend(part, steps, latents=None):
         last = tuple(None if x is None else x[:, -1] for x in part)
-        more, more_y = dynamics.rollout_latents(net, last, dt, steps)
+        more, more_y = dynamics.rollout_latents(net, last, dt, steps, step)
         if latents is not None:
             latents.extend(more_y)
         return tuple(_cat(x, m, 1) for x, m in zip(part, dynamics.stack(more[1:])))
@@ -396,7 +398,7 @@ def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
     net.share_goal()
     try:
         il, states, latents = _rollouts(net, target, (pos0, quat0, vel0), run.dt, window,
-                                        cfg.stability_horizon)
+                                        cfg.stability_horizon, run.step)
         l_il = losses.imitation_error(net, tuple(None if x is None else x[:, 1:] for x in il),
                                       target, cfg.vel_weight, cfg.pos_weight)
         l_st, l_b = losses.stability_terms(
@@ -434,6 +436,22 @@ def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
             "path": l_p.item(), "boundary": l_b.item()}
 
 
+def compiled_step() -> Callable:
+    """:func:`dynamics.latent_step` through ``torch.compile`` (inductor: the step's element-wise
+    work, LayerNorm and GELU fused into generated C++ loops next to the matrix products, and its
+    backward likewise). Compiled at its first call for each batch shape (the imitation and
+    stability rows together, the imitation rows alone), kept on disk by inductor's cache.
+    Without a C++ compiler: :class:`ConfigError` before the first iteration."""
+    import shutil
+
+    if shutil.which("g++") is None and shutil.which("c++") is None:
+        raise ConfigError("puma.train.compile=true needs a C++ compiler (g++) for torch.compile; "
+                          "install one (e.g. apt-get install g++) or set "
+                          "puma.train.compile=false")
+    return torch.compile(dynamics.latent_step, dynamic=False, fullgraph=True,
+                         options={"cpp_wrapper": True})
+
+
 def _start(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetConfig,
            cfg: TrainConfig, seed: int) -> _Run:
     if spec.orientation and not demos.orientation:
@@ -457,7 +475,8 @@ def _start(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCo
         ema.requires_grad_(False)
     return _Run(net, opt, sched, rng, _Sampler.of(demos, cfg.window, spec.orientation), start_ws,
                 torch.as_tensor(ws.low, dtype=torch.float32),
-                torch.as_tensor(ws.high, dtype=torch.float32), demos.dt, ema=ema)
+                torch.as_tensor(ws.high, dtype=torch.float32), demos.dt, ema=ema,
+                step=compiled_step() if cfg.compile else None)
 
 
 def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetConfig,
