@@ -67,13 +67,10 @@ def evaluate_checkpoint(path: str, overrides: list[str]) -> dict:
     from tamedpuma.puma import gates
 
     spread, nearest = gates.nearest_demos(demos)
-    from tamedpuma.puma.data_field import first_order_dtw
-
-    field = (first_order_dtw(demos, gates.field_bandwidth(eval_cfg)) if net.spec.order == 1
-             else None)
     failures = gates.check(report["evaluation"], spread, gates.demo_names(demos), eval_cfg,
                            demos.unit, nearest, gates.demo_extent(demos),
-                           gates.routes_followed_by(net, demos), field)
+                           gates.routes_followed_by(net, demos),
+                           gates.first_order_field(demos, net.spec.order, eval_cfg))
     report["gates"] = gates.as_report(failures, spread, eval_cfg)
     for f in failures:
         print(f"warning: gate {f.gate}: {f.line}", file=sys.stderr)

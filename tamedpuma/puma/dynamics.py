@@ -54,25 +54,19 @@ def latent_step(net: PumaNet, pos, quat, vel, goal_out, dt: float):
     ``goal_out`` (:meth:`PumaNet.goal_offset`) passed in, so that the step is a function of its
     arguments alone (``torch.compile`` compiles it once per batch shape)."""
     y = net.encode(pos, quat, vel)
-    out = net.decoder(y)
-    if goal_out is not None:
-        out = out - goal_out
-    return (*advance(net.spec, (pos, quat, vel), out * net.out_scale, dt), y)
+    return (*advance(net.spec, (pos, quat, vel), net.output(y, goal_out), dt), y)
 
 
 def rollout_latents(net: PumaNet, state: State, dt: float, steps: int, step=None):
     """States at steps 0..steps and the latents ``y_k = ρ(x_k, ẋ_k)`` at steps 0..steps−1 (the
     ones the steps computed; training reuses them in the stability loss). ``step``: a compiled
-    :func:`latent_step` to take the steps with (None: the network's own calls)."""
+    :func:`latent_step` to take the steps with (None: :func:`latent_step` itself)."""
+    step = step or latent_step
     states, latents = [state], []
-    goal_out = net.goal_offset() if step is not None else None
+    goal_out = net.goal_offset()
     for _ in range(steps):
-        if step is None:
-            y = net.encode(*state)
-            state = advance(net.spec, state, net.head(y), dt)
-        else:
-            *moved, y = step(net, *state, goal_out, dt)
-            state = tuple(moved)
+        *moved, y = step(net, *state, goal_out, dt)
+        state = tuple(moved)
         latents.append(y)
         states.append(state)
     return states, latents

@@ -45,6 +45,7 @@ import numpy as np
 
 from ..errors import TamedPumaError
 from .data import Demonstrations
+from .data_field import first_order_dtw
 from .evaluation import dtw_per_point, dtw_per_point_batch, rollout_paths
 from .settings import EvalConfig
 
@@ -185,6 +186,13 @@ def field_bandwidth(cfg: EvalConfig) -> float:
     """h [unit] of the first-order field the gates compare a first-order model with:
     ``gate_floor`` × ``pos_tol`` (differences below it are within the convergence tolerance)."""
     return cfg.gate_floor * cfg.pos_tol
+
+
+def first_order_field(demos: Demonstrations, order: int, cfg: EvalConfig) -> np.ndarray | None:
+    """For a first-order model (``order`` 1): the DTW/point [unit] per demonstration of the
+    data's own first-order field at :func:`field_bandwidth` (:func:`~.data_field.first_order_dtw`),
+    which :func:`check` takes as ``field``; None for a second-order model."""
+    return None if order != 1 else first_order_dtw(demos, field_bandwidth(cfg))
 
 
 def _first_order_data(bad, field, limits, names, unit: str, bandwidth: float

@@ -150,8 +150,12 @@ class PumaNet(nn.Module):
     def head(self, y: torch.Tensor) -> torch.Tensor:
         """The output for a latent ``y = ρ(x, ẋ)``: ``s ⊙ (φ(y) − φ(y_g))`` (training reuses the
         latents of its rollouts in the stability loss instead of encoding the states again)."""
+        return self.output(y, self.goal_offset())
+
+    def output(self, y: torch.Tensor, goal_out: torch.Tensor | None) -> torch.Tensor:
+        """``s ⊙ (φ(y) − goal_out)`` with a given goal offset (:meth:`goal_offset`; None: none
+        subtracted): :meth:`head`'s arithmetic, for a caller that holds the offset."""
         out = self.decoder(y)
-        goal_out = self.goal_offset()
         if goal_out is not None:
             out = out - goal_out
         return out * self.out_scale

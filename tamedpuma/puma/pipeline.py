@@ -16,16 +16,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..paths import resolve, writable_problem, write_atomic
-from . import (
-    checkpoint,
-    data,
-    data_field,
-    demo_formats,
-    demos_synthetic,
-    evaluation,
-    gates,
-    task_from_demos,
-)
+from . import checkpoint, data, demo_formats, demos_synthetic, evaluation, gates, task_from_demos
 from .network import NetConfig, StateSpec
 from .training import TrainConfig, Workspace, train
 
@@ -395,8 +386,7 @@ def _evaluate(p: Prepared, path: Path, net, meta, report: dict, log) -> None:
 def _gate(p: Prepared, report: dict, log, follows=None) -> list[gates.Failure]:
     """Judge the evaluation (:mod:`.gates`; ``follows``: :func:`gates.routes_followed_by`), store
     the verdict in ``report["gates"]`` and log one warning line per failed gate."""
-    field = (data_field.first_order_dtw(p.demos, gates.field_bandwidth(p.eval_cfg))
-             if p.spec.order == 1 else None)
+    field = gates.first_order_field(p.demos, p.spec.order, p.eval_cfg)
     failures = gates.check(report["evaluation"], p.spread, gates.demo_names(p.demos), p.eval_cfg,
                            p.demos.unit, p.nearest, gates.demo_extent(p.demos), follows, field)
     if field is not None:
