@@ -140,7 +140,7 @@ LAYERS = [{"errors", "startup", "termination", "parallel", "jit"},
           {"methods", "worlds"}, {"metrics"}, {"episode"}, {"recording"}, {"analysis"},
           {"app"}]
 _SHIMS = {"sweep", "train", "lasa", "bench_fabrics", "bench", "replay", "body_model", "models",
-          "safety_suite", "__init__", "__main__"}
+          "safety_suite", "ablation", "__init__", "__main__"}
 
 
 def _layer(part: str) -> int:

@@ -387,11 +387,32 @@ def test_installed_the_pages_go_to_docs_of_the_current_folder(tmp_path, monkeypa
     assert not (tmp_path / "docs").exists()
 
 
+def test_the_ablation_block_is_written_into_the_method_page(tmp_path):
+    """The ablation's tables and figure go into docs/method.md (its own page), replacing the
+    block and leaving the rest of the page as it is."""
+    from tamedpuma.app import results_page
+
+    runs = _fake_runs(tmp_path)
+    (runs / "ablation.md").write_text("#### Both suites\n\n| method | removed |\n|--|--|\n"
+                                      "| fpm | stall_pull |\n")
+    (runs / "ablation.png").write_bytes(b"\x89PNG fake")
+    page = tmp_path / "docs" / "method.md"
+    page.parent.mkdir()
+    page.write_text("# The method\n\n<!-- result: ablation -->\nold\n<!-- /result -->\n\nafter\n")
+    assert results_page.main(["ablation", str(runs), "--page", str(page)]) == 0
+    text = page.read_text()
+    assert "| fpm | stall_pull |" in text and "\nold\n" not in text
+    assert text.startswith("# The method\n") and text.endswith("<!-- /result -->\n\nafter\n")
+    assert "python -m tamedpuma.ablation" in text and "![ablation](img/ablation.png)" in text
+    assert (tmp_path / "docs" / "img" / "ablation.png").read_bytes() == b"\x89PNG fake"
+    assert results_page.EXPERIMENTS["ablation"].page == Path("docs") / "method.md"
+
+
 def test_every_results_block_names_its_provenance():
-    text = (DOCS / "results.md").read_text()
+    text = (DOCS / "results.md").read_text() + (DOCS / "method.md").read_text()
     blocks = re.findall(r"<!-- result: ([a-z0-9]+) -->(.*?)<!-- /result -->", text, re.S)
     assert {name for name, _ in blocks} >= {"table1", "scaling", "random", "disturbance",
-                                            "figures"}
+                                            "figures", "ablation"}
     for name, body in blocks:
         for field in ("- command: ", "- date: ", "- machine: ", "- code: ", "- models"):
             assert field in body, f"results.md block {name}: no {field.strip()}"

@@ -9,11 +9,16 @@ scenario name; suite ``table1`` or ``random`` from the name), on the runs with o
 
 - the rates of both criteria and of converged (paper criterion, with and without orientation)
   with 95 % Wilson score intervals;
-- paired on converged (paper): the scenarios the removal **loses** (the base converges, the
-  ablated run does not) and **gains**, and McNemar's exact two-sided p;
-- the verdict: ``pays`` (the removal loses significantly, p < 0.05), ``costs`` (it gains
+- paired on converged (paper), converged with the goal orientation and whole-body success: the
+  scenarios the removal **loses** (the base succeeds, the ablated run does not) and **gains**,
+  and McNemar's exact two-sided p;
+- safety: the runs that touch an obstacle, touch the ground or drive a joint past its limit
+  (each counted), and the scenarios where the ablated run does any of these and the base's does
+  not (**new unsafe**); and the runs that leave the goal ball after first reaching it;
+- the verdict, the worst over the outcomes: ``pays`` (the removal loses significantly,
+  p < 0.05, or makes more new unsafe runs than the neutral change does), ``costs`` (it gains
   significantly), ``within churn`` (lost and gained no more than the neutral change's), else
-  ``unclear``; the same for the whole-body success where that is worse.
+  ``unclear``.
 
 Writes ``ablation.md`` / ``.csv`` (one row per method and addition, both suites pooled and per
 suite), ``ablation_pairs.csv`` (every lost or gained scenario) and ``ablation.png`` (Δ converged
@@ -33,7 +38,9 @@ from tamedpuma.analysis.runs import parse_and_load, runs_parser, write_table
 
 BASES = ("fpm", "cpm")
 #: the paired outcomes, in the order the verdict looks at them
-OUTCOMES = ("converged_paper", "success_whole_body")
+OUTCOMES = ("converged_paper", "orientation_converged_paper", "success_whole_body")
+#: the safety events a run is counted for (any of them makes it unsafe)
+UNSAFE = ("obstacle_contact", "ground_contact", "joint_limit")
 ALPHA = 0.05
 
 
@@ -61,8 +68,14 @@ def scored_runs(runs: pd.DataFrame) -> pd.DataFrame:
     out["addition"] = [p[1] for p in parts[keep]]
     out["suite"] = out["scenario"].map(suite_of)
     out["key"] = out["suite"] + "/" + out["task"] + "/" + out["scenario"].astype(str)
-    for column in (*OUTCOMES, "success_paper", "orientation_converged_paper"):
+    for column in (*OUTCOMES, "success_paper", "left_after_reach"):
         out[column] = out[column].astype(float) if column in out else np.nan
+    for column in ("obstacle_contact", "ground_contact"):
+        out[column] = out[column].fillna(False).astype(bool) if column in out else False
+    steps = (out["joint_limit_violation_steps"].fillna(0) if "joint_limit_violation_steps" in out
+             else pd.Series(0, index=out.index))
+    out["joint_limit"] = steps.astype(float) > 0
+    out["unsafe"] = out[list(UNSAFE)].any(axis=1).astype(float)
     return out
 
 
@@ -80,7 +93,7 @@ def paired(base: pd.DataFrame, ablated: pd.DataFrame, outcome: str) -> dict:
 
 
 def verdict(pair: dict, churn: dict | None) -> str:
-    """pays / costs / within churn / unclear (see the module)."""
+    """pays / costs / within churn / unclear (see the module) of one paired outcome."""
     lost, gained = len(pair["lost"]), len(pair["gained"])
     if pair["p"] < ALPHA:
         return "pays" if lost > gained else "costs"
@@ -104,14 +117,18 @@ def ablation_rows(scored: pd.DataFrame, suite: str) -> tuple[list[dict], list[di
         reference = runs[runs["addition"] == "none"]
         if reference.empty:
             continue
-        churn = {o: paired(reference, runs[runs["addition"] == "churn"], o) for o in OUTCOMES}
+        churn = {o: paired(reference, runs[runs["addition"] == "churn"], o)
+                 for o in (*OUTCOMES, "unsafe")}
         for addition in ["none", *sorted(set(runs["addition"]) - {"none"})]:
             r = runs[runs["addition"] == addition]
             row = {"method": base, "removed": addition, "suite": suite, "scenarios": len(r),
                    "success (paper)": _rate(r["success_paper"]),
                    "success (whole body)": _rate(r["success_whole_body"]),
                    "converged (paper)": _rate(r["converged_paper"]),
-                   "converged with orientation": _rate(r["orientation_converged_paper"])}
+                   "converged with orientation": _rate(r["orientation_converged_paper"]),
+                   "contacts (obstacle / ground / joint limit)": " / ".join(
+                       str(int(r[c].sum())) for c in UNSAFE),
+                   "left the ball": int(r["left_after_reach"].fillna(0).sum())}
             if addition != "none":
                 row.update(_paired_cells(reference, r, churn, addition, pairs, base, suite))
             rows.append(row)
@@ -129,6 +146,12 @@ def _paired_cells(reference, r, churn, addition, pairs, base, suite) -> dict:
         pairs += [{"method": base, "removed": addition, "suite": suite, "outcome": outcome,
                    "change": change, "scenario": key}
                   for change in ("lost", "gained") for key in pair[change]]
+    unsafe = paired(reference, r, "unsafe")  # "gained" here: unsafe where the base was not
+    new, noise = unsafe["gained"], churn["unsafe"]["gained"] if addition != "churn" else []
+    cells["new unsafe"] = str(len(new))
+    verdicts.append("pays" if len(new) > len(noise) else "within churn")
+    pairs += [{"method": base, "removed": addition, "suite": suite, "outcome": "unsafe",
+               "change": "new", "scenario": key} for key in new]
     order = ("pays", "costs", "unclear", "within churn")
     cells["verdict"] = "—" if addition == "churn" else min(verdicts, key=order.index)
     return cells
@@ -142,6 +165,22 @@ def ablation_table(scored: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
         rows += r
         pairs += p
     return pd.DataFrame(rows), pd.DataFrame(pairs)
+
+
+SUITE_TITLES = {"all": "Both suites, paired on every scenario",
+                "table1": "Table 1 (the 30 scenarios with their obstacles)",
+                "random": "Randomized suite (generated scenarios with their obstacles)"}
+
+
+def sectioned_markdown(table: pd.DataFrame) -> str:
+    """``ablation.md``: one table per suite (both pooled first) under its own heading, the
+    suite column dropped; ``ablation.csv`` keeps every row with its suite."""
+    parts = []
+    for suite in table["suite"].unique():
+        rows = table[table["suite"] == suite].drop(columns="suite")
+        parts += [f"#### {SUITE_TITLES.get(suite, suite)}", "",
+                  rows.to_markdown(index=False, disable_numparse=True), ""]
+    return "\n".join(parts)
 
 
 def ablation_figure(scored: pd.DataFrame, out: Path) -> Path:
@@ -183,7 +222,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     table, pairs = ablation_table(scored)
     out = args.out or args.runs
-    text = write_table(table.fillna("—"), out, "ablation")
+    write_table(table.fillna("—"), out, "ablation")
+    text = sectioned_markdown(table.fillna("—"))
+    (out / "ablation.md").write_text(text)
     pairs.to_csv(out / "ablation_pairs.csv", index=False)
     figure = ablation_figure(scored, out)
     print(text)

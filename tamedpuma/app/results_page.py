@@ -14,6 +14,11 @@ left as they are.
     python -m analysis.scaling runs/scaling --timing-only runs/mik_timing
     python -m tamedpuma.app.results_page scaling runs/scaling
     python -m analysis.report runs/look && python -m tamedpuma.app.results_page figures runs/look
+    python -m analysis.ablation runs/ablation
+    python -m tamedpuma.app.results_page ablation runs/ablation
+
+The ablation's block is on the method's own page, ``docs/method.md``; the others on
+``docs/results.md``.
 
 The machine and the code revision are those the runs' ``summary.json`` record (schema 2); for
 runs that do not record them, those of the host that writes the page, marked so.
@@ -45,6 +50,7 @@ class Experiment:
     command: str                 # how the runs were made (the default; --command overrides)
     tables: tuple[str, ...]      # the analysis's Markdown files in RUNS
     figures: tuple[str, ...] = ()  # its figures in RUNS (copied into docs/img/)
+    page: Path = PAGE            # the page the block is on
 
 
 EXPERIMENTS = {
@@ -69,6 +75,11 @@ EXPERIMENTS = {
                           "recorder=mcap output_root=runs/look", (),
                           ("figures/paths_tomato.png", "figures/clearance_psi_tomato.png",
                            "figures/success_timing.png")),
+    "ablation": Experiment("The ablation",
+                           "python -m tamedpuma.ablation (the sweeps +experiment=ablation and "
+                           "+experiment=ablation_random into one output_root, then python -m "
+                           "tamedpuma.analysis.ablation on it)",
+                           ("ablation.md",), ("ablation.png",), Path("docs") / "method.md"),
 }
 
 
@@ -269,7 +280,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--readme", type=Path, default=None, help="table1 only: also rewrite "
                         "this README's Table-1 block (the current rates beside the paper's)")
     args = parser.parse_args(argv)
-    page = MEASURED[args.name].page if args.name in MEASURED else PAGE
+    page = (MEASURED[args.name] if args.name in MEASURED else EXPERIMENTS[args.name]).page
     args.page = args.page or project_root() / page
     try:
         if args.readme is not None and args.name != "table1":
