@@ -46,16 +46,10 @@ dH/dt ≤ −β q̇ᵀq̇ holds with H = ½‖q̇‖² + φ then and with ψ els
 interval on one potential and, after the last engagement, ψ's (scalar ``potential_attractor``: 1
 while φ is used).
 
-ε [(rad/s)²] (the fabric's ``energization_eps``, as FPM's energization; conf/method/cpm.yaml
-sets 1e-3, cpm_literal the fabric's 1e-6): the regulariser of the energization and regulator
-denominators ``q̇ᵀMq̇ + ε``. Below the speed √ε both fade out and the law becomes
-``h + f_θ^C − β q̇``, PUMA's own start from rest. It is set above the square of the joint
-controller's velocity noise (in PyBullet the velocity motors sag under gravity by ~1e-3 rad/s):
-with ε no larger than that squared (1e-6) the sag can set the direction of q̇ at rest, where
-energization removes f_θ^C's push along it and the regulator brakes a rise of ψ along it. On
-the randomized suite the fabric's 1e-6 converges as often (4 runs lost, 4 gained of 400) and
-touches an obstacle once more (docs/method.md, "What the ablation has measured so far"). Above
-√ε the law is eq. 10 exactly (docs/method.md, "CPM's regulator and damping").
+ε [(rad/s)²] (the fabric's ``energization_eps``, 1e-6, as FPM's energization): the regulariser
+of the energization and regulator denominators ``q̇ᵀMq̇ + ε``; above √ε the law is eq. 10
+exactly. A larger ε = 1e-3 (above the velocity motors' sag under gravity squared) was measured
+and does not pay (docs/method.md, "Measured and not kept").
 
 Discretisation (``control_rate.semi_implicit``, default): over one control period Δt the law is
 q̈ = a + c q̇ with a = h + f_θ^C and c = r − α − β ≤ 0 (the regulator, energization and damping
@@ -178,14 +172,6 @@ class CpmController(TamedController):
             "task_acc_norm": vector_norm(xdd)})
 
 
-def cpm_fabric() -> FabricGains:
-    """CPM's avoidance fabric: the Fabrics method's gains (not FPM's joint-limit energy ×30: the
-    fabric's energy, barriers included, is the metric of CPM's regulator and damping) with
-    the energization and regulator denominators' ε = 1e-3 [(rad/s)²], above the joint
-    controller's velocity noise squared (the module docstring says why)."""
-    return replace(FabricGains(), energization_eps=1.0e-3)
-
-
 def cpm_forcing() -> Forcing:
     """How CPM's forcing meets the fabric: FPM's (:func:`~tamedpuma.methods._settings.
     fpm_forcing`) with PUMA's task metric one more leaf of the geometry (``task_metric``)."""
@@ -199,7 +185,8 @@ class CpmSettings(FpmSettings):
     ``conf/method/cpm_literal.yaml`` (paper eq. 10 as written) and ``cpm_original.yaml`` (the
     authors' code) override them."""
 
-    fabric: FabricGains = field(default_factory=cpm_fabric)  # the Fabrics gains, ε = 1e-3
+    fabric: FabricGains = field(default_factory=FabricGains)  # the Fabrics method's gains (not
+    #                                   FPM's ×30: the fabric's energy is the regulator's metric)
     forcing: Forcing = field(default_factory=cpm_forcing)  # how PUMA's forcing meets the fabric:
     #                                   FPM's with task_metric
     variant: str = "paper"           # paper | original (the authors' code)
