@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from tamedpuma.analysis import stats
-from tamedpuma.analysis.runs import parse_and_load, runs_parser, write_table
+from tamedpuma.analysis.runs import parse_and_load, runs_parser
 
 BASES = ("fpm", "cpm")
 #: the paired outcomes, in the order the verdict looks at them
@@ -146,8 +146,8 @@ def _paired_cells(reference, r, churn, addition, pairs, base, suite) -> dict:
         pairs += [{"method": base, "removed": addition, "suite": suite, "outcome": outcome,
                    "change": change, "scenario": key}
                   for change in ("lost", "gained") for key in pair[change]]
-    unsafe = paired(reference, r, "unsafe")  # "gained" here: unsafe where the base was not
-    new, noise = unsafe["gained"], churn["unsafe"]["gained"] if addition != "churn" else []
+    # "gained" of the unsafe flag: unsafe where the base was not (the churn's row: its own noise)
+    new, noise = paired(reference, r, "unsafe")["gained"], churn["unsafe"]["gained"]
     cells["new unsafe"] = str(len(new))
     verdicts.append("pays" if len(new) > len(noise) else "within churn")
     pairs += [{"method": base, "removed": addition, "suite": suite, "outcome": "unsafe",
@@ -222,8 +222,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     table, pairs = ablation_table(scored)
     out = args.out or args.runs
-    write_table(table.fillna("—"), out, "ablation")
-    text = sectioned_markdown(table.fillna("—"))
+    table = table.fillna("—")
+    out.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out / "ablation.csv", index=False)  # every row with its suite
+    text = sectioned_markdown(table)
     (out / "ablation.md").write_text(text)
     pairs.to_csv(out / "ablation_pairs.csv", index=False)
     figure = ablation_figure(scored, out)
