@@ -71,8 +71,11 @@ def parse(argv: list[str]) -> tuple[list[str], dict[str, list[str]]]:
 
 
 def output_root(overrides: list[str]) -> Path:
-    """The ``output_root`` the overrides set (the last one wins), else the config's ``runs``."""
-    root = "runs"
+    """The ``output_root`` the overrides set (the last one wins), else the run config's
+    default (:class:`~tamedpuma.app.schema.RunConfig`)."""
+    from tamedpuma.app.schema import RunConfig
+
+    root = RunConfig.output_root
     for item in overrides:
         key, sep, value = item.partition("=")
         if sep and key.lstrip("+~") == "output_root":
