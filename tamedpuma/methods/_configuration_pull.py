@@ -407,6 +407,7 @@ class ConfigurationMonitor:
         self.route: tuple[np.ndarray, ...] = ()  # the targets after it
         self.goal_for = np.full(3, np.nan)
         self.served: float | None = None  # t_armed of the stall pull last engaged for
+        self.served_blocked: float | None = None  # ... and searched again for a blocked pose
         self.engaged = False
         self.release_at = pull.release  # [m] this engagement lets go within it
         self.holding = False  # q_g holds the goal position alone (the pose is blocked)
@@ -455,9 +456,12 @@ class ConfigurationMonitor:
         if not self.engaged and self.search is not None and distance <= self.release_at:
             self.search = None  # the engagement searched for is over before it began
         if not self.engaged and self.search is None and self._engages(q, distance, stall, obs):
+            again = stall.t_armed == self.served  # far, stuck after a search found no route
             self.served = stall.t_armed
+            if again:
+                self.served_blocked = stall.t_armed
             self.release_at = p.near_release if p.near_release > 0.0 else p.release
-            self._start(q, obs, position_alone=distance <= p.release)
+            self._start(q, obs, position_alone=again or distance <= p.release)
         if self.engaged and self.search is None and np.linalg.norm(
                 np.asarray(obs.goal_position) - self.goal_for) > REPLAN_DISTANCE_M:
             self._start(q, obs, self.holding)  # the goal moved: the last q_g serves meanwhile
@@ -584,8 +588,11 @@ class ConfigurationMonitor:
         once the armed stall pull has itself stopped making progress (``stall.stuck``): the
         search then engages only where the goal pose is blocked (see the module)."""
         p, armed_at, t = self.pull, stall.t_armed, obs.t
-        if armed_at is None or armed_at == self.served:
+        if armed_at is None:
             return False
+        if armed_at == self.served:  # far out: once more where the stalled pull is stuck
+            return (distance > p.release and self.served_blocked != armed_at
+                    and stall.stuck(t))
         if distance > p.release:
             return p.release > 0.0
         if not distance > p.near_release > 0.0:
