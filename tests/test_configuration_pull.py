@@ -331,6 +331,76 @@ def test_a_pose_the_prepared_solutions_miss_is_not_taken_for_blocked(kinematics)
     assert not monitor.engaged and monitor.search is None
 
 
+def test_far_from_a_blocked_pose_a_stuck_stall_pull_gets_a_second_search_on_the_position(
+        kinematics):
+    """Farther than ``release``: the arming's search, for the pose, finds no route where every
+    solution of the pose is blocked, and PUMA keeps the arm; once the stall pull armed there is
+    itself stuck the pull searches once more, as near the goal, and engages on the goal position
+    alone; once per arming."""
+    spec = kinematics.spec
+    p_goal, quat, obstacle, radius = _blocked_pose(kinematics)
+    pull = replace(PULL, restarts=8)
+    found = goal_candidates(kinematics, p_goal, quat, np.zeros(7), obstacle, radius, pull)
+    q, qd = found[0] + 0.03, np.zeros(7)
+    far = 2.0 * pull.release
+    obs = SimpleNamespace(t=3.0, goal_position=p_goal, goal_quaternion=quat,
+                          obstacle_centers=obstacle, obstacle_radii=radius)
+    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    monitor = ConfigurationMonitor(pull, spec)
+    monitor.prepare(p_goal, quat, np.zeros(7))
+    assert not monitor.at_limit(q) and _blocked(monitor, obs)
+    assert monitor.applied(q, qd, far, _stall(3.0, far), obs, task) is task  # no route
+    assert not monitor.engaged and monitor.served == 3.0
+    obs.t = 4.0  # the stall pull still making progress: nothing more
+    assert monitor.applied(q, qd, far, _stall(3.0, far), obs, task) is task
+    obs.t = 5.0
+    assert monitor.applied(q, qd, far, _stall(3.0, far, stuck=True), obs, task) is not task
+    assert monitor.engaged and monitor.holding
+    p, _ = kinematics.ee_frame(monitor.q_goal)
+    assert np.linalg.norm(p - p_goal) < 1e-3
+    # let go (as a barrier holding it would): the same arming gets no third search
+    monitor.engaged = False
+    obs.t = 8.0
+    assert monitor.applied(q, qd, far, _stall(3.0, far, stuck=True), obs, task) is task
+    assert monitor.search is None
+    # a new arming far out is served again from the start (the pose first)
+    obs.t = 12.0
+    monitor.applied(q, qd, far, _stall(12.0, far), obs, task)
+    assert monitor.served == 12.0 and not monitor.engaged
+
+
+def test_far_out_a_pose_the_prepared_solutions_miss_gets_no_second_search_on_the_position(
+        kinematics):
+    """The second search far out engages only where the pose is blocked: where every prepared
+    solution is blocked but the pose solved from the arm's own configuration is clear, the
+    stuck stall pull's arming leaves PUMA's rows alone (as near the goal)."""
+    spec = kinematics.spec
+    target = np.array([0.2, 0.5, 0.0, -1.3, 0.0, 0.9, 0.3])
+    p_goal, _ = kinematics.ee_frame(target)
+    quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
+    pull = replace(PULL, restarts=8)
+    other = goal_candidates(kinematics, p_goal, quat, np.zeros(7), np.zeros((0, 3)),
+                            np.zeros(0), pull, seed=5)
+    radii = np.asarray(kinematics.sphere_radii)
+    own = kinematics.sphere_centers(target)
+    far_spheres = [(np.min(np.linalg.norm(c - own, axis=1) - radii - r), qg, c)
+                   for qg in other for c, r in zip(kinematics.sphere_centers(qg), radii)]
+    gap, blocked, centre = max(far_spheres, key=lambda f: f[0])
+    assert gap > 0.1
+    obs = SimpleNamespace(t=3.0, goal_position=p_goal, goal_quaternion=quat,
+                          obstacle_centers=centre[None], obstacle_radii=np.array([0.05]))
+    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
+    monitor = ConfigurationMonitor(pull, spec)
+    monitor.solutions = PoseSolutions(p_goal, quat, (blocked,), (target,))
+    q, far = target + 0.02, 2.0 * pull.release
+    assert not monitor.at_limit(q) and _blocked(monitor, obs)
+    assert monitor.applied(q, np.zeros(7), far, _stall(3.0, far), obs, task) is task
+    obs.t = 5.0
+    assert monitor.applied(q, np.zeros(7), far, _stall(3.0, far, stuck=True), obs,
+                           task) is task
+    assert not monitor.engaged and monitor.search is None and monitor.served_blocked == 3.0
+
+
 def test_a_goal_configuration_behind_an_obstacle_on_the_straight_segment_is_not_chosen(
         kinematics):
     q = np.array([-0.5, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0])

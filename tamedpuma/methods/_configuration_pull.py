@@ -58,10 +58,14 @@ holds there instead of handing the arm back to PUMA, which would carry it into t
 again; every ``window`` it checks the pose again and, once an obstacle has moved off it, turns
 to a solution of the pose and hands back as above. The rest point is then the goal position with
 the orientation the obstacles leave, not PUMA's zero set: the paper's success (the position) is
-kept, the goal orientation given up where no clear configuration holds it. Only near the goal,
-and only once the stall pull has stalled: farther out, or at the arming itself, the prepared
-solutions (a sample of the self-motion) missed clear configurations that the arm, left to PUMA
-and the stall pull, went on to reach with the goal orientation (docs/method.md).
+kept, the goal orientation given up where no clear configuration holds it. Farther than
+``release`` the arming's search is for the pose (What, above); where it engages not (no clear
+route: the pose blocked) or its engagement lets go out there, and the stall pull armed there is
+then stuck too, the pull searches once more as near the goal, once per arming: a blocked pose
+also holds the hand 20-30 cm out where an obstacle sits beside the goal. Never at the arming
+itself: there the prepared solutions (a sample of the self-motion) missed clear configurations
+that the arm, left to PUMA and the stall pull, went on to reach with the goal orientation
+(docs/method.md).
 
 When it is computed. The goal pose's IK solutions depend on neither the obstacles nor q: the
 controller's reset solves them from q₀ and ``restarts`` seeded starts
@@ -456,7 +460,7 @@ class ConfigurationMonitor:
         if not self.engaged and self.search is not None and distance <= self.release_at:
             self.search = None  # the engagement searched for is over before it began
         if not self.engaged and self.search is None and self._engages(q, distance, stall, obs):
-            again = stall.t_armed == self.served  # far, stuck after a search found no route
+            again = stall.t_armed == self.served  # far out, this arming's second search
             self.served = stall.t_armed
             if again:
                 self.served_blocked = stall.t_armed
@@ -586,7 +590,8 @@ class ConfigurationMonitor:
         not served yet; farther than ``release`` [m] at once; nearer, with the hand farther
         than ``near_release`` [m] (0: never), at the arming step with a joint at a limit, or
         once the armed stall pull has itself stopped making progress (``stall.stuck``): the
-        search then engages only where the goal pose is blocked (see the module)."""
+        search then engages only where the goal pose is blocked (see the module). Farther out,
+        an arming already served gets that second search once, once it is stuck."""
         p, armed_at, t = self.pull, stall.t_armed, obs.t
         if armed_at is None:
             return False
