@@ -299,15 +299,13 @@ def test_where_the_goal_pose_is_blocked_an_arming_near_the_goal_engages_on_the_p
     assert clear.applied(q, qd, near, _stall(3.0, near, stuck=True), free, task) is task
 
 
-def test_a_pose_the_prepared_solutions_miss_is_not_taken_for_blocked(kinematics):
-    """The prepared solutions are a sample of the pose's self-motion: where all of them are
-    blocked but the pose solved from the arm's own configuration is clear, an arming near the
-    goal leaves PUMA's rows alone."""
-    spec = kinematics.spec
+def _pose_the_prepared_solutions_miss(kinematics, pull):
+    """(monitor, observation at t = 3 s, PUMA's stand-in rows, q): a goal pose whose one
+    prepared solution is blocked by an obstacle while the pose solved from the arm's own
+    configuration q (next to the target's) is clear."""
     target = np.array([0.2, 0.5, 0.0, -1.3, 0.0, 0.9, 0.3])
     p_goal, _ = kinematics.ee_frame(target)
     quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
-    pull = replace(PULL, restarts=8, near_release=0.03)
     other = goal_candidates(kinematics, p_goal, quat, np.zeros(7), np.zeros((0, 3)),
                             np.zeros(0), pull, seed=5)
     radii = np.asarray(kinematics.sphere_radii)
@@ -321,11 +319,20 @@ def test_a_pose_the_prepared_solutions_miss_is_not_taken_for_blocked(kinematics)
     obs = SimpleNamespace(t=3.0, goal_position=p_goal, goal_quaternion=quat,
                           obstacle_centers=centre[None], obstacle_radii=np.array([0.05]))
     task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
-    monitor = ConfigurationMonitor(pull, spec)
+    monitor = ConfigurationMonitor(pull, kinematics.spec)
     monitor.solutions = PoseSolutions(p_goal, quat, (blocked,), (target,))
     q = target + 0.02
-    near = 0.5 * pull.release
     assert not monitor.at_limit(q) and _blocked(monitor, obs)
+    return monitor, obs, task, q
+
+
+def test_a_pose_the_prepared_solutions_miss_is_not_taken_for_blocked(kinematics):
+    """The prepared solutions are a sample of the pose's self-motion: where all of them are
+    blocked but the pose solved from the arm's own configuration is clear, an arming near the
+    goal leaves PUMA's rows alone."""
+    pull = replace(PULL, restarts=8, near_release=0.03)
+    monitor, obs, task, q = _pose_the_prepared_solutions_miss(kinematics, pull)
+    near = 0.5 * pull.release
     assert monitor.applied(q, np.zeros(7), near, _stall(3.0, near, stuck=True), obs,
                            task) is task
     assert not monitor.engaged and monitor.search is None
@@ -374,26 +381,9 @@ def test_far_out_a_pose_the_prepared_solutions_miss_gets_no_second_search_on_the
     """The second search far out engages only where the pose is blocked: where every prepared
     solution is blocked but the pose solved from the arm's own configuration is clear, the
     stuck stall pull's arming leaves PUMA's rows alone (as near the goal)."""
-    spec = kinematics.spec
-    target = np.array([0.2, 0.5, 0.0, -1.3, 0.0, 0.9, 0.3])
-    p_goal, _ = kinematics.ee_frame(target)
-    quat = kinematics.evaluate(target, np.zeros(7)).ee_quaternion
     pull = replace(PULL, restarts=8)
-    other = goal_candidates(kinematics, p_goal, quat, np.zeros(7), np.zeros((0, 3)),
-                            np.zeros(0), pull, seed=5)
-    radii = np.asarray(kinematics.sphere_radii)
-    own = kinematics.sphere_centers(target)
-    far_spheres = [(np.min(np.linalg.norm(c - own, axis=1) - radii - r), qg, c)
-                   for qg in other for c, r in zip(kinematics.sphere_centers(qg), radii)]
-    gap, blocked, centre = max(far_spheres, key=lambda f: f[0])
-    assert gap > 0.1
-    obs = SimpleNamespace(t=3.0, goal_position=p_goal, goal_quaternion=quat,
-                          obstacle_centers=centre[None], obstacle_radii=np.array([0.05]))
-    task = TaskAcceleration(np.ones(6), np.zeros((6, 7)), np.zeros(6))
-    monitor = ConfigurationMonitor(pull, spec)
-    monitor.solutions = PoseSolutions(p_goal, quat, (blocked,), (target,))
-    q, far = target + 0.02, 2.0 * pull.release
-    assert not monitor.at_limit(q) and _blocked(monitor, obs)
+    monitor, obs, task, q = _pose_the_prepared_solutions_miss(kinematics, pull)
+    far = 2.0 * pull.release
     assert monitor.applied(q, np.zeros(7), far, _stall(3.0, far), obs, task) is task
     obs.t = 5.0
     assert monitor.applied(q, np.zeros(7), far, _stall(3.0, far, stuck=True), obs,
