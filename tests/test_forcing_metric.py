@@ -21,6 +21,7 @@ from tamedpuma.methods._tamed import (
     ControlRate,
     Forcing,
     PumaController,
+    geometry_with_task_metric,
 )
 from tamedpuma.methods.cpm import CpmController
 from tamedpuma.methods.fpm import FpmController
@@ -79,6 +80,35 @@ def test_fabric_energization_keeps_h_le(kinematics):
         alpha = av.alpha(qd, a, 0.0)
         assert abs(qd @ (av.M @ (a - alpha * qd)) + qd @ av.f_energy) < 1e-9 * abs(
             qd @ av.M @ qd) * np.linalg.norm(a)
+
+
+def test_the_geometry_with_the_task_metric_is_the_spec_sum_and_leaves_the_hand_to_puma(
+        kinematics):
+    """``forcing.mode: task_metric``: h = −(M + JᵀwJ)⁻¹f is the avoidance spec (M, f) summed
+    with the task leaf (JᵀwJ, 0) (ẍ = 0, metric w); w → 0 gives the fabric's h = −M⁻¹f, and as w
+    grows the geometry's hand acceleration J h falls like 1/w while h tends to the fabric
+    restricted to the joints the hand leaves free (the null space of J)."""
+    fab = Fabric(FabricGains(), kinematics.spec.q_min, kinematics.spec.q_max)
+    rng = np.random.default_rng(7)
+    for _ in range(4):
+        q, qd = Q0 + rng.normal(scale=0.2, size=7), rng.normal(size=7)
+        state = kinematics.evaluate(q, qd)
+        av = fab.avoidance(state, q, qd, *OBSTACLES)
+        J = state.ee_jacobian
+        h0 = av.acceleration()
+        assert np.allclose(geometry_with_task_metric(av, J, 1e-12), h0, rtol=0,
+                           atol=1e-9 * np.linalg.norm(h0))
+        h = geometry_with_task_metric(av, J, 30.0)
+        assert np.allclose((av.M + 30.0 * J.T @ J) @ h, -av.f, atol=1e-9)  # the spec sum
+        hand = [np.linalg.norm(J @ geometry_with_task_metric(av, J, w)) for w in (1e2, 1e4)]
+        assert hand[1] < 2e-2 * hand[0]
+        Z = np.linalg.svd(J)[2][J.shape[0]:].T  # a basis of the joints the hand leaves free
+        limit = Z @ np.linalg.solve(Z.T @ av.M @ Z, -Z.T @ av.f)  # the fabric there (w → ∞)
+        err = [np.linalg.norm(geometry_with_task_metric(av, J, w) - limit) for w in (1e6, 1e8)]
+        assert err[1] < 0.05 * err[0] + 1e-5 * np.linalg.norm(limit)  # falls like 1/w
+        w_rows = np.array([50.0, 50.0, 50.0, 5.0, 5.0, 5.0])  # per-row weights
+        hw = geometry_with_task_metric(av, J, w_rows)
+        assert np.allclose((av.M + J.T @ (w_rows[:, None] * J)) @ hw, -av.f, atol=1e-9)
 
 
 @pytest.mark.parametrize("bad", [{"mode": "sum"}, {"weight": 100.0}, {"stall_pull": -1.0},

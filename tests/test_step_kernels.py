@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tamedpuma.fabrics.discrete import barrier_step
-from tamedpuma.fabrics.spec import FabricError, solve_acceleration
+from tamedpuma.fabrics.spec import FabricError
 from tamedpuma.methods import _kernels
 from tamedpuma.methods._ground_rows import HullTable
 from tamedpuma.methods._ground_rows import hull_ground_rows as fused_ground_rows
@@ -43,9 +43,8 @@ def _fabric(rng, rows: int):
     m = np.where(rng.random(rows) < 0.3, 0.0, rng.exponential(5.0, rows))
     M = 0.2 * np.eye(N) + (a.T * m) @ a
     f = rng.standard_normal(N)
-    av = SimpleNamespace(M=M, f=f, barrier_rows=a, barrier_metric=m)
-    av.acceleration = lambda: solve_acceleration(av.M, av.f)  # as Avoidance's: FabricError
-    return av
+    return SimpleNamespace(M=M, f=f, barrier_rows=a, barrier_metric=m,
+                           acceleration=lambda: -np.linalg.solve(M, f))
 
 
 def _case(seed: int):
@@ -54,7 +53,7 @@ def _case(seed: int):
     task = TaskAcceleration(rng.standard_normal(M_ROWS), rng.standard_normal((M_ROWS, N)),
                             rng.standard_normal(M_ROWS))
     null = rng.standard_normal(N) if seed % 3 else None
-    forcing = Forcing(mode="metric", directional=seed % 5 != 0)
+    forcing = Forcing(mode=("metric", "task_metric")[seed % 2], directional=seed % 5 != 0)
     return rng, av, task, null, forcing
 
 
@@ -93,7 +92,7 @@ def test_compiled_and_plain_kernels_agree_to_rounding(seed):
     plain, fast = _plain_and_compiled("damped_pull", task.J, target, 1e-4, null, has_null)
     assert _close(fast, plain)
     args = (av.M, av.f, av.barrier_rows, av.barrier_metric, task.J, 100.0, target, 0.05, null,
-            has_null, plain, forcing.directional)
+            has_null, plain, forcing.directional, forcing.mode == "task_metric")
     plain, fast = _plain_and_compiled("metric_forcing", *args)
     for p, f in zip(plain, fast):
         assert _close(f, p)
@@ -285,14 +284,14 @@ def test_a_numba_that_cannot_compile_leaves_the_plain_kernels(monkeypatch):
 
 
 def test_a_singular_geometry_raises_as_the_numpy_forcing_does():
-    """M singular while the forcing's system M + JᵀwJ + m_null I is not: FabricError, as
+    """M + JᵀwJ singular while the forcing's system is not (its m_null I): FabricError, as
     before the fusion (not the kernel's LinAlgError)."""
     rng, av, task, null, _ = _case(1)
     J = task.J.copy()
-    J[:, -1] = 0.0  # the last joint moves no task row: JᵀwJ singular, and M = 0
+    J[:, -1] = 0.0  # the last joint moves no task row: JᵀwJ (and M = 0 + JᵀwJ) singular
     task = TaskAcceleration(task.xdd, J, task.jdqd)
     av.M = np.zeros((N, N))
-    forcing = Forcing(mode="metric", directional=False)
+    forcing = Forcing(mode="task_metric", directional=False)
     target = task.xdd - task.jdqd
     with pytest.raises(FabricError):
         forced_reference(av, task, forcing, np.ones(N), None)

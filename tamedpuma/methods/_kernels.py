@@ -27,7 +27,7 @@ Kernels (n joints, m task rows, R barrier rows):
 - :func:`metric_forcing`: ``q̈_C = (W + w JᵀJ + m_null I)⁻¹ (w Jᵀ t + m_null q̈_null)`` with W
   the avoidance metric M less the barrier rows q̈_P recedes from (``a_r·q̈_P > 0``, m_r > 0), the
   rows q̈_C approaches put back until none is (directional),
-  and the geometry ``h = −M⁻¹ f`` [rad/s²].
+  and the geometry ``h = −(M + [task] w JᵀJ)⁻¹ f`` [rad/s²].
 - :func:`pulled_forcing`: :func:`metric_forcing` with its q̈_P (:func:`damped_pull`) in one call.
 - :func:`lowest_points`, :func:`ground_rows`: the links' lowest hull points and their ground
   rows (:func:`~tamedpuma.robot.ground.hull_ground_rows`).
@@ -88,11 +88,11 @@ def _restore(W, rows, metric, out, qdd_c, JwJ, diag, rhs):
 
 
 def metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null, qdd_free,
-                   directional):
+                   directional, task_geometry):
     """``(q̈_C, h)`` [rad/s²] (see the module): M (n, n), f (n,) the avoidance fabric's metric
     and geometry force; rows (R, n), metric (R,) its barrier rows (R may be 0); J (m, n), w,
     target t = ẍ_d − J̇q̇ (m,): PUMA's task spec; m_null, q̈_null, has_null: the secondary
-    objective; qdd_free: q̈_P."""
+    objective; qdd_free: q̈_P; task_geometry: h with PUMA's task metric as a leaf."""
     wJ = w * J
     JwJ = J.T @ wJ
     rhs = wJ.T @ target
@@ -111,11 +111,12 @@ def metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null,
         qdd_c = _restore(W, rows, metric, out, qdd_c, JwJ, diag, rhs)
     else:
         qdd_c = _weighted_solve(M, JwJ, diag, rhs)
-    return qdd_c, -np.linalg.solve(M, f)
+    G = M + JwJ if task_geometry else M
+    return qdd_c, -np.linalg.solve(G, f)
 
 
 def pulled_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null, lam2,
-                   directional):
+                   directional, task_geometry):
     """``(q̈_C, h, ‖q̈_C‖² + ‖h‖²)``: :func:`metric_forcing` with its q̈_P, PUMA's free pull
     :func:`damped_pull` (λ² = lam2), computed in the same call where the directional forcing
     reads it (directional, and barrier rows); the squared norms sum tells the caller whether
@@ -124,7 +125,7 @@ def pulled_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null,
     if directional and rows.shape[0] > 0:
         qdd_free = damped_pull(J, target, lam2, qdd_null, has_null)
     qdd_c, h = metric_forcing(M, f, rows, metric, J, w, target, m_null, qdd_null, has_null,
-                              qdd_free, directional)
+                              qdd_free, directional, task_geometry)
     return qdd_c, h, qdd_c @ qdd_c + h @ h
 
 
@@ -301,8 +302,8 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
     rows, none, metric = rng.standard_normal((3, n)), np.empty((0, n)), np.ones(3)
     kernels["damped_pull"](J, t, 1e-4, v, True)
     for r, mt in ((rows, metric), (none, np.empty(0))):
-        kernels["metric_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, v, True)
-        kernels["pulled_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, 1e-4, True)
+        kernels["metric_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, v, True, True)
+        kernels["pulled_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, 1e-4, True, True)
     k3 = rng.standard_normal((4, 3))
     three = np.eye(3).reshape(1, 3, 3).repeat(2, 0)
     kernels["lowest_points"](k3, np.array([0, 2, 4]), three, np.ones(2), np.ones(2), 2.0)

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from tamedpuma.errors import ConfigError
-from tamedpuma.fabrics import Fabric, FabricBuffers
+from tamedpuma.fabrics import Fabric, FabricBuffers, solve_acceleration
 from tamedpuma.fabrics.discrete import (
     barrier_step,
     limit_speed,
@@ -36,6 +36,7 @@ from tamedpuma.methods._policy import (
     episode_primitive,
     pull_through_metric,
     pull_to_joints,
+    weighted_rows,
 )
 from tamedpuma.methods._stall import StallMonitor, StallPull
 from tamedpuma.robot.ground import (
@@ -265,7 +266,7 @@ def free_pull(task, target: np.ndarray, damping, null: np.ndarray | None) -> np.
 
 def pulled_through_metric(av, task, forcing: Forcing, null, damping
                           ) -> tuple[np.ndarray, np.ndarray]:
-    """(q̈_C, h) [rad/s²] of ``forcing.mode: metric`` with the directional
+    """(q̈_C, h) [rad/s²] of ``forcing.mode`` metric or task_metric with the directional
     forcing's q̈_P (:func:`free_pull`, damping: PUMA's pseudo-inverse damping): one kernel call
     (:func:`_kernels.pulled_forcing`), the numbers of :func:`free_pull` then
     :func:`forced_through_metric`, which answer (and raise) where the system is singular or the
@@ -280,7 +281,8 @@ def pulled_through_metric(av, task, forcing: Forcing, null, damping
         try:
             qdd_c, h, size = STEP["pulled_forcing"](
                 av.M, av.f, rows, m, task.J, weight, target, forcing.null_metric,
-                null if has_null else target[:0], has_null, lam**2, forcing.directional)
+                null if has_null else target[:0], has_null, lam**2, forcing.directional,
+                forcing.mode == "task_metric")
             if math.isfinite(float(size)):
                 return qdd_c, h
         except np.linalg.LinAlgError:  # a singular system: the calls below answer or raise
@@ -291,9 +293,9 @@ def pulled_through_metric(av, task, forcing: Forcing, null, damping
 
 def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, qdd_free
                           ) -> tuple[np.ndarray, np.ndarray]:
-    """(q̈_C, h) [rad/s²] of ``forcing.mode: metric``: PUMA's forcing through the avoidance
-    metric (directional: settled on q̈_C, :func:`restore_approached`) and the geometry −M⁻¹f,
-    fused in one kernel
+    """(q̈_C, h) [rad/s²] of ``forcing.mode`` metric or task_metric: PUMA's forcing through
+    the avoidance metric (directional: settled on q̈_C, :func:`restore_approached`) and the
+    geometry (−M⁻¹f, or :func:`geometry_with_task_metric`), fused in one kernel
     (:func:`_kernels.metric_forcing`); its numbers are those of :func:`forced_reference`,
     which answers (and raises: LinAlgError, FabricError) where the kernel's system is singular
     or its result not finite."""
@@ -306,7 +308,8 @@ def forced_through_metric(av, task, target: np.ndarray, forcing: Forcing, null, 
             qdd_c, h = STEP["metric_forcing"](
                 av.M, av.f, rows, m, task.J, weight, target, forcing.null_metric,
                 null if has_null else target[:0], has_null,
-                target[:0] if qdd_free is None else qdd_free, forcing.directional)
+                target[:0] if qdd_free is None else qdd_free, forcing.directional,
+                forcing.mode == "task_metric")
         except np.linalg.LinAlgError:  # a singular system: the reference path below raises it
             qdd_c = h = np.full(1, np.nan)
         if math.isfinite(float(qdd_c @ qdd_c + h @ h)):
@@ -328,7 +331,26 @@ def forced_reference(av, task, forcing: Forcing, null, qdd_free
         qdd_c, _ = restore_approached(av, receding, W, solve(W), solve)
     else:
         qdd_c = solve(av.M)
+    if forcing.mode == "task_metric":
+        return qdd_c, geometry_with_task_metric(av, task.J, weights)
     return qdd_c, av.acceleration()
+
+
+def geometry_with_task_metric(av, J: np.ndarray, weights: float | np.ndarray) -> np.ndarray:
+    """The avoidance geometry with PUMA's task metric as one more leaf [rad/s²]::
+
+        h = −(M + Jᵀ diag(w) J)⁻¹ f
+
+    M, f: the avoidance fabric's metric and geometry force (base, obstacle pairs, joint
+    limits); J (m, n): PUMA's task Jacobian; w [1]: its task metric (scalar or (m,)). The task
+    leaf is ``ẍ = 0`` with the constant metric w: a Finsler energy ½ẋᵀ diag(w) ẋ with a zero
+    (degree-2 homogeneous) geometry, so the sum is still a fabric, energized the same way.
+    Without it, h = −M⁻¹f moves the hand however the barriers' curvature terms (m_r J̇q̇ along
+    each barrier row, at full strength wherever a barrier's metric exceeds the base's) and the
+    joint-limit braking dictate, and PUMA's forcing, added after, is not weighed against it.
+    With it, h acts where PUMA's task metric does not hold the hand: in free space it leaves
+    the hand's acceleration to PUMA, near a barrier whose metric exceeds w it is the barrier's."""
+    return solve_acceleration(av.M + J.T @ weighted_rows(weights, J), av.f)
 
 
 def approached_metric(av, qdd_free: np.ndarray) -> np.ndarray:
@@ -561,7 +583,7 @@ TASK_WEIGHT = 100.0
 #: m_null [1]: the metric of the secondary (elbow) objective in the metric forcing
 NULL_METRIC = 0.05
 #: how PUMA's forcing may meet the avoidance fabric (``method.forcing.mode``)
-FORCING_MODES = ("additive", "metric")
+FORCING_MODES = ("additive", "metric", "task_metric")
 
 
 @dataclass(frozen=True)
@@ -580,7 +602,9 @@ class Forcing:
     normal (M ~ 0.2/x per obstacle pair, 0.1/x² per approached joint limit), so the arm slides
     along the obstacle instead of hovering against it. h is the paper's and the zero set of
     f_θ^C is unchanged (q̇ = 0, ẍ_d = 0 leaves only the damped elbow objective), so FPM's and
-    CPM's statements hold as with ``additive``.
+    CPM's statements hold as with ``additive``. ``task_metric``: ``metric``, and PUMA's task
+    metric one more leaf of the geometry, ``h = −(M + Jᵀ w J)⁻¹f``
+    (:func:`geometry_with_task_metric`).
     directional: leave out of the metric the barrier rows the forcing recedes from
     (:func:`approached_metric`, settled on q̈_C itself: rows q̈_C approaches are put back and
     q̈_C solved again, :func:`restore_approached`; not with ``additive``);

@@ -27,6 +27,12 @@ suppressed and the regulator's energy goes into sliding along it. f_θ^C keeps i
 stays compatible with it wherever ``P = wJA⁻¹Jᵀ ≈ I`` (free space: −∂ψᵀf_θ^C = −∂ψ_xᵀ P ẍ_d);
 near an obstacle P bends f_θ^C away from PUMA's direction and compatibility is no longer
 guaranteed there, where the barrier already keeps ψ from decreasing along PUMA's path.
+With ``forcing.mode: task_metric`` (CPM's default; FPM keeps ``metric``)
+h = −(M + JᵀwJ)⁻¹f: PUMA's task metric is one more leaf of the fabric (ẍ = 0, metric w), so
+the geometry no longer drives the hand against PUMA near barriers
+(:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`); the sum is still a fabric,
+energized the same way, so dH/dt = −β‖q̇‖² holds unchanged.
+
 ``forcing.stall_pull`` (default 1.5 m/s², as FPM's; :mod:`tamedpuma.methods._stall`): a goal
 attractor added to PUMA's position rows while the hand has stopped approaching the goal. It is
 part of f_θ^C, whose power along q̇ energization takes away, so dH/dt = −β q̇ᵀMq̇ holds with it as
@@ -64,7 +70,7 @@ Scalars: ``psi`` (ψ), ``psi_rate`` (∂ψ/∂q · q̇ [1/s]), ``dissipation`` (
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
@@ -166,6 +172,12 @@ class CpmController(TamedController):
             "task_acc_norm": vector_norm(xdd)})
 
 
+def cpm_forcing() -> Forcing:
+    """How CPM's forcing meets the fabric: FPM's (:func:`~tamedpuma.methods._settings.
+    fpm_forcing`) with PUMA's task metric one more leaf of the geometry (``task_metric``)."""
+    return replace(fpm_forcing(), mode="task_metric")
+
+
 @dataclass(frozen=True)
 class CpmSettings(FpmSettings):
     """method=cpm: FPM's settings (:class:`~tamedpuma.methods._settings.FpmSettings`) and the
@@ -175,8 +187,8 @@ class CpmSettings(FpmSettings):
 
     fabric: FabricGains = field(default_factory=FabricGains)  # the Fabrics method's gains (not
     #                                   FPM's ×30: the fabric's energy is the regulator's metric)
-    forcing: Forcing = field(default_factory=fpm_forcing)  # how PUMA's forcing meets the
-    #                                   fabric: FPM's
+    forcing: Forcing = field(default_factory=cpm_forcing)  # how PUMA's forcing meets the fabric:
+    #                                   FPM's with task_metric
     variant: str = "paper"           # paper | original (the authors' code)
     beta: float = 0.5                # β [1/s] > 0: the damping (its floor with damping: matched)
     damping: str = "matched"         # matched: β(q, q̇) = max(β, r − α) | constant: the paper's β

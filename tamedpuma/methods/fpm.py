@@ -27,6 +27,17 @@ Options (``conf/method/fpm.yaml``; each addition's law, setting and ablation row
   recedes from, with nothing weighing that joint against PUMA. The forcing is still a weighted
   pseudo-inverse of PUMA's spec through a PSD metric, so its zero set and the statement below
   are unchanged.
+- ``forcing.mode: task_metric`` is ``metric`` and computes the geometry with PUMA's task
+  metric as one more leaf, ``h = −(M + JᵀwJ)⁻¹f``
+  (:func:`~tamedpuma.methods._tamed.geometry_with_task_metric`), instead of ``h = −M⁻¹f``. The
+  leaf is ``ẍ = 0`` in PUMA's task space with the constant metric
+  w, a Finsler energy with a zero geometry, so the sum is still a fabric and its energized
+  form has the same statement. Why: the barriers' metric exceeds the base's wherever a
+  barrier is near, and there h = −M⁻¹f carries their curvature terms (m_r J̇q̇ along each
+  barrier row) and the joint-limit braking to the hand at full strength, unweighed against
+  PUMA's forcing added after it, so near a barrier they can move the hand away from the goal
+  faster than PUMA pulls it in. CPM's default; FPM keeps ``metric``, on which the leaf gains
+  no more than the neutral change (docs/method.md, "What the ablation has measured so far").
 - ``forcing.stall_pull`` (FPM's and CPM's default 1.5 m/s²; :mod:`tamedpuma.methods._stall`):
   once for 2 s neither the hand's distance to the goal (by 5 mm) nor PUMA's potential ψ (by
   10 %) has improved, a goal attractor is added to PUMA's position rows until ψ has fallen 5 %
