@@ -223,3 +223,31 @@ def test_the_compiled_passes_give_the_numpy_paths_numbers_to_rounding(spec):
             got, ref = fast.forward(e, rot, vel), plain.forward(e, rot, vel)
             np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
             np.testing.assert_allclose(fast.psi(e, rot), plain.psi(e, rot), rtol=1e-12)
+
+
+def test_the_packed_forward_gives_the_listed_paths_numbers():
+    """``twist_acceleration`` (one compiled call from the packed state,
+    ``SingleState.forward_packed``) gives ``acceleration``'s numbers bit for bit, with and
+    without the rest row, and leaves the same rest-row memo for ``potential`` and ``psi``."""
+    from tamedpuma.puma import single_kernels
+
+    if not single_kernels.AVAILABLE:
+        pytest.skip("numba is not installed (the `fast` extra): no compiled path to compare")
+    rng = np.random.default_rng(12)
+    for skip in (1.0, 0.0):
+        packed = _random_net(StateSpec(3, True, 2), seed=5, skip=skip)
+        listed = copy.copy(packed)
+        listed.single = packed.single.fresh()
+        for k in range(30):
+            p, q, v, w, gp, gq = _random_state(rng)
+            if k % 3 == 1:  # a potential first: the forward passes encode the rest row too
+                packed.potential(p, q, gp, gq)
+                listed.potential(p, q, gp, gq)
+            got = packed.twist_acceleration(p, q, v, w, gp, gq)
+            ref = np.concatenate(listed.acceleration(p, q, v, w, gp, gq))
+            np.testing.assert_array_equal(got, ref)
+            assert packed.single._rest_key == listed.single._rest_key
+            if k % 3 == 1:
+                for a, b in zip(packed.potential(p, q, gp, gq), listed.potential(p, q, gp, gq)):
+                    np.testing.assert_array_equal(a, b)
+            assert packed.psi(p, q, gp, gq) == listed.psi(p, q, gp, gq)

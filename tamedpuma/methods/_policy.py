@@ -60,9 +60,14 @@ class PoseTask:
         relative to the (translating) goal, ``ṗ − v_g`` (its state is goal-relative)."""
         twist = state.ee_jacobian @ qd
         v = twist[:3] if goal_velocity is None else twist[:3] - goal_velocity
-        a, alpha = self.primitive.acceleration(state.ee_position, state.ee_quaternion, v,
-                                               twist[3:], goal_position, goal_quaternion)
-        return TaskAcceleration(np.concatenate([a, alpha]), state.ee_jacobian, state.ee_jdqd)
+        prim = self.primitive
+        if hasattr(prim, "twist_acceleration"):  # [a; α] in one array (a trained primitive)
+            xdd = prim.twist_acceleration(state.ee_position, state.ee_quaternion, v, twist[3:],
+                                          goal_position, goal_quaternion)
+        else:
+            xdd = np.concatenate(prim.acceleration(state.ee_position, state.ee_quaternion, v,
+                                                   twist[3:], goal_position, goal_quaternion))
+        return TaskAcceleration(xdd, state.ee_jacobian, state.ee_jdqd)
 
     def potential(self, state: KinematicState, goal_position: np.ndarray,
                   goal_quaternion: np.ndarray) -> tuple[float, np.ndarray]:

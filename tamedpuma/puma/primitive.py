@@ -85,6 +85,17 @@ class PosePrimitive(_Base):
                                     goal_p, goal_quat)
         return a[0][0], a[1][0]
 
+    def twist_acceleration(self, p, quat_xyzw, v, omega, goal_p, goal_quat) -> np.ndarray:
+        """:meth:`acceleration` as one fresh (6,) array ``[a; α]`` [m/s², rad/s²], the same
+        numbers: on the one-state path the inputs packed into one vector and evaluated in one
+        compiled call (:meth:`SingleState.forward_packed`) where it applies."""
+        one = self.single
+        if one is not None:
+            out = one.forward_packed(np.concatenate((p, quat_xyzw, goal_p, goal_quat, v, omega)))
+            if out is not None:
+                return out
+        return np.concatenate(self.acceleration(p, quat_xyzw, v, omega, goal_p, goal_quat))
+
     def acceleration_batch(self, p, quat, v, omega, goal_p, goal_quat):
         """Batched :meth:`acceleration`: inputs (B, 3)/(B, 4); returns two (B, 3) arrays."""
         e = np.asarray(p, np.float64) - np.asarray(goal_p, np.float64)

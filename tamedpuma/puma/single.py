@@ -108,6 +108,8 @@ class SingleState:
             vel = [0.0] * spec.tangent_dim if self.order == 2 else None
             self.potential(zero, rot)
             self.forward(zero, rot, vel)
+            if self.ori and self.order == 2:  # x: the packed state at the goal, at rest
+                self.forward_packed(np.array([0.0] * 6 + [1.0] + [0.0] * 6 + [1.0] + [0.0] * 6))
             self._new_buffers()
 
     def _new_buffers(self) -> None:
@@ -242,6 +244,28 @@ class SingleState:
         if rest:
             self._rest_key, self._rest = pose, (rows, s1, s2)
         return self._decode(rows.y[0])
+
+    def forward_packed(self, x: np.ndarray) -> np.ndarray | None:
+        """:meth:`forward` of a second-order pose net from the packed world-frame state
+        x = (p, ζ, p_g, ζ_g, v, ω) (20,) float64 [m, 1, m, 1, m/s, rad/s], in one compiled call
+        (:func:`~tamedpuma.puma.single_kernels.forward_pose`: the goal-relative pose of
+        puma/primitive.py ``_pose_error`` and :meth:`forward`'s passes, the same arithmetic):
+        the acceleration ``[a; α]`` (6,) [m/s², rad/s²]; None where that call does not apply
+        (no compiled kernels, not a second-order pose net, x not float64)."""
+        if self.kernels is None or not self.ori or self.order != 2 or x.dtype != np.float64:
+            return None
+        rest = self.want_rest
+        rows = self._rows[2 if rest else 1]
+        out = self.kernels.forward_pose(x, rest, rows.raw, self.s_in, rows.f, self.W1, self.g1,
+                                        self.b1, self.eps1, self.W2, self.g2, self.b2,
+                                        self.eps2, self.W3, float(self.skip), rows.c1, rows.u1,
+                                        rows.t1, rows.a1, rows.c2, rows.u2, rows.t2, rows.a2,
+                                        rows.y, rows.sig, self.D1, self.D2, self.D3, self.eps0,
+                                        self._h, self._t)
+        if rest:  # the memo :meth:`forward` keeps: the pose entries as floats, the σ's views
+            self._rest_key = rows.raw[1, :self.n + 9].tolist()
+            self._rest = (rows, rows.sig[:, 0], rows.sig[:, 1])
+        return out
 
     def psi(self, e, rot) -> float:
         """ψ alone at the goal-relative pose (e, rot as :meth:`forward`), at rest: one encoder

@@ -126,6 +126,67 @@ def backward(y, y_goal, e3T, xh2, u2, t2, g2, sig2, e2T, xh1, u1, t1, g1, sig1, 
     return psi, g
 
 
+def _inv_norm(sq):
+    """1/√sq; NaN for a zero (or NaN) squared norm (robot/rotations.py ``_inv_norm``)."""
+    if sq > 0.0:
+        return 1.0 / math.sqrt(sq)
+    return math.nan
+
+
+def pose_row(x, row):
+    """The goal-relative pose of the packed state x (p (3), ζ (4), p_g (3), ζ_g (4), …) into
+    ``row[:12]``: ``p − p_g`` [m], then the row-major entries of R(ζ ⊗ ζ_g⁻¹), both quaternions
+    normalised first; the Python-float arithmetic of puma/primitive.py ``_pose_error``
+    (robot/rotations.py ``relative_rotation``), operation for operation."""
+    for k in range(3):
+        row[k] = x[k] - x[7 + k]
+    ax, ay, az, aw = x[3], x[4], x[5], x[6]
+    na = _inv_norm(ax * ax + ay * ay + az * az + aw * aw)
+    ax, ay, az, aw = ax * na, ay * na, az * na, aw * na
+    bx, by, bz, bw = x[10], x[11], x[12], x[13]
+    nb = _inv_norm(bx * bx + by * by + bz * bz + bw * bw)
+    bx, by, bz, bw = -bx * nb, -by * nb, -bz * nb, bw * nb
+    qx = aw * bx + ax * bw + ay * bz - az * by  # the Hamilton product a ⊗ b
+    qy = aw * by - ax * bz + ay * bw + az * bx
+    qz = aw * bz + ax * by - ay * bx + az * bw
+    qw = aw * bw - ax * bx - ay * by - az * bz
+    row[3] = 1 - 2 * (qy * qy + qz * qz)
+    row[4] = 2 * (qx * qy - qz * qw)
+    row[5] = 2 * (qx * qz + qy * qw)
+    row[6] = 2 * (qx * qy + qz * qw)
+    row[7] = 1 - 2 * (qx * qx + qz * qz)
+    row[8] = 2 * (qy * qz - qx * qw)
+    row[9] = 2 * (qx * qz - qy * qw)
+    row[10] = 2 * (qy * qz + qx * qw)
+    row[11] = 1 - 2 * (qx * qx + qy * qy)
+
+
+def forward_pose(x, rest, raw, s_in, f, W1, g1, b1, eps1, W2, g2, b2, eps2, W3, skip, c1, u1,
+                 t1, a1, c2, u2, t2, a2, y, sig, D1, D2, D3, eps0, h, t):
+    """SingleState.forward of a second-order pose net in one call, from the packed state
+    x = (p, ζ, p_g, ζ_g, v, ω) (20,) [m, 1, m, 1, m/s, rad/s]: row 0 of raw the goal-relative
+    pose (:func:`pose_row`) and the twist; with ``rest`` row 1 the same pose at rest; then
+    ``f = raw ⊙ s_in``, :func:`encode` and :func:`decode` of row 0: the acceleration
+    ``[a; α]`` (6,) [m/s², rad/s²]."""
+    row = raw[0]
+    pose_row(x, row)
+    for k in range(6):
+        row[12 + k] = x[14 + k]
+    B = 1
+    if rest:
+        B = 2
+        for k in range(12):
+            raw[1, k] = row[k]
+        for k in range(12, 18):
+            raw[1, k] = 0.0
+    for r in range(B):
+        for k in range(raw.shape[1]):
+            f[r, k] = raw[r, k] * s_in[k]
+    encode(f, W1, g1, b1, eps1, W2, g2, b2, eps2, W3, skip, c1, u1, t1, a1, c2, u2, t2, a2, y,
+           sig)
+    return decode(y[0], D1, D2, D3, eps0, h, t)
+
+
 def kernels() -> SimpleNamespace | None:
     """encode, decode and backward compiled (once per process; None without numba or where it
     fails, with a warning)."""
@@ -147,5 +208,6 @@ def _compile() -> SimpleNamespace:
     plain)."""
     from tamedpuma.jit import compile_kernels
 
-    return SimpleNamespace(**compile_kernels(globals(), (encode, decode, backward),
-                                             (_ndtr, _ln_gelu, _ln_back)))
+    return SimpleNamespace(**compile_kernels(globals(), (encode, decode, backward, forward_pose),
+                                             (_ndtr, _ln_gelu, _ln_back, _inv_norm, pose_row,
+                                              encode, decode)))
