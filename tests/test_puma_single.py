@@ -251,3 +251,29 @@ def test_the_packed_forward_gives_the_listed_paths_numbers():
                 for a, b in zip(packed.potential(p, q, gp, gq), listed.potential(p, q, gp, gq)):
                     np.testing.assert_array_equal(a, b)
             assert packed.psi(p, q, gp, gq) == listed.psi(p, q, gp, gq)
+
+
+def test_the_packed_potential_gives_the_listed_paths_numbers():
+    """``joint_potential`` (one compiled call, ``SingleState.potential_packed``) gives
+    ``potential`` pulled to the joints (``∂ψ/∂p · J_v + ∂ψ/∂θ · J_ω``) bit for bit: at the pose
+    of the last forward pass (its rest row reused) and at another pose (encoded afresh)."""
+    from tamedpuma.puma import single_kernels
+
+    if not single_kernels.AVAILABLE:
+        pytest.skip("numba is not installed (the `fast` extra): no compiled path to compare")
+    rng = np.random.default_rng(13)
+    for skip in (1.0, 0.0):
+        packed = _random_net(StateSpec(3, True, 2), seed=6, skip=skip)
+        listed = copy.copy(packed)
+        listed.single = packed.single.fresh()
+        for k in range(30):
+            p, q, v, w, gp, gq = _random_state(rng)
+            jac = rng.normal(size=(6, 7))
+            for prim in (packed, listed):
+                prim.acceleration(p, q, v, w, gp, gq)
+            at = (p, q, gp, gq) if k % 2 else _random_state(rng)[:1] + (q, gp, gq)
+            psi, grad = packed.joint_potential(*at, jac)
+            ref, d_p, d_theta = listed.potential(*at)
+            assert psi == ref
+            np.testing.assert_array_equal(grad, d_p @ jac[:3] + d_theta @ jac[3:])
+            assert packed.single.want_rest and packed.single._rest is None

@@ -72,9 +72,12 @@ class PoseTask:
     def potential(self, state: KinematicState, goal_position: np.ndarray,
                   goal_quaternion: np.ndarray) -> tuple[float, np.ndarray]:
         """ψ and ∂ψ/∂q = ∂ψ/∂p · J_v + ∂ψ/∂θ · J_ω (n,)."""
-        psi, d_p, d_theta = self.primitive.potential(state.ee_position, state.ee_quaternion,
-                                                     goal_position, goal_quaternion)
-        jac = state.ee_jacobian
+        prim, jac = self.primitive, state.ee_jacobian
+        if hasattr(prim, "joint_potential"):  # the pull in the same call (a trained primitive)
+            return prim.joint_potential(state.ee_position, state.ee_quaternion, goal_position,
+                                        goal_quaternion, jac)
+        psi, d_p, d_theta = prim.potential(state.ee_position, state.ee_quaternion,
+                                           goal_position, goal_quaternion)
         return float(psi), d_p @ jac[:3] + d_theta @ jac[3:]
 
     def psi(self, state: KinematicState, goal_position: np.ndarray,

@@ -116,6 +116,19 @@ class PosePrimitive(_Base):
                                            goal_p, goal_quat)
         return float(psi[0]), gp[0], gt[0]
 
+    def joint_potential(self, p, quat, goal_p, goal_quat, jac) -> tuple[float, np.ndarray]:
+        """``(ψ, ∂ψ/∂q = ∂ψ/∂p · J_v + ∂ψ/∂θ · J_ω (n,))`` for the hand's world-aligned
+        Jacobian jac (6, n): :meth:`potential` pulled to the joints, the same numbers; on the
+        one-state path in one compiled call (:meth:`SingleState.potential_packed`) where it
+        applies."""
+        one = self.single
+        if one is not None:
+            out = one.potential_packed(np.concatenate((p, quat, goal_p, goal_quat)), jac)
+            if out is not None:
+                return out
+        psi, d_p, d_theta = self.potential(p, quat, goal_p, goal_quat)
+        return float(psi), d_p @ jac[:3] + d_theta @ jac[3:]
+
     def psi(self, p, quat, goal_p, goal_quat) -> float:
         """ψ alone (no gradient) at pose (p [m], ζ) for the goal: what a log needs."""
         if self.single is not None:

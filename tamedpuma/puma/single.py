@@ -109,7 +109,10 @@ class SingleState:
             self.potential(zero, rot)
             self.forward(zero, rot, vel)
             if self.ori and self.order == 2:  # x: the packed state at the goal, at rest
-                self.forward_packed(np.array([0.0] * 6 + [1.0] + [0.0] * 6 + [1.0] + [0.0] * 6))
+                x = np.array([0.0] * 6 + [1.0] + [0.0] * 6 + [1.0] + [0.0] * 6)
+                self.potential_packed(x[:14].copy(), np.zeros((6, self.n)))
+                self.forward_packed(x)
+                self.potential_packed(x[:14].copy(), np.zeros((6, self.n)))
             self._new_buffers()
 
     def _new_buffers(self) -> None:
@@ -266,6 +269,26 @@ class SingleState:
             self._rest_key = rows.raw[1, :self.n + 9].tolist()
             self._rest = (rows, rows.sig[:, 0], rows.sig[:, 1])
         return out
+
+    def potential_packed(self, x: np.ndarray, jac: np.ndarray) -> tuple[float, np.ndarray] | None:
+        """``(ψ, ∂ψ/∂q (n,))`` of a pose net from the packed state x = (p, ζ, p_g, ζ_g) (14,)
+        and the hand's world-aligned Jacobian jac (6, n) in one compiled call
+        (:func:`~tamedpuma.puma.single_kernels.potential_pose`): :meth:`potential`'s numbers
+        pulled to the joints as PoseTask.potential pulls them, the same arithmetic; None where
+        that call does not apply (no compiled kernels, not a pose net, not float64)."""
+        if (self.kernels is None or not self.ori or x.dtype != np.float64
+                or jac.dtype != np.float64):
+            return None
+        self.want_rest = True
+        rest, one = self._rows[2], self._rows[1]
+        psi, grad = self.kernels.potential_pose(
+            x, self._rest is not None, rest.raw, rest.c1, rest.u1, rest.t1, rest.c2, rest.u2,
+            rest.t2, rest.y, rest.sig, one.raw, self.s_in, one.f, self.W1, self.g1, self.b1,
+            self.eps1, self.W2, self.g2, self.b2, self.eps2, self.W3, float(self.skip), one.c1,
+            one.u1, one.t1, one.a1, one.c2, one.u2, one.t2, one.a2, one.y, one.sig, self.y_goal,
+            self.e3T, self.e2T, self.e1T, self.pos_scale, jac)
+        self._rest = None  # the caches are overwritten by the next call
+        return float(psi), grad
 
     def psi(self, e, rot) -> float:
         """ψ alone at the goal-relative pose (e, rot as :meth:`forward`), at rest: one encoder

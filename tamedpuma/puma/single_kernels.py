@@ -187,6 +187,46 @@ def forward_pose(x, rest, raw, s_in, f, W1, g1, b1, eps1, W2, g2, b2, eps2, W3, 
     return decode(y[0], D1, D2, D3, eps0, h, t)
 
 
+def potential_pose(x, memo, raw2, c1_2, u1_2, t1_2, c2_2, u2_2, t2_2, y2, sig2, raw, s_in, f, W1,
+                   g1, b1, eps1, W2, g2, b2, eps2, W3, skip, c1, u1, t1, a1, c2, u2, t2, a2, y, sig,
+                   y_goal, e3T, e2T, e1T, pos_scale, jac):
+    """SingleState.potential of a pose net and PoseTask's pull to the joints in one call, from
+    the packed state x = (p, ζ, p_g, ζ_g, …): the goal-relative pose (:func:`pose_row`); where
+    ``memo`` and it equals the rest row of the last forward pass (row 1 of raw2 and the other
+    B = 2 buffers), that row's caches, else the pose at rest encoded in the B = 1 buffers;
+    :func:`backward`; ``∂ψ/∂e = g/s_pos``, ``∂ψ/∂δθ = vee(A − Aᵀ)`` with ``A = G Rᵀ``; and
+    ``∂ψ/∂q = ∂ψ/∂e · J_v + ∂ψ/∂δθ · J_ω`` (jac (6, n) the hand's world-aligned Jacobian):
+    (ψ, ∂ψ/∂q (n,))."""
+    pose = np.empty(12)
+    pose_row(x, pose)
+    same = memo
+    if memo:
+        for k in range(12):
+            if not pose[k] == raw2[1, k]:
+                same = False
+    if same:
+        R = raw2[1, 3:12].reshape(3, 3)
+        psi, g = backward(y2[1], y_goal, e3T, c2_2[1], u2_2[1], t2_2[1], g2, sig2[1, 1], e2T,
+                          c1_2[1], u1_2[1], t1_2[1], g1, sig2[1, 0], e1T, skip)
+    else:
+        row = raw[0]
+        for k in range(12):
+            row[k] = pose[k]
+        for k in range(12, raw.shape[1] - 1):
+            row[k] = 0.0
+        for k in range(raw.shape[1]):
+            f[0, k] = row[k] * s_in[k]
+        encode(f, W1, g1, b1, eps1, W2, g2, b2, eps2, W3, skip, c1, u1, t1, a1, c2, u2, t2, a2, y,
+               sig)
+        R = raw[0, 3:12].reshape(3, 3)
+        psi, g = backward(y[0], y_goal, e3T, c2[0], u2[0], t2[0], g2, sig[0, 1], e2T, c1[0],
+                          u1[0], t1[0], g1, sig[0, 0], e1T, skip)
+    dpos = g[:3] / pos_scale
+    a = np.dot(g[3:12].reshape(3, 3), R.T).ravel()
+    dtheta = np.array([a[7] - a[5], a[2] - a[6], a[3] - a[1]])
+    return psi, np.dot(dpos, jac[:3]) + np.dot(dtheta, jac[3:])
+
+
 def kernels() -> SimpleNamespace | None:
     """encode, decode and backward compiled (once per process; None without numba or where it
     fails, with a warning)."""
@@ -208,6 +248,7 @@ def _compile() -> SimpleNamespace:
     plain)."""
     from tamedpuma.jit import compile_kernels
 
-    return SimpleNamespace(**compile_kernels(globals(), (encode, decode, backward, forward_pose),
+    return SimpleNamespace(**compile_kernels(globals(), (encode, decode, backward, forward_pose,
+                                                               potential_pose),
                                              (_ndtr, _ln_gelu, _ln_back, _inv_norm, pose_row,
-                                              encode, decode)))
+                                              encode, decode, backward)))
