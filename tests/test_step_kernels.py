@@ -321,3 +321,64 @@ def test_the_one_call_ground_rows_are_the_two_kernel_ones(kinematics, hulls, bel
                         (got.jdqd, want.jdqd, ref.jdqd)):
             assert g.shape == w.shape and np.array_equal(g, w) and _close(g, r)
     assert one.fast is not None and found > 0
+
+
+def _law_case(seed: int):
+    """A fabric's metric and energy force, q̇, h, q̈_C and ∂ψ at random (q̇ small every tenth
+    case: α's and the regulator's denominators near ε)."""
+    rng = np.random.default_rng(seed)
+    qd = rng.standard_normal(N) * (1e-4 if seed % 10 == 0 else 1.0)
+    return rng, _spd(rng), rng.standard_normal(N), qd, rng.standard_normal(N), \
+        rng.standard_normal(N), rng.standard_normal(N)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_compiled_and_plain_law_kernels_agree_and_are_the_laws(seed):
+    """``fpm_velocity`` and ``cpm_velocity``: compiled equals plain to rounding, and plain is
+    FPM's and CPM's law as written in numpy (α, energized_velocity_step, the matched damping),
+    bit for bit."""
+    from tamedpuma.fabrics.discrete import energized_velocity_step
+
+    rng, M, f_L, qd, h, qdd_c, dpsi = _law_case(seed)
+    eps, dt, semi, matched = 1e-6, 0.02, seed % 2 == 0, seed % 3 != 0
+    plain, fast = _plain_and_compiled("fpm_velocity", M, f_L, qd, h, qdd_c, eps, dt, semi)
+    Mqd = M @ qd
+    alpha = float((Mqd @ h + qd @ f_L) / (qd @ Mqd + eps))
+    want = (energized_velocity_step(qd, h + qdd_c, alpha, dt, Mqd, eps) if semi
+            else qd + dt * (h - alpha * qd + qdd_c))
+    assert plain[0] == alpha and np.array_equal(plain[1], want)
+    assert _close(fast[0], plain[0]) and _close(fast[1], plain[1])
+    scale, beta_min = float(rng.uniform(0.5, 2.0)), 0.5
+    plain, fast = _plain_and_compiled("cpm_velocity", M, f_L, qd, h, qdd_c, dpsi, eps, scale,
+                                      beta_min, matched, semi, dt)
+    r = -scale * (qd @ dpsi) / (qd @ Mqd + eps)
+    hf = h + qdd_c
+    alpha = float((Mqd @ hf + qd @ f_L) / (qd @ Mqd + eps))
+    beta = max(beta_min, r - alpha) if matched else beta_min
+    c = float(r - alpha - beta)
+    qdd = ((energized_velocity_step(qd, hf, -c, dt, Mqd, eps) - qd) / dt
+           if semi and c < 0.0 else hf + c * qd)
+    assert plain[0] == alpha and plain[1] == beta and np.array_equal(plain[2], qd + dt * qdd)
+    assert plain[3] == beta * (qd @ Mqd) and plain[4] == dpsi @ qd
+    for p, f in zip(plain, fast):
+        assert _close(f, p)
+
+
+def test_the_fused_null_objective_is_the_link_jacobians(kinematics):
+    """``null_pull`` (the elbow objective from the chain's state in one call) gives
+    ``k J_linkᵀ(p* − p_link) − d q̇`` of link_position_jacobian, compiled and plain."""
+    from tamedpuma.methods._policy import NullSpaceObjective
+
+    link = kinematics.spec.link_names[3]
+    objective = NullSpaceObjective(link, (0.1, -0.2, 0.9), 4.0, 1.5)
+    target = np.array(objective.target)
+    for qd in _evaluated_at_random(kinematics, seed=9, n=30):
+        p, J = kinematics.link_position_jacobian(link)
+        want = objective.stiffness * J.T @ (target - p) - objective.damping * qd
+        chain = kinematics.link_chain_state(link)
+        plain = _kernels.null_pull.__call__(*chain, target, 4.0, 1.5, qd)
+        assert np.array_equal(plain, want)
+        if _kernels.warm_up():
+            fast = _kernels.STEP["null_pull"].fast(*chain, target, 4.0, 1.5, qd)
+            assert _close(fast, want)
+            assert np.array_equal(objective.acceleration(kinematics, qd), fast)

@@ -33,6 +33,13 @@ Kernels (n joints, m task rows, R barrier rows):
   rows (:func:`~tamedpuma.robot.ground.hull_ground_rows`).
 - :func:`rows_free`: whether v meets every barrier row ``a·v ≥ b`` (and ``a·v + drift ≥ b``),
   ``b = −κ(x − x_s)/Δt − ½Δt min(J̇q̇, 0)`` (``min(b, 0)`` on rows at or past x_s).
+- :func:`null_pull`: the elbow objective ``q̈_null = k J_linkᵀ (p* − p_link) − d q̇`` [rad/s²]
+  from the chain's joint state.
+- :func:`fpm_velocity`, :func:`cpm_velocity`: FPM's and CPM's laws from the forced fabric to
+  the velocity the control-rate filters take (energization α, CPM's regulator and damping, the
+  semi-implicit step). Their products are ``np.dot`` on the arrays numpy's ``@`` takes, which
+  numba hands to the same BLAS routines: compiled, they give the plain functions' numbers (on
+  replayed FPM and CPM episodes, every command bit for bit).
 """
 
 from __future__ import annotations
@@ -42,6 +49,7 @@ import warnings
 
 import numpy as np
 
+from tamedpuma.fabrics.discrete import energized_velocity_step
 from tamedpuma.robot.point_motion import frame_motion
 
 #: numba is installed: the kernels are compiled (imported only by :func:`warm_up`)
@@ -227,10 +235,65 @@ def hull_ground(S, qd_chain, parents, Rf, pf, support, verts, starts, radii, bel
     return hk, rows, jdqd
 
 
+def null_pull(S, qd_chain, parents, Rf, pf, support, target, stiffness, damping, qd):
+    """The elbow objective ``q̈_null = k J_linkᵀ (p* − p_link) − d q̇`` [rad/s²]
+    (:class:`~tamedpuma.methods._policy.NullSpaceObjective`): the link's origin p_link [m] and
+    position Jacobian J_link (3, n) from the chain's joint state S at q̇_chain
+    (:func:`~tamedpuma.robot.point_motion.frame_motion` of the link's frame table parents, R_f,
+    p_f, support), target p* (3,) [m], stiffness k [1/s²], damping d [1/s]; the product
+    ``(k J)ᵀ e`` on the transposed array, as ``k Jᵀ @ e`` takes it."""
+    _, p, J, _ = frame_motion(S, qd_chain, parents, Rf, pf, support, 3)
+    e = target - p[0]
+    return np.dot((stiffness * J[0]).T, e) - damping * qd
+
+
+def energized_alpha(M, f_energy, qd, qdd, eps):
+    """``(α, M q̇)``: ``α = q̇ᵀ(M q̈ + f_L)/(q̇ᵀ M q̇ + ε)`` [1/s] (AvoidanceFabric.alpha), M (n, n)
+    the energy's metric, f_L (n,) its force, ε [(rad/s)²]."""
+    Mqd = np.dot(M, qd)
+    return (np.dot(Mqd, qdd) + np.dot(qd, f_energy)) / (np.dot(qd, Mqd) + eps), Mqd
+
+
+def fpm_velocity(M, f_energy, qd, h, qdd_c, eps, dt, semi_implicit):
+    """FPM's next velocity before the filters: ``(α, q̇⁺)`` with α energizing h
+    (:func:`energized_alpha`) and ``q̇⁺`` of ``q̈ = h − α q̇ + q̈_C`` over Δt [s], the ``α q̇``
+    part implicit along q̇ (semi_implicit:
+    :func:`~tamedpuma.fabrics.discrete.energized_velocity_step`) or explicit:
+    ``q̇ + Δt (h − α q̇ + q̈_C)``."""
+    alpha, Mqd = energized_alpha(M, f_energy, qd, h, eps)
+    if semi_implicit:
+        return alpha, energized_velocity_step(qd, h + qdd_c, alpha, dt, Mqd, eps)
+    return alpha, qd + dt * (h - alpha * qd + qdd_c)
+
+
+def cpm_velocity(M, f_energy, qd, h, qdd_c, dpsi, eps, regulator_scale, beta_min, matched,
+                 semi_implicit, dt):
+    """CPM's law (paper variant) up to the filters: ``q̈ = (h + q̈_C) + c q̇`` with
+    ``c = r − α − β``, the regulator ``r = −s q̇ᵀ∂ψ/(q̇ᵀMq̇ + ε)``, α energizing h + q̈_C and
+    β the damping (matched: ``max(β_min, r − α)``); with semi_implicit and c < 0 the ``c q̇``
+    part implicit along q̇ and ``q̈ = (q̇⁺ − q̇)/Δt``. Returns (α, β, q̇ + Δt q̈ [rad/s],
+    β q̇ᵀMq̇, ∂ψ·q̇)."""
+    h_plus_f = h + qdd_c
+    Mqd = np.dot(M, qd)
+    qMq = np.dot(qd, Mqd)
+    r_coef = -regulator_scale * np.dot(qd, dpsi) / (qMq + eps)
+    alpha = (np.dot(Mqd, h_plus_f) + np.dot(qd, f_energy)) / (qMq + eps)
+    beta = beta_min
+    if matched and r_coef - alpha > beta_min:
+        beta = r_coef - alpha
+    c = r_coef - alpha - beta
+    if semi_implicit and c < 0.0:
+        qd_next = energized_velocity_step(qd, h_plus_f, -c, dt, Mqd, eps)
+        qdd = (qd_next - qd) / dt
+    else:
+        qdd = h_plus_f + c * qd
+    return alpha, beta, qd + dt * qdd, beta * qMq, np.dot(dpsi, qd)
+
+
 KERNELS = (damped_pull, metric_forcing, pulled_forcing, rows_free, lowest_points, ground_rows,
-           hull_ground)
+           hull_ground, null_pull, fpm_velocity, cpm_velocity)
 HELPERS = (_weighted_solve, _restore, _meets, _bounds, lowest_points, ground_rows, frame_motion,
-           damped_pull, metric_forcing)
+           damped_pull, metric_forcing, energized_alpha, energized_velocity_step)
 
 
 class Kernel:
@@ -313,3 +376,7 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
     S = rng.standard_normal((n, 7, 3))
     table = (np.arange(2, dtype=np.int64), three, k3[:2], np.ones((2, n), np.bool_))
     kernels["hull_ground"](S, v, *table, k3, np.array([0, 2, 4]), np.ones(2), 2.0, v)
+    kernels["null_pull"](S, v, *(a[:1] for a in table), t[:3], 1.0, 2.0, v)
+    for semi in (True, False):
+        kernels["fpm_velocity"](M, v, v, v, v, 1e-6, 0.02, semi)
+        kernels["cpm_velocity"](M, v, v, v, v, v, 1e-6, 1.0, 0.5, semi, semi, 0.02)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tamedpuma.fabrics.spec import linear_solve
+from tamedpuma.methods._kernels import STEP
 from tamedpuma.robot.kinematics import KinematicState
 
 
@@ -207,8 +208,22 @@ class NullSpaceObjective:
     damping: float
 
     def acceleration(self, kinematics, qd: np.ndarray) -> np.ndarray:
+        chain_of = getattr(kinematics, "link_chain_state", None)
+        chain = chain_of(self.link) if chain_of and STEP["null_pull"].fast else None
+        if chain is not None:  # the link's motion and the pull in one compiled call
+            return STEP["null_pull"](*chain, self._target, float(self.stiffness),
+                                     float(self.damping), qd)
         p, J = kinematics.link_position_jacobian(self.link)
-        return self.stiffness * J.T @ (np.asarray(self.target) - p) - self.damping * qd
+        return self.stiffness * J.T @ (self._target - p) - self.damping * qd
+
+    @property
+    def _target(self) -> np.ndarray:
+        """p* as a float array (made once)."""
+        target = self.__dict__.get("_target_array")
+        if target is None:
+            target = np.array(self.target, dtype=float)
+            object.__setattr__(self, "_target_array", target)
+        return target
 
 
 class LinearTaskPrimitive:

@@ -74,7 +74,7 @@ from dataclasses import dataclass, field, replace
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricGains
-from tamedpuma.fabrics.discrete import energized_velocity_step
+from tamedpuma.methods._kernels import STEP
 from tamedpuma.methods._settings import FpmSettings, check, fpm_forcing, nonneg
 from tamedpuma.methods._tamed import (
     ControlRate,
@@ -139,37 +139,35 @@ class CpmController(TamedController):
             psi, dpsi = self.puma.episode.task.potential(state, obs.goal_position,
                                                          obs.goal_quaternion)
             psi, dpsi = self.potential_scale * psi, self.potential_scale * dpsi
-        h_plus_f = h + qdd_c
-        Mqd = av.M @ qd  # M_{L_e}: the metric of the energy energized and of γ
-        denom = qd @ Mqd + self.eps
-        r_coef = -self.regulator_scale * (qd @ dpsi) / denom  # regulator: r q̇
-        beta = self.beta
         if self.variant == "paper":
-            alpha = av.alpha(qd, h_plus_f, self.eps, Mqd)  # energize_{L_e}[h + f_θ^C]
-            if self.matched:  # β = max(β_min, r − α): exactly h + f_C whenever that dissipates
-                beta = max(self.beta, r_coef - alpha)
-            c = float(r_coef - alpha - beta)  # q̈ = (h + f_θ^C) + c q̇
-            if self.rate.semi_implicit and c < 0.0:
-                # the velocity-proportional part taken implicitly along q̇ over the control
-                # period: it damps, never reverses q̇, and leaves the push across q̇ whole
-                qd_next = energized_velocity_step(qd, h_plus_f, -c, self.dt, Mqd, self.eps)
-                qdd = (qd_next - qd) / self.dt
-            else:
-                qdd = h_plus_f + c * qd
-        else:  # the authors' code: no energization, no damping
-            alpha = 0.0
-            qdd = h_plus_f + r_coef * qd
-        qd_next, extra = self.rate.next_velocity(qd + self.dt * qdd, av, self.dt, self.qd_max,
-                                                 ground, qd)
+            # energize_{L_e}[h + f_θ^C], the regulator r q̇ and the damping (matched:
+            # β = max(β_min, r − α), exactly h + f_C whenever that dissipates): q̈ = (h + f_θ^C)
+            # + c q̇, c = r − α − β, the c q̇ part implicit along q̇ where semi-implicit (it
+            # damps, never reverses q̇, and leaves the push across q̇ whole)
+            alpha, beta, qd_pre, dissipation, psi_rate = STEP["cpm_velocity"](
+                av.M, av.f_energy, qd, h, qdd_c, dpsi, self.eps, float(self.regulator_scale),
+                float(self.beta), self.matched, self.rate.semi_implicit, self.dt)
+        else:
+            alpha, beta, qd_pre, dissipation, psi_rate = self.original_law(qd, h, qdd_c, dpsi,
+                                                                           av.M)
+        qd_next, extra = self.rate.next_velocity(qd_pre, av, self.dt, self.qd_max, ground, qd)
         qdd = (qd_next - qd) / self.dt
         return Command(qdd=qdd, scalars={
             **extra, **fabric_scalars(av), **self.stall_scalars(), "psi": psi,
-            "psi_rate": float(dpsi @ qd),
-            "dissipation": float(beta * (qd @ Mqd)),
+            "psi_rate": float(psi_rate),
+            "dissipation": float(dissipation),
             "energy_total": float(av.energy + psi), "alpha": float(alpha),
             "beta": float(beta),
             "potential_attractor": float(attractor),
             "task_acc_norm": vector_norm(xdd)})
+
+    def original_law(self, qd, h, qdd_c, dpsi, M):
+        """The authors' code (no energization, no damping): ``q̈ = h + f_θ^C + r q̇``; returns
+        (α = 0, β, q̇ + Δt q̈ [rad/s], β q̇ᵀMq̇, ∂ψ·q̇) as the paper variant's kernel does."""
+        Mqd = M @ qd
+        r_coef = -self.regulator_scale * (qd @ dpsi) / (qd @ Mqd + self.eps)
+        qdd = (h + qdd_c) + r_coef * qd
+        return 0.0, self.beta, qd + self.dt * qdd, self.beta * (qd @ Mqd), dpsi @ qd
 
 
 def cpm_forcing() -> Forcing:

@@ -62,7 +62,7 @@ spheres vs obstacles, 1e3 without obstacles), ``n_clamped``, ``n_limit_clamped``
 
 from __future__ import annotations
 
-from tamedpuma.fabrics.discrete import energized_velocity_step
+from tamedpuma.methods._kernels import STEP
 from tamedpuma.methods._settings import FpmSettings
 from tamedpuma.methods._tamed import (
     TamedController,
@@ -80,12 +80,11 @@ class FpmController(TamedController):
     def step(self, obs: Observation) -> Command:
         qd = obs.qd
         state, av, h, qdd_c, xdd, ground = self.forced(obs)
-        eps, Mqd = self.fabric.gains.energization_eps, av.M @ qd
-        alpha = av.alpha(qd, h, eps, Mqd)  # energize_{L_e}[h]
-        if self.rate.semi_implicit:  # −α q̇ implicit along q̇ alone
-            qd_next = energized_velocity_step(qd, h + qdd_c, alpha, self.dt, Mqd, eps)
-        else:
-            qd_next = qd + self.dt * (h - alpha * qd + qdd_c)
+        # energize_{L_e}[h], then the step (−α q̇ implicit along q̇ alone where semi-implicit)
+        alpha, qd_next = STEP["fpm_velocity"](av.M, av.f_energy, qd, h, qdd_c,
+                                              self.fabric.gains.energization_eps, self.dt,
+                                              self.rate.semi_implicit)
+        alpha = float(alpha)
         qd_next, extra = self.rate.next_velocity(qd_next, av, self.dt, self.qd_max, ground, qd)
         qdd = (qd_next - qd) / self.dt
         scalars = {**fabric_scalars(av), "alpha": alpha, **extra,

@@ -427,6 +427,14 @@ class Kinematics:
         R, p, J, _ = self._frames(q, np.zeros(self.model.nv), self._ee_table, 6)
         return p[0], R[0], J[0]
 
+    def link_chain_state(self, link: str) -> tuple | None:
+        """:meth:`chain_state` of the frame of ``link`` (the compiled chain's state at the last
+        :meth:`evaluate` and the frame's table); None where the kinematics is pinocchio's."""
+        fid = self._link_ids.get(link)
+        if fid is None:
+            fid = self._link_ids[link] = self._frame_id(self.model, link)
+        return self.chain_state((fid,))
+
     def link_position_jacobian(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         """Origin (3,) [m] and its 3×n position Jacobian of ``link`` at the q of the last
         :meth:`evaluate` call (no new forward pass)."""
