@@ -225,10 +225,11 @@ def test_the_compiled_passes_give_the_numpy_paths_numbers_to_rounding(spec):
             np.testing.assert_allclose(fast.psi(e, rot), plain.psi(e, rot), rtol=1e-12)
 
 
+
 def test_the_packed_forward_gives_the_listed_paths_numbers():
-    """``twist_acceleration`` (one compiled call from the packed state,
-    ``SingleState.forward_packed``) gives ``acceleration``'s numbers bit for bit, with and
-    without the rest row, and leaves the same rest-row memo for ``potential`` and ``psi``."""
+    """``SingleState.forward_packed`` (one compiled call from the packed state, PoseTask's
+    path) gives ``acceleration``'s numbers bit for bit, with and without the rest row, and
+    leaves the same rest-row memo for ``potential`` and ``psi``."""
     from tamedpuma.puma import single_kernels
 
     if not single_kernels.AVAILABLE:
@@ -243,7 +244,7 @@ def test_the_packed_forward_gives_the_listed_paths_numbers():
             if k % 3 == 1:  # a potential first: the forward passes encode the rest row too
                 packed.potential(p, q, gp, gq)
                 listed.potential(p, q, gp, gq)
-            got = packed.twist_acceleration(p, q, v, w, gp, gq)
+            got = packed.single.forward_packed(np.concatenate((p, q, gp, gq, v, w)))
             ref = np.concatenate(listed.acceleration(p, q, v, w, gp, gq))
             np.testing.assert_array_equal(got, ref)
             assert packed.single._rest_key == listed.single._rest_key
@@ -254,7 +255,7 @@ def test_the_packed_forward_gives_the_listed_paths_numbers():
 
 
 def test_the_packed_potential_gives_the_listed_paths_numbers():
-    """``joint_potential`` (one compiled call, ``SingleState.potential_packed``) gives
+    """``SingleState.potential_packed`` (one compiled call, PoseTask's path) gives
     ``potential`` pulled to the joints (``∂ψ/∂p · J_v + ∂ψ/∂θ · J_ω``) bit for bit: at the pose
     of the last forward pass (its rest row reused) and at another pose (encoded afresh)."""
     from tamedpuma.puma import single_kernels
@@ -272,7 +273,7 @@ def test_the_packed_potential_gives_the_listed_paths_numbers():
             for prim in (packed, listed):
                 prim.acceleration(p, q, v, w, gp, gq)
             at = (p, q, gp, gq) if k % 2 else _random_state(rng)[:1] + (q, gp, gq)
-            psi, grad = packed.joint_potential(*at, jac)
+            psi, grad = packed.single.potential_packed(np.concatenate(at), jac)
             ref, d_p, d_theta = listed.potential(*at)
             assert psi == ref
             np.testing.assert_array_equal(grad, d_p @ jac[:3] + d_theta @ jac[3:])

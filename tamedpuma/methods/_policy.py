@@ -61,11 +61,13 @@ class PoseTask:
         relative to the (translating) goal, ``ṗ − v_g`` (its state is goal-relative)."""
         twist = state.ee_jacobian @ qd
         v = twist[:3] if goal_velocity is None else twist[:3] - goal_velocity
-        prim = self.primitive
-        if hasattr(prim, "twist_acceleration"):  # [a; α] in one array (a trained primitive)
-            xdd = prim.twist_acceleration(state.ee_position, state.ee_quaternion, v, twist[3:],
-                                          goal_position, goal_quaternion)
-        else:
+        prim, xdd = self.primitive, None
+        one = getattr(prim, "single", None)  # a trained primitive's one-state evaluator
+        if one is not None:  # [a; α] in one compiled call from the packed state, where it applies
+            xdd = one.forward_packed(np.concatenate((state.ee_position, state.ee_quaternion,
+                                                     goal_position, goal_quaternion, v,
+                                                     twist[3:])))
+        if xdd is None:
             xdd = np.concatenate(prim.acceleration(state.ee_position, state.ee_quaternion, v,
                                                    twist[3:], goal_position, goal_quaternion))
         return TaskAcceleration(xdd, state.ee_jacobian, state.ee_jdqd)
@@ -74,9 +76,12 @@ class PoseTask:
                   goal_quaternion: np.ndarray) -> tuple[float, np.ndarray]:
         """ψ and ∂ψ/∂q = ∂ψ/∂p · J_v + ∂ψ/∂θ · J_ω (n,)."""
         prim, jac = self.primitive, state.ee_jacobian
-        if hasattr(prim, "joint_potential"):  # the pull in the same call (a trained primitive)
-            return prim.joint_potential(state.ee_position, state.ee_quaternion, goal_position,
-                                        goal_quaternion, jac)
+        one = getattr(prim, "single", None)  # a trained primitive's one-state evaluator
+        if one is not None:  # ψ and its pull in one compiled call, where it applies
+            out = one.potential_packed(np.concatenate((state.ee_position, state.ee_quaternion,
+                                                       goal_position, goal_quaternion)), jac)
+            if out is not None:
+                return out
         psi, d_p, d_theta = prim.potential(state.ee_position, state.ee_quaternion,
                                            goal_position, goal_quaternion)
         return float(psi), d_p @ jac[:3] + d_theta @ jac[3:]

@@ -85,17 +85,6 @@ class PosePrimitive(_Base):
                                     goal_p, goal_quat)
         return a[0][0], a[1][0]
 
-    def twist_acceleration(self, p, quat_xyzw, v, omega, goal_p, goal_quat) -> np.ndarray:
-        """:meth:`acceleration` as one fresh (6,) array ``[a; α]`` [m/s², rad/s²], the same
-        numbers: on the one-state path the inputs packed into one vector and evaluated in one
-        compiled call (:meth:`SingleState.forward_packed`) where it applies."""
-        one = self.single
-        if one is not None:
-            out = one.forward_packed(np.concatenate((p, quat_xyzw, goal_p, goal_quat, v, omega)))
-            if out is not None:
-                return out
-        return np.concatenate(self.acceleration(p, quat_xyzw, v, omega, goal_p, goal_quat))
-
     def acceleration_batch(self, p, quat, v, omega, goal_p, goal_quat):
         """Batched :meth:`acceleration`: inputs (B, 3)/(B, 4); returns two (B, 3) arrays."""
         e = np.asarray(p, np.float64) - np.asarray(goal_p, np.float64)
@@ -115,19 +104,6 @@ class PosePrimitive(_Base):
         psi, gp, gt = self.potential_batch(np.reshape(p, (1, 3)), np.reshape(quat, (1, 4)),
                                            goal_p, goal_quat)
         return float(psi[0]), gp[0], gt[0]
-
-    def joint_potential(self, p, quat, goal_p, goal_quat, jac) -> tuple[float, np.ndarray]:
-        """``(ψ, ∂ψ/∂q = ∂ψ/∂p · J_v + ∂ψ/∂θ · J_ω (n,))`` for the hand's world-aligned
-        Jacobian jac (6, n): :meth:`potential` pulled to the joints, the same numbers; on the
-        one-state path in one compiled call (:meth:`SingleState.potential_packed`) where it
-        applies."""
-        one = self.single
-        if one is not None:
-            out = one.potential_packed(np.concatenate((p, quat, goal_p, goal_quat)), jac)
-            if out is not None:
-                return out
-        psi, d_p, d_theta = self.potential(p, quat, goal_p, goal_quat)
-        return float(psi), d_p @ jac[:3] + d_theta @ jac[3:]
 
     def psi(self, p, quat, goal_p, goal_quat) -> float:
         """ψ alone (no gradient) at pose (p [m], ζ) for the goal: what a log needs."""
