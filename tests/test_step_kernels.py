@@ -382,3 +382,20 @@ def test_the_fused_null_objective_is_the_link_jacobians(kinematics):
             fast = _kernels.STEP["null_pull"].fast(*chain, target, 4.0, 1.5, qd)
             assert _close(fast, want)
             assert np.array_equal(objective.acceleration(kinematics, qd), fast)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_compiled_and_plain_speed_limits_are_limit_speed(seed):
+    """``speed_limit`` gives :func:`~tamedpuma.fabrics.discrete.limit_speed`'s numbers bit for
+    bit, compiled and plain, below and above the limit (and NaN where v holds one)."""
+    from tamedpuma.fabrics.discrete import limit_speed
+
+    rng = np.random.default_rng(seed)
+    v, qd_limit = rng.standard_normal(N) * rng.uniform(0.1, 3.0), rng.uniform(0.5, 2.0, N)
+    if seed == 0:
+        v[3] = np.nan
+    want = limit_speed(v, qd_limit)
+    plain, fast = _plain_and_compiled("speed_limit", v, qd_limit)
+    for got in (plain, fast):
+        np.testing.assert_array_equal(got[0], want[0])
+        assert got[1] == want[1] or (np.isnan(got[1]) and np.isnan(want[1]))

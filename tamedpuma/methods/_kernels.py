@@ -40,6 +40,7 @@ Kernels (n joints, m task rows, R barrier rows):
   semi-implicit step). Their products are ``np.dot`` on the arrays numpy's ``@`` takes, which
   numba hands to the same BLAS routines: compiled, they give the plain functions' numbers (on
   replayed FPM and CPM episodes, every command bit for bit).
+- :func:`speed_limit`: the uniform speed limit ``s v``, ``s = min(1, min_j q̇_lim,j/|v_j|)``.
 """
 
 from __future__ import annotations
@@ -290,8 +291,18 @@ def cpm_velocity(M, f_energy, qd, h, qdd_c, dpsi, eps, regulator_scale, beta_min
     return alpha, beta, qd + dt * qdd, beta * qMq, np.dot(dpsi, qd)
 
 
+def speed_limit(v, qd_limit):
+    """``(s v, s)`` with ``s = min(1, min_j q̇_lim,j/|v_j|)`` [rad/s], [1] (direction kept):
+    :func:`~tamedpuma.fabrics.discrete.limit_speed` (v itself where s = 1)."""
+    ratio = np.max(np.abs(v) / qd_limit)
+    if ratio <= 1.0:
+        return v, 1.0
+    s = 1.0 / ratio
+    return v * s, s
+
+
 KERNELS = (damped_pull, metric_forcing, pulled_forcing, rows_free, lowest_points, ground_rows,
-           hull_ground, null_pull, fpm_velocity, cpm_velocity)
+           hull_ground, null_pull, fpm_velocity, cpm_velocity, speed_limit)
 HELPERS = (_weighted_solve, _restore, _meets, _bounds, lowest_points, ground_rows, frame_motion,
            damped_pull, metric_forcing, energized_alpha, energized_velocity_step)
 
@@ -377,6 +388,7 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
     table = (np.arange(2, dtype=np.int64), three, k3[:2], np.ones((2, n), np.bool_))
     kernels["hull_ground"](S, v, *table, k3, np.array([0, 2, 4]), np.ones(2), 2.0, v)
     kernels["null_pull"](S, v, *(a[:1] for a in table), t[:3], 1.0, 2.0, v)
+    kernels["speed_limit"](v, np.ones(n))
     for semi in (True, False):
         kernels["fpm_velocity"](M, v, v, v, v, 1e-6, 0.02, semi)
         kernels["cpm_velocity"](M, v, v, v, v, v, 1e-6, 1.0, 0.5, semi, semi, 0.02)

@@ -22,10 +22,7 @@ import numpy as np
 
 from tamedpuma.errors import ConfigError
 from tamedpuma.fabrics import Fabric, FabricBuffers, solve_acceleration
-from tamedpuma.fabrics.discrete import (
-    barrier_step,
-    limit_speed,
-)
+from tamedpuma.fabrics.discrete import barrier_step
 from tamedpuma.methods._configuration_pull import ConfigurationMonitor, ConfigurationPull, Ground
 from tamedpuma.methods._ground_rows import HullTable, hull_ground_rows
 from tamedpuma.methods._kernels import STEP, warm_up
@@ -536,7 +533,7 @@ class ControlRate:
             qd_next, n_active = barrier_step(qd_next, rows, x, dt, BARRIER_KAPPA, av.M, jd,
                                              drift, av.far_rows, BARRIER_STANDOFF)
         if self.speed_limit:
-            qd_next, scale = limit_speed(qd_next, (1.0 - SPEED_HEADROOM) * qd_max)
+            qd_next, scale = STEP["speed_limit"](qd_next, (1.0 - SPEED_HEADROOM) * qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}
 
 
