@@ -20,7 +20,10 @@ calls on preallocated buffers (for one state the time is per-call overhead, not 
 
 Tested against FastNet and against the torch network in float64 (1e-10). Where numba is
 installed the encoder, decoder and backward pass each run as one compiled call
-(:mod:`~tamedpuma.puma.single_kernels`, the numbers of this module's numpy path to 1e-12).
+(:mod:`~tamedpuma.puma.single_kernels`, the numbers of this module's numpy path to 1e-12), and
+a pose net's control step calls :meth:`SingleState.forward_packed` and
+:meth:`SingleState.potential_packed`: each one compiled call from a packed state, the numbers of
+the listed calls bit for bit.
 """
 
 from __future__ import annotations

@@ -8,6 +8,13 @@ instead of a batch of one or two), the normal CDF is ``Φ(u) = ½ erfc(−u/√2
 ``ndtr`` computes it but with the C library's ``erf``/``erfc`` instead of Cephes', and the
 decoder's mean is a plain sum (numpy's is pairwise): the last bits may differ.
 
+Two more kernels serve the control step of a pose net from one packed vector (p, ζ, p_g, ζ_g,
+v, ω): :func:`forward_pose` (the goal-relative pose, the input rows, encoder and decoder) and
+:func:`potential_pose` (the pose, the rest-row check, the backward pass and the pull to the
+joints). They give the compiled passes' numbers bit for bit: the pose is the Python-float
+arithmetic of puma/primitive.py operation for operation, and the products are ``np.dot`` on the
+shapes and layouts numpy's calls take.
+
 :func:`kernels` compiles them (a few seconds, then from numba's on-disk cache) when a network
 is loaded, never inside a control step; None where numba is not installed or fails to compile
 (then SingleState stays on its numpy path).
