@@ -226,19 +226,26 @@ def test_the_compiled_passes_give_the_numpy_paths_numbers_to_rounding(spec):
 
 
 
-def test_the_packed_forward_gives_the_listed_paths_numbers():
-    """``SingleState.forward_packed`` (one compiled call from the packed state, PoseTask's
-    path) gives ``acceleration``'s numbers bit for bit, with and without the rest row, and
-    leaves the same rest-row memo for ``potential`` and ``psi``."""
+def _packed_and_listed(seed: int, skip: float):
+    """Two copies of one random network with their own one-state evaluators (the packed path
+    and the listed one to compare it with); skipped without numba (no compiled path)."""
     from tamedpuma.puma import single_kernels
 
     if not single_kernels.AVAILABLE:
         pytest.skip("numba is not installed (the `fast` extra): no compiled path to compare")
+    packed = _random_net(StateSpec(3, True, 2), seed=seed, skip=skip)
+    listed = copy.copy(packed)
+    listed.single = packed.single.fresh()
+    return packed, listed
+
+
+def test_the_packed_forward_gives_the_listed_paths_numbers():
+    """``SingleState.forward_packed`` (one compiled call from the packed state, PoseTask's
+    path) gives ``acceleration``'s numbers bit for bit, with and without the rest row, and
+    leaves the same rest-row memo for ``potential`` and ``psi``."""
     rng = np.random.default_rng(12)
     for skip in (1.0, 0.0):
-        packed = _random_net(StateSpec(3, True, 2), seed=5, skip=skip)
-        listed = copy.copy(packed)
-        listed.single = packed.single.fresh()
+        packed, listed = _packed_and_listed(seed=5, skip=skip)
         for k in range(30):
             p, q, v, w, gp, gq = _random_state(rng)
             if k % 3 == 1:  # a potential first: the forward passes encode the rest row too
@@ -258,15 +265,9 @@ def test_the_packed_potential_gives_the_listed_paths_numbers():
     """``SingleState.potential_packed`` (one compiled call, PoseTask's path) gives
     ``potential`` pulled to the joints (``∂ψ/∂p · J_v + ∂ψ/∂θ · J_ω``) bit for bit: at the pose
     of the last forward pass (its rest row reused) and at another pose (encoded afresh)."""
-    from tamedpuma.puma import single_kernels
-
-    if not single_kernels.AVAILABLE:
-        pytest.skip("numba is not installed (the `fast` extra): no compiled path to compare")
     rng = np.random.default_rng(13)
     for skip in (1.0, 0.0):
-        packed = _random_net(StateSpec(3, True, 2), seed=6, skip=skip)
-        listed = copy.copy(packed)
-        listed.single = packed.single.fresh()
+        packed, listed = _packed_and_listed(seed=6, skip=skip)
         for k in range(30):
             p, q, v, w, gp, gq = _random_state(rng)
             jac = rng.normal(size=(6, 7))
