@@ -651,8 +651,9 @@ def test_shell_completion_completes_method_options_for_python_m(capsys, monkeypa
                             env=ENV, capture_output=True, text=True, timeout=120).stdout
     if not Path("/bin/bash").exists():
         return
-    test = (script + '\nCOMP_LINE="python -m tamedpuma.sweep method=f"\n'
-            "COMP_WORDS=(python -m tamedpuma.sweep method=f); COMP_CWORD=3\n"
+    python = sys.executable  # the user's python: the one that has tamedpuma, whatever PATH says
+    test = (script + f'\nCOMP_LINE="{python} -m tamedpuma.sweep method=f"\n'
+            f"COMP_WORDS=({python} -m tamedpuma.sweep method=f); COMP_CWORD=3\n"
             '_tamedpuma_sweep_completion; printf "%s\\n" "${COMPREPLY[@]}"\n')
     proc = subprocess.run(["/bin/bash", "-c", test], env=ENV, capture_output=True, text=True,
                           timeout=120)
