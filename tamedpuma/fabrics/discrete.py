@@ -44,7 +44,7 @@ from tamedpuma.fabrics.spec import linear_solve
 # the reductions without their Python wrappers (np.any, np.all, np.min, np.max on 1-d arrays:
 # the same ufunc reductions, the same results)
 _any, _all = np.logical_or.reduce, np.logical_and.reduce
-_min, _max = np.minimum.reduce, np.maximum.reduce
+_min = np.minimum.reduce
 
 
 @dataclass(frozen=True)
@@ -87,8 +87,9 @@ class FarRows:
 
 
 def limit_speed(qd_next: np.ndarray, qd_max: np.ndarray) -> tuple[np.ndarray, float]:
-    """``(s q̇⁺, s)`` with ``s = min(1, min_j q̇_max,j/|q̇⁺_j|)`` (direction kept) [rad/s], [1]."""
-    ratio = float(_max(np.abs(qd_next) / qd_max))
+    """``(s q̇⁺, s)`` with ``s = min(1, min_j q̇_max,j/|q̇⁺_j|)`` (direction kept) [rad/s], [1].
+    A step kernel (methods/_kernels.py compiles it as it stands: numpy calls numba takes)."""
+    ratio = np.max(np.abs(qd_next) / qd_max)
     if ratio <= 1.0:
         return qd_next, 1.0
     s = 1.0 / ratio

@@ -40,7 +40,8 @@ Kernels (n joints, m task rows, R barrier rows):
   semi-implicit step). Their products are ``np.dot`` on the arrays numpy's ``@`` takes, which
   numba hands to the same BLAS routines: compiled, they give the plain functions' numbers (on
   replayed FPM and CPM episodes, every command bit for bit).
-- :func:`speed_limit`: the uniform speed limit ``s v``, ``s = min(1, min_j q̇_lim,j/|v_j|)``.
+- :func:`~tamedpuma.fabrics.discrete.limit_speed`: the uniform speed limit ``s v``,
+  ``s = min(1, min_j q̇_lim,j/|v_j|)``.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ import warnings
 
 import numpy as np
 
-from tamedpuma.fabrics.discrete import energized_velocity_step
+from tamedpuma.fabrics.discrete import energized_velocity_step, limit_speed
 from tamedpuma.robot.point_motion import frame_motion
 
 #: numba is installed: the kernels are compiled (imported only by :func:`warm_up`)
@@ -275,10 +276,9 @@ def cpm_velocity(M, f_energy, qd, h, qdd_c, dpsi, eps, regulator_scale, beta_min
     part implicit along q̇ and ``q̈ = (q̇⁺ − q̇)/Δt``. Returns (α, β, q̇ + Δt q̈ [rad/s],
     β q̇ᵀMq̇, ∂ψ·q̇)."""
     h_plus_f = h + qdd_c
-    Mqd = np.dot(M, qd)
+    alpha, Mqd = energized_alpha(M, f_energy, qd, h_plus_f, eps)
     qMq = np.dot(qd, Mqd)
     r_coef = -regulator_scale * np.dot(qd, dpsi) / (qMq + eps)
-    alpha = (np.dot(Mqd, h_plus_f) + np.dot(qd, f_energy)) / (qMq + eps)
     beta = beta_min
     if matched and r_coef - alpha > beta_min:
         beta = r_coef - alpha
@@ -291,18 +291,8 @@ def cpm_velocity(M, f_energy, qd, h, qdd_c, dpsi, eps, regulator_scale, beta_min
     return alpha, beta, qd + dt * qdd, beta * qMq, np.dot(dpsi, qd)
 
 
-def speed_limit(v, qd_limit):
-    """``(s v, s)`` with ``s = min(1, min_j q̇_lim,j/|v_j|)`` [rad/s], [1] (direction kept):
-    :func:`~tamedpuma.fabrics.discrete.limit_speed` (v itself where s = 1)."""
-    ratio = np.max(np.abs(v) / qd_limit)
-    if ratio <= 1.0:
-        return v, 1.0
-    s = 1.0 / ratio
-    return v * s, s
-
-
 KERNELS = (damped_pull, metric_forcing, pulled_forcing, rows_free, lowest_points, ground_rows,
-           hull_ground, null_pull, fpm_velocity, cpm_velocity, speed_limit)
+           hull_ground, null_pull, fpm_velocity, cpm_velocity, limit_speed)
 HELPERS = (_weighted_solve, _restore, _meets, _bounds, lowest_points, ground_rows, frame_motion,
            damped_pull, metric_forcing, energized_alpha, energized_velocity_step)
 
@@ -388,7 +378,7 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
     table = (np.arange(2, dtype=np.int64), three, k3[:2], np.ones((2, n), np.bool_))
     kernels["hull_ground"](S, v, *table, k3, np.array([0, 2, 4]), np.ones(2), 2.0, v)
     kernels["null_pull"](S, v, *(a[:1] for a in table), t[:3], 1.0, 2.0, v)
-    kernels["speed_limit"](v, np.ones(n))
+    kernels["limit_speed"](v, np.ones(n))
     for semi in (True, False):
         kernels["fpm_velocity"](M, v, v, v, v, 1e-6, 0.02, semi)
         kernels["cpm_velocity"](M, v, v, v, v, v, 1e-6, 1.0, 0.5, semi, semi, 0.02)

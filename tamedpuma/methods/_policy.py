@@ -20,7 +20,7 @@ numpy only (the primitive may use torch inside).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -211,24 +211,19 @@ class NullSpaceObjective:
     target: tuple[float, float, float]
     stiffness: float
     damping: float
+    target_array: np.ndarray = field(init=False, repr=False, compare=False)  # p* (3,) [m]
+
+    def __post_init__(self):
+        object.__setattr__(self, "target_array", np.array(self.target, dtype=float))
 
     def acceleration(self, kinematics, qd: np.ndarray) -> np.ndarray:
         chain_of = getattr(kinematics, "link_chain_state", None)
         chain = chain_of(self.link) if chain_of and STEP["null_pull"].fast else None
         if chain is not None:  # the link's motion and the pull in one compiled call
-            return STEP["null_pull"](*chain, self._target, float(self.stiffness),
+            return STEP["null_pull"](*chain, self.target_array, float(self.stiffness),
                                      float(self.damping), qd)
         p, J = kinematics.link_position_jacobian(self.link)
-        return self.stiffness * J.T @ (self._target - p) - self.damping * qd
-
-    @property
-    def _target(self) -> np.ndarray:
-        """p* as a float array (made once)."""
-        target = self.__dict__.get("_target_array")
-        if target is None:
-            target = np.array(self.target, dtype=float)
-            object.__setattr__(self, "_target_array", target)
-        return target
+        return self.stiffness * J.T @ (self.target_array - p) - self.damping * qd
 
 
 class LinearTaskPrimitive:

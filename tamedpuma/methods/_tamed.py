@@ -533,7 +533,7 @@ class ControlRate:
             qd_next, n_active = barrier_step(qd_next, rows, x, dt, BARRIER_KAPPA, av.M, jd,
                                              drift, av.far_rows, BARRIER_STANDOFF)
         if self.speed_limit:
-            qd_next, scale = STEP["speed_limit"](qd_next, (1.0 - SPEED_HEADROOM) * qd_max)
+            qd_next, scale = STEP["limit_speed"](qd_next, (1.0 - SPEED_HEADROOM) * qd_max)
         return qd_next, {"n_barrier_active": float(n_active), "speed_scale": scale}
 
 
