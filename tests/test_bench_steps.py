@@ -74,5 +74,22 @@ def test_without_the_reference_the_report_says_its_figure_is_cited(monkeypatch):
               "machine": {"cpu_model": "c", "load_average_1min": 1.0}}
     section = bench_steps.markdown_section(report)
     assert section.startswith("## Controller step in episodes") and note in section
-    assert "| fpm | 1 | 3 | 0.500 | 2.00 |" in section and "| 25.00 | 1 | 1 | 1 |" in section
+    assert "| fpm | 1 | 3 | 0.500 | 2.00 | — |" in section and "| 25.00 | 1 | 1 | 1 |" in section
     assert "| fpm | 0.400 |" in section and "| 3.00 | 0 |" in section
+    assert "driving the robot in PyBullet not timed (not measured)" in section
+
+
+def test_the_ratio_to_the_reference_in_its_episode_is_reported_beside_the_other():
+    episode = {"steps": 600, "median_ms": 0.4, "p99_ms": 0.6, "max_ms": 0.9,
+               "ee_distance_start_m": 0.7, "ee_distance_end_m": 0.001, "finite": True}
+    report = {"cases": ["table1/tomato_00"], "date": "d", "period_ms": 20.0, "bound_ms": 10.0,
+              "reference": {"reference_median_ms": 0.25, "reference_note": "timed live",
+                            "reference_episode_median_ms": 0.4, "reference_episode": episode,
+                            "fabric_median_ms": 0.1},
+              "methods": {"fpm": {"runs": 1, **step_stats([[0.5, 0.5, 0.6]]),
+                                  "ratio_to_reference": 2.0, "ratio_to_reference_episode": 1.25,
+                                  "runs_over_period": 0, "summary_mismatch": 0.0}},
+              "machine": {"cpu_model": "c", "load_average_1min": 1.0}}
+    section = bench_steps.markdown_section(report)
+    assert "| fpm | 1 | 3 | 0.500 | 2.00 | 1.25 |" in section
+    assert "episode of 600 periods" in section and "0.400 ms median, max 0.90 ms" in section

@@ -166,7 +166,8 @@ def test_the_real_reference_planner_is_finite_and_reaches_toward_the_goal():
 
     kin = default_kinematics()
     workload = bf.make_workload(kin, (2,))
-    payload = bf.reference_payload(workload, kin.spec, (2,), calls=50, motion_steps=300)
+    payload = bf.reference_payload(workload, kin.spec, (2,), calls=50, motion_steps=300,
+                                   episode_steps=300)
     live, note = bf.run_reference(os.environ[bf.REFERENCE_ENV], payload, timeout=300)
     assert note is None, note
     row = live["2"]
@@ -175,3 +176,29 @@ def test_the_real_reference_planner_is_finite_and_reaches_toward_the_goal():
     assert motion["finite"]
     assert motion["ee_distance_end_m"] < 0.5 * motion["ee_distance_start_m"]
     assert motion["min_clearance_m"] > 0
+    # driving the robot in PyBullet (.ci/run installs pybullet beside the package): every
+    # period timed, and the simulated hand goes to the goal
+    episode = row["episode"]
+    assert "skipped" not in episode, episode
+    assert episode["finite"] and episode["steps"] == 300
+    assert 0 < episode["median_ms"] <= episode["p99_ms"] <= episode["max_ms"]
+    assert episode["ee_distance_end_m"] < 0.2 * episode["ee_distance_start_m"]
+
+
+def test_the_reference_episode_is_set_up_as_a_default_run_s_world():
+    from tamedpuma.app.config import default_kinematics
+    from tamedpuma.worlds.settings import SimConfig
+
+    kin = default_kinematics()
+    payload = bf.reference_payload(bf.make_workload(kin, (2,)), kin.spec, (2,), calls=5,
+                                   episode_steps=7)
+    episode = payload["episode"]
+    from tamedpuma.app.compose import compose
+
+    assert episode["steps"] == 7 and episode["dt"] == compose("sweep").scenario.dt
+    assert episode["substep"] == SimConfig().substep
+    assert episode["max_joint_force"] == SimConfig().max_joint_force
+    assert episode["joint_names"] == list(kin.spec.joint_names)
+    assert episode["qd_max"] == list(kin.spec.qd_max)
+    assert "episode" not in bf.reference_payload(bf.make_workload(kin, (2,)), kin.spec, (2,),
+                                                 calls=5)

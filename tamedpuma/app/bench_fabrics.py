@@ -65,6 +65,8 @@ REFERENCE_SCRIPT = Path(__file__).with_name("reference_fabrics.py")
 REFERENCE_ENV = "TAMEDPUMA_REFERENCE_PYTHON"
 #: The reference's rollout sanity check: steps × dt [s] of its own action from the first state.
 MOTION_STEPS, MOTION_DT = 2000, 0.01
+#: the control period [s] of the reference's PyBullet episode: a default scenario's
+EPISODE_DT = 0.02
 
 
 def code_line(machine: dict) -> str:
@@ -205,10 +207,13 @@ def time_counts(counts=COUNTS, calls: int = 3000, clearance: float = 0.15, seed:
 
 
 def reference_payload(workload: Workload, spec, counts, calls: int,
-                      motion_steps: int = MOTION_STEPS, motion_dt: float = MOTION_DT) -> dict:
+                      motion_steps: int = MOTION_STEPS, motion_dt: float = MOTION_DT,
+                      episode_steps: int = 0) -> dict:
     """The JSON input of ``reference_fabrics.py``: the robot (``spec``, a RobotSpec), the goal,
-    the workload's states and, per count in ``counts``, its obstacles and timed-call count."""
-    return {
+    the workload's states and, per count in ``counts``, its obstacles and timed-call count; with
+    ``episode_steps`` > 0 also an episode of that many control periods in PyBullet, with the
+    control period and the simulator's settings of a default run (:func:`episode_settings`)."""
+    payload = {
         "urdf_path": str(spec.urdf_path),
         "root_link": spec.link_names[0],
         "ee_link": spec.ee_link,
@@ -224,6 +229,21 @@ def reference_payload(workload: Workload, spec, counts, calls: int,
         "warmup": min(200, calls),
         "motion": {"steps": motion_steps, "dt": motion_dt},
     }
+    if episode_steps > 0:
+        payload["episode"] = episode_settings(spec, episode_steps)
+    return payload
+
+
+def episode_settings(spec, steps: int) -> dict:
+    """The reference's PyBullet episode as a default run sets its world: the scenario's control
+    period (``conf/scenario/default.yaml``), the simulator's substep and motor force
+    (:class:`~tamedpuma.worlds.settings.SimConfig`), the robot's joints and speed limits."""
+    from tamedpuma.worlds.settings import SimConfig
+
+    sim = SimConfig()
+    return {"steps": int(steps), "dt": EPISODE_DT, "substep": sim.substep,
+            "max_joint_force": sim.max_joint_force, "joint_names": list(spec.joint_names),
+            "qd_max": np.asarray(spec.qd_max, float).tolist()}
 
 
 def reference_timeout(counts) -> float:
@@ -303,10 +323,12 @@ def cited_block() -> dict:
 
 def run(counts=COUNTS, calls: int = 3000, clearance: float = 0.15, reference_python=None,
         reference_counts=REFERENCE_COUNTS, seed: int = 0,
-        reference_timeout_s: float | None = None) -> dict:
+        reference_timeout_s: float | None = None, episode_steps: int = 0) -> dict:
     """Time our fabric at ``counts`` and, given ``reference_python``, the reference planner live at
-    the ``reference_counts`` among them (same states and obstacles). Returns the report dict
-    (``benchmarks/fabrics.json``); a reference failure is a one-line ``reference_note``."""
+    the ``reference_counts`` among them (same states and obstacles; with ``episode_steps``, also
+    driving the robot in PyBullet for that many periods, :func:`episode_settings`). Returns the
+    report dict (``benchmarks/fabrics.json``); a reference failure is a one-line
+    ``reference_note``."""
     machine = machine_info()
     kin = default_kinematics()
     workload = make_workload(kin, counts, clearance, seed)
@@ -317,7 +339,8 @@ def run(counts=COUNTS, calls: int = 3000, clearance: float = 0.15, reference_pyt
         wanted = [n for n in dict.fromkeys(reference_counts) if n in workload.obstacles]
         skipped = [n for n in reference_counts if n not in workload.obstacles]
         if wanted:
-            payload = reference_payload(workload, kin.spec, wanted, calls)
+            payload = reference_payload(workload, kin.spec, wanted, calls,
+                                        episode_steps=episode_steps)
             live, note = run_reference(reference_python, payload, reference_timeout_s)
         if skipped:
             extra = f"reference counts {skipped} skipped: not among the timed counts"

@@ -15,17 +15,30 @@ The input JSON (written by :func:`tamedpuma.app.bench_fabrics.reference_payload`
      "goal_position": [m]*3, "goal_weight": float,
      "states": [{"q": [rad]*dof, "qd": [rad/s]*dof}, ...],
      "counts": [{"n_obstacles": int, "centers": [[m]*3]*n, "radii": [m]*n, "n_calls": int}, ...],
-     "warmup": int, "motion": {"steps": int, "dt": s}}
+     "warmup": int, "motion": {"steps": int, "dt": s},
+     "episode": {"steps": int, "dt": s, "substep": s, "max_joint_force": N·m,
+                 "joint_names": [str]*dof, "qd_max": [rad/s]*dof}}   # optional
 
 Per count the planner is built (goal attractor on the end-effector position, every body sphere
 against every obstacle sphere, joint limits; the planner's default parameters), its build timed,
 ``compute_action`` timed per call over the states (cycled, after ``warmup`` calls), and a short
 rollout from the first state at rest integrates the action (semi-implicit Euler) to check the
-planner drives the end effector toward the goal. One JSON line per count goes to stdout::
+planner drives the end effector toward the goal. With ``episode`` (and PyBullet installed beside
+the package), the planner also drives the robot in PyBullet as our simulator does
+(:mod:`tamedpuma.worlds.bullet`: the velocity target ``clip(q̇ + q̈ Δt, ±q̇_max)`` held by
+velocity motors over Δt / substep physics steps, the ground and the obstacle spheres in the world)
+for ``steps`` control periods from the first state at rest, each ``compute_action`` timed where
+the controller's step is timed in our episodes: between the physics steps, whose work evicts
+the step's code and data from the CPU's caches.
+
+One JSON line per count goes to stdout::
 
     {"n_obstacles": n, "build_s": s, "median_ms": ms, "p10_ms": ms, "p90_ms": ms, "n_calls": int,
      "finite": bool, "motion": {"steps": int, "dt": s, "ee_distance_start_m": m,
                                 "ee_distance_end_m": m, "min_clearance_m": m, "finite": bool},
+     "episode": {"steps": int, "median_ms": ms, "p99_ms": ms, "max_ms": ms,
+                 "ee_distance_start_m": m, "ee_distance_end_m": m, "finite": bool}
+                or {"skipped": why},                    # with "episode" in the input
      "fabrics_version": str}
 
 Everything else the package prints goes to stderr. Exit code 2 with a one-line message on a bad
@@ -145,6 +158,85 @@ def rollout(planner, fk, spec: dict, count: dict, fixed: dict, q0, steps: int,
             "finite": finite}
 
 
+def episode(planner, spec: dict, count: dict, fixed: dict) -> dict:
+    """The planner driving the robot in PyBullet from the first state at rest (the module
+    docstring): each ``compute_action`` timed [ms] between the control periods' physics steps,
+    and the end effector's distance to the goal [m] at the start and the end; ``{"skipped":
+    why}`` where PyBullet is not installed."""
+    try:
+        import pybullet as pb
+        import pybullet_data
+    except ImportError as exc:
+        return {"skipped": f"pybullet not installed beside the reference ({exc})"}
+    if not spec.get("urdf_path"):
+        return {"skipped": "the episode loads the robot from urdf_path (its meshes beside it)"}
+    ep = spec["episode"]
+    n_sub = max(1, round(float(ep["dt"]) / float(ep["substep"])))
+    qd_max = np.asarray(ep["qd_max"], float)
+    client = pb.connect(pb.DIRECT)
+    try:
+        pb.setGravity(0, 0, -9.81, physicsClientId=client)
+        pb.setPhysicsEngineParameter(fixedTimeStep=float(ep["substep"]), numSubSteps=0,
+                                     physicsClientId=client)
+        pb.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
+        pb.loadURDF("plane.urdf", physicsClientId=client)
+        robot = pb.loadURDF(spec["urdf_path"], [0, 0, 0], useFixedBase=True,
+                            physicsClientId=client)
+        names = [pb.getJointInfo(robot, i, physicsClientId=client)[1].decode()
+                 for i in range(pb.getNumJoints(robot, physicsClientId=client))]
+        joints = [names.index(n) for n in ep["joint_names"]]
+        for center, radius in zip(count["centers"], count["radii"]):
+            shape = pb.createCollisionShape(pb.GEOM_SPHERE, radius=float(radius),
+                                            physicsClientId=client)
+            pb.createMultiBody(baseMass=0, baseCollisionShapeIndex=shape,
+                               basePosition=list(map(float, center)),
+                               useMaximalCoordinates=True, physicsClientId=client)
+        for j, q in zip(joints, spec["states"][0]["q"]):
+            pb.resetJointState(robot, j, float(q), 0.0, physicsClientId=client)
+        forces = [float(ep["max_joint_force"])] * len(joints)
+        pb.setJointMotorControlArray(robot, joints, pb.VELOCITY_CONTROL,
+                                     targetVelocities=[0.0] * len(joints), forces=forces,
+                                     physicsClientId=client)
+        return _drive(planner, spec, fixed, pb, client, robot, joints, n_sub, qd_max)
+    finally:
+        pb.disconnect(client)
+
+
+def _drive(planner, spec, fixed, pb, client, robot, joints, n_sub, qd_max) -> dict:
+    """:func:`episode`'s control loop (its world built)."""
+    ep, dt = spec["episode"], float(spec["episode"]["dt"])
+    ee = [pb.getJointInfo(robot, i, physicsClientId=client)[12].decode()
+          for i in range(pb.getNumJoints(robot, physicsClientId=client))].index(spec["ee_link"])
+    goal = np.asarray(spec["goal_position"], float)
+
+    def distance() -> float:
+        p = pb.getLinkState(robot, ee, computeForwardKinematics=True, physicsClientId=client)[4]
+        return float(np.linalg.norm(np.asarray(p) - goal))
+
+    start, finite = distance(), True
+    ms = np.empty(int(ep["steps"]))
+    for k in range(len(ms)):
+        states = pb.getJointStates(robot, joints, physicsClientId=client)
+        q = np.array([s[0] for s in states])
+        qd = np.array([s[1] for s in states])
+        t0 = time.perf_counter()
+        qdd = planner.compute_action(q=q, qdot=qd, **fixed)
+        ms[k] = (time.perf_counter() - t0) * 1e3
+        qdd = np.asarray(qdd, float).ravel()
+        finite &= bool(np.all(np.isfinite(qdd)))
+        target = np.clip(qd + dt * np.nan_to_num(qdd), -qd_max, qd_max)
+        pb.setJointMotorControlArray(robot, joints, pb.VELOCITY_CONTROL,
+                                     targetVelocities=target.tolist(),
+                                     forces=[float(ep["max_joint_force"])] * len(joints),
+                                     physicsClientId=client)
+        for _ in range(n_sub):
+            pb.stepSimulation(physicsClientId=client)
+    return {"steps": len(ms), "median_ms": round(float(np.median(ms)), 5),
+            "p99_ms": round(float(np.percentile(ms, 99)), 5), "max_ms": round(float(ms.max()), 5),
+            "ee_distance_start_m": round(start, 5), "ee_distance_end_m": round(distance(), 5),
+            "finite": finite}
+
+
 def _version(package: str) -> str:
     """The installed version of ``package``, or "unknown"."""
     from importlib.metadata import PackageNotFoundError, version
@@ -163,7 +255,7 @@ def measure(spec: dict, count: dict) -> dict:
                               int(spec["warmup"]))
     motion = rollout(planner, fk, spec, count, fixed, spec["states"][0]["q"],
                      int(spec["motion"]["steps"]), float(spec["motion"]["dt"]))
-    return {
+    out = {
         MARKER: int(count["n_obstacles"]),
         "build_s": round(build_s, 4),
         "median_ms": round(float(np.median(ms)), 5),
@@ -174,6 +266,9 @@ def measure(spec: dict, count: dict) -> dict:
         "motion": motion,
         "fabrics_version": _version("fabrics"),
     }
+    if spec.get("episode"):
+        out["episode"] = episode(planner, spec, count, fixed)
+    return out
 
 
 def main(argv=None) -> int:
