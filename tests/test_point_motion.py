@@ -158,3 +158,25 @@ def test_a_vector_of_the_wrong_size_is_a_value_error(kin):
             kin.evaluate(bad, np.zeros(n))
         with pytest.raises(ValueError, match=f"expected a vector of {n} joint values"):
             kin.ee_pose_jacobian(bad)
+
+
+def test_pinocchio_data_holds_the_last_pass_when_read(kin):
+    """After evaluate, ``data`` is pinocchio's own pass at its (q, q̇) (run when read); a later
+    call with a pass of its own (ee_pose_jacobian, placements) leaves that pass, not
+    evaluate's."""
+    other = Kinematics(kin.spec)
+    model, ref = other.model, other.model.createData()
+    (q, qd), (q2, _) = list(_states(kin, n=2, seed=11))
+    kin.evaluate(q, qd)
+    pin.forwardKinematics(model, ref, q, qd, np.zeros(model.nv))
+    pin.computeJointJacobians(model, ref)
+    pin.updateFramePlacements(model, ref)
+    data = kin.data
+    for fid in kin.link_ids + (kin.ee_id,):
+        np.testing.assert_array_equal(data.oMf[fid].homogeneous, ref.oMf[fid].homogeneous)
+    np.testing.assert_array_equal(data.J, ref.J)
+    kin.evaluate(q, qd)
+    kin.ee_pose_jacobian(q2)  # its pass replaces the one evaluate left to run
+    pin.forwardKinematics(model, ref, q2)
+    np.testing.assert_array_equal(kin.data.oMi[model.njoints - 1].homogeneous,
+                                  ref.oMi[model.njoints - 1].homogeneous)

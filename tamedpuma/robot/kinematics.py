@@ -245,7 +245,8 @@ class Kinematics:
             sphere_ids.append(model.addFrame(frame, False))
         self.sphere_ids = tuple(sphere_ids)
         self.model = model
-        self.data = model.createData()
+        self._data = model.createData()
+        self._pending: tuple | None = None  # (q, q̇) of evaluate's pinocchio pass, run when read
         self._zeros = np.zeros(model.nv)
         self._link_ids: dict[str, int] = {}  # link_position_jacobian's frame ids, by name
         self._radii = spec.sphere_radii
@@ -258,6 +259,23 @@ class Kinematics:
         self._sphere_table = self._table(self.sphere_ids)
         self._state: tuple | None = None  # the last evaluate's joint state and q̇ (compiled)
 
+    @property
+    def data(self):
+        """pinocchio's data, holding the last pass at (q, q̇): :meth:`evaluate`'s own
+        (placements, joint Jacobians, accelerations at q̈ = 0), run here when first read after
+        it rather than in every step, or the pass of a later call that runs one
+        (:meth:`ee_pose_jacobian`, :meth:`placements`, :meth:`link_poses`)."""
+        if self._pending is not None:
+            q, qd = self._pending
+            self._pending = None
+            _pinocchio_pass(self.model, self._data, q, qd, self._zeros)
+        return self._data
+
+    def _fresh_data(self):
+        """pinocchio's data for a pass that replaces the pending one of :meth:`evaluate`."""
+        self._pending = None
+        return self._data
+
     @staticmethod
     def _frame_id(model, name: str) -> int:
         if not model.existFrame(name):
@@ -267,7 +285,10 @@ class Kinematics:
     def _vector(self, v) -> np.ndarray:
         """v as a fresh, writable float vector of the model's size (the compiled functions'
         argument type; they do not check bounds, so a wrong size is a ValueError here)."""
-        out = np.array(v, dtype=float)
+        if type(v) is np.ndarray and v.dtype == np.float64:  # (a copy: np.array's, cheaper)
+            out = v.copy()
+        else:
+            out = np.array(v, dtype=float)
         if out.shape != (self.model.nv,):
             raise ValueError(f"expected a vector of {self.model.nv} joint values, got shape "
                              f"{out.shape}")
@@ -309,23 +330,22 @@ class Kinematics:
         Compiled (:mod:`tamedpuma.robot.point_motion`, where numba is installed): one pass over
         the joints, then the end effector's and the body spheres' placements, Jacobians and
         curvature terms J̇q̇, in one call. Otherwise one pinocchio call per frame and
-        quantity: the same numbers to rounding. Either way pinocchio's data holds its own pass
-        at (q, q̇) afterwards (placements, joint Jacobians, accelerations at q̈ = 0), for code
-        that reads the model's frames. Every array is fresh.
+        quantity: the same numbers to rounding. Either way :attr:`data` (pinocchio's) holds its
+        own pass at (q, q̇) afterwards (placements, joint Jacobians, accelerations at q̈ = 0),
+        for code that reads the model's frames; compiled, that pass runs when ``data`` is first
+        read. Every array is fresh.
         """
         q, qd = self._vector(q), self._vector(qd)
         if self._fast is None:
             return self._evaluate_per_frame(q, qd)
         fast = self._fast
-        # pinocchio's own pass too (~2 µs): its data stays the pass at (q, q̇) for whoever reads
-        # the model's frames after evaluate (a method plugin's, e.g. pink's Configuration)
-        model, data = self.model, self.data
-        pin.forwardKinematics(model, data, q, qd, self._zeros)
-        pin.computeJointJacobians(model, data)
-        pin.updateFramePlacements(model, data)
         S, R, p, J, acc, centers, jacobians, jdqd, quat = fast["chain_evaluate"](
             q, qd, *self._chain, *self._ee_table, *self._sphere_table)
         self._state = (S, qd)
+        # pinocchio's own pass at (q, q̇) for whoever reads the model's frames after evaluate
+        # (a method plugin's, e.g. pink's Configuration): run when ``data`` is read, so a step
+        # that never reads it does not pay for it (q and q̇ are this call's own copies)
+        self._pending = (q, qd)
         return KinematicState(
             ee_position=p[0],
             ee_rotation=R[0],
@@ -341,10 +361,8 @@ class Kinematics:
     def _evaluate_per_frame(self, q: np.ndarray, qd: np.ndarray) -> KinematicState:
         """:meth:`evaluate` by pinocchio: its pass, then per frame the placement, the Jacobian
         and the classical acceleration (where numba is missing)."""
-        model, data = self.model, self.data
-        pin.forwardKinematics(model, data, q, qd, self._zeros)
-        pin.computeJointJacobians(model, data)  # from the placements just computed
-        pin.updateFramePlacements(model, data)
+        model, data = self.model, self._fresh_data()
+        _pinocchio_pass(model, data, q, qd, self._zeros)
         oMf, ids, nv = data.oMf, self.sphere_ids, model.nv
         jacobian, acceleration = pin.getFrameJacobian, pin.getFrameClassicalAcceleration
         ee = oMf[self.ee_id]
@@ -415,15 +433,16 @@ class Kinematics:
         (at q̇ = 0)."""
         q = self._vector(q)
         if self._fast is None:
-            model, data = self.model, self.data
+            model, data = self.model, self._fresh_data()
             pin.forwardKinematics(model, data, q)
             pin.computeJointJacobians(model, data)  # from the placements just computed
             ee = pin.updateFramePlacement(model, data, self.ee_id)
             pose = pin.SE3ToXYZQUAT(ee)  # fresh, as evaluate's ee_position
             return (pose[:3], ee.rotation.copy(),
                     pin.getFrameJacobian(model, data, self.ee_id, _WORLD))
-        pin.forwardKinematics(self.model, self.data, q)  # pinocchio's data too, as evaluate
-        pin.computeJointJacobians(self.model, self.data)
+        data = self._fresh_data()  # pinocchio's data too, as evaluate
+        pin.forwardKinematics(self.model, data, q)
+        pin.computeJointJacobians(self.model, data)
         R, p, J, _ = self._frames(q, np.zeros(self.model.nv), self._ee_table, 6)
         return p[0], R[0], J[0]
 
@@ -452,12 +471,13 @@ class Kinematics:
         """World rotations (k, 3, 3) and origins (k, 3) [m] of the frames at q: the numbers of
         :meth:`evaluate`'s frames (compiled, or pinocchio's placement pass)."""
         q = self._vector(q)
+        data = self._fresh_data()
         if self._fast is None:
-            pin.framesForwardKinematics(self.model, self.data, q)
-            oMf = self.data.oMf
+            pin.framesForwardKinematics(self.model, data, q)
+            oMf = data.oMf
             return (np.array([oMf[i].rotation for i in frame_ids]).reshape(-1, 3, 3),
                     np.array([oMf[i].translation for i in frame_ids]).reshape(-1, 3))
-        pin.framesForwardKinematics(self.model, self.data, q)  # pinocchio's data too
+        pin.framesForwardKinematics(self.model, data, q)  # pinocchio's data too
         R, p, _, _ = self._frames(q, np.zeros(self.model.nv), self._table(frame_ids), 0)
         return R, p
 
@@ -497,6 +517,14 @@ class Kinematics:
 #: pinocchio's revolute joint models and their axes in the joint frame
 _AXES = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
          "JointModelRZ": (0.0, 0.0, 1.0)}
+
+
+def _pinocchio_pass(model, data, q: np.ndarray, qd: np.ndarray, zeros: np.ndarray) -> None:
+    """pinocchio's pass at (q, q̇) into data: placements, joint Jacobians, frame placements and
+    the accelerations at q̈ = 0."""
+    pin.forwardKinematics(model, data, q, qd, zeros)
+    pin.computeJointJacobians(model, data)  # from the placements just computed
+    pin.updateFramePlacements(model, data)
 
 
 def _revolute_chain(model) -> tuple | None:
