@@ -60,7 +60,8 @@ class EpisodeResult:
     trajectory: per-step arrays q (T, dof) [rad], ee_position (T, 3) [m], t (T,) [s];
     compute_ms (T,): the controller's wall time per step [ms]; compute_cpu_ms (T,): the CPU time
     of the thread that ran it [ms] (the step's own work: the wall time also holds the time the
-    operating system gave other processes)."""
+    operating system gave other processes); simulator_s: the wall time of the simulator's steps
+    [s] (its physics over each control period and the next observation)."""
 
     metrics: RunMetrics
     stop_reason: str
@@ -69,6 +70,7 @@ class EpisodeResult:
     ee_position: np.ndarray
     compute_ms: np.ndarray | None = None
     compute_cpu_ms: np.ndarray | None = None
+    simulator_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -233,8 +235,9 @@ class _StopRule:
 
 
 def _loop(sim: World, obs, controller: Controller, recorders: Sequence[Recorder],
-          trace: _Trace, stop: _StopRule, ee_index: int) -> str:
-    """The control steps from ``obs`` until the stop rule ends them; the stop reason."""
+          trace: _Trace, stop: _StopRule, ee_index: int, clock: list[float]) -> str:
+    """The control steps from ``obs`` until the stop rule ends them; the stop reason.
+    ``clock[0]`` accumulates the simulator steps' wall time [s]."""
     spec = sim.spec
     k = 0
     while k < stop.limit:
@@ -258,7 +261,9 @@ def _loop(sim: World, obs, controller: Controller, recorders: Sequence[Recorder]
             return "nonfinite_command"
         if stop.converged(k, obs.t, seen.error, seen.rotation, seen.pos_err):
             return "converged"
+        start = time.perf_counter()
         obs = sim.step(qdd)
+        clock[0] += time.perf_counter() - start
         k += 1
     return "max_steps"
 
@@ -289,7 +294,7 @@ def run_episode(scenario: Scenario, controller: Controller, sim: World,
     ee_index = spec.link_names.index(spec.ee_link)
     obs = sim.reset(scenario)
     controller.reset(scenario)
-    trace, complete, stop_reason = _Trace(), False, "max_steps"
+    trace, complete, stop_reason, clock = _Trace(), False, "max_steps", [0.0]
     onset = sim.disturbance_time
     stop = _StopRule(scenario, settle_time, rest, onset, stop_on_success)
     started: list[Recorder] = []  # each recorder whose open began: an interrupt while the
@@ -298,7 +303,7 @@ def run_episode(scenario: Scenario, controller: Controller, sim: World,
             started.append(rec)
             rec.open(info)
         with collector_paused():
-            stop_reason = _loop(sim, obs, controller, recorders, trace, stop, ee_index)
+            stop_reason = _loop(sim, obs, controller, recorders, trace, stop, ee_index, clock)
         complete = True
     finally:
         metrics = trace.metrics(spec, scenario, settle_time, onset, rest)
@@ -307,4 +312,4 @@ def run_episode(scenario: Scenario, controller: Controller, sim: World,
     return EpisodeResult(metrics=metrics, stop_reason=stop_reason, t=np.array(trace.t),
                          q=np.array(trace.q), ee_position=np.array(trace.ee_position),
                          compute_ms=np.array(trace.compute_ms),
-                         compute_cpu_ms=np.array(trace.compute_cpu_ms))
+                         compute_cpu_ms=np.array(trace.compute_cpu_ms), simulator_s=clock[0])

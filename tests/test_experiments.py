@@ -33,6 +33,8 @@ def test_scaling_fills_the_scene_to_the_total_count(tmp_path):
     # at least the controller's own time
     wall = summary["wall_s"]
     assert wall["build"] > 0 and wall["episode"] >= sum(summary["step_compute_ms"]) / 1e3
+    # of the episode, the simulator's steps (PyBullet's physics and the next observation)
+    assert 0 < wall["simulator"] < wall["episode"] - sum(summary["step_compute_ms"]) / 1e3
     out = subprocess.run([sys.executable, "-m", "analysis.scaling", str(tmp_path / "scaling")],
                          cwd=REPO, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and "100 obstacles" in out.stdout

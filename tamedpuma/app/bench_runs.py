@@ -29,8 +29,9 @@ from tamedpuma.puma import learner_table
 
 #: The training targets: the learner table's, those of a second-order model (the default).
 TARGETS = learner_table.TARGETS
-#: The Table-1 target [s of wall time on the 2-core machine].
-TABLE1_TARGET_S = 300.0
+#: The Table-1 target: TABLE1_TARGET_S of wall time on the 2-core machine for
+#: TABLE1_TARGET_RUNS runs (a sweep of more runs, as Table 1 with more methods, is judged per run)
+TABLE1_TARGET_S, TABLE1_TARGET_RUNS = 240.0, 420
 
 
 def timed_command(argv: list[str], timeout: float | None = None) -> dict:
@@ -199,9 +200,10 @@ def training_target_line(rows: list[dict]) -> str:
 
 def table1_profile(root: Path) -> dict:
     """Where a Table-1 sweep's time went, from the ``summary.json`` of every run below ``root``:
-    per method label the runs, steps, controller time (the sum of its per-step times), episode
-    time and set-up time [s]; and their totals. Runs written before summaries carried
-    ``wall_s`` count in runs and steps only."""
+    per method label the runs, steps, controller time (the sum of its per-step times), the
+    simulator's steps (PyBullet's physics and observation), episode time and set-up time [s];
+    and their totals. Runs written before summaries carried ``wall_s`` count in runs and steps
+    only (and before they carried its ``simulator``, with no simulator time)."""
     methods: dict[str, dict] = {}
     for path in sorted(Path(root).rglob("summary.json")):
         try:
@@ -209,15 +211,17 @@ def table1_profile(root: Path) -> dict:
         except (OSError, ValueError):
             continue
         m = methods.setdefault(s.get("method_label") or s.get("method", "?"), {
-            "runs": 0, "steps": 0, "controller_s": 0.0, "episode_s": 0.0, "build_s": 0.0})
+            "runs": 0, "steps": 0, "controller_s": 0.0, "simulator_s": 0.0, "episode_s": 0.0,
+            "build_s": 0.0})
         wall = s.get("wall_s") or {}
         m["runs"] += 1
         m["steps"] += int(s.get("steps") or 0)
         m["controller_s"] += sum(s.get("step_compute_ms") or []) / 1e3
+        m["simulator_s"] += float(wall.get("simulator") or 0.0)
         m["episode_s"] += float(wall.get("episode") or 0.0)
         m["build_s"] += float(wall.get("build") or 0.0)
     total = {k: sum(m[k] for m in methods.values())
-             for k in ("runs", "steps", "controller_s", "episode_s", "build_s")}
+             for k in ("runs", "steps", "controller_s", "simulator_s", "episode_s", "build_s")}
     return {"methods": {k: {kk: round(v, 3) if isinstance(v, float) else v
                             for kk, v in m.items()} for k, m in methods.items()},
             "total": {k: round(v, 3) if isinstance(v, float) else v for k, v in total.items()}}
@@ -280,9 +284,13 @@ def table1_lines(item: dict | None) -> list[str]:
     wall, cores = item["wall_s"], item.get("cores") or 1
     prof = item.get("profile") or {}
     tot = prof.get("total") or {}
-    met = item.get("returncode") == 0 and wall <= TABLE1_TARGET_S
-    head = (f"- `+experiment=table1` ≤ {TABLE1_TARGET_S / 60:.0f} minutes on {cores} cores: "
-            f"**{'met' if met else 'not met'}** ({wall:.0f} s wall, exit {item['returncode']}).")
+    runs = tot.get("runs") or TABLE1_TARGET_RUNS
+    per_target = wall * TABLE1_TARGET_RUNS / runs
+    met = item.get("returncode") == 0 and per_target <= TABLE1_TARGET_S
+    head = (f"- `+experiment=table1` ≤ {TABLE1_TARGET_S / 60:.0f} minutes per "
+            f"{TABLE1_TARGET_RUNS} runs on {cores} cores: **{'met' if met else 'not met'}** "
+            f"({wall:.0f} s wall for {runs} runs, {per_target:.0f} s per {TABLE1_TARGET_RUNS}, "
+            f"exit {item['returncode']}).")
     if not tot.get("runs"):
         return ["", head]
     capacity = wall * cores
@@ -294,7 +302,9 @@ def table1_lines(item: dict | None) -> list[str]:
     lines = ["", head + (
         f" Of the {cores} cores × {wall:.0f} s = {capacity:.0f} core-s, the {tot['runs']} runs' "
         f"episodes took {episodes:.0f} s ({tot['steps']} steps: the controllers "
-        f"{ctrl:.0f} s, PyBullet, state reads and recorders {episodes - ctrl:.0f} s), their "
+        f"{ctrl:.0f} s, the simulator's steps (PyBullet's physics and the next observation) "
+        f"{tot.get('simulator_s', 0.0):.0f} s, the loop's state reads, metrics and recorders "
+        f"{episodes - ctrl - tot.get('simulator_s', 0.0):.0f} s), their "
         f"set-up (config typing, model, scenario, controller) {build:.0f} s (the schema's "
         f"typing {job.get('typing_s', float('nan')):.2f} s a run), and the other {rest:.0f} s "
         f"went to the sweep's own work and idle cores: Hydra composes every job's config "
@@ -308,13 +318,13 @@ def table1_lines(item: dict | None) -> list[str]:
         "`summary.json`: the controller is the sum of its per-step times, the episode also "
         "holds PyBullet, state reads and recorders, the set-up builds config, model, scenario "
         "and controller):", "",
-        "| method | runs | steps | controller [s] | ms per step | episodes [s] | set-up [s] "
-        "| share of the episodes |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        "| method | runs | steps | controller [s] | ms per step | simulator [s] | episodes [s] "
+        "| set-up [s] | share of the episodes |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     methods = sorted(prof["methods"].items(), key=lambda kv: -kv[1]["episode_s"])
     for name, m in methods:
         per = 1e3 * m["controller_s"] / m["steps"] if m["steps"] else float("nan")
         share = m["episode_s"] / episodes if episodes else float("nan")
         lines.append(f"| {name} | {m['runs']} | {m['steps']} | {m['controller_s']:.0f} | "
-                     f"{per:.2f} | {m['episode_s']:.0f} | {m['build_s']:.0f} | "
-                     f"{100 * share:.0f}% |")
+                     f"{per:.2f} | {m.get('simulator_s', 0.0):.0f} | {m['episode_s']:.0f} | "
+                     f"{m['build_s']:.0f} | {100 * share:.0f}% |")
     return lines

@@ -238,10 +238,12 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
                "step_compute_ms": [round(float(v), 5) for v in result.compute_ms],
                "step_compute_cpu_ms": [round(float(v), 5) for v in result.compute_cpu_ms],
                # where this process's time went [s, wall]: building config, model, scenario and
-               # controller; the simulator's set-up and the episode with its recorders
-               # (informational: not part of any result, varies with the machine's load)
+               # controller; the simulator's set-up and the episode with its recorders, and of
+               # it the simulator's steps (physics and observation) (informational: not part
+               # of any result, varies with the machine's load)
                "wall_s": {"build": round(t_built - t_start, 4),
-                          "episode": round(t_episode - t_built, 4)}}
+                          "episode": round(t_episode - t_built, 4),
+                          "simulator": round(result.simulator_s, 4)}}
     write_summary(run_dir, summary)
     return summary
 
