@@ -73,6 +73,8 @@ def _error_line(proc):
     ("scenario.q0=[0,1", "malformed override"),
     ("robot.limit_margin=abc", "limit_margin"),
     ("scenario.q0=[0,0,0,2.5,0,0,0]", "outside joint 4's limits"),
+    ("seed=range(1,3)", "needs a multirun: add -m"),  # a sweep without -m
+    ("method=fpm,cpm", "needs a multirun: add -m"),
 ])
 def test_user_mistakes_give_one_line_errors(tmp_path, override, expected):
     line = _error_line(_sweep(f"output_root={tmp_path}", override))

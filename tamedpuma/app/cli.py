@@ -207,6 +207,25 @@ def _schema_problem(config_name: str, cfg) -> str | None:
     return None
 
 
+def _single_run_sweep(config_name: str, base: list[str], swept: list[str]) -> str | None:
+    """The problem of sweep overrides (``swept``: ``a=1,2``, ``range(..)``, ``glob(..)``) in a
+    single run: Hydra runs them only in multirun mode, which ``-m`` sets or the config
+    (``hydra.mode``, as ``+experiment=table1`` sets it); None where the config sets it."""
+    from hydra.types import RunMode
+    from omegaconf import OmegaConf
+
+    from tamedpuma.app.compose import compose
+
+    try:
+        mode = OmegaConf.select(compose(config_name, base, hydra_config=True), "hydra.mode")
+    except Exception:  # the composition's own error is reported by the check that follows
+        return None
+    if mode == RunMode.MULTIRUN:
+        return None
+    return (f"{swept[0]!r} sweeps several values, which needs a multirun: add -m "
+            f"(python -m tamedpuma.sweep -m {' '.join(swept)} ...)")
+
+
 def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
     """Compose ``config_name`` with the command line's overrides; the first problem, or None."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -248,7 +267,13 @@ def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
         key = ov.get_key_element()
         for value in values[1:]:
             variants.append([a for a in base if not a.startswith(f"{key}=")] + [f"{key}={value}"])
+    swept = [ov.input_line for ov in parsed
+             if ov.is_sweep_override() and not ov.key_or_group.startswith("hydra")]
     with session():
+        if swept and "--multirun" not in modes:
+            problem = _single_run_sweep(config_name, base, swept)
+            if problem:
+                return problem
         for overrides in variants:
             try:
                 cfg = compose(config_name, overrides)
