@@ -222,6 +222,18 @@ def test_backends_agree_on_a_simple_problem(kinematics):
     np.testing.assert_allclose(kinematics.ee_pose(a.q)[0], kinematics.ee_pose(b.q)[0], atol=2e-4)
 
 
+@pytest.mark.skipif("drake" not in BACKENDS, reason="needs drake (pip install drake)")
+def test_drakes_plant_is_built_without_warnings(kinematics, caplog):
+    """The IK's plant takes the URDF's kinematic tree alone: Drake warned on the iiwa base's
+    massless inertia at every build (one line in every Modulation-IK run's output)."""
+    from tamedpuma.ik_solvers import drake
+
+    drake._WORLDS.clear()
+    with caplog.at_level("WARNING", logger="drake"):
+        ik_solvers.warm_up(kinematics, [0.1, 0.15], "drake")
+    assert not [r for r in caplog.records if r.name == "drake"], caplog.text
+
+
 # -- controller ----------------------------------------------------------------------------
 
 def make(cfg, kinematics, primitive=None):

@@ -65,9 +65,13 @@ class _World:
 _WORLDS: dict = {}
 
 
-def _strip_geometry(urdf_text: str) -> str:
-    text = re.sub(r"<visual>.*?</visual>", "", urdf_text, flags=re.S)
-    return re.sub(r"<collision>.*?</collision>", "", text, flags=re.S)
+def _kinematics_only(urdf_text: str) -> str:
+    """The URDF without its visual, collision and inertial elements: the IK's plant needs the
+    kinematic tree alone (its collision geometry is the body spheres), and Drake warns on a
+    link whose inertia has no mass (the iiwa's base, welded to the world here)."""
+    for tag in ("visual", "collision", "inertial"):
+        urdf_text = re.sub(rf"<{tag}>.*?</{tag}>", "", urdf_text, flags=re.S)
+    return urdf_text
 
 
 def _build(kinematics, radii: tuple[float, ...]) -> _World:
@@ -76,7 +80,7 @@ def _build(kinematics, radii: tuple[float, ...]) -> _World:
     builder = pd.DiagramBuilder()
     plant, scene_graph = pd.AddMultibodyPlantSceneGraph(builder, 0.0)
     with open(spec.urdf_path) as f:
-        robot = pd.Parser(plant).AddModelsFromString(_strip_geometry(f.read()), "urdf")[0]
+        robot = pd.Parser(plant).AddModelsFromString(_kinematics_only(f.read()), "urdf")[0]
     base = plant.GetFrameByName(spec.link_names[0], robot)
     plant.WeldFrames(plant.world_frame(), base)
     friction = pd.CoulombFriction()
