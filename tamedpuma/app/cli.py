@@ -226,6 +226,32 @@ def _single_run_sweep(config_name: str, base: list[str], swept: list[str]) -> st
             f"(python -m tamedpuma.sweep -m {' '.join(swept)} ...)")
 
 
+def _variants(parsed, search) -> tuple[list[str], list[list[str]]]:
+    """The overrides with each listed sweep at its first value (the base), and the variants
+    that take each sweep's other values one at a time (range and interval sweeps are left to
+    Hydra)."""
+    base, sweeps = with_search_path([ov.input_line for ov in parsed
+                                     if ov.key_or_group == "hydra.searchpath"], search), []
+    for ov in parsed:
+        if ov.key_or_group.startswith("hydra"):
+            continue
+        if ov.is_sweep_override():
+            try:
+                values = list(ov.sweep_string_iterator())
+            except Exception:  # range/interval sweeps: leave them to Hydra
+                continue
+            sweeps.append((ov, values))
+            base.append(f"{ov.get_key_element()}={values[0]}")
+        else:
+            base.append(ov.input_line)
+    variants = [base]
+    for ov, values in sweeps:
+        key = ov.get_key_element()
+        for value in values[1:]:
+            variants.append([a for a in base if not a.startswith(f"{key}=")] + [f"{key}={value}"])
+    return base, variants
+
+
 def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
     """Compose ``config_name`` with the command line's overrides; the first problem, or None."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -248,30 +274,15 @@ def precheck_overrides(config_name: str, argv: list[str]) -> str | None:
         parsed = OverridesParser.create().parse_overrides(args)
     except Exception as exc:  # Hydra's OverrideParseException and friends
         return f"malformed override: {one_line(exc)}"
-    base, sweeps = with_search_path([ov.input_line for ov in parsed
-                                     if ov.key_or_group == "hydra.searchpath"], search), []
-    for ov in parsed:
-        if ov.key_or_group.startswith("hydra"):
-            continue
-        if ov.is_sweep_override():
-            try:
-                values = list(ov.sweep_string_iterator())
-            except Exception:  # range/interval sweeps: leave them to Hydra
-                continue
-            sweeps.append((ov, values))
-            base.append(f"{ov.get_key_element()}={values[0]}")
-        else:
-            base.append(ov.input_line)
-    variants = [base]
-    for ov, values in sweeps:
-        key = ov.get_key_element()
-        for value in values[1:]:
-            variants.append([a for a in base if not a.startswith(f"{key}=")] + [f"{key}={value}"])
+    base, variants = _variants(parsed, search)
     swept = [ov.input_line for ov in parsed
              if ov.is_sweep_override() and not ov.key_or_group.startswith("hydra")]
     with session():
-        if swept and "--multirun" not in modes:
-            problem = _single_run_sweep(config_name, base, swept)
+        if swept and "--multirun" not in modes:  # (with the command line's hydra.* settings)
+            hydra_lines = [ov.input_line for ov in parsed if ov.key_or_group.startswith("hydra.")
+                           and ov.key_or_group != "hydra.searchpath"
+                           and not ov.is_sweep_override()]
+            problem = _single_run_sweep(config_name, base + hydra_lines, swept)
             if problem:
                 return problem
         for overrides in variants:
