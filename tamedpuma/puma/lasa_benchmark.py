@@ -1,7 +1,8 @@
 """The LASA benchmark: train and evaluate a second-order 2-D primitive on each handwriting shape.
 
 Per shape: train (``pipeline.run``), then roll out from each demonstration's start (mean RMSE,
-DTW per point and discrete Fréchet distance against the demonstrations, mm) and from a
+DTW per point and discrete Fréchet distance against the demonstrations, and the largest DTW per
+point of one demonstration, mm) and from a
 ``grid × grid`` lattice of rest states covering the workspace (the demonstrations' bounding box
 plus a margin); a grid rollout that does not end within ``pos_tol`` (1% of the workspace size
 unless configured) after ``horizon`` seconds counts as non-converging (goal: 0).
@@ -37,7 +38,8 @@ def run_shape(cfg: dict, shape: str, grid: int, log=print) -> dict:
     conv = evaluation.convergence_from(net, grid_starts(meta.workspace, grid), None, meta.dt,
                                        eval_cfg)
     im = ev["imitation"]
-    return {"shape": shape, "rmse": im["rmse"], "dtw": im["dtw"], "frechet": im["frechet"],
+    return {"shape": shape, "rmse": im["rmse"], "dtw": im["dtw"], "dtw_max": im["dtw_max"],
+            "frechet": im["frechet"],
             "grid_starts": conv["starts"], "grid_not_converged": conv["not_converged"],
             "random_converged_fraction": ev["convergence"]["converged_fraction"],
             "compatible_fraction": ev["compatibility"]["compatible_fraction"],
@@ -46,19 +48,21 @@ def run_shape(cfg: dict, shape: str, grid: int, log=print) -> dict:
 
 def markdown(rows: list[dict], note: str = "") -> str:
     """The table: one row per shape, then the means (counts summed)."""
-    head = ("| shape | RMSE [mm] | DTW/point [mm] | Fréchet [mm] | grid not converged | "
-            "random starts converged | ψ-compatible | train [s] |\n"
-            "|---|---|---|---|---|---|---|---|")
+    head = ("| shape | RMSE [mm] | DTW/point [mm] | worst demo DTW/point [mm] | Fréchet [mm] | "
+            "grid not converged | random starts converged | ψ-compatible | train [s] |\n"
+            "|---|---|---|---|---|---|---|---|---|")
     lines = [head]
     for r in rows:
-        lines.append(f"| {r['shape']} | {r['rmse']:.2f} | {r['dtw']:.2f} | {r['frechet']:.2f} | "
+        lines.append(f"| {r['shape']} | {r['rmse']:.2f} | {r['dtw']:.2f} | {r['dtw_max']:.2f} | "
+                     f"{r['frechet']:.2f} | "
                      f"{r['grid_not_converged']}/{r['grid_starts']} | "
                      f"{100 * r['random_converged_fraction']:.1f}% | "
                      f"{100 * r['compatible_fraction']:.1f}% | {r['train_seconds']:.0f} |")
     if rows:
         m = lambda k: float(np.mean([r[k] for r in rows]))  # noqa: E731
         lines.append(f"| **mean ({len(rows)} shapes)** | {m('rmse'):.2f} | {m('dtw'):.2f} | "
-                     f"{m('frechet'):.2f} | {sum(r['grid_not_converged'] for r in rows)}/"
+                     f"{m('dtw_max'):.2f} | {m('frechet'):.2f} | "
+                     f"{sum(r['grid_not_converged'] for r in rows)}/"
                      f"{sum(r['grid_starts'] for r in rows)} | "
                      f"{100 * m('random_converged_fraction'):.1f}% | "
                      f"{100 * m('compatible_fraction'):.1f}% | {m('train_seconds'):.0f} |")
