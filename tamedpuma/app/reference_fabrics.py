@@ -197,12 +197,12 @@ def episode(planner, spec: dict, count: dict, fixed: dict) -> dict:
         pb.setJointMotorControlArray(robot, joints, pb.VELOCITY_CONTROL,
                                      targetVelocities=[0.0] * len(joints), forces=forces,
                                      physicsClientId=client)
-        return _drive(planner, spec, fixed, pb, client, robot, joints, n_sub, qd_max)
+        return _drive(planner, spec, fixed, pb, client, robot, joints, forces, n_sub, qd_max)
     finally:
         pb.disconnect(client)
 
 
-def _drive(planner, spec, fixed, pb, client, robot, joints, n_sub, qd_max) -> dict:
+def _drive(planner, spec, fixed, pb, client, robot, joints, forces, n_sub, qd_max) -> dict:
     """:func:`episode`'s control loop (its world built)."""
     ep, dt = spec["episode"], float(spec["episode"]["dt"])
     ee = [pb.getJointInfo(robot, i, physicsClientId=client)[12].decode()
@@ -226,8 +226,7 @@ def _drive(planner, spec, fixed, pb, client, robot, joints, n_sub, qd_max) -> di
         finite &= bool(np.all(np.isfinite(qdd)))
         target = np.clip(qd + dt * np.nan_to_num(qdd), -qd_max, qd_max)
         pb.setJointMotorControlArray(robot, joints, pb.VELOCITY_CONTROL,
-                                     targetVelocities=target.tolist(),
-                                     forces=[float(ep["max_joint_force"])] * len(joints),
+                                     targetVelocities=target.tolist(), forces=forces,
                                      physicsClientId=client)
         for _ in range(n_sub):
             pb.stepSimulation(physicsClientId=client)
