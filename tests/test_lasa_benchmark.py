@@ -1,17 +1,18 @@
-"""The LASA benchmark's configuration and table: the ψ-compatibility hinge's step is a length in
-LASA's millimetres, and the table names each shape's worst demonstration."""
+"""The LASA benchmark's configuration and table: the ψ-compatibility hinge's step is a share of
+each shape's workspace, and the table names each shape's worst demonstration."""
 
 import numpy as np
 import pytest
 
 from tamedpuma.app.compose import compose_dict
-from tamedpuma.puma import lasa_benchmark, pipeline
+from tamedpuma.puma import lasa_benchmark, pipeline, training
 
 
-def _hinge_strength(train: dict, size: float) -> float:
-    """compat_weight × compat_eps / the workspace size: the hinge's gradient grows with its step,
+def _hinge_strength(p) -> float:
+    """compat_weight × the step / the workspace size: the hinge's gradient grows with its step,
     so this is its weight against the imitation and stability terms, free of the data's unit."""
-    return train["compat_weight"] * train["compat_eps"] / size
+    size = float(np.max(np.subtract(p.workspace.high, p.workspace.low)))
+    return p.train_cfg.compat_weight * training.compat_step(p.train_cfg, p.workspace) / size
 
 
 @pytest.fixture(scope="module")
@@ -20,23 +21,22 @@ def lasa_shape():
     return cfg, pipeline.prepare(cfg, log=lambda m: None)
 
 
-def test_the_compat_step_is_inside_the_convergence_tolerance(lasa_shape):
-    """No direction meets the hinge within half a step of the goal (every step leaves that ball
-    outwards): the step stays well inside the tolerance the convergence is judged by."""
-    cfg, p = lasa_shape
-    assert 0 < cfg["puma"]["train"]["compat_eps"] <= 0.25 * p.eval_cfg.pos_tol
+def test_the_compat_hinge_judges_the_states_the_evaluation_judges(lasa_shape):
+    """The hinge's states are uniform in the box beyond the ball the evaluation leaves out, and
+    no direction meets the hinge within half a step of the goal: that ball holds those states."""
+    _, p = lasa_shape
+    size = float(np.max(np.subtract(p.workspace.high, p.workspace.low)))
+    assert p.train_cfg.compat_uniform > 0
+    assert p.train_cfg.compat_exclude * size == pytest.approx(p.eval_cfg.compat_min_dist)
+    assert 0 < training.compat_step(p.train_cfg, p.workspace) <= p.eval_cfg.compat_min_dist
 
 
 def test_the_compat_hinge_weighs_on_lasa_as_on_the_robot(lasa_shape):
     """The robot's 0.01 m step is 1% of its workspace; read as 0.01 mm on LASA's 60 mm box it
     gave the hinge 1/60 of that weight (59.5% ψ-compatible on LShape)."""
-    cfg, p = lasa_shape
-    lasa = _hinge_strength(cfg["puma"]["train"],
-                           float(np.max(np.subtract(p.workspace.high, p.workspace.low))))
-    robot = compose_dict("train", ["task=tomato"])
-    ws = robot["task"]["workspace"]
-    size = float(np.max(np.subtract(ws["position_high"], ws["position_low"])))
-    assert 0.5 < lasa / _hinge_strength(robot["puma"]["train"], size) < 2.0
+    _, p = lasa_shape
+    robot = pipeline.prepare(compose_dict("train", ["task=tomato"]), log=lambda m: None)
+    assert 0.5 < _hinge_strength(p) / _hinge_strength(robot) < 2.0
 
 
 def test_the_table_shows_each_shapes_worst_demonstration():

@@ -348,3 +348,49 @@ def test_compile_without_a_cpp_compiler_is_a_one_line_config_error(monkeypatch):
     monkeypatch.setattr(shutil, "which", lambda name: None)
     with pytest.raises(ConfigError, match=r"puma\.train\.compile=true needs a C\+\+ compiler"):
         training.compiled_step()
+
+
+def test_the_uniform_compat_states_cover_the_box_beyond_the_goals_ball():
+    """ψ's extra hinge states are drawn as the evaluation draws its own: uniform in the (not
+    padded) box, none within exclude × the box's largest side of the goal."""
+    ws = training.Workspace((-1.0, -2.0), (3.0, 2.0))
+    spec = StateSpec(2, False, 2)
+    pos, quat = training.compat_states(np.random.default_rng(0), ws, spec, 4000, 0.1)
+    p = pos.numpy()
+    assert quat is None and pos.dtype == torch.float32
+    assert np.all(p >= ws.low) and np.all(p <= ws.high)
+    assert np.all(np.linalg.norm(p, axis=1) > 0.4)
+    assert 3700 < len(p) < 4000  # the ball (r = 0.4) holds about 3% of the 4 x 4 box
+    assert p[:, 0].min() < -0.9 and p[:, 0].max() > 2.9 and p[:, 1].max() > 1.9
+    ows = training.Workspace((-0.1, -0.1, -0.1), (0.1, 0.1, 0.1), 0.5)
+    pos, quat = training.compat_states(np.random.default_rng(1), ows, StateSpec(3, True, 2),
+                                       2000, 0.5)  # r = 0.1 m and 0.1 rad
+    near = pos.norm(dim=1) <= 0.1
+    assert bool(near.any())  # kept where the orientation is far from the goal's
+    assert np.all(np.linalg.norm(m.np_quat_log(quat[near].double().numpy()), axis=1) > 0.1)
+
+
+def test_the_compat_hinge_is_on_the_stability_starts_by_default_else_on_uniform_states():
+    """Off (the default), an iteration's ψ term is the hinge on the stability starts with the
+    step ``compat_eps``, as before; with ``compat_uniform`` it is the hinge on that many uniform
+    states drawn next from the run's generator instead, with ``compat_eps_rel`` × the box."""
+    off = _tiny("puma.train.select_every=0")
+    on = _tiny("puma.train.select_every=0", "puma.train.compat_uniform=32",
+               "puma.train.compat_eps_rel=0.02")
+    ws, spec = off.workspace, off.spec
+    assert off.train_cfg.compat_uniform == 0 and off.train_cfg.compat_eps_rel == 0
+    assert training.compat_step(off.train_cfg, ws) == off.train_cfg.compat_eps
+    size = float(np.max(np.subtract(ws.high, ws.low)))
+    assert training.compat_step(on.train_cfg, ws) == pytest.approx(0.02 * size)
+    for p in (off, on):
+        cfg = p.train_cfg
+        args = (p.demos, ws, spec, p.net_cfg, cfg)
+        run, twin = training._start(*args, 3), training._start(*args, 3)
+        terms = training._iteration(run, spec, cfg)
+        twin.sampler.batch(twin.rng, cfg.batch_windows, training.window_at(cfg, 0))
+        pos, quat, _, _ = training._stability_starts(twin, spec, cfg)
+        if cfg.compat_uniform:
+            pos, quat = training.compat_states(twin.rng, ws, spec, 32, cfg.compat_exclude)
+            assert len(pos) > 16
+        want = losses.compat_loss(twin.net, pos, quat, training.compat_step(cfg, ws), cfg.margin)
+        assert terms["compat"] == pytest.approx(want.item(), rel=1e-5, abs=1e-9)

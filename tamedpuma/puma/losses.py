@@ -9,7 +9,10 @@
   ``mean max(0, m + d(y_g, y_{t+1}) − (1 − rΔt) d(y_g, y_t))`` (squared if ``squared``), d
   Euclidean; r = 0 is the original triplet loss, r > 0 asks for an exponential decrease.
 - ``ℓ_compat``: the potential ψ(x) = ‖ρ(x_g, 0) − ρ(x, 0)‖² must decrease along f(x, 0) at rest,
-  i.e. ``−∂ψᵀ f(x, 0) > 0``; enforced as a hinge on a finite step of length ε along f(x, 0)/‖f‖.
+  i.e. ``−∂ψᵀ f(x, 0) > 0``; enforced as a hinge on a finite step of length ε along f(x, 0)/‖f‖,
+  at the stability starts or at uniform samples of the workspace beyond a ball around the goal
+  (``training.compat_states``: the states the evaluation judges), ε a length or a share of the
+  workspace (``training.compat_step``).
 - ``ℓ_path``: ψ must also fall along paths, not only at rest: over consecutive states x_k, x_{k+1}
   of the demonstration windows and of the stability rollouts that started at rest (the model's
   own paths from anywhere in the workspace), ``mean max(0, m + d(y_g, ρ(x_{k+1}, 0)) −

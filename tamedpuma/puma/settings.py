@@ -80,6 +80,9 @@ class TrainConfig:
     squared_hinge: bool = False
     compat_weight: float = 0.1
     compat_eps: float = 0.01
+    compat_eps_rel: float = 0.0
+    compat_uniform: int = 0
+    compat_exclude: float = 0.02
     path_weight: float = 0.0
     path_windows: int = 0
     sample_pad: float = 0.0
@@ -101,7 +104,9 @@ class TrainConfig:
                        "val_starts", "val_confirm", "val_horizon", "stop_dtw", "keep_dtw",
                        "stop_spread", "stop_gate", "window_start", "patience", "min_delta",
                        "anneal",
-                       "select_every", "compat_weight", "path_weight", "path_windows",
+                       "select_every", "compat_weight", "compat_uniform", "compat_exclude",
+                       "compat_eps_rel",
+                       "path_weight", "path_windows",
                        "sample_pad",
                        "boundary_weight", "vel_weight", "pos_weight", "grad_clip"),
                fraction=("persist", "window_ramp", "near_goal_fraction", "select_from",

@@ -12,6 +12,10 @@ steps; slow unstable modes and spurious equilibria that a 10-step rollout never 
 penalised. Optional validation-based selection (``select_every``): the stability of the learned
 field fluctuates during training, so the weights with the best validation score (fraction of
 validation starts converged, then imitation DTW) are kept.
+
+The ψ-compatibility hinge (``compat_uniform``) may take fresh uniform samples of the workspace
+instead of the stability starts: the continued rollouts gather near the motion and the goal,
+while the evaluation judges ψ uniformly over the box.
 """
 
 from __future__ import annotations
@@ -247,6 +251,7 @@ class _Run:
     chain_rest: torch.Tensor | None = None
     ema: PumaNet | None = None  # exponential moving average of the weights (cfg.ema > 0)
     step: Callable | None = None  # the compiled rollout step (cfg.compile)
+    ws: Workspace | None = None  # the evaluated workspace (not padded): ψ's uniform samples
     anneal_from: int | None = None  # iteration the final learning-rate decay started at
     anneal_lr: float = 0.0          # the learning rate it started from
     history: list[dict] = field(default_factory=list)
@@ -292,6 +297,46 @@ def _stability_starts(run: _Run, spec: StateSpec, cfg: TrainConfig):
         vel0 = torch.where(keep, run.chain[2], vel0) if vel0 is not None else None
         rest = torch.where(keep[:, 0], run.chain_rest, rest)
     return pos0, quat0, vel0, rest
+
+
+def compat_states(rng, ws: Workspace, spec: StateSpec, n: int, exclude: float):
+    """Rest states for the ψ-compatibility hinge drawn as the evaluation draws its own: ``n``
+    uniform samples of the workspace box ``ws`` (not padded; orientations within its
+    ``max_angle``), less those within r = ``exclude`` × the box's largest side of the goal
+    (|e| ≤ r [unit] and, with orientation, angle ≤ r [rad] too: the states the evaluation does
+    not judge; within half a step (:func:`compat_step`) of the goal no direction lowers ψ).
+
+    The stability starts, mostly continued rollouts (``persist``), crowd near the motion and the
+    goal; these cover the box as uniformly as the evaluation's measure does. Returns
+    (pos (m, n_pos), quat (m, 4) | None), m ≤ n, float32 tensors."""
+    pos, quat = ws.sample(rng, n, spec.orientation)
+    r = exclude * float(np.max(np.subtract(ws.high, ws.low)))
+    far = np.linalg.norm(pos, axis=1) > r
+    if quat is not None:
+        far |= np.linalg.norm(manifold.np_quat_log(quat), axis=1) > r
+    f = lambda a: None if a is None else torch.as_tensor(a[far], dtype=torch.float32)  # noqa: E731
+    return f(pos), f(quat)
+
+
+def compat_step(cfg: TrainConfig, ws: Workspace) -> float:
+    """The ψ-compatibility hinge's step ε [unit | rad]: ``compat_eps_rel`` × the box's largest
+    side where that is set (the same share of any workspace, whatever the data's unit: the
+    hinge's gradient grows with ε, so this also keeps its weight against the other losses),
+    else the length ``compat_eps``."""
+    if cfg.compat_eps_rel > 0:
+        return cfg.compat_eps_rel * float(np.max(np.subtract(ws.high, ws.low)))
+    return cfg.compat_eps
+
+
+def _compat_term(run: _Run, spec: StateSpec, cfg: TrainConfig, pos0, quat0) -> torch.Tensor:
+    """ℓ_compat on the stability starts ``pos0``, ``quat0``, or with ``compat_uniform`` > 0 on
+    that many uniform rest states of the workspace instead (:func:`compat_states`)."""
+    if cfg.compat_uniform > 0:
+        pos0, quat0 = compat_states(run.rng, run.ws, spec, cfg.compat_uniform,
+                                    cfg.compat_exclude)
+        if len(pos0) == 0:  # every sample within the excluded ball
+            return torch.zeros(())
+    return losses.compat_loss(run.net, pos0, quat0, compat_step(cfg, run.ws), cfg.margin)
 
 
 def _cat(a, b, dim=0):
@@ -418,7 +463,7 @@ def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
             loss = loss + cfg.path_weight * l_p
         l_c = torch.zeros(())
         if cfg.compat_weight > 0:
-            l_c = losses.compat_loss(net, pos0, quat0, cfg.compat_eps, cfg.margin)
+            l_c = _compat_term(run, spec, cfg, pos0, quat0)
             loss = loss + cfg.compat_weight * l_c
         run.opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -476,7 +521,7 @@ def _start(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetCo
     return _Run(net, opt, sched, rng, _Sampler.of(demos, cfg.window, spec.orientation), start_ws,
                 torch.as_tensor(ws.low, dtype=torch.float32),
                 torch.as_tensor(ws.high, dtype=torch.float32), demos.dt, ema=ema,
-                step=compiled_step() if cfg.compile else None)
+                step=compiled_step() if cfg.compile else None, ws=ws)
 
 
 def train(demos: Demonstrations, ws: Workspace, spec: StateSpec, net_cfg: NetConfig,
