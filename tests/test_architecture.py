@@ -142,7 +142,7 @@ LAYERS = [{"errors", "startup", "termination", "parallel", "jit"},
           {"methods", "worlds"}, {"metrics"}, {"episode"}, {"recording"}, {"analysis"},
           {"app"}]
 _SHIMS = {"sweep", "train", "lasa", "bench_fabrics", "bench", "replay", "body_model", "models",
-          "safety_suite", "ablation", "__init__", "__main__"}
+          "safety_suite", "ablation", "recheck", "__init__", "__main__"}
 
 
 def _layer(part: str) -> int:
