@@ -61,8 +61,9 @@ def test_the_rerun_takes_the_runs_own_overrides_less_its_output(tmp_path):
 
 
 def test_a_step_made_slow_in_the_log_is_judged_the_machines_after_a_real_rerun(tmp_path):
-    """One real episode, its summary given a 50 ms step: the run again (the same deterministic
-    episode, step for step, with the same model) keeps the bound at that step."""
+    """One real episode, its summary given a 500 ms step: the run again (the same deterministic
+    episode, step for step, with the same model) keeps a 100 ms bound at that step (a bound
+    no scheduler slice on a busy test machine reaches)."""
     from tamedpuma.app.compose import compose
     from tamedpuma.app.sweep import run_one
 
@@ -73,12 +74,12 @@ def test_a_step_made_slow_in_the_log_is_judged_the_machines_after_a_real_rerun(t
     (run_dir / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
     summary = run_one(compose("sweep", [*overrides, "recorder=none"]), run_dir)
     summary["status"] = "complete"
-    summary["step_compute_ms"][5] = 50.0
-    summary["step_compute_cpu_ms"][5] = 49.0
+    summary["step_compute_ms"][5] = 500.0
+    summary["step_compute_cpu_ms"][5] = 499.0
     (run_dir / "summary.json").write_text(json.dumps(summary))
-    (v,) = step_recheck.recheck(tmp_path / "sweep", 10.0, 1, ("fabrics",))
-    assert (v.step, v.wall_ms, v.reproduced) == (5, 50.0, False), v
-    assert v.least_wall_ms < 10.0
+    (v,) = step_recheck.recheck(tmp_path / "sweep", 100.0, 1, ("fabrics",))
+    assert (v.step, v.wall_ms, v.reproduced) == (5, 500.0, False), v
+    assert v.least_wall_ms < 100.0 and v.least_cpu_ms < 100.0
 
 
 def test_a_folder_that_is_not_there_is_one_line_and_status_2(tmp_path, capsys):
