@@ -9,12 +9,15 @@ from tamedpuma.app import step_recheck
 from tamedpuma.app.step_recheck import SlowRun, judge
 from tamedpuma.errors import TamedPumaError
 
+FINAL = {"final_position_error_m": 0.001, "final_orientation_error_rad": 0.01,
+         "min_clearance_m": 0.05}
 
-def _summary(path, method="cpm", wall=(0.3, 0.3, 0.3), cpu=None, status="complete", sha="m1"):
+
+def _summary(path, method="cpm", wall=(0.3, 0.3, 0.3), cpu=None, status="complete"):
     path.mkdir(parents=True, exist_ok=True)
     (path / "summary.json").write_text(json.dumps({
         "status": status, "method": method, "step_compute_ms": list(wall),
-        "step_compute_cpu_ms": list(cpu or wall), "model": {"model_sha256": sha}}))
+        "step_compute_cpu_ms": list(cpu or wall), **FINAL}))
 
 
 def test_only_complete_runs_of_the_bounded_methods_with_a_step_over_the_bound_are_taken(tmp_path):
@@ -24,29 +27,29 @@ def test_only_complete_runs_of_the_bounded_methods_with_a_step_over_the_bound_ar
     _summary(tmp_path / "d", status="failed", wall=(50.0,))
     runs = step_recheck.slow_runs(tmp_path)
     assert [(r.run_dir, r.slow) for r in runs] == [(str(tmp_path / "a"), ((1, 16.9, 16.8),))]
-    assert runs[0].steps == 3 and runs[0].model_sha256 == "m1"
+    assert runs[0].steps == 3 and runs[0].final == (0.001, 0.01, 0.05)
     every = step_recheck.slow_runs(tmp_path, methods=())
     assert sorted(r.method for r in every) == ["cpm", "modulation_ik"]
 
 
-def _again(wall, cpu=None, sha="m1"):
+def _again(wall, cpu=None, **final):
     return {"step_compute_ms": list(wall), "step_compute_cpu_ms": list(cpu or wall),
-            "model": {"model_sha256": sha}}
+            **FINAL, **final}
 
 
 def test_a_step_is_the_machines_when_one_run_of_it_keeps_the_bound():
-    run = SlowRun("r", "cpm", 3, "m1", ((1, 16.9, 16.8), (2, 12.0, 11.9)))
+    run = SlowRun("r", "cpm", 3, (0.001, 0.01, 0.05), ((1, 16.9, 16.8), (2, 12.0, 11.9)))
     v = judge(run, [_again((0.3, 0.31, 14.0)), _again((0.3, 11.0, 13.0))], 10.0)
     assert [(x.step, x.least_wall_ms, x.least_cpu_ms, x.reproduced) for x in v] == [
         (1, 0.31, 0.31, False), (2, 12.0, 11.9, True)]
 
 
-def test_a_rerun_of_another_length_or_model_is_not_comparable():
-    run = SlowRun("r", "cpm", 3, "m1", ((1, 16.9, 16.8),))
+def test_a_rerun_of_another_length_or_final_state_is_not_comparable():
+    run = SlowRun("r", "cpm", 3, (0.001, 0.01, 0.05), ((1, 16.9, 16.8),))
     (v,) = judge(run, [_again((0.3, 0.3))], 10.0)
     assert v.reproduced is None and "2 steps" in v.why
-    (v,) = judge(run, [_again((0.3, 0.3, 0.3), sha="m2")], 10.0)
-    assert v.reproduced is None and "another model" in v.why
+    (v,) = judge(run, [_again((0.3, 0.3, 0.3), min_clearance_m=0.0500001)], 10.0)
+    assert v.reproduced is None and "another state" in v.why
 
 
 def test_the_rerun_takes_the_runs_own_overrides_less_its_output(tmp_path):

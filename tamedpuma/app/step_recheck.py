@@ -14,8 +14,9 @@ judged on the least of its times over the sweep and the re-runs [ms]:
 - *not reproduced* (the machine's): at least one run of the same step at the same state keeps
   the bound.
 
-A re-run that ends at another step than the sweep's run, or runs another model (``model_sha256``),
-is not the same run and is reported as not comparable.
+A re-run that is not the same run (another step count, or another final state: the hand's final
+position and orientation errors and the least clearance, to the bit: code or a model changed
+since; a model retrained to the same weights gives the same run) is reported as not comparable.
 """
 
 from __future__ import annotations
@@ -35,17 +36,19 @@ from tamedpuma.errors import TamedPumaError
 
 #: the methods whose steps the bound is asked of (Modulation-IK's optimisation is reported only)
 BOUNDED = ("puma", "fabrics", "fpm", "cpm")
+#: the summary's fields a re-run must repeat to the bit to be the same run (with the step count)
+SAME_RUN = ("final_position_error_m", "final_orientation_error_rad", "min_clearance_m")
 
 
 @dataclass(frozen=True)
 class SlowRun:
-    """A run with steps over the bound: its folder, method, step count, model and, per slow
-    step, its index and wall and CPU time [ms]."""
+    """A run with steps over the bound: its folder, method, step count, final state
+    (:data:`SAME_RUN`) and, per slow step, its index and wall and CPU time [ms]."""
 
     run_dir: str
     method: str
     steps: int
-    model_sha256: str | None
+    final: tuple
     slow: tuple[tuple[int, float, float], ...]
 
 
@@ -83,7 +86,7 @@ def slow_runs(root: Path, bound: float = BOUND_MS, methods=BOUNDED) -> list[Slow
                      for k, w in enumerate(wall) if w > bound)
         if slow:
             found.append(SlowRun(str(path.parent), s.get("method", "?"), len(wall),
-                                 (s.get("model") or {}).get("model_sha256"), slow))
+                                 tuple(s.get(k) for k in SAME_RUN), slow))
     return found
 
 
@@ -117,8 +120,8 @@ def judge(run: SlowRun, reruns: list[dict], bound: float) -> list[Verdict]:
         if len(again.get("step_compute_ms", ())) != run.steps:
             why = (f"the re-run took {len(again.get('step_compute_ms', ()))} steps, the "
                    f"sweep's {run.steps}")
-        elif (again.get("model") or {}).get("model_sha256") != run.model_sha256:
-            why = "the re-run found another model"
+        elif tuple(again.get(k) for k in SAME_RUN) != run.final:
+            why = "the re-run ends in another state (code or model changed since?)"
         if why:
             return [Verdict(run.run_dir, run.method, k, w, c, None, None, None, why)
                     for k, w, c in run.slow]
