@@ -81,18 +81,24 @@ def summary_mismatch(summary: dict, stats: dict) -> float:
     return worst
 
 
-def run_case(method: str, overrides: list[str], extra=()) -> dict:
-    """One episode of ``method`` with ``overrides`` through the sweep's ``run_one`` (no
-    recorders) in a temporary folder: its outcome and the statistics of the per-step
-    controller times its ``summary.json`` records, checked against the summary's own figures."""
+def run_summary(overrides: list[str]) -> dict:
+    """One run of the sweep config with ``overrides`` through the sweep's ``run_one``, without
+    recorders, in a temporary folder: its ``summary.json``."""
     from tamedpuma.app.compose import compose
     from tamedpuma.app.sweep import run_one
 
-    cfg = compose("sweep", [*overrides, f"method={method}", "recorder=none", *extra])
+    cfg = compose("sweep", [*overrides, "recorder=none"])
     with tempfile.TemporaryDirectory(prefix="tamedpuma-steps-") as tmp:
         run_dir = Path(tmp) / "run"
         run_dir.mkdir()
-        summary = run_one(cfg, run_dir)
+        return run_one(cfg, run_dir)
+
+
+def run_case(method: str, overrides: list[str], extra=()) -> dict:
+    """One episode of ``method`` with ``overrides`` (:func:`run_summary`): its outcome and the
+    statistics of the per-step controller times its ``summary.json`` records, checked against
+    the summary's own figures."""
+    summary = run_summary([*overrides, f"method={method}", *extra])
     ms = summary["step_compute_ms"]
     stats = report_stats([ms])
     return {"method": method, "success": summary.get("success_paper"),

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -31,8 +30,10 @@ import yaml
 
 from tamedpuma.analysis.runs import set_aside
 from tamedpuma.analysis.summaries import BOUND_MS
+from tamedpuma.app.bench_steps import run_summary
 from tamedpuma.app.cli import fail
-from tamedpuma.errors import TamedPumaError
+from tamedpuma.errors import LogError, TamedPumaError
+from tamedpuma.runlog import upgrade_summary
 
 #: the methods whose steps the bound is asked of (Modulation-IK's optimisation is reported only)
 BOUNDED = ("puma", "fabrics", "fpm", "cpm")
@@ -76,8 +77,8 @@ def slow_runs(root: Path, bound: float = BOUND_MS, methods=BOUNDED) -> list[Slow
         if set_aside(path):
             continue
         try:
-            s = json.loads(path.read_text())
-        except (OSError, ValueError):
+            s = upgrade_summary(json.loads(path.read_text()))
+        except (OSError, ValueError, LogError):
             continue  # an unreadable summary is the analysis's to report
         if s.get("status") != "complete" or (methods and s.get("method") not in methods):
             continue
@@ -99,18 +100,6 @@ def rerun_overrides(run_dir: Path) -> list[str]:
         raise TamedPumaError(f"cannot re-run {run_dir}: {path} unreadable ({exc})") from exc
     return [str(o) for o in lines or ()
             if not str(o).startswith(("output_root=", "hydra.", "recorder="))]
-
-
-def run_again(run_dir: Path) -> dict:
-    """The run of ``run_dir`` once more, in a temporary folder, without recorders: its summary."""
-    from tamedpuma.app.compose import compose
-    from tamedpuma.app.sweep import run_one
-
-    cfg = compose("sweep", [*rerun_overrides(run_dir), "recorder=none"])
-    with tempfile.TemporaryDirectory(prefix="tamedpuma-recheck-") as tmp:
-        out = Path(tmp) / "run"
-        out.mkdir()
-        return run_one(cfg, out)
 
 
 def judge(run: SlowRun, reruns: list[dict], bound: float) -> list[Verdict]:
@@ -149,7 +138,8 @@ def recheck(root: Path, bound: float, repeats: int, methods) -> list[Verdict]:
     """Every slow step below ``root`` judged after ``repeats`` re-runs of its run."""
     verdicts = []
     for run in slow_runs(root, bound, methods):
-        reruns = [run_again(Path(run.run_dir)) for _ in range(repeats)]
+        overrides = rerun_overrides(Path(run.run_dir))
+        reruns = [run_summary(overrides) for _ in range(repeats)]
         verdicts += judge(run, reruns, bound)
     return verdicts
 

@@ -16,12 +16,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from ..robot.rotations import orientation_errors_between, quat_angle
+from ..robot.rotations import orientation_errors_between
 from . import dynamics, manifold
 from .data import Demonstrations
 from .network import PumaNet, potential
 from .settings import EvalConfig
-from .training import Workspace
+from .training import Workspace, beyond_goal
 
 
 def _dp(cost: np.ndarray, frechet: bool) -> float:
@@ -148,9 +148,7 @@ def compatibility(net: PumaNet, ws: Workspace, cfg: EvalConfig) -> dict:
     """Fraction of rest states (away from the goal) where ``−∂ψᵀ f(x, 0) > 0``."""
     rng = np.random.default_rng(cfg.seed + 1)
     pos0, quat0 = ws.sample(rng, cfg.compat_samples, net.spec.orientation)
-    far = np.linalg.norm(pos0, axis=1) > cfg.compat_min_dist
-    if quat0 is not None:
-        far |= quat_angle(quat0) > cfg.compat_min_dist
+    far = beyond_goal(pos0, quat0, cfg.compat_min_dist)
     pos, quat = _t(pos0[far]), _t(quat0[far]) if quat0 is not None else None
     _, gp, gt = potential(net, pos, quat)
     with torch.inference_mode():

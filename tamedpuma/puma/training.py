@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from ..errors import ConfigError
+from ..robot.rotations import quat_angle
 from . import dynamics, losses, manifold
 from .data import Demonstrations
 from .network import PumaNet, StateSpec
@@ -310,12 +311,19 @@ def compat_states(rng, ws: Workspace, spec: StateSpec, n: int, exclude: float):
     goal; these cover the box as uniformly as the evaluation's measure does. Returns
     (pos (m, n_pos), quat (m, 4) | None), m ≤ n, float32 tensors."""
     pos, quat = ws.sample(rng, n, spec.orientation)
-    r = exclude * float(np.max(np.subtract(ws.high, ws.low)))
-    far = np.linalg.norm(pos, axis=1) > r
-    if quat is not None:
-        far |= np.linalg.norm(manifold.np_quat_log(quat), axis=1) > r
+    far = beyond_goal(pos, quat, exclude * float(np.max(np.subtract(ws.high, ws.low))))
     f = lambda a: None if a is None else torch.as_tensor(a[far], dtype=torch.float32)  # noqa: E731
     return f(pos), f(quat)
+
+
+def beyond_goal(pos: np.ndarray, quat: np.ndarray | None, r: float) -> np.ndarray:
+    """Which rest states (goal-relative positions (m, n_pos), quaternions (m, 4) or None) lie
+    beyond r of the goal: ``‖e‖ > r`` [unit] or, with orientation, a rotation angle > r [rad]
+    (the states ψ's compatibility is judged at, in the evaluation and in the hinge)."""
+    far = np.linalg.norm(pos, axis=1) > r
+    if quat is not None:
+        far |= quat_angle(quat) > r
+    return far
 
 
 def compat_step(cfg: TrainConfig, ws: Workspace) -> float:
