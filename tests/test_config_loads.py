@@ -128,24 +128,19 @@ def test_a_copy_of_the_shared_repository_is_independent_of_the_original():
 
 
 def test_a_cores_worker_keeps_its_plugin_registry_from_one_job_to_the_next(monkeypatch):
-    """The launcher's execute_job hands Hydra's the registry the worker already has (Hydra's
-    set_state would otherwise discover every plugin again), and nothing else of the state."""
+    """The launcher's execute_job hands Hydra's set_state the registry the worker already has
+    (Hydra's would otherwise discover every plugin again), and nothing else of the state."""
     from hydra.core.plugins import Plugins
     from hydra.core.singleton import Singleton
-    from hydra_plugins.hydra_joblib_launcher import _core
 
     from hydra_plugins.tamedpuma_launcher import launcher
 
-    seen = []
-    monkeypatch.setattr(_core, "execute_job", lambda *args: seen.append(args[-1]))
     registry = Plugins.instance()
     sent = {"instances": {"other": 1}, "omegaconf_resolvers": {}}
-    launcher.execute_job(0, [], None, None, None, sent)
-    assert seen[0]["instances"] == {"other": 1, Plugins: registry}
+    assert launcher.with_known_plugins(sent)["instances"] == {"other": 1, Plugins: registry}
     assert sent == {"instances": {"other": 1}, "omegaconf_resolvers": {}}  # not written
     monkeypatch.setattr(Singleton, "_instances", {})  # a fresh worker: Hydra discovers them
-    launcher.execute_job(1, [], None, None, None, sent)
-    assert seen[1]["instances"] == {"other": 1}
+    assert launcher.with_known_plugins(sent)["instances"] == {"other": 1}
 
 
 # --- the composed selections: a job's plain values applied to its structural selection composed

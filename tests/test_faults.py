@@ -159,7 +159,7 @@ def test_a_full_disk_while_hydra_saves_a_jobs_config_stops_the_sweep(tmp_path, m
                                                                       capsys):
     from tamedpuma.app import sweep
 
-    real = sweep._HYDRA_SAVE_CONFIG
+    real = sweep._WRITE_CONFIG
 
     def save(cfg, filename, output_dir):
         if Path(output_dir).parent.name == "1":
@@ -167,7 +167,7 @@ def test_a_full_disk_while_hydra_saves_a_jobs_config_stops_the_sweep(tmp_path, m
             (Path(output_dir) / filename).write_text("")  # a partial file
             _enospc()
         return real(cfg, filename, output_dir)
-    monkeypatch.setattr(sweep, "_HYDRA_SAVE_CONFIG", save)
+    monkeypatch.setattr(sweep, "_WRITE_CONFIG", save)
     code = _sweep(tmp_path, monkeypatch, "seed=0,1,2")
     out, err = capsys.readouterr()
     assert code == 2

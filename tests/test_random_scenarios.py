@@ -102,6 +102,38 @@ def test_same_seed_same_scenario_other_seed_other_scenario(kinematics):
     assert a["q0"] != c["q0"] and a["q0"] != d["q0"]
 
 
+def test_a_process_draws_a_scenario_once_and_hands_out_the_same_frozen_one(kinematics,
+                                                                        monkeypatch):
+    from tamedpuma.worlds import random_scenarios, scenarios
+
+    monkeypatch.setattr(scenarios, "_GENERATED", {})
+    drawn = []
+
+    def counted(*args, **kwargs):
+        drawn.append(args[2])
+        return generate(*args, **kwargs)
+    monkeypatch.setattr(random_scenarios, "generate", counted)
+    region, starts = _region("tomato"), table1_starts("tomato")
+
+    def draw(seed, kind="near_table1", params=None):
+        return scenarios._generated(region, kinematics, seed, params or RandomParams(), starts,
+                                    start_kind=kind, **EPISODE).scenario
+
+    first = draw(7)
+    assert draw(7) is first and drawn == [7]  # with and without its obstacles: one draw
+    assert draw(8) is not first and draw(7, "anywhere") is not first
+    assert draw(7, params=RandomParams(lateral_max=0.05)) is not first
+    assert drawn == [7, 8, 7, 7]
+    assert scenario_config(first) == scenario_config(generate(
+        region, kinematics, 7, RandomParams(), starts, start_kind="near_table1",
+        **EPISODE).scenario)
+    for seed in (9, 10, 11, 12):  # the last few are kept, the oldest dropped
+        draw(seed)
+    assert len(scenarios._GENERATED) == scenarios._GENERATED_KEPT
+    draw(7)
+    assert drawn[-1] == 7 and len(drawn) == 9
+
+
 def test_near_table1_starts_lie_near_a_table1_start(kinematics):
     starts = np.array(table1_starts("pouring"))
     assert starts.shape == (15, 7)

@@ -1,7 +1,8 @@
 """The ``cores`` launcher (``conf/hydra/launcher/cores.yaml``): Hydra's joblib launcher whose
 workers read each config file, and compose each distinct selection of config groups, once per
-process instead of once per job (:mod:`tamedpuma.app.config_loads`), and keep Hydra's plugin
-registry from one job to the next instead of discovering every plugin again for each job. It
+process instead of once per job (:mod:`tamedpuma.app.config_loads`), keep Hydra's plugin
+registry from one job to the next instead of discovering every plugin again for each job, write
+a job's config files through libyaml and send no config back (:func:`execute_job`). It
 lives in the ``hydra_plugins`` namespace because Hydra instantiates launchers from there only.
 
 :func:`launch` and :func:`execute_job` follow ``hydra_plugins.hydra_joblib_launcher._core``
@@ -26,19 +27,48 @@ log = logging.getLogger(__name__)
 
 def execute_job(idx: int, overrides, hydra_context, config, task_function,
                 singleton_state: dict[str, Any]) -> JobReturn:
-    """Hydra's ``execute_job`` (compose the job, run it), with the plugin registry this worker
-    process found for an earlier job put back into the job's singleton state: Hydra leaves the
-    registry out of the state it sends (it does not pickle) and ``Singleton.set_state``
-    discovers every plugin again (imports and scans the ``hydra_plugins`` packages, ~35 ms),
-    for the same installed plugins every time."""
+    """Hydra's ``execute_job`` (compose the job, run it with ``run_job``), with three costs
+    of Hydra's taken out, none of which changes a job's config, files or outcome:
+
+    - the plugin registry this worker process found for an earlier job is put back into the
+      job's singleton state (:func:`with_known_plugins`): Hydra leaves it out of the state it
+      sends (it does not pickle) and ``Singleton.set_state`` discovers every plugin again
+      (imports and scans the ``hydra_plugins`` packages, ~35 ms), for the same plugins;
+    - the job's ``.hydra/*.yaml`` are written by :func:`tamedpuma.app.sweep.save_config_or_stop`
+      (the same text through libyaml, :mod:`tamedpuma.app.config_text`; a full disk stops the
+      sweep with one line, as in the launching process);
+    - Hydra's ``set_config`` before ``run_job`` is left out (``run_job`` sets the same config
+      first thing), and the job's configs are dropped from the ``JobReturn`` sent back to the
+      launching process (its sweeper reads only the return value; pickling and reading the two
+      configs back cost ~10 ms of CPU per job)."""
+    import hydra.core.utils
+    from hydra.core.utils import run_job
+    from omegaconf import open_dict
+
+    from tamedpuma.app.sweep import save_config_or_stop
+
+    hydra.core.utils._save_config = save_config_or_stop
+    setup_globals()
+    Singleton.set_state(with_known_plugins(singleton_state))
+    sweep_config = hydra_context.config_loader.load_sweep_config(config, list(overrides))
+    with open_dict(sweep_config):
+        sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{idx}"
+        sweep_config.hydra.job.num = idx
+    ret = run_job(hydra_context=hydra_context, config=sweep_config, task_function=task_function,
+                  job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir")
+    ret.cfg = ret.hydra_cfg = None
+    return ret
+
+
+def with_known_plugins(singleton_state: dict[str, Any]) -> dict[str, Any]:
+    """``singleton_state`` (not written) with the plugin registry this process already has, if
+    it has one."""
     from hydra.core.plugins import Plugins
 
     known = Singleton._instances.get(Plugins)
-    if known is not None:
-        singleton_state = {**singleton_state,
-                           "instances": {**singleton_state["instances"], Plugins: known}}
-    return _core.execute_job(idx, overrides, hydra_context, config, task_function,
-                             singleton_state)
+    if known is None:
+        return singleton_state
+    return {**singleton_state, "instances": {**singleton_state["instances"], Plugins: known}}
 
 
 def launch(launcher: JoblibLauncher, job_overrides, initial_job_idx: int) -> list[JobReturn]:

@@ -50,7 +50,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from tamedpuma import termination
-from tamedpuma.app import callbacks
+from tamedpuma.app import callbacks, config_text
 from tamedpuma.app.cli import fail, precheck_overrides, shell_completion, with_plugin_configs
 from tamedpuma.app.config import CONF_DIR
 from tamedpuma.app.provenance import machine
@@ -205,7 +205,7 @@ def run_one(cfg: DictConfig, run_dir: Path) -> dict:
     files = recorder_files(kinds, run_dir)
     info = RunInfo(run_id=run_dir.name, method=run.method.name, task=run.task.name,
                    scenario_name=scenario.name, seed=run.seed,
-                   config_yaml=OmegaConf.to_yaml(cfg, resolve=True), urdf_path=spec.urdf_path,
+                   config_yaml=config_text.to_yaml(cfg, resolve=True), urdf_path=spec.urdf_path,
                    joint_names=spec.joint_names, link_names=spec.link_names,
                    body_sphere_radii=spec.sphere_radii, dt=scenario.dt,
                    velocity_limits=spec.qd_max,
@@ -666,14 +666,16 @@ class SweepStopped(BaseException):
     counts so far and the message, and exits with status 2."""
 
 
-_HYDRA_SAVE_CONFIG = hydra.core.utils._save_config
+_WRITE_CONFIG = config_text.save_config
 
 
-def _save_config_or_stop(cfg, filename: str, output_dir: Path) -> None:
-    """Hydra's ``_save_config`` (a job's ``.hydra/*.yaml``, the sweep's ``multirun.yaml``); a
-    full disk removes the partial file and stops the sweep with one line."""
+def save_config_or_stop(cfg, filename: str, output_dir: Path) -> None:
+    """Hydra's ``_save_config`` (a job's ``.hydra/*.yaml``, the sweep's ``multirun.yaml``),
+    through :func:`tamedpuma.app.config_text.save_config` (the same text); a full disk removes
+    the partial file and stops the sweep with one line. Installed in the launching process by
+    :func:`main` and in the ``cores`` launcher's workers by its ``execute_job``."""
     try:
-        _HYDRA_SAVE_CONFIG(cfg, filename, output_dir)
+        _WRITE_CONFIG(cfg, filename, output_dir)
     except OSError as exc:
         path = Path(output_dir) / filename
         if not no_space(exc, path):
@@ -737,7 +739,7 @@ def main(argv: list[str] | None = None) -> None:
     _KEPT.clear()
     callbacks.forget_progress()
     Sweeper.validate_batch_is_legal = _validate_representatives
-    hydra.core.utils._save_config = _save_config_or_stop
+    hydra.core.utils._save_config = save_config_or_stop
     try:
         _hydra_main()
     except KeyboardInterrupt:

@@ -223,7 +223,7 @@ def random_scenario(cfg, kinematics, table1_starts: StartsOf | None = None) -> S
     ``scenario.start_kind`` and ``scenario.random`` (the task's goal and workspace);
     ``near_table1`` starts near ``table1_starts(task)`` (for a task without Table-1 starts the
     sweep hands down its demonstrations' starts: :func:`tamedpuma.worlds.demo_scenarios.apply`)."""
-    from tamedpuma.worlds.random_scenarios import RandomParams, TaskRegion, generate
+    from tamedpuma.worlds.random_scenarios import RandomParams, TaskRegion
 
     sc_cfg, task_cfg = cfg.scenario, cfg.task
     try:
@@ -243,12 +243,35 @@ def random_scenario(cfg, kinematics, table1_starts: StartsOf | None = None) -> S
                      goal_quaternion=np.asarray(sc_cfg.goal.quaternion, dtype=float))
     known = table1_starts(region.name) if table1_starts is not None else []
     starts = (known or []) if kind == "near_table1" else []
-    generated = generate(region, kinematics, seed, params, starts, start_kind=kind,
-                         dt=float(sc_cfg.dt), max_steps=int(sc_cfg.max_steps),
-                         goal_tolerance=float(sc_cfg.goal_tolerance))
+    generated = _generated(region, kinematics, seed, params, starts, start_kind=kind,
+                           dt=float(sc_cfg.dt), max_steps=int(sc_cfg.max_steps),
+                           goal_tolerance=float(sc_cfg.goal_tolerance))
     log.info("random scenario %s after %d draws (rejected: %s)", generated.scenario.name,
              generated.tries, generated.rejected)
     return generated.scenario
+
+
+#: the last few generated scenarios of this process, by everything their draw depends on
+_GENERATED: dict[bytes, object] = {}
+_GENERATED_KEPT = 4
+
+
+def _generated(region, kinematics, seed: int, params, starts, **scenario):
+    """:func:`tamedpuma.worlds.random_scenarios.generate`, remembered for the last
+    :data:`_GENERATED_KEPT` draws of this process: a sweep runs each random scenario with and
+    without its obstacles back to back in one worker (~30 ms a draw on average, up to ~0.1 s with
+    many rejections), and a draw is a function of its arguments (the scenario is frozen)."""
+    import pickle
+
+    from tamedpuma.worlds.random_scenarios import generate
+
+    key = pickle.dumps((region, kinematics.spec, seed, params,
+                        [[float(v) for v in q] for q in starts], sorted(scenario.items())))
+    if key not in _GENERATED:
+        if len(_GENERATED) >= _GENERATED_KEPT:
+            del _GENERATED[next(iter(_GENERATED))]
+        _GENERATED[key] = generate(region, kinematics, seed, params, starts, **scenario)
+    return _GENERATED[key]
 
 
 def build_scenario(cfg, spec: RobotSpec, kinematics,
