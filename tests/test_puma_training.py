@@ -55,6 +55,22 @@ def test_batched_dtw_and_frechet_equal_one_pair_at_a_time():
                           [evaluation.frechet(a, b) for a, b in zip(paths, refs)])
 
 
+def test_compiled_dtw_recurrence_is_the_numpy_sweep_to_the_bit():
+    """The DP each validation runs (:func:`evaluation._dp_batch`): the compiled cell-by-cell
+    recurrence (and its plain-Python source) gives the anti-diagonal sweep's numbers exactly,
+    with NaN, infinite and zero costs among them."""
+    rng = np.random.default_rng(5)
+    costs = [np.abs(rng.normal(size=shape)) * 10.0 ** rng.uniform(-4, 3)
+             for shape in ((1, 1), (1, 7), (9, 1), (13, 29), (31, 17))]
+    costs[3][4, 5], costs[4][2, 3], costs[4][7, 7] = np.nan, np.inf, 0.0
+    for frechet in (False, True):
+        want = evaluation._dp_sweep(costs, frechet)
+        plain = [evaluation._dp_cells(c, frechet) for c in costs]
+        assert np.array_equal(plain, want, equal_nan=True)
+        if evaluation._dp_kernel() is not None:
+            assert np.array_equal(evaluation._dp_batch(costs, frechet), want, equal_nan=True)
+
+
 def test_stability_weight_ramp():
     from tamedpuma.puma.settings import TrainConfig
 
