@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from tamedpuma.app.train import compose
-from tamedpuma.puma import dynamics, evaluation, losses, pipeline, training
+from tamedpuma.puma import dynamics, evaluation, losses, network, pipeline, training
 from tamedpuma.puma import manifold as m
 from tamedpuma.puma.network import NetConfig, PumaNet, StateSpec
 
@@ -53,6 +53,22 @@ def test_batched_dtw_and_frechet_equal_one_pair_at_a_time():
     costs = [np.linalg.norm(a[:, None] - b[None], axis=-1) for a, b in zip(paths, refs)]
     assert np.array_equal(evaluation._dp_batch(costs, True),
                           [evaluation.frechet(a, b) for a, b in zip(paths, refs)])
+
+
+def test_compiled_dtw_recurrence_is_the_numpy_sweep_to_the_bit():
+    """The DP each validation runs (:func:`evaluation._dp_batch`): the compiled cell-by-cell
+    recurrence (and its plain-Python source) gives the anti-diagonal sweep's numbers exactly,
+    with NaN, infinite and zero costs among them."""
+    rng = np.random.default_rng(5)
+    costs = [np.abs(rng.normal(size=shape)) * 10.0 ** rng.uniform(-4, 3)
+             for shape in ((1, 1), (1, 7), (9, 1), (13, 29), (31, 17))]
+    costs[3][4, 5], costs[4][2, 3], costs[4][7, 7] = np.nan, np.inf, 0.0
+    for frechet in (False, True):
+        want = evaluation._dp_sweep(costs, frechet)
+        plain = [evaluation._dp_cells(c, frechet) for c in costs]
+        assert np.array_equal(plain, want, equal_nan=True)
+        if evaluation._dp_kernel() is not None:
+            assert np.array_equal(evaluation._dp_batch(costs, frechet), want, equal_nan=True)
 
 
 def test_stability_weight_ramp():
@@ -116,6 +132,32 @@ def test_shared_goal_gives_the_same_values_and_gradients():
     net.release_goal()
     assert torch.allclose(v0, v1, rtol=1e-12)
     assert all(torch.allclose(a, b, rtol=1e-9, atol=1e-15) for a, b in zip(g0, g1))
+
+
+def test_layers_as_functions_are_the_modules_to_the_bit():
+    """Between share_goal and release_goal the layers run as functions, each Wᵀ taken once for
+    all calls: over several calls (rows and a time axis, chained as a rollout chains them) the
+    values and every weight's gradient equal the modules' to the bit (float32, as trained)."""
+    torch.manual_seed(0)
+    net = PumaNet(StateSpec(3, True, 2), NetConfig(32, 8), np.ones(3), np.ones(6), np.ones(6))
+    enc, dec = network._functions(net.encoder), network._functions(net.decoder)
+    xs = [torch.randn(7, 18), torch.randn(4, 5, 18), torch.randn(7, 18)]
+
+    def run(encoder, decoder):
+        net.zero_grad(set_to_none=True)
+        total, carry = torch.zeros(()), torch.zeros(6)
+        for x in xs:
+            x = torch.cat((x[..., :12], x[..., 12:] + carry.mean()), dim=-1)
+            out = decoder(torch.cat((encoder(x), x), dim=-1))
+            carry = out.reshape(-1, 6)[0]
+            total = total + (out * out).sum()
+        total.backward()
+        return total.detach(), [p.grad.clone() for p in net.parameters()]
+
+    v0, g0 = run(net.encoder, net.decoder)
+    v1, g1 = run(lambda x: network._apply(enc, x), lambda y: network._apply(dec, y))
+    assert torch.equal(v0, v1)
+    assert all(torch.equal(a, b) for a, b in zip(g0, g1))
 
 
 @pytest.mark.parametrize("window,horizon", [(6, 3), (3, 6), (4, 4)])

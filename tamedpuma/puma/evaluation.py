@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+import importlib.util
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -43,6 +45,16 @@ def dtw_per_point(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _dp_batch(costs: list[np.ndarray], frechet: bool) -> np.ndarray:
+    """:func:`_dp` of every cost matrix (N_i, M_i): each by the compiled recurrence
+    (:func:`_dp_cells`) where numba is installed, else all in one anti-diagonal sweep
+    (:func:`_dp_sweep`); the same numbers to the bit."""
+    kernel = _dp_kernel()
+    if kernel is None:
+        return _dp_sweep(costs, frechet)
+    return np.array([kernel(np.ascontiguousarray(c, dtype=np.float64), frechet) for c in costs])
+
+
+def _dp_sweep(costs: list[np.ndarray], frechet: bool) -> np.ndarray:
     """:func:`_dp` of every cost matrix (N_i, M_i) in one anti-diagonal sweep: the matrices are
     padded with infinite cost, which a coupling ending at (N_i, M_i) never reaches."""
     d = len(costs)
@@ -60,6 +72,51 @@ def _dp_batch(costs: list[np.ndarray], frechet: bool) -> np.ndarray:
         best = np.minimum(np.minimum(acc[:, i, j + 1], acc[:, i + 1, j]), acc[:, i, j])
         acc[:, i + 1, j + 1] = np.maximum(cost[:, i, j], best) if frechet else cost[:, i, j] + best
     return acc[np.arange(d), n, m]
+
+
+def _nan_min(a: float, b: float) -> float:
+    """``np.minimum(a, b)`` of two floats: NaN if either is NaN."""
+    return a if a < b or a != a else b
+
+
+def _nan_max(a: float, b: float) -> float:
+    """``np.maximum(a, b)`` of two floats: NaN if either is NaN."""
+    return a if a > b or a != a else b
+
+
+def _dp_cells(cost: np.ndarray, frechet: bool) -> float:
+    """:func:`_dp` of one cost matrix (N, M) cell by cell (row by row; each cell's minimum over
+    its three predecessors in :func:`_dp`'s order, then ``cost + best`` (DTW) or
+    ``max(cost, best)`` (Fréchet)): the same operations on the same values, as a loop that
+    numba compiles (:func:`_dp_kernel`)."""
+    n, m = cost.shape
+    acc = np.full((n + 1, m + 1), np.inf)
+    acc[0, 0] = -np.inf if frechet else 0.0
+    for i in range(n):
+        for j in range(m):
+            best = _nan_min(_nan_min(acc[i, j + 1], acc[i + 1, j]), acc[i, j])
+            acc[i + 1, j + 1] = _nan_max(cost[i, j], best) if frechet else cost[i, j] + best
+    return acc[n, m]
+
+
+_DP_KERNEL: list = []
+
+
+def _dp_kernel():
+    """:func:`_dp_cells` compiled (once per process, from numba's on-disk cache after the first
+    time; None without numba or where it fails to compile, with a warning)."""
+    if not _DP_KERNEL:
+        kernel = None
+        if importlib.util.find_spec("numba") is not None:
+            try:
+                from tamedpuma.jit import compile_kernels
+
+                kernel = compile_kernels(globals(), (_dp_cells,), (_nan_min, _nan_max))["_dp_cells"]
+            except Exception as exc:  # noqa: BLE001 - a broken numba install: the numpy sweep
+                warnings.warn(f"numba could not compile the DTW recurrence ({type(exc).__name__}: "
+                              f"{exc}); it runs in numpy", stacklevel=2)
+        _DP_KERNEL.append(kernel)
+    return _DP_KERNEL[0]
 
 
 def dtw_per_point_batch(paths: list[np.ndarray], refs: list[np.ndarray]) -> np.ndarray:

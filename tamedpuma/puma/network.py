@@ -29,9 +29,11 @@ its stability is what the triplet loss trains).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from . import manifold
 from .settings import NetConfig
@@ -86,6 +88,7 @@ class PumaNet(nn.Module):
         self.register_buffer("out_scale", torch.as_tensor(out_scale, dtype=torch.float32))
         self._goal_out: torch.Tensor | None = None
         self._shared_goal: tuple[torch.Tensor, torch.Tensor] | None = None
+        self._layers: tuple | None = None  # the layers as functions (training: share_goal)
 
     # --- pieces -------------------------------------------------------------------------
 
@@ -99,12 +102,23 @@ class PumaNet(nn.Module):
         return torch.cat(parts, dim=-1)
 
     def encode(self, pos, quat=None, vel=None) -> torch.Tensor:
-        """Latent ``y = ρ(x, ẋ)`` (vel None means ẋ = 0 for a second-order net)."""
+        """Latent ``y = ρ(x, ẋ)`` (vel None means ẋ = 0 for a second-order net); with ``skip``
+        c > 0, ``[ρ_net(f), c f]`` (c = 1 multiplies nothing: ``1 · f`` is f to the bit)."""
         if self.spec.order == 2 and vel is None:
             vel = pos.new_zeros(pos.shape[:-1] + (self.spec.tangent_dim,))
         f = self.features(pos, quat, vel)
-        y = self.encoder(f)
-        return torch.cat((y, self.cfg.skip * f), dim=-1) if self.cfg.skip > 0 else y
+        if self._layers is None:
+            y = self.encoder(f)
+        else:
+            y = _apply(self._layers[0], f)
+        if self.cfg.skip <= 0:
+            return y
+        return torch.cat((y, f if self.cfg.skip == 1.0 else self.cfg.skip * f), dim=-1)
+
+    def _decode(self, y: torch.Tensor) -> torch.Tensor:
+        """``φ(y)``: the decoder's layers (as functions between :meth:`share_goal` and
+        :meth:`release_goal`)."""
+        return self.decoder(y) if self._layers is None else _apply(self._layers[1], y)
 
     def goal_state(self, batch_shape=(), like: torch.Tensor | None = None):
         """The goal ``(0, identity, 0)`` as tensors."""
@@ -128,13 +142,19 @@ class PumaNet(nn.Module):
     def share_goal(self) -> None:
         """Training: compute ``y_g`` and ``φ(y_g)`` once (with their graph) for every call until
         :meth:`release_goal`, instead of once per call (a rollout calls the network per step;
-        the values and gradients are the same, the operations ~half)."""
+        the values and gradients are the same, the operations ~half).
+
+        Until then the layers also run as functions (:func:`_functions`): each linear layer's
+        ``Wᵀ`` is taken once for all calls, not once per call (the same products, and the
+        weights' gradients summed in the same order)."""
         self._shared_goal = None
+        self._layers = (_functions(self.encoder), _functions(self.decoder))
         yg = self.goal_latent()
-        self._shared_goal = (yg, self.decoder(yg))
+        self._shared_goal = (yg, self._decode(yg))
 
     def release_goal(self) -> None:
         self._shared_goal = None
+        self._layers = None
 
     def cache_goal(self) -> None:
         """Freeze ``φ(ρ(x_g, 0))`` for inference (the weights do not change any more)."""
@@ -155,7 +175,7 @@ class PumaNet(nn.Module):
     def output(self, y: torch.Tensor, goal_out: torch.Tensor | None) -> torch.Tensor:
         """``s ⊙ (φ(y) − goal_out)`` with a given goal offset (:meth:`goal_offset`; None: none
         subtracted): :meth:`head`'s arithmetic, for a caller that holds the offset."""
-        out = self.decoder(y)
+        out = self._decode(y)
         if goal_out is not None:
             out = out - goal_out
         return out * self.out_scale
@@ -169,13 +189,44 @@ class PumaNet(nn.Module):
         if self._shared_goal is not None:
             return self._shared_goal[1]
         if self.training or self._goal_out is None:
-            return self.decoder(self.goal_latent())
+            return self._decode(self.goal_latent())
         return self._goal_out
 
     def train(self, mode: bool = True):
         self._goal_out = None
         self._shared_goal = None
+        self._layers = None
         return super().train(mode)
+
+
+def _functions(seq: nn.Sequential) -> tuple:
+    """The layers of ``seq`` as functions of a 2-D input (rows, features), each the op its
+    module's forward runs: ``addmm(b, x, Wᵀ)`` with ``Wᵀ`` taken here once (``F.linear`` takes
+    it at every call), ``layer_norm``, ``gelu``. The module calls' own overhead (hooks, lookups)
+    is gone too; the values are the modules' to the bit."""
+    out = []
+    for m in seq:
+        if isinstance(m, nn.Linear):
+            out.append(partial(torch.addmm, m.bias, mat2=m.weight.t()))
+        elif isinstance(m, nn.LayerNorm):
+            out.append(partial(F.layer_norm, normalized_shape=m.normalized_shape,
+                               weight=m.weight, bias=m.bias, eps=m.eps))
+        elif isinstance(m, nn.GELU):
+            out.append(partial(F.gelu, approximate=m.approximate))
+        else:
+            raise TypeError(f"no function for layer {m}")
+    return tuple(out)
+
+
+def _apply(layers: tuple, x: torch.Tensor) -> torch.Tensor:
+    """``layers`` (:func:`_functions`) on x (..., features): as rows (B, features), as
+    ``F.linear`` runs an input of more dimensions (its rows flattened, the result viewed back)."""
+    shape = x.shape
+    if x.dim() != 2:
+        x = x.reshape(-1, shape[-1])
+    for layer in layers:
+        x = layer(x)
+    return x if len(shape) == 2 else x.view(*shape[:-1], x.shape[-1])
 
 
 def potential(net: PumaNet, pos: torch.Tensor, quat: torch.Tensor | None):
