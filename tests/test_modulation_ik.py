@@ -223,6 +223,48 @@ def test_backends_agree_on_a_simple_problem(kinematics):
 
 
 @pytest.mark.skipif("drake" not in BACKENDS, reason="needs drake (pip install drake)")
+def test_drakes_reused_program_answers_as_a_fresh_one(kinematics):
+    """Every solve reuses the world's program (its box bounds set, its distance constraint
+    replaced when d_min changes, its costs replaced): the answers are a fresh program's to the
+    bit, through changes of d_min, iteration limits and failed solves."""
+    from tamedpuma.ik_solvers import drake
+
+    rng = np.random.default_rng(3)
+    for k in range(12):
+        q, target, centers = _random_scene(kinematics, rng)
+        if k % 4 == 3:  # an obstacle on a body sphere: hard or infeasible
+            centers = kinematics.sphere_centers(q)[3:4] + 0.02
+        prob = _problem(kinematics, q, target, centers, step=0.05,
+                        d_min=[0.02, 0.0, 0.05][k % 3], max_iterations=[100, 2][k % 5 == 4],
+                        target_rotation=kinematics.ee_frame(q)[1], orientation_weight=0.1)
+        reused = drake.solve(prob)
+        drake._world(kinematics, prob.obstacle_radii).program = None  # the next solve builds it
+        fresh = drake.solve(prob)
+        np.testing.assert_array_equal(reused.q, fresh.q)
+        assert (reused.success, reused.iterations, reused.message) == (
+            fresh.success, fresh.iterations, fresh.message)
+
+
+def test_one_placement_pass_gives_the_hand_and_the_spheres(kinematics):
+    """placement(q): ee_frame's and sphere_centers' numbers to the bit; solve_ik's answer carries
+    its end-effector position from the check's pass."""
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        q = rng.uniform(kinematics.spec.q_min, kinematics.spec.q_max)
+        p, rot, centers = ik_solvers.placement(kinematics, q)
+        p_ee, rot_ee = kinematics.ee_frame(q)
+        np.testing.assert_array_equal(p, p_ee)
+        np.testing.assert_array_equal(rot, rot_ee)
+        np.testing.assert_array_equal(centers, kinematics.sphere_centers(q))
+    prob = _problem(kinematics, Q0, kinematics.ee_pose(Q0)[0] + 0.01, [[0.5, -0.3, 0.5]],
+                    step=0.05)
+    result = solve_ik(prob, BACKENDS[0])
+    np.testing.assert_array_equal(result.ee_position, kinematics.ee_frame(result.q)[0])
+    assert violation(prob, result.q, ik_solvers.placement(kinematics, result.q)[2]) == \
+        violation(prob, result.q)
+
+
+@pytest.mark.skipif("drake" not in BACKENDS, reason="needs drake (pip install drake)")
 def test_drakes_plant_is_built_without_warnings(kinematics, caplog):
     """The IK's plant takes the URDF's kinematic tree alone: Drake warned on the iiwa base's
     massless inertia at every build (one line in every Modulation-IK run's output)."""

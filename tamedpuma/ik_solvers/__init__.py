@@ -3,7 +3,8 @@
     result = solve_ik(problem, backend="drake")      # or "slsqp"
 
 Every backend solves the same :class:`IKProblem` (equations in :mod:`.problem`); ``solve_ik`` then
-checks the answer independently with pinocchio: a result is a success only if the solver says so
+checks the answer independently with pinocchio (one placement pass, which also gives the end
+effector's position at the answer): a result is a success only if the solver says so
 AND every bound and distance constraint holds within ``problem.tolerance``. A failed solve never
 returns an unsafe configuration when a safe one is known: it returns the solver's iterate if that
 satisfies the constraints, else ``q_start`` if that does, else whichever of the two violates less
@@ -34,6 +35,7 @@ from .problem import (
     SolverOptions,
     distances,
     objective,
+    placement,
     reach_bounds,
     violation,
 )
@@ -48,8 +50,8 @@ DEFAULT_BACKEND = "drake"
 WARM_UP: dict[str, Callable] = {"drake": drake.warm_up, "slsqp": slsqp.warm_up}
 
 __all__ = ["BACKENDS", "DEFAULT_BACKEND", "IKProblem", "IKResult", "SolverOptions",
-           "available_backends", "distances", "objective", "reach_bounds", "solve_ik", "violation",
-           "warm_up"]
+           "available_backends", "distances", "objective", "placement", "reach_bounds", "solve_ik",
+           "violation", "warm_up"]
 
 
 def available_backends() -> list[str]:
@@ -73,17 +75,25 @@ def solve_ik(problem: IKProblem, backend: str = DEFAULT_BACKEND) -> IKResult:
     if not np.all(np.isfinite(q)) or q.shape != problem.q_start.shape:
         q = problem.q_start
         raw = dataclasses.replace(raw, success=False, message=raw.message + "; non-finite answer")
-    viol, dmin = violation(problem, q)
+    viol, dmin, ee = _check(problem, q)
     ok = viol <= problem.tolerance
     if raw.success and ok:
-        return dataclasses.replace(raw, q=q, max_violation=viol, min_distance=dmin)
+        return dataclasses.replace(raw, q=q, max_violation=viol, min_distance=dmin,
+                                   ee_position=ee)
     message = raw.message
     if raw.success:
         message += f"; rejected: constraint violation {viol:.3g} > tolerance {problem.tolerance:g}"
     if not ok:  # fall back to the start if it is safer
-        viol_0, dmin_0 = violation(problem, problem.q_start)
+        viol_0, dmin_0, ee_0 = _check(problem, problem.q_start)
         if viol_0 < viol:
-            q, viol, dmin = problem.q_start, viol_0, dmin_0
+            q, viol, dmin, ee = problem.q_start, viol_0, dmin_0, ee_0
             message += "; returned q_start"
     return dataclasses.replace(raw, q=q, success=False, message=message, max_violation=viol,
-                               min_distance=dmin)
+                               min_distance=dmin, ee_position=ee)
+
+
+def _check(problem: IKProblem, q: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """(:func:`violation` at q, the end-effector position at q (3,) [m]) from one placement
+    pass."""
+    ee, _, centers = placement(problem.kinematics, q)
+    return (*violation(problem, q, centers), ee)

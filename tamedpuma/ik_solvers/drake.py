@@ -17,6 +17,15 @@ in the SLSQP backend; the minimiser is the same. Unscaled, a step of a fraction 
 SNOPT's optimality tolerance: SNOPT returned the start and the arm stood 5.6 cm from the goal
 for 30 s (Table-1 pouring 0). SNOPT reports no iteration count through Drake:
 ``iterations`` is the number of objective evaluations (counted by a visualization callback).
+
+The program is built once per world and reused by every solve (:class:`_Program`): the trust box
+takes each problem's bounds, the minimum-distance constraint is replaced only when its bound or
+influence distance changes, and the costs are replaced in the order a fresh program adds them, so
+SNOPT sees the same program as from a fresh build (the same iterates to the bit) without Drake
+creating the decision variables, the program and SNOPT's options at every step. SNOPT's
+``Major print level`` is 0: at its default (1) SNOPT formats a log line per major iteration and
+its exit report (Fortran internal writes, ~0.3 ms of a ~1.5 ms solve) even with no print file to
+write them to; the print level changes no iterate.
 """
 
 from __future__ import annotations
@@ -24,7 +33,7 @@ from __future__ import annotations
 import importlib.util
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -52,6 +61,29 @@ def _pydrake():
 
 
 @dataclass
+class _Program:
+    """The IK program of one world, reused by every solve (module docstring): Drake's
+    InverseKinematics ``ik`` and its program ``prog``, the decision variables ``q`` (the plant's
+    positions, in the program's order) and ``qv`` (the robot's joints), the trust-box constraint
+    ``box``, the minimum-distance constraint ``distance`` with its (bound, influence) [m], the
+    costs of the last solve, the evaluation counter, SNOPT and its options (for
+    ``max_iterations``)."""
+
+    ik: object
+    prog: object
+    q: np.ndarray
+    qv: np.ndarray
+    box: object
+    counter: list
+    solver: object
+    options: object
+    max_iterations: int = -1
+    distance: object = None
+    distance_key: tuple | None = None
+    costs: list = field(default_factory=list)
+
+
+@dataclass
 class _World:
     diagram: object
     context: object
@@ -60,6 +92,7 @@ class _World:
     position_index: np.ndarray
     ee_frame: object
     obstacle_frames: list
+    program: _Program | None = None
 
 
 _WORLDS: dict = {}
@@ -130,6 +163,77 @@ def warm_up(kinematics, radii: np.ndarray) -> None:
     _world(kinematics, np.asarray(radii, float))
 
 
+def _program(world: _World, max_iterations: int) -> _Program:
+    """The world's program (built at its first solve) with SNOPT's options for
+    ``max_iterations``."""
+    pd = _pydrake()
+    program = world.program
+    if program is None:
+        ik = pd.InverseKinematics(world.plant, world.plant_context, with_joint_limits=False)
+        prog = ik.get_mutable_prog()
+        q = ik.q()
+        if list(prog.FindDecisionVariableIndices(q)) != list(range(len(q))):
+            raise ConfigError("drake's IK program holds variables other than the positions")
+        qv = q[world.position_index]
+        box = prog.AddBoundingBoxConstraint(np.full(len(qv), -np.inf), np.full(len(qv), np.inf),
+                                            qv)
+        counter = [0]
+
+        def _count(_x):  # called with the iterate (floats) at every evaluation of the program
+            counter[0] += 1
+
+        # A visualization callback, not a zero cost: Drake calls it once per evaluation as it
+        # did the cost (the same count), but with floats, where a Python cost is called with
+        # AutoDiff arrays for its gradient (~10 µs per evaluation, ~0.2 ms of a 1.2 ms solve)
+        prog.AddVisualizationCallback(_count, qv[:1])
+        program = world.program = _Program(ik, prog, q, qv, box, counter, pd.SnoptSolver(),
+                                           pd.SolverOptions())
+        program.options.SetOption(program.solver.id(), "Major print level", 0)
+    if program.max_iterations != max_iterations:
+        program.options.SetOption(program.solver.id(), "Major iterations limit", max_iterations)
+        program.max_iterations = max_iterations
+    return program
+
+
+def _set_constraints(program: _Program, problem: IKProblem) -> None:
+    """The trust box ``q_lower ≤ q ≤ q_upper`` and, with obstacles, Drake's minimum distance
+    ``≥ d_min + drake_margin`` [m] (module docstring), replaced only when it changes."""
+    program.box.evaluator().set_bounds(problem.q_lower, problem.q_upper)
+    key = None
+    if problem.n_obstacles:
+        key = (problem.d_min + float(problem.options.drake_margin),
+               float(problem.options.drake_influence))
+    if key == program.distance_key:
+        return
+    if program.distance is not None:
+        program.prog.RemoveConstraint(program.distance)
+        program.distance = None
+    if key is not None:
+        program.distance = program.ik.AddMinimumDistanceLowerBoundConstraint(*key)
+    program.distance_key = key
+
+
+def _set_costs(program: _Program, world: _World, problem: IKProblem) -> None:
+    """The objective ×1/s² (module docstring): the position, orientation and regularisation
+    costs, replacing the last solve's, added in the order of a fresh program."""
+    pd = _pydrake()
+    ik, prog = program.ik, program.prog
+    for binding in program.costs:
+        prog.RemoveCost(binding)
+    scale = 1.0 / float(problem.options.scale) ** 2  # the objective ×1/s², as SLSQP's
+    world_frame = world.plant.world_frame()
+    costs = [ik.AddPositionCost(world_frame, problem.target_position, world.ee_frame,
+                                np.zeros(3), scale * problem.position_weight * np.eye(3))]
+    if problem.target_rotation is not None and problem.orientation_weight > 0:
+        costs.append(ik.AddOrientationCost(world_frame, pd.RotationMatrix(problem.target_rotation),
+                                           world.ee_frame, pd.RotationMatrix(),
+                                           scale * problem.orientation_weight))
+    costs.append(prog.AddQuadraticErrorCost(
+        scale * problem.regularization_weight * np.eye(len(program.qv)), problem.q_ref,
+        program.qv))
+    program.costs = costs
+
+
 def solve(problem: IKProblem) -> IKResult:
     """Solve ``problem`` with Drake's InverseKinematics and SNOPT (module docstring)."""
     pd = _pydrake()
@@ -142,40 +246,15 @@ def solve(problem: IKProblem) -> IKResult:
     q_full[idx] = np.clip(problem.q_start, problem.q_lower, problem.q_upper)
     plant.SetPositions(pctx, q_full)
 
-    ik = pd.InverseKinematics(plant, pctx, with_joint_limits=False)
-    prog = ik.get_mutable_prog()
-    qv = ik.q()[idx]
-    prog.AddBoundingBoxConstraint(problem.q_lower, problem.q_upper, qv)
-    if problem.n_obstacles:
-        margin = float(problem.options.drake_margin)
-        influence = float(problem.options.drake_influence)
-        ik.AddMinimumDistanceLowerBoundConstraint(problem.d_min + margin, influence)
-    scale = 1.0 / float(problem.options.scale) ** 2  # the objective ×1/s², as SLSQP's
-    ik.AddPositionCost(plant.world_frame(), problem.target_position, world.ee_frame, np.zeros(3),
-                       scale * problem.position_weight * np.eye(3))
-    if problem.target_rotation is not None and problem.orientation_weight > 0:
-        ik.AddOrientationCost(plant.world_frame(), pd.RotationMatrix(problem.target_rotation),
-                              world.ee_frame, pd.RotationMatrix(),
-                              scale * problem.orientation_weight)
-    prog.AddQuadraticErrorCost(scale * problem.regularization_weight * np.eye(len(idx)),
-                               problem.q_ref, qv)
-    counter = [0]
-
-    def _count(_x):  # called with the iterate (floats) at every evaluation of the program
-        counter[0] += 1
-
-    # A visualization callback, not a zero cost: Drake calls it once per evaluation as it did
-    # the cost (the same count), but with floats, where a Python cost is called with AutoDiff
-    # arrays for its gradient (~10 µs per evaluation, ~0.2 ms of a 1.2 ms solve)
-    prog.AddVisualizationCallback(_count, qv[:1])
-    options = pd.SolverOptions()
-    solver = pd.SnoptSolver()
-    options.SetOption(solver.id(), "Major iterations limit", int(problem.max_iterations))
-    result = solver.Solve(prog, q_full, options)
-    q = result.GetSolution(ik.q())[idx]
+    program = _program(world, int(problem.max_iterations))
+    _set_constraints(program, problem)
+    _set_costs(program, world, problem)
+    program.counter[0] = 0
+    result = program.solver.Solve(program.prog, q_full, program.options)
+    q = result.get_x_val()[idx]  # the decision variables are the plant's positions, in order
     info = result.get_solver_details().info
     elapsed = (time.perf_counter() - start) * 1e3
     return IKResult(q=np.asarray(q, float), success=bool(result.is_success()),
                     message=f"SNOPT info {info}: {result.get_solution_result().name}",
-                    iterations=counter[0], max_violation=float("nan"),
+                    iterations=program.counter[0], max_violation=float("nan"),
                     min_distance=float("nan"), backend="drake", solve_time_ms=elapsed)

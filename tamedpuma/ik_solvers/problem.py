@@ -20,13 +20,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tamedpuma.robot.kinematics import Kinematics
-from tamedpuma.types import frozen_array
 
 
 def _frozen(value, shape, name) -> np.ndarray:
-    """``value`` reshaped to ``shape`` (-1: any length) as a read-only finite float array."""
-    arr = np.reshape(np.asarray(value, dtype=float), shape)
-    return frozen_array(arr, tuple(None if n == -1 else n for n in shape), f"IKProblem.{name}")
+    """``value`` reshaped to ``shape`` (-1: any length) as a read-only finite float array of the
+    problem's own (a copy: the caller may change its array later); the checks of
+    :func:`~tamedpuma.types.frozen_array`, the shape's by the reshape."""
+    arr = np.array(value, dtype=float).reshape(shape)
+    if not np.isfinite(arr).all():
+        raise ValueError(f"IKProblem.{name} must be finite, got {arr}")
+    arr.flags.writeable = False
+    return arr
 
 
 @dataclass(frozen=True)
@@ -116,7 +120,9 @@ class IKResult:
     iterations: solver iterations (or function evaluations where the solver reports no count);
     max_violation: largest violation of the bounds and distance constraints at q [m or rad];
     min_distance: min_ij d_ij(q) [m] (inf without obstacles); backend: which solver ran;
-    solve_time_ms: wall time of the backend call [ms]."""
+    solve_time_ms: wall time of the backend call [ms]; ee_position: (3,) the end-effector
+    position at q [m] (from the placement pass of :func:`~tamedpuma.ik_solvers.solve_ik`'s
+    check; None from a backend alone)."""
 
     q: np.ndarray
     success: bool
@@ -126,6 +132,7 @@ class IKResult:
     min_distance: float
     backend: str
     solve_time_ms: float = 0.0
+    ee_position: np.ndarray | None = None
 
     @property
     def status(self) -> str:
@@ -179,14 +186,28 @@ def objective(problem: IKProblem, state, q: np.ndarray) -> tuple[float, np.ndarr
     return float(value), grad
 
 
-def violation(problem: IKProblem, q: np.ndarray) -> tuple[float, float]:
-    """(max violation of bounds and distance constraints [m or rad], min_ij d_ij [m]) at q."""
+def violation(problem: IKProblem, q: np.ndarray,
+              centers: np.ndarray | None = None) -> tuple[float, float]:
+    """(max violation of bounds and distance constraints [m or rad], min_ij d_ij [m]) at q;
+    centers: the body-sphere centres (k, 3) [m] at q where a placement pass already gave them
+    (:func:`placement`: the same numbers), else computed here."""
     q = np.asarray(q, float)
-    bound = max(0.0, float(np.max(problem.q_lower - q)), float(np.max(q - problem.q_upper)))
+    bound = max(0.0, float((problem.q_lower - q).max()), float((q - problem.q_upper).max()))
     if problem.n_obstacles == 0:
         return bound, float("inf")
-    gap = distances(problem, q)
-    return max(bound, float(np.max(-gap, initial=0.0))), float(gap.min() + problem.d_min)
+    if centers is None:
+        gap = distances(problem, q)
+    else:
+        gap = _gaps(problem, centers, problem.kinematics.sphere_radii)[0].ravel()
+    return max(bound, float((-gap).max(initial=0.0))), float(gap.min() + problem.d_min)
+
+
+def placement(kinematics: Kinematics, q: np.ndarray):
+    """(end-effector position (3,) [m], rotation (3, 3), body-sphere centres (k, 3) [m]) at q
+    from one placement pass: the numbers of ``ee_frame`` and ``sphere_centers`` (each frame is
+    placed from the joints alone, whichever frames a pass places)."""
+    rotations, origins = kinematics.placements(q, (kinematics.ee_id, *kinematics.sphere_ids))
+    return origins[0], rotations[0], origins[1:]
 
 
 def robot_key(kinematics: Kinematics) -> tuple:

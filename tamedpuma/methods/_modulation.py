@@ -69,6 +69,11 @@ def gamma(x: np.ndarray, centers: np.ndarray, radii: np.ndarray, safety: float =
     x: (3,) [m]; centers: (n, 3) [m]; radii: (n,) [m]; safety: margin added to r_j [m].
     """
     dist = np.linalg.norm(np.asarray(x, float)[None, :] - np.reshape(centers, (-1, 3)), axis=1)
+    return _gamma(dist, radii, safety, power)
+
+
+def _gamma(dist: np.ndarray, radii: np.ndarray, safety: float, power: float) -> np.ndarray:
+    """Γ_j from the distances ‖x − o_j‖ (n,) [m] (:func:`gamma`)."""
     return (dist / (np.asarray(radii, float) + safety)) ** (2.0 * power)
 
 
@@ -81,11 +86,12 @@ def weights(gammas: np.ndarray) -> np.ndarray:
     n = len(g)
     if n <= 1:
         return np.ones(n)
-    num = np.broadcast_to(g[None, :], (n, n))          # [j, i] = Γ_i − 1
-    den = g[:, None] + g[None, :]                       # [j, i] = (Γ_j − 1) + (Γ_i − 1)
-    factor = np.where(den > _EPS, num / np.where(den > _EPS, den, 1.0), 0.5)
-    np.fill_diagonal(factor, 1.0)
-    return np.prod(factor, axis=1)
+    num = g[None, :]                                    # [j, i] = Γ_i − 1 (broadcast)
+    den = g[:, None] + num                              # [j, i] = (Γ_j − 1) + (Γ_i − 1)
+    apart = den > _EPS
+    factor = np.where(apart, num / np.where(apart, den, 1.0), 0.5)
+    factor.flat[::n + 1] = 1.0                          # the diagonal, i = j
+    return factor.prod(axis=1)
 
 
 def orthonormal_basis(normal: np.ndarray) -> np.ndarray:
@@ -113,17 +119,19 @@ def modulation(x: np.ndarray, centers: np.ndarray, radii: np.ndarray,
     vel = np.zeros((n, 3)) if velocities is None else np.reshape(velocities, (n, 3))
     if n == 0:
         return Modulation(np.eye(3), np.zeros(0), np.zeros(0), np.zeros(3))
-    gam = gamma(x, centers, radii, safety, power)
-    w = weights(gam)
     diff = x[None, :] - centers
-    dist = np.linalg.norm(diff, axis=1, keepdims=True)
+    dist = np.linalg.norm(diff, axis=1)  # (n,), Γ's and the normals' distances
+    gam = _gamma(dist, radii, safety, power)
+    w = weights(gam)
     # at the exact centre the normal is undefined: any unit vector (here +z) keeps M finite
-    normals = np.where(dist > _EPS, diff / np.where(dist > _EPS, dist, 1.0), [0.0, 0.0, 1.0])
-    inv = w / np.maximum(gam, gamma_floor)  # ω_j / Γ_j
-    matrix = np.eye(3)
-    for j in range(n):
-        m_j = (1.0 + inv[j]) * np.eye(3) - 2.0 * inv[j] * np.outer(normals[j], normals[j])
-        matrix = matrix @ m_j
+    far = (dist > _EPS)[:, None]
+    normals = np.where(far, diff / np.where(far, dist[:, None], 1.0), [0.0, 0.0, 1.0])
+    inv = (w / np.maximum(gam, gamma_floor))[:, None, None]  # ω_j / Γ_j
+    # every M_j = (1 + ω_j/Γ_j) I − (2 ω_j/Γ_j) n_j n_jᵀ at once; M = M_1 M_2 … (I M_1 = M_1)
+    m = (1.0 + inv) * np.eye(3) - (2.0 * inv) * (normals[:, :, None] * normals[:, None, :])
+    matrix = m[0]
+    for j in range(1, n):
+        matrix = matrix @ m[j]
     total = w.sum()
     o_dot = (w[:, None] * vel).sum(axis=0) / total if total > _EPS else vel.mean(axis=0)
     return Modulation(matrix, gam, w, o_dot)

@@ -60,7 +60,7 @@ from typing import Protocol
 import numpy as np
 
 from tamedpuma.errors import CheckpointError, ConfigError
-from tamedpuma.ik_solvers import BACKENDS, IKProblem, solve_ik, warm_up
+from tamedpuma.ik_solvers import BACKENDS, IKProblem, placement, solve_ik, violation, warm_up
 from tamedpuma.methods._modulation import modulate
 from tamedpuma.methods._policy import episode_primitive
 from tamedpuma.methods._settings import MODEL_CHOICES, check
@@ -188,9 +188,10 @@ class ModulationIK:
     def step(self, obs: Observation) -> Command:
         prm, dt = self.params, self.episode.dt
         q, qd = np.asarray(obs.q, float), np.asarray(obs.qd, float)
-        # the hand's pose only (the placement pass: the numbers evaluate() gives)
-        hand = self.kinematics.ee_frame(q)
-        p_target, rot_target, v, v_mod, mod = self._targets(obs, *hand)
+        # the hand's pose and the body spheres' centres from one placement pass (the numbers
+        # evaluate() gives)
+        hand_p, hand_rot, centers = placement(self.kinematics, q)
+        p_target, rot_target, v, v_mod, mod = self._targets(obs, hand_p, hand_rot)
         spec = self.kinematics.spec
         box = prm.trust * spec.qd_max * dt
         upper = np.minimum(q + box, spec.q_max - prm.limit_margin)
@@ -206,7 +207,7 @@ class ModulationIK:
             max_iterations=prm.ik_max_iterations)
         current = np.inf  # c_k, the current clearance (module docstring, step 4)
         if prm.hold_clearance and problem.n_obstacles:
-            current = _clearance(problem, q)
+            current = violation(problem, q, centers)[1]
             if current + prm.clearance_recovery < prm.d_min:
                 problem = dataclasses.replace(
                     problem, d_min=max(0.0, current + prm.clearance_recovery))
@@ -223,8 +224,12 @@ class ModulationIK:
                 "step %d: IK failed (%s); %s", obs.step, result.message,
                 "holding the current configuration" if brake else "moving to its safe answer")
         qdd = (prm.tracking_gain * (q_ik - q) / dt - qd) / dt
-        p_ik = self.kinematics.ee_frame(q_ik)[0]
-        clearance = result.min_distance if safe else _clearance(problem, q)
+        # p(q_ik) and the clearance from the placement passes already made: solve_ik's check
+        # of its answer, or this step's at q
+        p_ik = result.ee_position if safe else hand_p
+        if p_ik is None:
+            p_ik = self.kinematics.ee_frame(q_ik)[0]
+        clearance = result.min_distance if safe else violation(problem, q, centers)[1]
         scalars = {
             "ik_success": float(result.success),
             "ik_iterations": float(result.iterations),
@@ -239,7 +244,7 @@ class ModulationIK:
             "nominal_speed_mps": float(np.linalg.norm(v)),
             "modulated_speed_mps": float(np.linalg.norm(v_mod)),
         }
-        return Command(qdd=qdd, scalars=scalars, logged_later=self._psi_later(hand[0], obs))
+        return Command(qdd=qdd, scalars=scalars, logged_later=self._psi_later(hand_p, obs))
 
     def _psi_later(self, p: np.ndarray, obs: Observation):
         """``{"psi": ψ}`` of the position primitive (PUMA's potential) at the hand's position p
@@ -249,12 +254,6 @@ class ModulationIK:
             return None
         goal = obs.goal_position
         return lambda: {"psi": float(psi(p, goal))}
-
-
-def _clearance(problem: IKProblem, q: np.ndarray) -> float:
-    from tamedpuma.ik_solvers import violation
-
-    return violation(problem, q)[1]
 
 
 def _train_hint(settings, path: str) -> str:
