@@ -42,13 +42,12 @@ WHY = {
            "compiled kernels.",
     "cpm": "As FPM, plus ψ and ∂ψ (the rest row of the network's pass and a hand-written "
            "backward pass) and the regulator.",
-    "modulation_ik": "The IK solve (SNOPT through Drake, a fresh program each step) is the "
-                     "step: SNOPT's own ~20 evaluations of Drake's kinematics and "
-                     "signed-distance query are ~0.7-1 ms of it on this machine, which no "
-                     "change that keeps its answers can remove; building the program "
-                     "~0.15 ms (reusing one measured 0.03-0.04 ms less: RemoveCost is slow); "
-                     "the modulation, the network, the problem's validation and the "
-                     "distance check of the answer are the rest (~0.3 ms).",
+    "modulation_ik": "The IK solve (SNOPT through Drake, one program per world reused by "
+                     "every solve, SNOPT's major print level 0) is the step: SNOPT's own ~20 "
+                     "evaluations of Drake's kinematics and signed-distance query are ~1 ms "
+                     "of it on this machine, which no change that keeps its answers can "
+                     "remove; the modulation, the network, the problem's checks and the "
+                     "distance check of the answer are the rest (~0.2 ms).",
 }
 
 
