@@ -68,7 +68,7 @@ def test_a_step_made_slow_in_the_log_is_judged_the_machines_after_a_real_rerun(t
     episode, step for step, with the same model) keeps a 100 ms bound at that step (a bound
     no scheduler slice on a busy test machine reaches)."""
     from tamedpuma.app.compose import compose
-    from tamedpuma.app.sweep import run_one
+    from tamedpuma.app.sweep import run_one, write_summary
 
     overrides = ["method=fabrics", "+experiment=table1", "case=tomato_00",
                  "without_obstacles=true"]
@@ -79,7 +79,8 @@ def test_a_step_made_slow_in_the_log_is_judged_the_machines_after_a_real_rerun(t
     summary["status"] = "complete"
     summary["step_compute_ms"][5] = 500.0
     summary["step_compute_cpu_ms"][5] = 499.0
-    (run_dir / "summary.json").write_text(json.dumps(summary))
+    write_summary(run_dir, summary)  # as the sweep writes it: no obstacle, clearance null
+    assert json.loads((run_dir / "summary.json").read_text())["min_clearance_m"] is None
     (v,) = step_recheck.recheck(tmp_path / "sweep", 100.0, 1, ("fabrics",))
     assert (v.step, v.wall_ms, v.reproduced) == (5, 500.0, False), v
     assert v.least_wall_ms < 100.0 and v.least_cpu_ms < 100.0

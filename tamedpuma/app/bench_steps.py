@@ -83,7 +83,9 @@ def summary_mismatch(summary: dict, stats: dict) -> float:
 
 def run_summary(overrides: list[str]) -> dict:
     """One run of the sweep config with ``overrides`` through the sweep's ``run_one``, without
-    recorders, in a temporary folder: its ``summary.json``."""
+    recorders, in a temporary folder: its ``summary.json`` as read back from the file (what a
+    sweep's run holds: a non-finite number is null there, e.g. the clearance of a run without
+    obstacles)."""
     from tamedpuma.app.compose import compose
     from tamedpuma.app.sweep import run_one
 
@@ -91,7 +93,8 @@ def run_summary(overrides: list[str]) -> dict:
     with tempfile.TemporaryDirectory(prefix="tamedpuma-steps-") as tmp:
         run_dir = Path(tmp) / "run"
         run_dir.mkdir()
-        return run_one(cfg, run_dir)
+        run_one(cfg, run_dir)
+        return json.loads((run_dir / "summary.json").read_text())
 
 
 def run_case(method: str, overrides: list[str], extra=()) -> dict:
