@@ -22,9 +22,9 @@ def frozen_array(value, shape: tuple[int | None, ...], name: str) -> np.ndarray:
     arr = np.array(value, dtype=float)
     if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
         raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f"{name} must be finite, got {arr}")
-    arr.setflags(write=False)
+    arr.flags.writeable = False
     return arr
 
 

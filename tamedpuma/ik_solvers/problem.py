@@ -20,17 +20,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tamedpuma.robot.kinematics import Kinematics
+from tamedpuma.types import frozen_array
 
 
 def _frozen(value, shape, name) -> np.ndarray:
     """``value`` reshaped to ``shape`` (-1: any length) as a read-only finite float array of the
-    problem's own (a copy: the caller may change its array later); the checks of
-    :func:`~tamedpuma.types.frozen_array`, the shape's by the reshape."""
-    arr = np.array(value, dtype=float).reshape(shape)
-    if not np.isfinite(arr).all():
-        raise ValueError(f"IKProblem.{name} must be finite, got {arr}")
-    arr.flags.writeable = False
-    return arr
+    problem's own (:func:`~tamedpuma.types.frozen_array` copies it: the caller may change its
+    array later)."""
+    arr = np.reshape(np.asarray(value, dtype=float), shape)
+    return frozen_array(arr, tuple(None if n == -1 else n for n in shape), f"IKProblem.{name}")
 
 
 @dataclass(frozen=True)

@@ -225,10 +225,8 @@ class ModulationIK:
                 "holding the current configuration" if brake else "moving to its safe answer")
         qdd = (prm.tracking_gain * (q_ik - q) / dt - qd) / dt
         # p(q_ik) and the clearance from the placement passes already made: solve_ik's check
-        # of its answer, or this step's at q
+        # of its answer (it always places it), or this step's at q
         p_ik = result.ee_position if safe else hand_p
-        if p_ik is None:
-            p_ik = self.kinematics.ee_frame(q_ik)[0]
         clearance = result.min_distance if safe else violation(problem, q, centers)[1]
         scalars = {
             "ik_success": float(result.success),
