@@ -37,6 +37,14 @@ def test_tiny_pipeline_end_to_end(tmp_path, capsys):
     assert again["gates"]["failures"] == report["gates"]["failures"]  # judged alike
 
 
+def test_the_summary_names_the_iterations_run():
+    """An early stop prints the iterations the run took, not only the schedule's cap."""
+    line = train._summary({"train_seconds": 12.5, "iterations": 2400, "iterations_run": 1700})
+    assert line.splitlines()[0] == "trained in 12.5 s (1700 of at most 2400 iterations)"
+    line = train._summary({"train_seconds": 3.0, "iterations": 30, "iterations_run": 30})
+    assert line.splitlines()[0] == "trained in 3.0 s (30 iterations)"
+
+
 def test_first_order_position_and_seeded(tmp_path):
     reports = []
     for name in ("a", "b"):

@@ -188,7 +188,7 @@ def test_the_step_passes_the_types_the_warm_up_compiled(method, monkeypatch):
     from tamedpuma.app.sweep import build
 
     assert _kernels.warm_up()
-    for name, fast in _kernels._COMPILED.items():  # fresh wrappers: no earlier test's state
+    for name, fast in _kernels._COMPILED[0].items():  # fresh wrappers: no earlier test's state
         fresh = _kernels.Kernel(getattr(_kernels, name))
         fresh.fast = fast
         monkeypatch.setitem(_kernels.STEP, name, fresh)
@@ -217,7 +217,7 @@ def test_without_numba_every_kernel_is_the_plain_function(monkeypatch):
     assert np.array_equal(kernel(J, t, 1e-4, t[:0], False),
                           _kernels.damped_pull(J, t, 1e-4, t[:0], False))
     monkeypatch.setattr(_kernels, "AVAILABLE", False)
-    monkeypatch.setattr(_kernels, "_COMPILED", None)
+    monkeypatch.setattr(_kernels, "_COMPILED", [])
     assert _kernels.warm_up() is False
 
 
@@ -274,7 +274,7 @@ def test_a_numba_that_cannot_compile_leaves_the_plain_kernels(monkeypatch):
 
     fresh = {k.__name__: _kernels.Kernel(k) for k in _kernels.KERNELS}
     monkeypatch.setattr(_kernels, "AVAILABLE", True)
-    monkeypatch.setattr(_kernels, "_COMPILED", None)
+    monkeypatch.setattr(_kernels, "_COMPILED", [])
     monkeypatch.setattr(_kernels, "_compiled", broken)
     monkeypatch.setattr(_kernels, "STEP", fresh)
     with pytest.warns(UserWarning, match="plain numpy"):

@@ -28,7 +28,9 @@ from tamedpuma.errors import ConfigError
 def _summary(report: dict) -> str:
     ev = report.get("evaluation", {})
     im, cv, cp = ev.get("imitation", {}), ev.get("convergence", {}), ev.get("compatibility", {})
-    lines = [f"trained in {report.get('train_seconds')} s ({report.get('iterations')} iterations)"]
+    run, cap = report.get("iterations_run"), report.get("iterations")
+    done = f"{cap} iterations" if run in (None, cap) else f"{run} of at most {cap} iterations"
+    lines = [f"trained in {report.get('train_seconds')} s ({done})"]
     if ev:
         lines.append(f"imitation: DTW/point {im.get('dtw'):.4g}, RMSE {im.get('rmse'):.4g}, "
                      f"Frechet {im.get('frechet'):.4g}"

@@ -56,7 +56,7 @@ from tamedpuma.robot.point_motion import frame_motion
 
 #: numba is installed: the kernels are compiled (imported only by :func:`warm_up`)
 AVAILABLE = importlib.util.find_spec("numba") is not None
-_COMPILED: dict | None = None
+_COMPILED: list = []  # [the compiled kernels by name, or None] once tried
 
 
 def damped_pull(J, target, lam2, qdd_null, has_null):
@@ -336,25 +336,23 @@ def warm_up() -> bool:
     """Compile the kernels (or load them from the cache) with the argument types of a step,
     then freeze them; once per process. Whether they are compiled (False without numba, or
     where numba fails to import or compile here: then, with a warning, every call is plain)."""
-    global _COMPILED
-    if not AVAILABLE:
-        return False
-    if _COMPILED is None:
-        _COMPILED = {}
-        try:
-            kernels = _compiled()
-            with warnings.catch_warnings():  # numba's notes on non-contiguous products
-                warnings.simplefilter("ignore")
-                _first_calls(kernels)
-        except Exception as exc:  # noqa: BLE001 - a broken numba install: the plain kernels
-            warnings.warn(f"numba could not compile the step kernels ({type(exc).__name__}: "
-                          f"{exc}); the step runs them as plain numpy", stacklevel=2)
-            return False
-        for name, fast in kernels.items():
-            fast.disable_compile()
-            STEP[name].fast = fast
-        _COMPILED = kernels
-    return bool(_COMPILED)
+    from tamedpuma.jit import compile_once
+
+    return compile_once(_COMPILED, _install, AVAILABLE, "the step kernels",
+                        "the step runs them as plain numpy") is not None
+
+
+def _install() -> dict:
+    """The kernels compiled, called once with a step's argument types, frozen and set as
+    :data:`STEP`'s compiled copies; by name."""
+    kernels = _compiled()
+    with warnings.catch_warnings():  # numba's notes on non-contiguous products
+        warnings.simplefilter("ignore")
+        _first_calls(kernels)
+    for name, fast in kernels.items():
+        fast.disable_compile()
+        STEP[name].fast = fast
+    return kernels
 
 
 def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:

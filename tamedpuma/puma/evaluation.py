@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import importlib.util
-import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -105,18 +104,16 @@ _DP_KERNEL: list = []
 def _dp_kernel():
     """:func:`_dp_cells` compiled (once per process, from numba's on-disk cache after the first
     time; None without numba or where it fails to compile, with a warning)."""
-    if not _DP_KERNEL:
-        kernel = None
-        if importlib.util.find_spec("numba") is not None:
-            try:
-                from tamedpuma.jit import compile_kernels
+    from tamedpuma.jit import compile_once
 
-                kernel = compile_kernels(globals(), (_dp_cells,), (_nan_min, _nan_max))["_dp_cells"]
-            except Exception as exc:  # noqa: BLE001 - a broken numba install: the numpy sweep
-                warnings.warn(f"numba could not compile the DTW recurrence ({type(exc).__name__}: "
-                              f"{exc}); it runs in numpy", stacklevel=2)
-        _DP_KERNEL.append(kernel)
-    return _DP_KERNEL[0]
+    return compile_once(_DP_KERNEL, _compile_dp, importlib.util.find_spec("numba") is not None,
+                        "the DTW recurrence", "it runs in numpy")
+
+
+def _compile_dp():
+    from tamedpuma.jit import compile_kernels
+
+    return compile_kernels(globals(), (_dp_cells,), (_nan_min, _nan_max))["_dp_cells"]
 
 
 def dtw_per_point_batch(paths: list[np.ndarray], refs: list[np.ndarray]) -> np.ndarray:

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import importlib.util
 import math
-import warnings
 from types import SimpleNamespace
 
 import numpy as np
@@ -237,17 +236,10 @@ def potential_pose(x, memo, raw2, c1_2, u1_2, t1_2, c2_2, u2_2, t2_2, y2, sig2, 
 def kernels() -> SimpleNamespace | None:
     """encode, decode and backward compiled (once per process; None without numba or where it
     fails, with a warning)."""
-    if _COMPILED:
-        return _COMPILED[0]
-    space = None
-    if AVAILABLE:
-        try:
-            space = _compile()
-        except Exception as exc:  # noqa: BLE001 - a broken numba install: the numpy path
-            warnings.warn(f"numba could not compile the network's kernels ({type(exc).__name__}: "
-                          f"{exc}); one-state evaluations use numpy", stacklevel=2)
-    _COMPILED.append(space)
-    return space
+    from tamedpuma.jit import compile_once
+
+    return compile_once(_COMPILED, _compile, AVAILABLE, "the network's kernels",
+                        "one-state evaluations use numpy")
 
 
 def _compile() -> SimpleNamespace:

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import importlib.util
 import math
-import warnings
 
 import numpy as np
 
@@ -168,23 +167,22 @@ def compiled() -> dict | None:
     name, each called once here with the argument types the kinematics passes, then frozen: they
     compile nothing more inside a step, and a call with other argument types raises TypeError.
     None without numba, or where numba fails to compile (with a warning)."""
-    if not _COMPILED:
-        fast = None
-        if AVAILABLE:
-            try:
-                import numba
+    from tamedpuma.jit import compile_once
 
-                from tamedpuma.jit import compile_kernels
+    return compile_once(_COMPILED, _compile, AVAILABLE, "the chain kinematics",
+                        "pinocchio answers")
 
-                fast = {f.__name__: numba.njit(cache=True, nogil=True)(f) for f in FUNCTIONS}
-                fast.update(compile_kernels(globals(), (chain_evaluate,), FUNCTIONS))
-                _first_calls(fast)
-            except Exception as exc:  # noqa: BLE001 - a broken numba install: pinocchio's calls
-                warnings.warn(f"numba could not compile the chain kinematics "
-                              f"({type(exc).__name__}: {exc}); pinocchio answers", stacklevel=2)
-                fast = None
-        _COMPILED.append(fast)
-    return _COMPILED[0]
+
+def _compile() -> dict:
+    """:data:`FUNCTIONS` and :func:`chain_evaluate` compiled, called once each and frozen."""
+    import numba
+
+    from tamedpuma.jit import compile_kernels
+
+    fast = {f.__name__: numba.njit(cache=True, nogil=True)(f) for f in FUNCTIONS}
+    fast.update(compile_kernels(globals(), (chain_evaluate,), FUNCTIONS))
+    _first_calls(fast)
+    return fast
 
 
 def _first_calls(fast: dict, n: int = 2) -> None:
