@@ -83,7 +83,33 @@ def markdown(rows: list[dict], note: str = "") -> str:
         lines.append(f"\nMedians over {len(rows)} runs: train {med('train_s'):.0f} s, wall "
                      f"{med('wall_s'):.0f} s, CPU {med('cpu_s'):.0f} s; all gates passed in "
                      f"{sum(not r['gates_failed'] for r in rows)} of {len(rows)}.")
+    lines += [""] + families(rows) if families(rows) else []
     return "\n".join(lines) + "\n" + (f"\n{note}\n" if note else "")
+
+
+def families(rows: list[dict]) -> list[str]:
+    """One line per family of sets (``lasa:Angle``, ``lasa:CShape``, ...: the name before the
+    colon) and seed: how many sets, the mean over them of the mean DTW, the largest worst
+    demonstration's DTW (and its set), the lowest converged and ψ-compatible shares, how many
+    passed every gate, and the median training time."""
+    groups: dict[tuple[str, int], list[dict]] = {}
+    for r in rows:
+        if ":" in r["set"]:
+            groups.setdefault((r["set"].split(":")[0], r["seed"]), []).append(r)
+    out = []
+    for (family, seed), group in sorted(groups.items()):
+        k, u = _scale(group[0])
+        worst = max(group, key=lambda r: r["dtw_worst"])
+        out.append(
+            f"- {family}, seed {seed}: {len(group)} sets, mean DTW "
+            f"{k * float(np.mean([r['dtw'] for r in group])):.2f} {u} (largest "
+            f"{k * max(r['dtw'] for r in group):.2f} {u}), worst demonstration "
+            f"{k * worst['dtw_worst']:.2f} {u} ({worst['set']}), converged ≥ "
+            f"{100 * min(r['converged'] for r in group):.1f}%, ψ-compatible ≥ "
+            f"{100 * min(r['compatible'] for r in group):.2f}%, every gate passed by "
+            f"{sum(not r['gates_failed'] for r in group)}, median training "
+            f"{float(np.median([r['train_s'] for r in group])):.0f} s")
+    return out
 
 
 def run(jobs: list[Job], table: Path, log=print, stamp=None) -> list[dict]:
@@ -143,10 +169,15 @@ def targets(rows: list[dict]) -> str:
               for r in robot if misses(r)]
     second = [r["train_s"] for r in rows if r["order"] == 2]
     med = float(np.median(second)) if second else float("nan")
+    robot_second = [r["train_s"] for r in robot if r["order"] == 2]
+    alone = (f"; {float(np.median(robot_second)):.0f} s over the robot sets' "
+             f"{len(robot_second)} alone" if robot_second and len(robot_second) < len(second)
+             else "")
     return (f"Targets (robot sets): mean DTW ≤ {100 * t['dtw'][2]:.1f} cm (first order "
             f"≤ {100 * t['dtw'][1]:.1f} cm), worst demonstration ≤ {100 * t['dtw_worst']:.0f} cm, "
             f"{100 * t['converged']:.0f} % converged, ψ-compatible ≥ {100 * t['compatible']:.1f} "
             f"%: met by {len(robot) - len(missed)} of {len(robot)} models"
             + (f"; missed by {'; '.join(missed)}" if missed else "")
-            + f". Median training of a second-order model {med:.0f} s (target "
-            f"≤ {t['train_s']:.0f} s: {'met' if med <= t['train_s'] else 'missed'}).")
+            + f". Median training of a second-order model: {med:.0f} s over the table's "
+            f"{len(second)} (target ≤ {t['train_s']:.0f} s: "
+            f"{'met' if med <= t['train_s'] else 'missed'}){alone}.")
