@@ -319,6 +319,26 @@ def test_a_plateau_starts_the_final_decay_and_the_run_ends_after_it():
     assert torch.equal(_flat(again.net.state_dict()), _flat(res.net.state_dict()))
 
 
+def test_a_stop_keeps_the_best_validated_weights_not_the_last():
+    """The run's last validation passes and ends it, but an earlier one passed with a better
+    score (a lower DTW): the earlier weights are kept and marked chosen."""
+    p = _tiny("puma.train.iterations=40", "puma.train.select_every=5", "puma.train.select_from=0")
+    dtws, calls = [3.0, 1.5, 2.0, 1.8], []
+
+    def validator(net, final, previous=()):
+        calls.append(copy.deepcopy(net.state_dict()))
+        dtw = dtws[len(calls) - 1]
+        passed = len(calls) >= 2
+        return (passed, -dtw), {"stop": len(calls) == 4, "passed": passed, "dtw": dtw}
+
+    res = training.train(p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg, seed=4,
+                         progress=False, validator=validator)
+    assert res.iterations_run == 20 and len(calls) == 4
+    assert [r["chosen"] for r in res.selection] == [False, True, False, False]
+    assert torch.equal(_flat(res.net.state_dict()), _flat(calls[1]))
+    assert not torch.equal(_flat(calls[1]), _flat(calls[3]))
+
+
 def _plateau_validator(passing: set):
     """A validator whose DTW is flat from its second validation on (a plateau) and whose weights
     pass only at the validations numbered in ``passing`` (1 = the first); it counts from the
