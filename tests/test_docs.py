@@ -488,7 +488,8 @@ def test_a_measuring_commands_block_is_written_from_its_stamped_json(tmp_path, c
         assert field in text, field
     assert "| tomato | 2 | 0 | 10 | 0.80 cm | 2.00 cm |" in text
     assert "met by 1 of 2 models; missed by pouring_v2 order 2 seed 1 (DTW)" in text
-    assert "Median training of a second-order model 100 s (target ≤ 90 s: missed)" in text
+    assert ("Median training of a second-order model: 100 s over the table's 2 (target ≤ 90 s: "
+            "missed).") in text
     table.write_text(json.dumps([row]))  # rows without the command's stamp
     assert results_page.main(["learner", str(table), "--page", str(page)]) == 2
     err = capsys.readouterr().err.strip()
