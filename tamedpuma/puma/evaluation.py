@@ -111,6 +111,7 @@ def _dp_kernel():
 
 
 def _compile_dp():
+    """:func:`_dp_cells` compiled, calling compiled copies of its helpers."""
     from tamedpuma.jit import compile_kernels
 
     return compile_kernels(globals(), (_dp_cells,), (_nan_min, _nan_max))["_dp_cells"]

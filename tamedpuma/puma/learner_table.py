@@ -83,7 +83,9 @@ def markdown(rows: list[dict], note: str = "") -> str:
         lines.append(f"\nMedians over {len(rows)} runs: train {med('train_s'):.0f} s, wall "
                      f"{med('wall_s'):.0f} s, CPU {med('cpu_s'):.0f} s; all gates passed in "
                      f"{sum(not r['gates_failed'] for r in rows)} of {len(rows)}.")
-    lines += [""] + families(rows) if families(rows) else []
+    summaries = families(rows)
+    if summaries:
+        lines += ["", *summaries]
     return "\n".join(lines) + "\n" + (f"\n{note}\n" if note else "")
 
 
