@@ -404,6 +404,30 @@ def test_on_a_plateau_the_validation_checks_but_only_stops_where_told():
                                                   and ending["compatible_fraction"] >= 0.5)
 
 
+def test_selection_without_a_stop_rule_ranks_psi_when_asked():
+    """Without a stop rule the score is (converged, −DTW); with stop_compat it ranks ψ as the
+    stop rule does: (ψ passes and all converge, ψ passes, converged, −DTW), so weights that fail
+    ψ never outrank weights that pass it, whatever their DTW."""
+    from tamedpuma.puma import evaluation
+
+    p = _tiny()
+    net = training.build_net(p.demos, p.workspace, p.spec, p.net_cfg).eval()
+    net.cache_goal()
+    kw = dict(starts=20, horizon=1.0)
+    with torch.no_grad():
+        plain, info = evaluation.validator(p.demos, p.workspace, p.eval_cfg, **kw)(net)
+        strict, sinfo = evaluation.validator(p.demos, p.workspace, p.eval_cfg, stop_compat=1.01,
+                                             **kw)(net)  # no model is 101 % compatible
+        loose, linfo = evaluation.validator(p.demos, p.workspace, p.eval_cfg, stop_compat=1e-9,
+                                            **kw)(net)
+    frac, dtw = info["converged_fraction"], info["dtw"]
+    assert plain == (frac, -dtw) and "compatible_fraction" not in info
+    assert strict == (False, False, frac, -dtw) and 0 <= sinfo["compatible_fraction"] <= 1
+    psi_ok = linfo["compatible_fraction"] >= 1e-9
+    assert loose == (psi_ok and frac == 1.0, psi_ok, frac, -dtw)
+    assert max(strict, (False, True, 0.0, -1e9)) == (False, True, 0.0, -1e9)
+
+
 def test_compile_without_a_cpp_compiler_is_a_one_line_config_error(monkeypatch):
     from tamedpuma.errors import ConfigError
 

@@ -236,7 +236,9 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
     ``cfg.seed + 1000``, not the evaluation's) and ψ samples (``cfg.seed + 1001``).
 
     Without a stop rule (``stop_dtw``, ``target`` and ``patience`` all 0): ``score = (converged
-    fraction of ``starts``, −DTW)`` (horizon ``horizon`` or ``cfg.horizon``). With one, every
+    fraction of ``starts``, −DTW)`` (horizon ``horizon`` or ``cfg.horizon``); with
+    ``stop_compat`` > 0 also the ψ-compatible fraction, as the stop rule's score ranks it:
+    ``(ψ passes and all converge, ψ passes, converged fraction, −DTW)``. With one, every
     validation measures the mean DTW (quick); the weights are a candidate to stop on when
 
     - the DTW is ≤ ``target`` or ≤ ``stop_dtw`` (good enough: ``target`` is set from the
@@ -267,7 +269,11 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
         if stop_dtw <= 0 and target <= 0 and patience <= 0:
             dtw = imitation_metrics(net, demos)["dtw"]
             frac = conv(net, 0, starts)
-            return (frac, -dtw), {"converged_fraction": frac, "dtw": dtw}
+            info = {"converged_fraction": frac, "dtw": dtw}
+            if stop_compat <= 0:
+                return (frac, -dtw), info
+            psi_ok = _psi(net, ws, ccfg, info) >= stop_compat
+            return (psi_ok and frac == 1.0, psi_ok, frac, -dtw), info
         dtw = imitation_dtw(net, demos)
         plateau = _Plateau(patience, min_delta, smooth)
         stale = [plateau.update(d) for d in (*previous, dtw)][-1]
