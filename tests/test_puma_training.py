@@ -339,6 +339,67 @@ def test_a_stop_keeps_the_best_validated_weights_not_the_last():
     assert not torch.equal(_flat(calls[1]), _flat(calls[3]))
 
 
+def _checking_validator(dtws, checked, passes):
+    """A validator with the given DTW per validation (weights seen before: their DTW); it
+    measures (checks) only those numbered in ``checked`` (1 = the first) and the final ones, and
+    those pass where ``passes(weights)``; it records each call's (number, final, weights)."""
+    calls = []
+
+    def validator(net, final, previous=()):
+        n = len(previous) + 1
+        state = copy.deepcopy(net.state_dict())
+        seen = [i for i, (_, _, w) in enumerate(calls) if torch.equal(_flat(w), _flat(state))]
+        calls.append((n, final, state))
+        dtw = dtws[seen[0]] if seen else dtws[n - 1]
+        if not (final or n in checked):
+            return (False, False, 0.0, -dtw), {"stop": False, "passed": False, "dtw": dtw}
+        ok = passes(state)
+        info = {"stop": False, "passed": ok, "dtw": dtw, "converged_fraction": float(ok)}
+        return (ok, ok, float(ok), -dtw), info
+    return validator, calls
+
+
+def test_the_lowest_dtw_left_unchecked_is_checked_at_the_end_and_kept_where_it_passes():
+    """Validation 2 has the run's lowest DTW, but the rule did not check it; the training then
+    leaves it (the DTW rises). At the end its weights are checked: they pass and are kept."""
+    p = _tiny("puma.train.iterations=30", "puma.train.select_every=5", "puma.train.select_from=0")
+    validator, calls = _checking_validator([3.0, 1.0, 2.5, 2.0, 2.2, 2.1], {4}, lambda s: True)
+    res = training.train(p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg, seed=4,
+                         progress=False, validator=validator)
+    assert [(n, final) for n, final, _ in calls] == [(1, False), (2, False), (3, False),
+                                                    (4, False), (5, False), (6, True), (7, True)]
+    assert torch.equal(_flat(calls[-1][2]), _flat(calls[1][2]))  # the weights of validation 2
+    chosen = [r for r in res.selection if r["chosen"]]
+    assert len(chosen) == 1 and chosen[0]["it"] == 10 and chosen[0]["rechecked"]
+    assert torch.equal(_flat(res.net.state_dict()), _flat(calls[1][2]))
+
+
+def test_unchecked_weights_that_fail_their_check_leave_the_choice_as_it_was():
+    p = _tiny("puma.train.iterations=30", "puma.train.select_every=5", "puma.train.select_from=0")
+    calls: list = []  # filled by the validator below
+
+    def passes(state):  # every weights pass but validation 2's
+        return not torch.equal(_flat(state), _flat(calls[1][2]))
+
+    validator, seen = _checking_validator([3.0, 1.0, 2.5, 2.0, 2.2, 2.1], {4}, passes)
+    calls = seen
+    res = training.train(p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg, seed=4,
+                         progress=False, validator=validator)
+    assert len(calls) == 7 and calls[-1][1]  # the check ran ...
+    assert torch.equal(_flat(calls[-1][2]), _flat(calls[1][2]))
+    chosen = [r for r in res.selection if r["chosen"]]
+    assert [r["it"] for r in chosen] == [20]  # ... and the checked validation 4 stays chosen
+    assert torch.equal(_flat(res.net.state_dict()), _flat(calls[3][2]))
+
+
+def test_a_lowest_dtw_that_was_checked_needs_no_second_check():
+    p = _tiny("puma.train.iterations=30", "puma.train.select_every=5", "puma.train.select_from=0")
+    validator, calls = _checking_validator([3.0, 1.0, 2.5, 2.0, 2.2, 2.1], {2}, lambda s: True)
+    res = training.train(p.demos, p.workspace, p.spec, p.net_cfg, p.train_cfg, seed=4,
+                         progress=False, validator=validator)
+    assert len(calls) == 6 and [r["it"] for r in res.selection if r["chosen"]] == [10]
+
+
 def _plateau_validator(passing: set):
     """A validator whose DTW is flat from its second validation on (a plateau) and whose weights
     pass only at the validations numbered in ``passing`` (1 = the first); it counts from the
