@@ -235,10 +235,8 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
     """Validation for checkpoint selection and early stopping, on its own random starts (seed
     ``cfg.seed + 1000``, not the evaluation's) and ψ samples (``cfg.seed + 1001``).
 
-    Without a stop rule (``stop_dtw``, ``target`` and ``patience`` all 0): ``score = (converged
-    fraction of ``starts``, −DTW)`` (horizon ``horizon`` or ``cfg.horizon``); with
-    ``stop_compat`` > 0 also the ψ-compatible fraction, as the stop rule's score ranks it:
-    ``(ψ passes and all converge, ψ passes, converged fraction, −DTW)``. With one, every
+    Without a stop rule (``stop_dtw``, ``target`` and ``patience`` all 0) every validation is
+    measured whole (:func:`_unruled`; horizon ``horizon`` or ``cfg.horizon``). With one, every
     validation measures the mean DTW (quick); the weights are a candidate to stop on when
 
     - the DTW is ≤ ``target`` or ≤ ``stop_dtw`` (good enough: ``target`` is set from the
@@ -267,13 +265,8 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
 
     def run(net: PumaNet, final: bool = False, previous: tuple = ()):
         if stop_dtw <= 0 and target <= 0 and patience <= 0:
-            dtw = imitation_metrics(net, demos)["dtw"]
-            frac = conv(net, 0, starts)
-            info = {"converged_fraction": frac, "dtw": dtw}
-            if stop_compat <= 0:
-                return (frac, -dtw), info
-            psi_ok = _psi(net, ws, ccfg, info) >= stop_compat
-            return (psi_ok and frac == 1.0, psi_ok, frac, -dtw), info
+            return _unruled(net, demos, conv(net, 0, starts),
+                            lambda info: _psi(net, ws, ccfg, info), stop_compat)
         dtw = imitation_dtw(net, demos)
         plateau = _Plateau(patience, min_delta, smooth)
         stale = [plateau.update(d) for d in (*previous, dtw)][-1]
@@ -293,6 +286,19 @@ def validator(demos: Demonstrations, ws: Workspace, cfg: EvalConfig, starts: int
         return (passed, psi_ok, frac, -dtw), info
 
     return run
+
+
+def _unruled(net: PumaNet, demos: Demonstrations, frac: float, psi, stop_compat: float):
+    """A validation without a stop rule, converged fraction ``frac`` of its starts: ``(score,
+    info)`` with ``score = (frac, −DTW)``, or with ``stop_compat`` > 0 ranking ψ (``psi(info)``,
+    the ψ-compatible fraction) as the stop rule's score does: ``(ψ passes and all converge,
+    ψ passes, frac, −DTW)``."""
+    dtw = imitation_metrics(net, demos)["dtw"]
+    info = {"converged_fraction": frac, "dtw": dtw}
+    if stop_compat <= 0:
+        return (frac, -dtw), info
+    psi_ok = psi(info) >= stop_compat
+    return (psi_ok and frac == 1.0, psi_ok, frac, -dtw), info
 
 
 def _psi(net: PumaNet, ws: Workspace, cfg: EvalConfig, info: dict) -> float:
