@@ -216,7 +216,7 @@ class _Selection:
     best: tuple | None = None
     best_state: dict | None = None
     records: list[dict] = field(default_factory=list)
-    unchecked: tuple[int, dict] | None = None  # (iteration, weights) of that validation
+    unchecked: tuple[int, float, dict] | None = None  # (iteration, DTW, weights) of that one
 
     def due(self, cfg: TrainConfig, it: int) -> bool:
         return cfg.select_every > 0 and (it == cfg.iterations - 1 or (
@@ -232,7 +232,7 @@ class _Selection:
         lowest = "dtw" in info and all(info["dtw"] < r["dtw"] for r in self.records if "dtw" in r)
         if lowest:  # the run's lowest DTW so far: kept aside where the rule did not check it
             self.unchecked = None if "converged_fraction" in info else (
-                it, copy.deepcopy(net.state_dict()))
+                it, info["dtw"], copy.deepcopy(net.state_dict()))
         self._record({"it": it, **info, "score": list(score)}, net, score)
         return bool(info.get("stop", False))
 
@@ -241,11 +241,9 @@ class _Selection:
         is below the chosen weights'; keep them if they score better. ``net`` is overwritten."""
         if self.unchecked is None:
             return
-        it, state = self.unchecked
+        it, dtw, state = self.unchecked
         self.unchecked = None
-        chosen = max(self.records, key=lambda r: r["score"])
-        aside = next(r for r in self.records if r["it"] == it and "dtw" in r)
-        if not aside["dtw"] < chosen.get("dtw", np.inf):
+        if not dtw < max(self.records, key=lambda r: r["score"]).get("dtw", np.inf):
             return
         net.load_state_dict(state)
         score, info = self._score(net, validator, True)
