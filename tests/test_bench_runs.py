@@ -1,7 +1,6 @@
-"""The bench's whole-command figures (training, Table 1) are read from what the commands wrote,
-and judged against the speed targets: synthetic reports and summaries, no training or sweep."""
+"""The bench's training figures are read from what the command wrote, and judged against the
+speed targets: synthetic reports, no training."""
 
-import json
 import sys
 
 from tamedpuma.app import bench_runs
@@ -48,39 +47,6 @@ def test_the_training_line_names_every_miss_and_the_table_every_run():
     assert "**met**" in bench_runs.training_target_line(rows[:3])
     table = bench_runs.training_lines(rows)
     assert sum(ln.startswith("| tomato") or ln.startswith("| pouring") for ln in table) == 4
-
-
-def _summary(path, method, steps, ms, build, episode, simulator=0.0):
-    path.mkdir(parents=True)
-    (path / "summary.json").write_text(json.dumps(
-        {"method": method, "method_label": method, "steps": steps,
-         "step_compute_ms": [ms] * steps,
-         "wall_s": {"build": build, "episode": episode, "simulator": simulator}}))
-
-
-def test_the_table1_profile_sums_the_runs_per_method(tmp_path):
-    _summary(tmp_path / "tomato" / "a", "fpm", 1000, 0.5, 0.2, 1.5, 0.5)
-    _summary(tmp_path / "pouring" / "b", "fpm", 500, 0.5, 0.3, 1.0, 0.25)
-    _summary(tmp_path / "tomato" / "c", "modulation_ik", 100, 2.0, 0.5, 0.6)
-    (tmp_path / "tomato" / "d").mkdir()
-    (tmp_path / "tomato" / "d" / "summary.json").write_text("{truncated")  # skipped
-    prof = bench_runs.table1_profile(tmp_path)
-    fpm = prof["methods"]["fpm"]
-    assert fpm["runs"] == 2 and fpm["steps"] == 1500
-    assert abs(fpm["controller_s"] - 0.75) < 1e-9 and abs(fpm["episode_s"] - 2.5) < 1e-9
-    assert abs(fpm["simulator_s"] - 0.75) < 1e-9
-    assert prof["total"]["runs"] == 3 and abs(prof["total"]["build_s"] - 1.0) < 1e-9
-    item = {"wall_s": 10.0, "returncode": 0, "cores": 2, "profile": prof, "tables_wall_s": 1.0}
-    lines = bench_runs.table1_lines(item)
-    # judged per run: 10 s for 3 runs is 1400 s per 420
-    assert "**not met**" in lines[1] and "1400 s per 420" in lines[1]
-    assert "20 core-s" in lines[1] and "simulator's steps (PyBullet's physics" in lines[1]
-    # cores × wall = episodes + set-up + the rest: 20 = 3.1 + 1.0 + 15.9
-    assert "the other 16 s" in lines[1]
-    assert [ln.split("|")[1].strip() for ln in lines if ln.startswith("| ")
-            and "method" not in ln] == ["fpm", "modulation_ik"]
-    item["wall_s"] = 1.5  # 210 s per 420 runs
-    assert "**met**" in bench_runs.table1_lines(item)[1]
 
 
 def test_a_failing_command_reports_its_last_error_line():

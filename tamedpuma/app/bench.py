@@ -20,14 +20,18 @@ Sections (each regenerated, never typed in):
 4. **Fabrics**: the vanilla fabric at 2-1000 obstacles against the reference ``fabrics``
    planner, live where a Python with it is given, its dated figures cited otherwise
    (:mod:`tamedpuma.app.bench_fabrics`; ``--skip-fabrics`` leaves the section as it is).
-5. **PUMA training** and the **Table-1 sweep**: measured only on request (``--training``,
-   ``--table1``: minutes each; :mod:`tamedpuma.app.bench_runs`).
+5. **PUMA training**, the **Table-1 sweep** and the **randomized suite**: measured only on
+   request (``--training``, ``--table1 [N]``, ``--suite [N]``: minutes each, the sweeps N times;
+   :mod:`tamedpuma.app.bench_runs`, :mod:`tamedpuma.app.bench_sweeps`), with the longest step of
+   every run they hold. ``--sweeps`` measures the sweeps alone and merges them into the saved
+   ``benchmarks/bench.json``.
 
     python -m tamedpuma.bench                       # sections 1-4, writes the files below
     python -m tamedpuma.bench --methods fpm cpm --counts 2 1000 --skip-fabrics --no-write
     python -m tamedpuma.bench --steps --steps-table1 15 --steps-seeds 2000 2001  # episodes only
     python -m tamedpuma.bench --baseline /tmp/before   # also time another checkout, side by side
     python -m tamedpuma.bench --training --training-seeds 0 1 2 --table1   # everything
+    python -m tamedpuma.bench --sweeps --table1 3 --suite 1   # the sweeps alone, into bench.json
 
 Writes ``benchmarks/bench.json`` (every figure, machine, load averages at start and end),
 ``benchmarks/steps.json`` and ``benchmarks/fabrics.json``, and the "## Controller step",
@@ -44,7 +48,7 @@ import sys
 import time
 from pathlib import Path
 
-from tamedpuma.app import bench_fabrics, bench_report, bench_runs, bench_steps
+from tamedpuma.app import bench_fabrics, bench_report, bench_runs, bench_steps, bench_sweeps
 from tamedpuma.app.bench_baseline import (
     BaselineError,
     attach_baseline,
@@ -199,9 +203,41 @@ def optional_sections(args, report: dict) -> dict | None:
     if args.training:
         report["training"] = bench_runs.time_training(seeds=args.training_seeds)
         report["training_measured_by"] = f"`{report['command']}` ({report['date']})"
-    if args.table1:
-        report["table1"] = bench_runs.time_table1(report["machine"]["cores"] or 1)
+    time_sweeps(args, report)
     return fabrics
+
+
+def time_sweeps(args, report: dict) -> None:
+    """The sweeps asked for (``--table1 N``, ``--suite N``), each timed N times."""
+    for key, repeats in (("table1", args.table1), ("suite", args.suite)):
+        if repeats:
+            report[key] = bench_sweeps.time_sweep(key, report["machine"]["cores"] or 1, repeats)
+            print(f"bench: {key} done", file=sys.stderr)
+
+
+def sweeps_only(args, command: str) -> int:
+    """``--sweeps``: the sweeps alone, merged into the saved ``benchmarks/bench.json`` (its
+    other sections kept), then the sections rendered."""
+    if not args.table1 and not args.suite:
+        print("error: --sweeps needs --table1 N or --suite N", file=sys.stderr)
+        return 2
+    saved = args.root / "benchmarks" / "bench.json"
+    try:
+        report = json.loads(saved.read_text())
+    except (OSError, ValueError) as exc:
+        print(f"error: --sweeps merges into the saved report: {one_line(exc)}", file=sys.stderr)
+        return 2
+    fresh = new_report(args, command)
+    time_sweeps(args, fresh)
+    for key in ("table1", "suite"):
+        if key in fresh:
+            fresh[key]["measured_by"] = f"`{command}` ({fresh['date']})"
+            report[key] = fresh[key]
+    print(json.dumps({k: report.get(k) for k in ("table1", "suite")}, indent=2))
+    if args.no_write:
+        return 0
+    saved.write_text(json.dumps(report, indent=2) + "\n")
+    return render(args.root)
 
 
 def finish(report: dict, args) -> None:
@@ -266,7 +302,14 @@ def _measure_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--training", action="store_true", help="also time PUMA training")
     parser.add_argument("--training-seeds", type=int, nargs="+", default=[0], metavar="SEED",
                         help="seeds of each task trained with --training")
-    parser.add_argument("--table1", action="store_true", help="also time +experiment=table1")
+    parser.add_argument("--table1", type=int, nargs="?", const=1, default=0, metavar="N",
+                        help="also time +experiment=table1, N times (default 1)")
+    parser.add_argument("--suite", type=int, nargs="?", const=1, default=0, metavar="N",
+                        help="also time the randomized suite of the paper's five methods "
+                        "(4,000 runs, ~30 min), N times (default 1)")
+    parser.add_argument("--sweeps", action="store_true",
+                        help="only the sweeps asked for (--table1, --suite), merged into the "
+                        "saved benchmarks/bench.json")
     parser.add_argument("--parts", nargs="*", default=list(PARTS), metavar="METHOD",
                         help="methods whose step is broken into parts (none: skip)")
     parser.add_argument("--parts-counts", type=int, nargs="+", default=[2, 1000],
@@ -318,6 +361,8 @@ def bad_arguments(args) -> str | None:
         return "counts must be ≥ 0, calls ≥ 1 and budget > 0"
     if not 0 <= args.steps_table1 <= 15:
         return "--steps-table1 must be between 0 and 15"
+    if args.table1 < 0 or args.suite < 0:
+        return "--table1 and --suite take a number of repeats ≥ 0"
     return None
 
 
@@ -332,4 +377,6 @@ def main(argv=None) -> int:
     if problem:
         print(f"error: {problem}", file=sys.stderr)
         return 2
+    if args.sweeps:
+        return sweeps_only(args, command)
     return steps_only(args, command) if args.steps else run(args, command)

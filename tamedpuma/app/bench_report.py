@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
-from tamedpuma.app import bench_runs
+from tamedpuma.app import bench_runs, bench_sweeps
 from tamedpuma.app.bench_baseline import label
 from tamedpuma.app.bench_fabrics import code_line
+
+#: the timed sweeps a report may hold (:mod:`tamedpuma.app.bench_sweeps`), in their order
+SWEEP_KEYS = tuple(bench_sweeps.SWEEPS)
 
 SECTION = "Controller step"
 #: The speed targets: median [ms] per (method, obstacle count).
@@ -141,7 +144,9 @@ def target_lines(report: dict) -> list[str]:
         out.append(realtime_target(eps["none"]))
     training = bench_runs.training_target_line(report.get("training") or [])
     out += [training] if training else []
-    out += bench_runs.table1_lines(report.get("table1"))[1:2]  # its verdict with the profile
+    out += [bench_sweeps.verdict_line(report[k]) for k in SWEEP_KEYS if report.get(k)]
+    bound = bench_sweeps.bound_line([report.get(k) for k in SWEEP_KEYS])
+    out += [bound] if bound else []
     if not out:
         return []
     return ["", "Speed targets (medians of this run; the machine is shared, so the p10 "
@@ -300,5 +305,6 @@ def markdown_section(report: dict) -> str:
     lines += target_lines(report)
     lines += bench_runs.training_lines(report.get("training") or [],
                                        report.get("training_measured_by"))
-    lines += bench_runs.table1_lines(report.get("table1"))[2:]  # its per-method table
+    for key in SWEEP_KEYS:  # each timed sweep's per-method table
+        lines += bench_sweeps.method_table(report.get(key))
     return "\n".join(lines + machine_line(report))

@@ -1,20 +1,16 @@
-"""The whole-command figures of ``python -m tamedpuma.bench``: PUMA training and the Table-1 sweep.
+"""The whole-command figures of ``python -m tamedpuma.bench``: PUMA training, and what the sweeps'
+timing (:mod:`tamedpuma.app.bench_sweeps`) shares with it.
 
-Both run the project's own commands in a fresh process, exactly as a user types them, and read
-what those commands wrote (the training's ``report.json``; every run's ``summary.json``), so the
-figures and the profile that explains them come from the same run:
+The training runs the project's own command in a fresh process, exactly as a user types it, and
+reads what it wrote (its ``report.json``), so the figures and what explains them come from the
+same run:
 
 - **training**: ``python -m tamedpuma.train task=<task> seed=<seed> out_dir=<tmp>`` per task and
   seed: process wall time, the pipeline's CPU time, iterations, and the training's accuracy and
   stability targets read from the evaluation, each judged with the time target: those of the
   learner table (:data:`tamedpuma.puma.learner_table.TARGETS`: every random start converged,
   mean DTW per point ≤ 1 cm, worst demonstration ≤ 3 cm, ψ-compatible ≥ 99.5 %, ≤ 90 s);
-- **Table 1**: ``python -m tamedpuma.sweep +experiment=table1 output_root=<tmp>``: wall time, and
-  where the cores' time went, from the runs' summaries: per method the runs, steps, the
-  controller's own time (the sum of its per-step times), the rest of the episodes (simulator,
-  state reads, recorders) and the runs' set-up (config, model, scenario, controller); what is
-  left of cores × wall is the sweep's own cost (Hydra's per-job compose and job files, worker
-  dispatch, the final tables) and idle cores.
+- **Hydra's per-job cost** (:func:`job_overheads`), which the sweeps' profile names.
 """
 
 from __future__ import annotations
@@ -29,9 +25,6 @@ from tamedpuma.puma import learner_table
 
 #: The training targets: the learner table's, those of a second-order model (the default).
 TARGETS = learner_table.TARGETS
-#: The Table-1 target: TABLE1_TARGET_S of wall time on the 2-core machine for
-#: TABLE1_TARGET_RUNS runs (a sweep of more runs, as Table 1 with more methods, is judged per run)
-TABLE1_TARGET_S, TABLE1_TARGET_RUNS = 240.0, 420
 
 
 def timed_command(argv: list[str], timeout: float | None = None) -> dict:
@@ -198,35 +191,6 @@ def training_target_line(rows: list[dict]) -> str:
             f"per-operation overhead of small tensors).")
 
 
-def table1_profile(root: Path) -> dict:
-    """Where a Table-1 sweep's time went, from the ``summary.json`` of every run below ``root``:
-    per method label the runs, steps, controller time (the sum of its per-step times), the
-    simulator's steps (PyBullet's physics and observation), episode time and set-up time [s];
-    and their totals. Runs written before summaries carried ``wall_s`` count in runs and steps
-    only (and before they carried its ``simulator``, with no simulator time)."""
-    methods: dict[str, dict] = {}
-    for path in sorted(Path(root).rglob("summary.json")):
-        try:
-            s = json.loads(path.read_text())
-        except (OSError, ValueError):
-            continue
-        m = methods.setdefault(s.get("method_label") or s.get("method", "?"), {
-            "runs": 0, "steps": 0, "controller_s": 0.0, "simulator_s": 0.0, "episode_s": 0.0,
-            "build_s": 0.0})
-        wall = s.get("wall_s") or {}
-        m["runs"] += 1
-        m["steps"] += int(s.get("steps") or 0)
-        m["controller_s"] += sum(s.get("step_compute_ms") or []) / 1e3
-        m["simulator_s"] += float(wall.get("simulator") or 0.0)
-        m["episode_s"] += float(wall.get("episode") or 0.0)
-        m["build_s"] += float(wall.get("build") or 0.0)
-    total = {k: sum(m[k] for m in methods.values())
-             for k in ("runs", "steps", "controller_s", "simulator_s", "episode_s", "build_s")}
-    return {"methods": {k: {kk: round(v, 3) if isinstance(v, float) else v
-                            for kk, v in m.items()} for k, m in methods.items()},
-            "total": {k: round(v, 3) if isinstance(v, float) else v for k, v in total.items()}}
-
-
 def job_overheads(repeats: int = 7) -> dict:
     """Per-job costs of a Table-1 run outside its ``run_one`` [s, medians of ``repeats``]:
     Hydra's composition of the job's config (what every worker of the ``cores`` launcher does
@@ -256,75 +220,3 @@ def job_overheads(repeats: int = 7) -> dict:
             typing.append(time.perf_counter() - t2)
             composing.append(t1 - t0)
     return {"compose_s": round(median(composing), 4), "typing_s": round(median(typing), 4)}
-
-
-def time_table1(cores: int, timeout: float = 7200.0) -> dict:
-    """``python -m tamedpuma.sweep +experiment=table1`` into a temporary folder: its wall time,
-    then the profile of its runs and the time ``python -m tamedpuma.analysis.tables`` takes to
-    rebuild the tables from the logs (the sweep's last step)."""
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as tmp:
-        item = timed_command(["-m", "tamedpuma.sweep", "+experiment=table1",
-                              f"output_root={tmp}"], timeout)
-        item["cores"] = cores
-        table_root = Path(tmp) / "table1"
-        item["profile"] = table1_profile(table_root)
-        tables = timed_command(["-m", "analysis.tables", str(table_root)], timeout)
-        item["tables_wall_s"] = tables["wall_s"]
-    item["job"] = job_overheads()
-    return item
-
-
-def table1_lines(item: dict | None) -> list[str]:
-    """Markdown: ``["", verdict line with the profile in words, "", caption, "", table...]``
-    (the verdict joins the target list, the rest follows the training table)."""
-    if not item:
-        return []
-    wall, cores = item["wall_s"], item.get("cores") or 1
-    prof = item.get("profile") or {}
-    tot = prof.get("total") or {}
-    runs = tot.get("runs") or TABLE1_TARGET_RUNS
-    per_target = wall * TABLE1_TARGET_RUNS / runs
-    met = item.get("returncode") == 0 and per_target <= TABLE1_TARGET_S
-    head = (f"- `+experiment=table1` ≤ {TABLE1_TARGET_S / 60:.0f} minutes per "
-            f"{TABLE1_TARGET_RUNS} runs on {cores} cores: **{'met' if met else 'not met'}** "
-            f"({wall:.0f} s wall for {runs} runs, {per_target:.0f} s per {TABLE1_TARGET_RUNS}, "
-            f"exit {item['returncode']}).")
-    if not tot.get("runs"):
-        return ["", head]
-    capacity = wall * cores
-    episodes, build, ctrl = tot["episode_s"], tot["build_s"], tot["controller_s"]
-    rest = capacity - episodes - build
-    job = item.get("job") or {}
-    compose = job.get("compose_s", float("nan")) * tot["runs"]
-    tables = item.get("tables_wall_s", float("nan"))
-    lines = ["", head + (
-        f" Of the {cores} cores × {wall:.0f} s = {capacity:.0f} core-s, the {tot['runs']} runs' "
-        f"episodes took {episodes:.0f} s ({tot['steps']} steps: the controllers "
-        f"{ctrl:.0f} s, the simulator's steps (PyBullet's physics and the next observation) "
-        f"{tot.get('simulator_s', 0.0):.0f} s, the loop's state reads, metrics and recorders "
-        f"{episodes - ctrl - tot.get('simulator_s', 0.0):.0f} s), their "
-        f"set-up (config typing, model, scenario, controller) {build:.0f} s (the schema's "
-        f"typing {job.get('typing_s', float('nan')):.2f} s a run), and the other {rest:.0f} s "
-        f"went to the sweep's own work and idle cores: Hydra composes every job's config "
-        f"in its worker ({job.get('compose_s', float('nan')):.2f} s a job, "
-        f"{compose:.0f} core-s in all), rebuilding the tables from the {tot['runs']} logs at "
-        f"the end takes {tables:.0f} s on {cores} cores, and the rest is job files, worker "
-        f"dispatch, the models check and the cores' idle time at the start and the end. "
-        f"The episodes alone "
-        f"on {cores} cores need {episodes / cores:.0f} s."), "",
-        f"The Table-1 sweep ({wall:.0f} s), where its time went, per method (from the runs' "
-        "`summary.json`: the controller is the sum of its per-step times, the episode also "
-        "holds PyBullet, state reads and recorders, the set-up builds config, model, scenario "
-        "and controller):", "",
-        "| method | runs | steps | controller [s] | ms per step | simulator [s] | episodes [s] "
-        "| set-up [s] | share of the episodes |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    methods = sorted(prof["methods"].items(), key=lambda kv: -kv[1]["episode_s"])
-    for name, m in methods:
-        per = 1e3 * m["controller_s"] / m["steps"] if m["steps"] else float("nan")
-        share = m["episode_s"] / episodes if episodes else float("nan")
-        lines.append(f"| {name} | {m['runs']} | {m['steps']} | {m['controller_s']:.0f} | "
-                     f"{per:.2f} | {m.get('simulator_s', 0.0):.0f} | {m['episode_s']:.0f} | "
-                     f"{m['build_s']:.0f} | {100 * share:.0f}% |")
-    return lines
