@@ -90,13 +90,22 @@ def test_the_step_bound_holds_every_bounded_method_to_its_longest_step():
 def test_a_sweep_is_run_as_often_as_asked_each_into_its_own_folder(monkeypatch):
     folders, walls = [], iter([30.0, 10.0, 20.0])
 
+    rechecked = []
+
     def fake(argv, timeout=None):
         if argv[1] == "analysis.tables":
             return {"wall_s": 0.5, "returncode": 0}
+        if argv[1] == "tamedpuma.recheck":  # the slow step re-run: fast this time
+            rechecked.append(argv[2])
+            Path(argv[argv.index("--json") + 1]).write_text(json.dumps([
+                {"run_dir": f"{argv[2]}/run3", "method": "fpm", "step": 4, "wall_ms": 12.0,
+                 "cpu_ms": 11.0, "least_wall_ms": 0.3, "least_cpu_ms": 0.3,
+                 "reproduced": False}]))
+            return {"wall_s": 1.0, "returncode": 0}
         root = Path(argv[-1].removeprefix("output_root=")) / "table1"
         folders.append(root)
         _summary(root / f"run{len(folders)}", "fpm", 10, 0.2, 0.1, 0.3, 0.1,
-                 longest=float(len(folders)))
+                 longest=4.0 * len(folders))  # the third run: a 12 ms step
         return {"command": "python " + " ".join(argv), "wall_s": next(walls), "returncode": 0}
 
     monkeypatch.setattr(bench_sweeps, "timed_command", fake)
@@ -105,8 +114,13 @@ def test_a_sweep_is_run_as_often_as_asked_each_into_its_own_folder(monkeypatch):
     assert len(set(folders)) == 3 and item["walls_s"] == [30.0, 10.0, 20.0]
     assert item["wall_s"] == 20.0 and item["returncode"] == 0
     assert item["profile"] is item["profiles"][2]  # the median repeat's
-    assert item["bounds"]["fpm"]["max_step_ms"] == 3.0 and item["bounds"]["fpm"]["runs"] == 3
+    assert item["bounds"]["fpm"]["max_step_ms"] == 12.0 and item["bounds"]["fpm"]["runs"] == 3
     assert "+experiment=table1" in item["command"]
+    # only the repeat with a step over the bound is re-run, in its own folder
+    assert rechecked == [str(folders[2])] and item["rechecks"][0]["run"] == "run3"
+    line = bench_sweeps.bound_line([item])
+    assert "**not met**" in line and "fpm 1 of 3" in line
+    assert "0 of 1 such steps were slow again" in line and "at most 0.30 ms" in line
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -117,3 +131,38 @@ def test_a_sweep_is_run_as_often_as_asked_each_into_its_own_folder(monkeypatch):
 def test_the_sweeps_options_refuse_what_they_cannot_do(tmp_path, capsys, argv, message):
     assert bench.main([*argv, "--root", str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith(message)
+
+
+def test_the_sweeps_alone_are_merged_into_the_saved_report(tmp_path, monkeypatch):
+    (tmp_path / "benchmarks").mkdir()
+    saved = {"date": "d", "command": "python -m tamedpuma.bench",
+             "machine": {"cpu_model": "c", "cores": 2, "python": "3", "numpy": "2"},
+             "controller": [{"method": "fpm", "n_obstacles": 2, "median_ms": 0.5, "p10_ms": 0.4,
+                             "p90_ms": 0.6, "n_calls": 9, "first_call_ms": 1.0}]}
+    fabrics = {"date": "d", "results": [{"n_obstacles": 2, "median_ms": 0.1, "p10_ms": 0.1,
+                                         "p90_ms": 0.1, "mean_ms": 0.1, "n_calls": 5,
+                                         "first_call_ms": 1.0}],
+               "build_ms": 0.1, "kinematics_median_ms": 0.02, "reference_live": {},
+               "reference_note": None,
+               "machine": {"cpu_model": "c", "cores": 2, "python": "3", "numpy": "2",
+                           "blas": "b"}}
+    (tmp_path / "benchmarks" / "bench.json").write_text(json.dumps(saved))
+    (tmp_path / "benchmarks" / "fabrics.json").write_text(json.dumps(fabrics))
+    (tmp_path / "BENCHMARKS.md").write_text("# Benchmarks\n")
+    timed = []
+
+    def fake(name, cores, repeats):
+        timed.append((name, repeats))
+        item = _item(tmp_path / name, [200.0] * repeats, name)
+        return dict(item, walls_s=[200.0] * repeats, wall_s=200.0)
+
+    monkeypatch.setattr(bench_sweeps, "time_sweep", fake)
+    assert bench.main(["--sweeps", "--table1", "3", "--root", str(tmp_path)]) == 0
+    assert timed == [("table1", 3)]
+    report = json.loads((tmp_path / "benchmarks" / "bench.json").read_text())
+    assert report["controller"] == saved["controller"]  # the other sections kept
+    assert report["table1"]["walls_s"] == [200.0] * 3 and "suite" not in report
+    assert "--sweeps --table1 3" in report["table1"]["measured_by"]
+    text = (tmp_path / "BENCHMARKS.md").read_text()
+    assert "`+experiment=table1` ≤ 4 minutes per 420 runs on 2 cores: **not met**" in text
+    assert "median of 3: 200, 200, 200 s" in text and "| fpm | 2 | 1500 |" in text
