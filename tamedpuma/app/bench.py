@@ -229,9 +229,14 @@ def sweeps_only(args, command: str) -> int:
         return 2
     fresh = new_report(args, command)
     time_sweeps(args, fresh)
+    finish(fresh, args)
+    m = fresh["machine"]
     for key in ("table1", "suite"):
         if key in fresh:
-            fresh[key]["measured_by"] = f"`{command}` ({fresh['date']})"
+            fresh[key]["measured_by"] = (
+                f"`{command}` ({fresh['date']}; {m.get('cpu_model')}, load average "
+                f"{m.get('load_averages_start')} at the start, {m.get('load_averages_end')} "
+                "at the end)")
             report[key] = fresh[key]
     print(json.dumps({k: report.get(k) for k in ("table1", "suite")}, indent=2))
     if args.no_write:

@@ -179,6 +179,8 @@ def verdict_line(item: dict) -> str:
             f"on {cores} cores: **{'met' if met else 'not met'}** ({each}{wall:.0f} s wall "
             f"for {runs} runs, {per_target:.0f} s per {sweep.target_runs}, exit "
             f"{item['returncode']}).")
+    if item.get("measured_by"):
+        head = head[:-2] + f"; measured by {item['measured_by']})."
     if not tot.get("runs"):
         return head
     return head + " " + _where_it_went(item, tot, wall, cores)
@@ -254,9 +256,9 @@ def _recheck_words(rechecks: list[dict]) -> str:
              f"{len(steps)} such steps were slow again (the controller's work)")
     if steps and not mine:
         fast = max(r["least_wall_ms"] or 0.0 for r in steps)
-        words += (f", the others took at most {fast:.2f} ms there: the time was the "
-                  "machine's (another process, or the hypervisor, which a guest counts as the "
-                  "running thread's CPU time too)")
+        words += (f"; at most {fast:.2f} ms there, so the time was the machine's (another "
+                  "process, or the hypervisor, which a guest counts as the running thread's "
+                  "CPU time too)")
     return words + (f"; a recheck failed: {failed[0]}" if failed else "") + "."
 
 
