@@ -1,8 +1,9 @@
-"""Shared fixtures: the default robot, its kinematics, the shared/ data folder and a recorder
-of the controller's scalars."""
+"""Shared fixtures: the default robot, its kinematics, the shared/ data folder, a recorder
+of the controller's scalars and a minimal pair of saved benchmark reports."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -60,3 +61,23 @@ def point_scale_forcing(monkeypatch):
 
     monkeypatch.setattr(_tamed, "TASK_WEIGHT", 20.0)
     monkeypatch.setattr(_tamed, "NULL_METRIC", 0.0)
+
+
+@pytest.fixture
+def saved_bench_reports(tmp_path):
+    """A minimal ``benchmarks/bench.json`` and ``benchmarks/fabrics.json`` under ``tmp_path`` (what
+    ``python -m tamedpuma.bench --render`` reads): the saved bench report (a dict)."""
+    machine = {"cpu_model": "c", "cores": 2, "python": "3", "numpy": "2"}
+    report = {"date": "d", "command": "python -m tamedpuma.bench --table1",
+              "controller": [{"method": "fpm", "n_obstacles": 2, "median_ms": 0.5,
+                              "p10_ms": 0.4, "p90_ms": 0.6, "n_calls": 9,
+                              "first_call_ms": 1.0}], "machine": machine}
+    fabrics = {"date": "d", "results": [{"n_obstacles": 2, "median_ms": 0.1, "p10_ms": 0.1,
+                                         "p90_ms": 0.1, "mean_ms": 0.1, "n_calls": 5,
+                                         "first_call_ms": 1.0}],
+               "build_ms": 0.1, "kinematics_median_ms": 0.02, "reference_live": {},
+               "reference_note": None, "machine": {**machine, "blas": "b"}}
+    (tmp_path / "benchmarks").mkdir()
+    (tmp_path / "benchmarks" / "bench.json").write_text(json.dumps(report))
+    (tmp_path / "benchmarks" / "fabrics.json").write_text(json.dumps(fabrics))
+    return report

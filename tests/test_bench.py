@@ -209,24 +209,10 @@ def test_method_variants_add_their_overrides(monkeypatch):
         bench_timing.method_overrides("fabrics+numba")
 
 
-def test_render_rewrites_the_sections_from_the_saved_reports(tmp_path, capsys):
+def test_render_rewrites_the_sections_from_the_saved_reports(tmp_path, capsys, request):
     assert bench.main(["--render", "--root", str(tmp_path)]) == 2  # nothing saved yet
     assert capsys.readouterr().err.startswith("error: --render needs the saved reports")
-    (tmp_path / "benchmarks").mkdir()
-    report = {"date": "d", "command": "python -m tamedpuma.bench --table1",
-              "controller": [{"method": "fpm", "n_obstacles": 2, "median_ms": 0.5,
-                              "p10_ms": 0.4, "p90_ms": 0.6, "n_calls": 9,
-                              "first_call_ms": 1.0}],
-              "machine": {"cpu_model": "c", "cores": 2, "python": "3", "numpy": "2"}}
-    fabrics = {"date": "d", "results": [{"n_obstacles": 2, "median_ms": 0.1, "p10_ms": 0.1,
-                                         "p90_ms": 0.1, "mean_ms": 0.1, "n_calls": 5,
-                                         "first_call_ms": 1.0}],
-               "build_ms": 0.1, "kinematics_median_ms": 0.02, "reference_live": {},
-               "reference_note": None,
-               "machine": {"cpu_model": "c", "cores": 2, "python": "3", "numpy": "2",
-                           "blas": "b"}}
-    (tmp_path / "benchmarks" / "bench.json").write_text(json.dumps(report))
-    (tmp_path / "benchmarks" / "fabrics.json").write_text(json.dumps(fabrics))
+    request.getfixturevalue("saved_bench_reports")
     (tmp_path / "BENCHMARKS.md").write_text("# Benchmarks\n\n## Z\nz\n")
     # --no-write prints the sections and leaves the file as it is
     assert bench.main(["--render", "--no-write", "--root", str(tmp_path)]) == 0

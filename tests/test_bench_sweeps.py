@@ -134,21 +134,9 @@ def test_the_sweeps_options_refuse_what_they_cannot_do(tmp_path, capsys, argv, m
     assert capsys.readouterr().err.startswith(message)
 
 
-def test_the_sweeps_alone_are_merged_into_the_saved_report(tmp_path, monkeypatch):
-    (tmp_path / "benchmarks").mkdir()
-    saved = {"date": "d", "command": "python -m tamedpuma.bench",
-             "machine": {"cpu_model": "c", "cores": 2, "python": "3", "numpy": "2"},
-             "controller": [{"method": "fpm", "n_obstacles": 2, "median_ms": 0.5, "p10_ms": 0.4,
-                             "p90_ms": 0.6, "n_calls": 9, "first_call_ms": 1.0}]}
-    fabrics = {"date": "d", "results": [{"n_obstacles": 2, "median_ms": 0.1, "p10_ms": 0.1,
-                                         "p90_ms": 0.1, "mean_ms": 0.1, "n_calls": 5,
-                                         "first_call_ms": 1.0}],
-               "build_ms": 0.1, "kinematics_median_ms": 0.02, "reference_live": {},
-               "reference_note": None,
-               "machine": {"cpu_model": "c", "cores": 2, "python": "3", "numpy": "2",
-                           "blas": "b"}}
-    (tmp_path / "benchmarks" / "bench.json").write_text(json.dumps(saved))
-    (tmp_path / "benchmarks" / "fabrics.json").write_text(json.dumps(fabrics))
+def test_the_sweeps_alone_are_merged_into_the_saved_report(tmp_path, monkeypatch,
+                                                          saved_bench_reports):
+    saved = saved_bench_reports
     (tmp_path / "BENCHMARKS.md").write_text("# Benchmarks\n")
     timed = []
 
