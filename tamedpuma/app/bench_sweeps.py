@@ -61,7 +61,10 @@ SWEEPS = {
 }
 
 _TOTALS = ("runs", "steps", "controller_s", "simulator_s", "episode_s", "build_s")
-_MAXIMA = ("max_step_ms", "max_step_cpu_ms", "max_p99_ms", "max_p99_cpu_ms")
+#: the per-method maxima over runs, each from its summary key
+_MAXIMA_FROM = {"max_step_ms": "compute_ms_max", "max_step_cpu_ms": "compute_cpu_ms_max",
+                "max_p99_ms": "compute_ms_p99", "max_p99_cpu_ms": "compute_cpu_ms_p99"}
+_MAXIMA = tuple(_MAXIMA_FROM)
 
 
 def sweep_profile(root: Path) -> dict:
@@ -78,8 +81,7 @@ def sweep_profile(root: Path) -> dict:
             continue
         m = methods.setdefault(s.get("method_label") or s.get("method", "?"), {
             **{k: 0 if k in ("runs", "steps") else 0.0 for k in _TOTALS},
-            "max_step_ms": 0.0, "max_step_cpu_ms": 0.0, "max_p99_ms": 0.0, "max_p99_cpu_ms": 0.0,
-            "runs_over_bound": 0})
+            **dict.fromkeys(_MAXIMA, 0.0), "runs_over_bound": 0})
         wall = s.get("wall_s") or {}
         m["runs"] += 1
         m["steps"] += int(s.get("steps") or 0)
@@ -87,12 +89,9 @@ def sweep_profile(root: Path) -> dict:
         m["simulator_s"] += float(wall.get("simulator") or 0.0)
         m["episode_s"] += float(wall.get("episode") or 0.0)
         m["build_s"] += float(wall.get("build") or 0.0)
-        longest = float(s.get("compute_ms_max") or 0.0)
-        m["max_step_ms"] = max(m["max_step_ms"], longest)
-        m["max_step_cpu_ms"] = max(m["max_step_cpu_ms"], float(s.get("compute_cpu_ms_max") or 0.0))
-        m["max_p99_ms"] = max(m["max_p99_ms"], float(s.get("compute_ms_p99") or 0.0))
-        m["max_p99_cpu_ms"] = max(m["max_p99_cpu_ms"], float(s.get("compute_cpu_ms_p99") or 0.0))
-        m["runs_over_bound"] += int(longest > BOUND_MS)
+        for field, key in _MAXIMA_FROM.items():
+            m[field] = max(m[field], float(s.get(key) or 0.0))
+        m["runs_over_bound"] += int(float(s.get("compute_ms_max") or 0.0) > BOUND_MS)
     total = {k: sum(m[k] for m in methods.values()) for k in _TOTALS}
     return {"methods": {k: _rounded(m) for k, m in methods.items()}, "total": _rounded(total)}
 
@@ -175,12 +174,11 @@ def verdict_line(item: dict) -> str:
     each = ""
     if len(walls) > 1:
         each = f"median of {len(walls)}: {', '.join(f'{w:.0f}' for w in walls)} s; "
+    by = f"; measured by {item['measured_by']}" if item.get("measured_by") else ""
     head = (f"- {sweep.title} ≤ {sweep.target_s / 60:.0f} minutes per {sweep.target_runs} runs "
             f"on {cores} cores: **{'met' if met else 'not met'}** ({each}{wall:.0f} s wall "
             f"for {runs} runs, {per_target:.0f} s per {sweep.target_runs}, exit "
-            f"{item['returncode']}).")
-    if item.get("measured_by"):
-        head = head[:-2] + f"; measured by {item['measured_by']})."
+            f"{item['returncode']}{by}).")
     if not tot.get("runs"):
         return head
     return head + " " + _where_it_went(item, tot, wall, cores)
