@@ -280,9 +280,9 @@ def check(evaluation: dict, spread: np.ndarray, names: list[str], cfg: EvalConfi
         out.append(Failure("convergence", (), (
             f"{cv['not_converged']} of {cv['starts']} random starts did not reach the goal "
             f"within {cv['horizon_s']:g} s (farthest ends {_fmt(cv['final_pos_error_max'], unit)}"
-            f" away, {cv['final_angle_error_max']:.2f} rad); try a stronger stability push "
-            "(puma.train.stability_weight_end), more iterations, or a workspace the "
-            "demonstrations cover")))
+            f" away, {cv['final_angle_error_max']:.2f} rad); try another seed (seed=N: a "
+            "training can settle on a slow mode at one seed and not at another), or a "
+            "workspace the demonstrations cover")))
     cp = evaluation["compatibility"]
     if cp["compatible_fraction"] < cfg.gate_compat:
         out.append(Failure("compatibility", (), (
