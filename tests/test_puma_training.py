@@ -536,3 +536,27 @@ def test_the_compat_hinge_is_on_the_stability_starts_by_default_else_on_uniform_
             assert len(pos) > 16
         want = losses.compat_loss(twin.net, pos, quat, training.compat_step(cfg, ws), cfg.margin)
         assert terms["compat"] == pytest.approx(want.item(), rel=1e-5, abs=1e-9)
+
+
+def test_fresh_starts_join_the_continued_rollouts_and_only_those_go_on():
+    """With ``fresh_starts`` F each iteration's stability rollouts are the B continued (or
+    restarted) ones and F new workspace samples; the rollouts carried to the next iteration are
+    the B, so the fresh ones never become chains. F = 0 (the default) leaves the B alone."""
+    off = _tiny("puma.train.select_every=0")
+    on = _tiny("puma.train.select_every=0", "puma.train.fresh_starts=8")
+    assert off.train_cfg.fresh_starts == 0
+    cfg, spec = on.train_cfg, on.spec
+    b = cfg.stability_batch
+    run = training._start(on.demos, on.workspace, spec, on.net_cfg, cfg, 0)
+    first = training._stability_starts(run, spec, cfg)
+    assert len(first[0]) == len(first[3]) == b + 8
+    training._iteration(run, spec, cfg)
+    assert len(run.chain[0]) == len(run.chain_rest) == b
+    chain = run.chain[0]
+    pos = training._stability_starts(run, spec, cfg)[0]
+    continued = (pos[:, None, :] == chain[None]).all(-1).any(-1)  # rows equal to a chain's end
+    assert continued[:b].any() and not continued[b:].any()
+    lo, hi = (torch.as_tensor(x, dtype=pos.dtype) for x in (run.start_ws.low, run.start_ws.high))
+    assert torch.all((pos[b:] >= lo) & (pos[b:] <= hi))
+    base = training._start(off.demos, off.workspace, spec, off.net_cfg, off.train_cfg, 0)
+    assert len(training._stability_starts(base, spec, off.train_cfg)[0]) == b

@@ -62,6 +62,7 @@ class TrainConfig:
     decay_rate: float = 0.0
     near_goal_fraction: float = 0.0
     persist: float = 0.95
+    fresh_starts: int = 0
     select_every: int = 0
     select_from: float = 0.5
     val_starts: int = 300
@@ -100,7 +101,7 @@ class TrainConfig:
                positive=("iterations", "lr", "batch_windows", "window", "stability_horizon",
                          "compat_eps", "threads", "log_every", "plateau_smooth"),
                nonneg=("stability_batch", "stability_weight", "stability_weight_end", "margin",
-                       "decay_rate",
+                       "decay_rate", "fresh_starts",
                        "val_starts", "val_confirm", "val_horizon", "stop_dtw", "keep_dtw",
                        "stop_spread", "stop_gate", "window_start", "patience", "min_delta",
                        "anneal",

@@ -133,14 +133,15 @@ def _padded(demos: Demonstrations, window: int, orientation: bool):
     return f(pos), (f(quat) if orientation else None), f(vel), lengths
 
 
-def _random_starts(rng, ws: Workspace, spec: StateSpec, cfg: TrainConfig, vel_scale):
+def _random_starts(rng, ws: Workspace, spec: StateSpec, cfg: TrainConfig, vel_scale,
+                   n: int | None = None):
     """Stability starts: samples of ``ws`` (the workspace, padded by ``sample_pad`` in ``train``);
     velocities zero for half, else within ±½ max speed.
 
     A fraction ``near_goal_fraction`` is shrunk towards the goal by a log-uniform factor in
     [1e-3, 1] (positions, rotation angles and velocities), so the goal's neighbourhood is trained.
     """
-    b = cfg.stability_batch
+    b = cfg.stability_batch if n is None else n
     pos, quat = ws.sample(rng, b, spec.orientation)
     vel = None
     if spec.order == 2:
@@ -321,7 +322,9 @@ class _Run:
 
 
 def _stability_starts(run: _Run, spec: StateSpec, cfg: TrainConfig):
-    """Stability starts, fresh or continued from the last iteration: (pos, quat, vel, rest)."""
+    """Stability starts, fresh or continued from the last iteration, then ``fresh_starts`` new
+    ones (never continued: only the first ``stability_batch`` rows go on): (pos, quat, vel,
+    rest)."""
     pos0, quat0, vel0 = _random_starts(run.rng, run.start_ws, spec, cfg, run.net.vel_scale.numpy())
     rest = (torch.all(vel0 == 0, dim=-1) if vel0 is not None
             else torch.ones(len(pos0), dtype=torch.bool))  # rollouts that started at rest
@@ -331,6 +334,12 @@ def _stability_starts(run: _Run, spec: StateSpec, cfg: TrainConfig):
         quat0 = torch.where(keep, run.chain[1], quat0) if quat0 is not None else None
         vel0 = torch.where(keep, run.chain[2], vel0) if vel0 is not None else None
         rest = torch.where(keep[:, 0], run.chain_rest, rest)
+    if cfg.fresh_starts > 0:  # fresh starts every iteration besides the continued ones
+        more = _random_starts(run.rng, run.start_ws, spec, cfg, run.net.vel_scale.numpy(),
+                              cfg.fresh_starts)
+        rest = torch.cat((rest, torch.all(more[2] == 0, dim=-1) if more[2] is not None
+                          else torch.ones(cfg.fresh_starts, dtype=torch.bool)))
+        pos0, quat0, vel0 = (_cat(a, m) for a, m in zip((pos0, quat0, vel0), more))
     return pos0, quat0, vel0, rest
 
 
@@ -492,8 +501,9 @@ def _iteration(run: _Run, spec: StateSpec, cfg: TrainConfig) -> dict:
             net, states, run.dt, cfg.margin, cfg.squared_hinge,
             run.low if cfg.boundary_weight > 0 else None, run.high, cfg.decay_rate, latents)
         if cfg.persist > 0:
-            run.chain = tuple(None if x is None else x[:, -1].detach() for x in states)
-            run.chain_rest = rest
+            b = cfg.stability_batch
+            run.chain = tuple(None if x is None else x[:b, -1].detach() for x in states)
+            run.chain_rest = rest[:b]
         loss = l_il + stability_weight(cfg, run.it) * l_st + cfg.boundary_weight * l_b
         l_p = torch.zeros(())
         if cfg.path_weight > 0:
