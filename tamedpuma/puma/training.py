@@ -321,13 +321,19 @@ class _Run:
                                     sel.get("unchecked"))
 
 
+def _at_rest(pos: torch.Tensor, vel: torch.Tensor | None) -> torch.Tensor:
+    """Which starts are at rest (B,) bool: zero velocity (first order, no velocity: all)."""
+    if vel is None:
+        return torch.ones(len(pos), dtype=torch.bool)
+    return torch.all(vel == 0, dim=-1)
+
+
 def _stability_starts(run: _Run, spec: StateSpec, cfg: TrainConfig):
     """Stability starts, fresh or continued from the last iteration, then ``fresh_starts`` new
     ones (never continued: only the first ``stability_batch`` rows go on): (pos, quat, vel,
     rest)."""
     pos0, quat0, vel0 = _random_starts(run.rng, run.start_ws, spec, cfg, run.net.vel_scale.numpy())
-    rest = (torch.all(vel0 == 0, dim=-1) if vel0 is not None
-            else torch.ones(len(pos0), dtype=torch.bool))  # rollouts that started at rest
+    rest = _at_rest(pos0, vel0)
     if run.chain is not None:  # continue earlier rollouts (long horizons at no extra cost)
         keep = _keep(run.rng, run.chain, cfg.persist, run.low, run.high)
         pos0 = torch.where(keep, run.chain[0], pos0)
@@ -337,8 +343,7 @@ def _stability_starts(run: _Run, spec: StateSpec, cfg: TrainConfig):
     if cfg.fresh_starts > 0:  # fresh starts every iteration besides the continued ones
         more = _random_starts(run.rng, run.start_ws, spec, cfg, run.net.vel_scale.numpy(),
                               cfg.fresh_starts)
-        rest = torch.cat((rest, torch.all(more[2] == 0, dim=-1) if more[2] is not None
-                          else torch.ones(cfg.fresh_starts, dtype=torch.bool)))
+        rest = torch.cat((rest, _at_rest(more[0], more[2])))
         pos0, quat0, vel0 = (_cat(a, m) for a, m in zip((pos0, quat0, vel0), more))
     return pos0, quat0, vel0, rest
 
