@@ -137,6 +137,28 @@ def test_order_is_explicit_then_cache_then_user_then_shipped(isolated):
         store.resolve("tomato", 2, checkpoint="runs/nowhere/puma.pt")
 
 
+def test_the_current_recipe_s_model_is_taken_not_the_newest(isolated):
+    """Models of two recipes in the cache: a run takes the one ``models build`` last planned for
+    the recipe (``current.json``), however recently the other was built; where that one is gone
+    or the file unreadable, the newest."""
+    import os
+
+    shipped = store.shipped_path("tomato", 2)
+    mine = _fake_real(store.models_dir() / "mine", "tomato", shipped)
+    other = _fake_real(store.models_dir() / "other", "tomato", shipped)
+    os.utime(mine, (1, 1))  # built long before the other recipe's
+    assert store.resolve("tomato", 2).path == other.resolve()
+    store.set_current_keys({"tomato": "mine", "pouring": "p"})
+    assert store.resolve("tomato", 2).path == mine.resolve()
+    store.set_current_keys({"tomato_position": "q"})  # merged with the others
+    assert store.current_keys() == {"tomato": "mine", "pouring": "p", "tomato_position": "q"}
+    assert store.resolve("tomato", 2).path == mine.resolve()
+    (store.models_dir() / store.CURRENT_FILE).write_text("{not json")
+    assert store.current_keys() == {} and store.resolve("tomato", 2).path == other.resolve()
+    store.set_current_keys({"tomato": "gone"})
+    assert store.resolve("tomato", 2).path == other.resolve()
+
+
 def test_cache_key_follows_data_config_and_code_not_bookkeeping():
     cfg = {"task": {"name": "tomato", "demos": "/a/pick_tomato_31may"}, "puma": {"dt": 0.03},
            "seed": 0, "out_dir": "x", "progress": True, "command": "python -m ..."}
@@ -301,7 +323,8 @@ def test_build_plans_four_keyed_models_and_caches_what_it_trains(isolated, share
     assert store.resolve("tomato", 1).origin == "shipped"  # not built: the shipped one
 
 
-def test_the_default_parallelism_follows_the_cores_the_process_may_use(monkeypatch, tmp_path):
+def test_the_default_parallelism_follows_the_cores_the_process_may_use(monkeypatch, tmp_path,
+                                                                     isolated):
     """``taskset -c 0 python -m tamedpuma.sweep +experiment=table1`` trains one model at a time
     on that core, not one per core of the machine on it."""
     from tamedpuma.app import models
@@ -317,6 +340,7 @@ def test_the_default_parallelism_follows_the_cores_the_process_may_use(monkeypat
     monkeypatch.setattr(models, "run_jobs", lambda todo, parallel, log: seen.append(parallel))
     models.ensure_real_models(log=lambda line: None)
     assert seen == [1]
+    assert store.current_keys() == {f"m{i}": f"k{i}" for i in range(4)}  # what runs now take
     models.ensure_real_models(parallel=3, log=lambda line: None)
     assert seen == [1, 3]
 

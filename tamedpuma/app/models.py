@@ -6,7 +6,9 @@
               (``--jobs``, default: all cores), into the user cache
               ``${XDG_CACHE_HOME:-~/.cache}/tamedpuma/models/<key>/`` (``$TAMEDPUMA_CACHE``
               overrides the root), ``key`` = sha256 of data, training config and training-code
-              version; models already there are kept. The demonstrations are read from
+              version; models already there are kept, and the keys planned are recorded as
+              the current recipe's (``models/current.json``: the models every run then takes,
+              whichever recipe was built last). The demonstrations are read from
               ``--data DIR``, ``$TAMEDPUMA_DEMOS``, ``../shared/data/pumafabrics-demos`` or the
               download folder, each file checked against its pinned sha256 first;
 ``download``  fetch the authors' demonstrations at the pinned commit (``--base-url`` for a mirror),
@@ -290,6 +292,7 @@ def ensure_real_models(data: str | None = None, parallel: int | None = None,
     """Build the real-data models that are missing from the cache (the Table-1 experiment calls
     this first). Returns the four model folders."""
     jobs = plan_real(data_root(data))
+    store.set_current_keys({j.name: j.key for j in jobs})  # what a run of this recipe takes
     todo = missing(jobs)
     if todo:
         n = parallel or usable_cores()

@@ -9,7 +9,9 @@ A method driven by PUMA (``puma``, ``fpm``, ``cpm``: the second-order R³×S³ m
    (``$TAMEDPUMA_CACHE`` or ``${XDG_CACHE_HOME:-~/.cache}/tamedpuma``, folder
    ``models/<key>/`` with ``puma.pt`` and ``manifest.json``; ``key`` = sha256 of the data hash,
    the training config and the training-code version, see :func:`model_key`); among several, the
-   one built by the current training code first, then the newest;
+   one of the current recipe first (the key the last ``models build``, or the sweep that built
+   the models before Table 1, planned for it: ``models/current.json``), then one built by the
+   current training code, then the newest;
 3. ``user``: a model the user trained on real data with the README's command
    (``runs/puma/<task>[_position]/puma.pt`` below the working directory, whose ``report.json``
    names non-synthetic data);
@@ -171,12 +173,39 @@ def shipped_path(task: str, order: int) -> Path:
     return SHIPPED_DIR / model_name(task, order) / "puma.pt"
 
 
+CURRENT_FILE = "current.json"  # {model name: cache key of the current recipe}, in models_dir()
+
+
+def current_keys() -> dict[str, str]:
+    """The cache key of each model name under the current recipe, as the last ``models build``
+    planned it ({} where none has run or the file is unreadable)."""
+    try:
+        keys = json.loads((models_dir() / CURRENT_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+    return {str(k): str(v) for k, v in keys.items()} if isinstance(keys, dict) else {}
+
+
+def set_current_keys(keys: dict[str, str]) -> None:
+    """Record ``keys`` ({model name: cache key}) as the current recipe's, beside the others
+    (written whole through a temporary file, so a reader never sees half of it)."""
+    root = models_dir()
+    root.mkdir(parents=True, exist_ok=True)
+    merged = {**current_keys(), **keys}
+    tmp = root / f".{CURRENT_FILE}.{os.getpid()}"
+    tmp.write_text(json.dumps(merged, indent=2, sort_keys=True) + "\n")
+    os.replace(tmp, root / CURRENT_FILE)
+
+
 def cached_models(task: str, order: int) -> list[tuple[Path, dict]]:
-    """Real-data models of ``task``/``order`` in the cache, best first (current code, newest)."""
+    """Real-data models of ``task``/``order`` in the cache, best first: the current recipe's
+    (:func:`current_keys`), then the current training code's, then the newest. A run's model
+    then follows its recipe, not which recipe was built last."""
     root = models_dir()
     if not root.is_dir():
         return []
     code = training_code_version()
+    wanted = current_keys().get(model_name(task, order))
     found = []
     for man_path in root.glob("*/manifest.json"):
         try:
@@ -186,7 +215,8 @@ def cached_models(task: str, order: int) -> list[tuple[Path, dict]]:
         pt = man_path.parent / "puma.pt"
         if (man.get("name") == model_name(task, order) and pt.is_file()
                 and data_kind((man.get("data") or {}).get("source", "")) == "real"):
-            found.append((pt, man, man.get("code_version") == code, pt.stat().st_mtime))
+            rank = (man_path.parent.name == wanted, man.get("code_version") == code)
+            found.append((pt, man, rank, pt.stat().st_mtime))
     found.sort(key=lambda f: (f[2], f[3]), reverse=True)
     return [(pt, man) for pt, man, _, _ in found]
 
