@@ -541,7 +541,8 @@ def test_the_compat_hinge_is_on_the_stability_starts_by_default_else_on_uniform_
 def test_fresh_starts_join_the_continued_rollouts_and_only_those_go_on():
     """With ``fresh_starts`` F each iteration's stability rollouts are the B continued (or
     restarted) ones and F new workspace samples; the rollouts carried to the next iteration are
-    the B, so the fresh ones never become chains. F = 0 (the default) leaves the B alone."""
+    the B, so the fresh ones never become chains. F = 0 (``puma=tiny``'s, as ``v1``'s) leaves
+    the B alone."""
     off = _tiny("puma.train.select_every=0")
     on = _tiny("puma.train.select_every=0", "puma.train.fresh_starts=8")
     assert off.train_cfg.fresh_starts == 0
