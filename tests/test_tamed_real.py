@@ -123,33 +123,63 @@ def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, model,
         assert np.all(np.abs(run.q) <= robot_spec.q_max)
 
 
-def test_fpm_follows_puma_on_table1_pouring_05_without_obstacles():
-    """Table-1 pouring 05 without obstacles, real-data model: FPM's path stays within 0.1 m of
-    PUMA's (mean over the path). Without ``forcing.approach: solution`` the forcing's
-    weighted solve drives joint 2 into a limit whose row it left out, the hand goes 1.2 m
-    from the goal and back, and the path difference is 0.44 m."""
+TABLE1 = [f"{task}/{i:02d}" for task in ("tomato", "pouring") for i in range(15)]
+
+
+def _table1_free_run(method, scenario, model_choice):
+    """One Table-1 scenario without obstacles, as the sweep builds it: (result, goal position)."""
     from omegaconf import OmegaConf
 
     from tamedpuma.app.sweep import build
     from tamedpuma.app.train import compose
+
+    b = build(OmegaConf.create(compose("sweep", [
+        f"task={scenario.split('/')[0]}", f"scenario={scenario}", f"method={method}",
+        model_choice(scenario.split("/")[0]), "recorder=none", "without_obstacles=true"])))
+    with Simulator(b.spec, b.sim_config) as sim:
+        return run_episode(b.scenario, b.controller, sim), np.asarray(b.scenario.goal.position)
+
+
+def _real_model_choice():
+    """The override that selects the real-data models, or skip when there are none."""
     from tamedpuma.errors import CheckpointError
     from tamedpuma.puma import store
 
-    choice = (f"method.checkpoint={_model('pouring')}" if _model("pouring") is not None
-              else "method.model=real")
-    if _model("pouring") is not None and not _model("pouring").is_file():
-        pytest.skip(f"no trained model at {_model('pouring')}")
-    if _model("pouring") is None:
+    for task in ("tomato", "pouring"):
+        if _model(task) is not None:
+            if not _model(task).is_file():
+                pytest.skip(f"no trained model at {_model(task)}")
+            continue
         try:
-            store.resolve("pouring", 2, model="real")
+            store.resolve(task, 2, model="real")
         except CheckpointError:
-            pytest.skip("no real-data pouring model here (`python -m tamedpuma.models build`)")
-    paths = {}
-    for name in ("puma", "fpm"):
-        b = build(OmegaConf.create(compose("sweep", [
-            "task=pouring", "scenario=pouring/05", f"method={name}", choice, "recorder=none",
-            "without_obstacles=true"])))
-        with Simulator(b.spec, b.sim_config) as sim:
-            paths[name] = run_episode(b.scenario, b.controller, sim)
-    assert paths["fpm"].metrics.success
-    assert path_difference(paths["fpm"].ee_position, paths["puma"].ee_position) <= 0.1
+            pytest.skip(f"no real-data {task} model here (`python -m tamedpuma.models build`)")
+    return lambda task: (f"method.checkpoint={_model(task)}" if _model(task) is not None
+                         else "method.model=real")
+
+
+def test_fpm_follows_puma_on_table1_without_obstacles():
+    """The 30 Table-1 scenarios without obstacles, real-data models. FPM reaches the goal (whole
+    body) in every one. Where PUMA alone succeeds (whole body: its own path inside the joint
+    limits and off the table) FPM's path lies within 0.04 m of PUMA's on average (the paper's
+    metric: 0.02 ± 0.04 there; 0.017-0.027 m with six models, both training recipes, seeds
+    0-2). Where PUMA's path runs into a joint limit (pouring 00, 05, 06: joint 2 from about
+    1.5 s on, the simulator holding it there) there is no PUMA path to follow, and FPM's may
+    differ by 0.2 m; but FPM's hand never goes farther from the goal than PUMA's does, by more
+    than 0.05 m (measured at most 0.021 m on those six models; eq. 9 as written 0.8 m; the
+    failure this guards, the forcing's weighted solve driving joint 2 into a limit, took the
+    hand 1.2 m from the goal on pouring 05)."""
+    choice = _real_model_choice()
+    followed, detours, failed = [], {}, []
+    for scenario in TABLE1:
+        puma, goal = _table1_free_run("puma", scenario, choice)
+        fpm, _ = _table1_free_run("fpm", scenario, choice)
+        if not fpm.metrics.success:
+            failed.append(scenario)
+        if puma.metrics.success:
+            followed.append(path_difference(fpm.ee_position, puma.ee_position))
+        farthest = [np.max(np.linalg.norm(r.ee_position - goal, axis=1)) for r in (fpm, puma)]
+        detours[scenario] = farthest[0] - farthest[1]
+    assert not failed
+    assert len(followed) >= 10 and np.mean(followed) <= 0.04
+    assert max(detours.values()) <= 0.05, max(detours.items(), key=lambda kv: kv[1])
