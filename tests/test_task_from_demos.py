@@ -173,13 +173,18 @@ def test_spread_final_orientations_give_the_medoid_goal():
     _all_within(raws, d)
 
 
-@pytest.mark.skipif(not Path("/work/shared/data/pumafabrics-demos/pouring").is_dir()
-                    and not (REPO.parent / "shared/data/pumafabrics-demos/pouring").is_dir(),
+def _authors_folder(name: str) -> Path | None:
+    """The authors' demonstration folder ``name`` where the project looks for their data
+    (:func:`tamedpuma.puma.download.candidate_roots`), or None."""
+    from tamedpuma.puma.download import candidate_roots
+
+    return next((root / name for root in candidate_roots() if (root / name).is_dir()), None)
+
+
+@pytest.mark.skipif(_authors_folder("pouring") is None,
                     reason="the authors' demonstrations are not here")
 def test_derived_workspace_contains_the_real_unseen_demonstrations():
-    folder = Path("/work/shared/data/pumafabrics-demos/pouring")
-    if not folder.is_dir():
-        folder = REPO.parent / "shared/data/pumafabrics-demos/pouring"
+    folder = _authors_folder("pouring")
     raws = demo_formats.load_any(folder)
     d = task_from_demos.derive(raws)
     _all_within(raws, d)
