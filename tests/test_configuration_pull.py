@@ -187,6 +187,35 @@ def test_near_the_goal_the_monitor_engages_only_with_a_near_release_and_lets_go_
                                                     task) is not task
 
 
+def test_a_search_the_hand_overtakes_leaves_its_arming_unserved(kinematics):
+    """An arming whose search the hand overtakes (inside near_release before the search ends:
+    nothing to engage for) is not served: when the hand is out again and the armed stall pull
+    is stuck, the pull engages for it. Served, it never did: after a goal change FPM came to
+    rest in the goal ball, drifted out with two joints at their limits and rested 6.7 cm from
+    the goal to the end, the stall pull armed and the pull waiting for a new arming."""
+    spec = kinematics.spec
+    obs, task = _goal_without_obstacles(kinematics)
+    q = np.array([spec.q_max[0] - 0.05, 0.3, 0.0, -1.0, 0.0, 0.5, 0.0])  # base at its limit
+    qd = np.zeros(7)
+    pull = replace(PULL, near_release=0.03, budget=1)
+    monitor = ConfigurationMonitor(pull, spec)
+    obs.t = 3.0
+    near = 0.5 * pull.release
+    assert monitor.applied(q, qd, near, _stall(3.0, near), obs, task) is task
+    assert monitor.search is not None  # one pass a step: the search goes on
+    assert monitor.applied(q, qd, 0.02, _stall(3.0, 0.02), obs, task) is task
+    assert monitor.search is None and not monitor.engaged  # overtaken, dropped
+    obs.t = 6.0
+    out = monitor.applied(q, qd, 0.06, _stall(3.0, 0.06), obs, task)
+    assert out is task and monitor.search is None  # out again, the stall pull still moving
+    for _ in range(5000):  # stuck: this arming's engagement, its search a pass a step
+        out = monitor.applied(q, qd, 0.06, _stall(3.0, 0.06, stuck=True), obs, task)
+        if out is not task:
+            break
+    assert monitor.engaged and out is not task
+    np.testing.assert_array_equal(out.J, np.eye(7))
+
+
 def test_position_only_ik_reaches_the_position_and_leaves_the_orientation_free(kinematics):
     spec = kinematics.spec
     target = np.array([0.4, 0.5, 0.2, -1.3, 0.3, 0.9, 0.4])

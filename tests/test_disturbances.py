@@ -173,14 +173,12 @@ def test_after_an_online_goal_change_fpm_reaches_the_new_goal(robot_spec, kinema
     # nearer the new one (with |offset| = 0.14 m and a 0.05 m ball the end can be 0.09 m from
     # the old goal)
     assert to_old > scenario.goal_tolerance and to_old > to_new
-    if source == "analytic":
-        # and stays in the ball to the end. Not asserted with a real model: FPM can leave the
-        # ball after resting in it (the randomized suite's "left the ball after reaching", 17 of
-        # 400 FPM runs with the models of `models build`); with that tomato model here the hand
-        # rests 1.4 cm from the new goal at 16 s, then PUMA's orientation rows, joint 2 held at
-        # its limit barrier, carry it out to 6.7 cm (docs/method.md, "The defaults on the
-        # randomized suite": the misses)
-        assert to_new <= scenario.goal_tolerance
+    # and is in the new goal's ball at the end: the run stops when the hand rests there. With
+    # the real tomato model of `models build` the hand rested in the ball at 16 s, drifted out
+    # with two joints at their limits and stayed 6.7 cm off to the end while the configuration
+    # pull, its search overtaken by the hand, waited for a new arming of the stall pull
+    # (tests/test_configuration_pull.py); measured with six real-data models: all end inside
+    assert to_new <= scenario.goal_tolerance
 
 
 def test_obstacles_are_seen_at_30_hz_with_noise_while_the_truth_decides_contacts(robot_spec):

@@ -22,7 +22,9 @@ replaced by the joint-space spec
 (g = ``gain`` [rad/s²], ℓ = ``length`` [rad]: critically damped near q_g, beyond ℓ a constant
 pull cruising at g/k = √(gℓ)/2 = 1 rad/s, so the radians a reconfiguration needs take seconds),
 pulled through the same avoidance metric with the task weight w on each joint row. It engages at
-most once per arming, chooses q_g again when the goal moves :data:`REPLAN_DISTANCE_M`, and lets go
+most once per arming (a search the hand overtakes, coming within ``near_release`` before the
+search ends, serves none: the hand may leave the ball again, stalled, with the stall pull still
+armed), chooses q_g again when the goal moves :data:`REPLAN_DISTANCE_M`, and lets go
 within ``near_release`` of the goal, where the arm is nearly at rest and PUMA (the stall pull still
 armed) finishes; handed over while still cruising, the hand overshoots. It also lets go once
 ‖q − q_g‖ has not fallen by ``progress`` [rad] for ``window`` [s] (a barrier holds it). These are
@@ -412,6 +414,7 @@ class ConfigurationMonitor:
         self.goal_for = np.full(3, np.nan)
         self.served: float | None = None  # t_armed of the stall pull last engaged for
         self.served_blocked: float | None = None  # ... and searched again for a blocked pose
+        self.served_before: float | None = None  # ``served`` before the search under way
         self.engaged = False
         self.release_at = pull.release  # [m] this engagement lets go within it
         self.holding = False  # q_g holds the goal position alone (the pose is blocked)
@@ -458,10 +461,12 @@ class ConfigurationMonitor:
         if self.engaged and (distance <= self.release_at or self._stuck(q, obs.t)):
             self.engaged, self.search = False, None
         if not self.engaged and self.search is not None and distance <= self.release_at:
-            self.search = None  # the engagement searched for is over before it began
+            # the engagement searched for is over before it began: the arming is not served
+            # (a hand that leaves the ball again, stalled, gets its engagement)
+            self.search, self.served = None, self.served_before
         if not self.engaged and self.search is None and self._engages(q, distance, stall, obs):
             again = stall.t_armed == self.served  # far out, this arming's second search
-            self.served = stall.t_armed
+            self.served_before, self.served = self.served, stall.t_armed
             if again:
                 self.served_blocked = stall.t_armed
             self.release_at = p.near_release if p.near_release > 0.0 else p.release
