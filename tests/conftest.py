@@ -31,6 +31,26 @@ def shared_dir():
     return SHARED
 
 
+def real_model(task: str) -> Path | None:
+    """The real-data second-order model of ``task`` the tests run with, or None where there is
+    none: ``$TAMEDPUMA_MODELS/<task>/puma.pt`` where that variable is set (None if that file is
+    missing), else the model a run with ``method.model=real`` takes
+    (:func:`tamedpuma.puma.store.resolve`: the models cache, then ``runs/puma``)."""
+    import os
+
+    from tamedpuma.errors import CheckpointError
+    from tamedpuma.puma import store
+
+    root = os.environ.get("TAMEDPUMA_MODELS")
+    if root:
+        path = Path(root) / task / "puma.pt"
+        return path if path.is_file() else None
+    try:
+        return store.resolve(task, 2, model="real").path
+    except CheckpointError:
+        return None
+
+
 class ScalarLog:
     """A recorder keeping every step's controller scalars (``rows``: one dict per step)."""
 

@@ -5,19 +5,18 @@ by FPM.
 FPM's forcing policy here is an analytic stable second-order pose system standing in for a
 trained PUMA (a tiny CI model is not accurate enough to reach a goal), so these tests run in CI
 and check the simulator and FPM's fabric around any stable policy. With a real-data tomato model
-at hand (``$TAMEDPUMA_MODELS/tomato/puma.pt``, ``runs/puma/tomato/puma.pt``, or the one
-``python -m tamedpuma.models build`` cached) the same checks also run with PUMA (skipped
+at hand (``conftest.real_model``: ``$TAMEDPUMA_MODELS/tomato/puma.pt``, else the one a run
+with ``method.model=real`` takes) the same checks also run with PUMA (skipped
 otherwise).
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import real_model
 
 from tamedpuma.app.config import load_group, start_options, typed_scenario
 from tamedpuma.app.schema import method_settings
@@ -32,27 +31,7 @@ from tamedpuma.robot.rotations import quat_to_matrix, rotation_error
 from tamedpuma.worlds.bullet import Disturbance, SimConfig, Simulator
 from tamedpuma.worlds.scenarios import scenario_from_config
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-def _real_tomato_models() -> list[Path]:
-    """The real-data tomato model at hand, if any: ``$TAMEDPUMA_MODELS/tomato/puma.pt``, then
-    ``runs/puma/tomato/puma.pt``, then the cache's (``python -m tamedpuma.models build``)."""
-    from tamedpuma.errors import CheckpointError
-    from tamedpuma.puma import store
-
-    root = os.environ.get("TAMEDPUMA_MODELS")
-    for path in ((Path(root) / "tomato" / "puma.pt") if root else None,
-                 REPO / "runs" / "puma" / "tomato" / "puma.pt"):
-        if path is not None and path.is_file():
-            return [path]
-    try:
-        return [store.resolve("tomato", 2, model="real").path]
-    except CheckpointError:
-        return []
-
-
-REAL_MODELS = _real_tomato_models()
+REAL_MODELS = [p for p in (real_model("tomato"),) if p is not None]
 IMPEDANCE = SimConfig(control="impedance")
 VELOCITY = SimConfig()
 NO_DISTURBANCE = Disturbance()

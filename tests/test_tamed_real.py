@@ -5,11 +5,9 @@ into runs/puma/, docs/data.md); skipped with a reason when there is none."""
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import real_model
 
 from tamedpuma.analysis.path_difference import path_difference
 from tamedpuma.app.config import load_group, start_options, typed_scenario
@@ -17,10 +15,6 @@ from tamedpuma.episode import run_episode
 from tamedpuma.methods import make
 from tamedpuma.worlds.bullet import Simulator
 from tamedpuma.worlds.scenarios import scenario_from_config
-
-REPO = Path(__file__).resolve().parents[1]
-
-
 
 
 class _PsiSpy:
@@ -39,18 +33,22 @@ class _PsiSpy:
         return command
 
 
-def _model(task) -> Path | None:
-    """An explicit real-data model: $TAMEDPUMA_MODELS/<task>/puma.pt if that variable is set."""
-    root = os.environ.get("TAMEDPUMA_MODELS")
-    return Path(root) / task / "puma.pt" if root else None
+def _choice(task, model) -> str:
+    """The override selecting the model: the shipped one, or the real-data one the tests run
+    with (:func:`conftest.real_model`), skipped where there is none."""
+    if model == "shipped":
+        return "method.model=shipped"
+    path = real_model(task)
+    if path is None:
+        pytest.skip(f"no real-data {task} model here (`python -m tamedpuma.models build` needs "
+                    "the authors' demonstrations, or set TAMEDPUMA_MODELS; CI runs this with the "
+                    "shipped models)")
+    return f"method.checkpoint={path}"
 
 
-def _method_cfg(name, task, model):
-    from tamedpuma.app.train import compose
-
-    explicit = _model(task) if model == "real" else None
-    choice = f"method.checkpoint={explicit}" if explicit else f"method.model={model}"
+def _method_cfg(name, task, choice):
     from tamedpuma.app.schema import method_settings, run_config
+    from tamedpuma.app.train import compose
 
     cfg = compose("sweep", [f"method={name}", f"task={task}", choice])
     return method_settings(run_config(cfg).method)
@@ -76,22 +74,10 @@ CASES = [("tomato", "shipped"),
 @pytest.mark.parametrize("task,model", CASES)
 def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, model, robot_spec,
                                                                      kinematics):
-    from tamedpuma.errors import CheckpointError
-    from tamedpuma.puma import store
-
-    if model == "real" and _model(task) is not None:
-        if not _model(task).is_file():
-            pytest.skip(f"no trained model at {_model(task)}")
-    else:
-        try:
-            store.resolve(task, 2, model=model)
-        except CheckpointError:
-            pytest.skip(f"no real-data {task} model here (`python -m tamedpuma.models build` "
-                        "needs the authors' demonstrations, or set TAMEDPUMA_MODELS; CI runs "
-                        "this with the shipped models)")
+    choice = _choice(task, model)
     paths = {}
     for name in ("puma", "fpm", "cpm"):
-        controller = _PsiSpy(make(name, _method_cfg(name, task, model), kinematics))
+        controller = _PsiSpy(make(name, _method_cfg(name, task, choice), kinematics))
         with Simulator(robot_spec) as sim:
             free = run_episode(_scenario(robot_spec, task, False), controller, sim)
         paths[name] = free.ee_position
@@ -126,36 +112,19 @@ def test_fpm_and_cpm_follow_puma_and_avoid_on_the_default_scenarios(task, model,
 TABLE1 = [f"{task}/{i:02d}" for task in ("tomato", "pouring") for i in range(15)]
 
 
-def _table1_free_run(method, scenario, model_choice):
-    """One Table-1 scenario without obstacles, as the sweep builds it: (result, goal position)."""
+def _table1_free_run(method, scenario, choice):
+    """One Table-1 scenario without obstacles, as the sweep builds it, with the model override
+    ``choice``: (result, goal position)."""
     from omegaconf import OmegaConf
 
     from tamedpuma.app.sweep import build
     from tamedpuma.app.train import compose
 
     b = build(OmegaConf.create(compose("sweep", [
-        f"task={scenario.split('/')[0]}", f"scenario={scenario}", f"method={method}",
-        model_choice(scenario.split("/")[0]), "recorder=none", "without_obstacles=true"])))
+        f"task={scenario.split('/')[0]}", f"scenario={scenario}", f"method={method}", choice,
+        "recorder=none", "without_obstacles=true"])))
     with Simulator(b.spec, b.sim_config) as sim:
         return run_episode(b.scenario, b.controller, sim), np.asarray(b.scenario.goal.position)
-
-
-def _real_model_choice():
-    """The override that selects the real-data models, or skip when there are none."""
-    from tamedpuma.errors import CheckpointError
-    from tamedpuma.puma import store
-
-    for task in ("tomato", "pouring"):
-        if _model(task) is not None:
-            if not _model(task).is_file():
-                pytest.skip(f"no trained model at {_model(task)}")
-            continue
-        try:
-            store.resolve(task, 2, model="real")
-        except CheckpointError:
-            pytest.skip(f"no real-data {task} model here (`python -m tamedpuma.models build`)")
-    return lambda task: (f"method.checkpoint={_model(task)}" if _model(task) is not None
-                         else "method.model=real")
 
 
 def test_fpm_follows_puma_on_table1_without_obstacles():
@@ -169,9 +138,10 @@ def test_fpm_follows_puma_on_table1_without_obstacles():
     than 0.05 m (measured at most 0.021 m on those six models; eq. 9 as written 0.8 m; the
     failure this guards, the forcing's weighted solve driving joint 2 into a limit, took the
     hand 1.2 m from the goal on pouring 05)."""
-    choice = _real_model_choice()
+    choices = {task: _choice(task, "real") for task in ("tomato", "pouring")}
     followed, detours, failed = [], {}, []
     for scenario in TABLE1:
+        choice = choices[scenario.split("/")[0]]
         puma, goal = _table1_free_run("puma", scenario, choice)
         fpm, _ = _table1_free_run("fpm", scenario, choice)
         if not fpm.metrics.success:
