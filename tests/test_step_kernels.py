@@ -237,9 +237,18 @@ def hulls(kinematics):
     return link_hulls(kinematics)
 
 
-@pytest.mark.parametrize("below", [np.inf, 0.4, 0.1])
+def _per_hull(hulls, below):
+    """``below`` as given, or ("per hull") the heights the step uses at a 40 ms period: each
+    hull's vertical speed bound × Δt / κ (0 for the first link, which never needs a row)."""
+    if below != "per hull":
+        return below
+    return np.array(hulls.speed_bounds) * 0.04 / 0.5
+
+
+@pytest.mark.parametrize("below", [np.inf, 0.4, 0.1, "per hull"])
 def test_the_fused_ground_rows_are_the_robot_modules(kinematics, hulls, below):
     table = HullTable.of(hulls)
+    below = _per_hull(hulls, below)
     found = 0
     for qd in _evaluated_at_random(kinematics, seed=7):
         want = ground.hull_ground_rows(kinematics, hulls, qd, below)
@@ -256,8 +265,9 @@ def test_compiled_and_plain_ground_kernels_agree(kinematics, hulls):
     rng = np.random.default_rng(8)
     Rt = np.stack([np.linalg.qr(rng.standard_normal((3, 3)))[0] for _ in table.radii])
     tz = rng.uniform(-0.2, 0.6, len(table.radii))
+    below = rng.uniform(0.1, 0.5, len(table.radii))  # one height per hull
     plain, fast = _plain_and_compiled("lowest_points", table.vertices, table.starts, Rt, tz,
-                                      table.radii, 0.3)
+                                      table.radii, below)
     assert np.array_equal(plain[0], fast[0]) and plain[0].any()
     for p, f in zip(plain[1:], fast[1:]):
         assert _close(f[plain[0]], p[plain[0]])
@@ -299,7 +309,7 @@ def test_a_singular_geometry_raises_as_the_numpy_forcing_does():
         forced_through_metric(av, task, target, forcing, np.ones(N), None)
 
 
-@pytest.mark.parametrize("below", [np.inf, 0.4, 0.1])
+@pytest.mark.parametrize("below", [np.inf, 0.4, 0.1, "per hull"])
 def test_the_one_call_ground_rows_are_the_two_kernel_ones(kinematics, hulls, below, monkeypatch):
     """The compiled one-call ground rows (_kernels.hull_ground, from the chain's joint state)
     are the two-kernel path's, bit for bit, and robot/ground.py's link-by-link ones to
@@ -307,6 +317,7 @@ def test_the_one_call_ground_rows_are_the_two_kernel_ones(kinematics, hulls, bel
     pytest.importorskip("numba")
     assert _kernels.warm_up()
     table = HullTable.of(hulls)
+    below = _per_hull(hulls, below)
     one = _kernels.STEP["hull_ground"]
     two = _kernels.Kernel(_kernels.hull_ground)  # not compiled: the two-kernel path
     found = 0

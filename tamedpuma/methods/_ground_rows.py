@@ -19,38 +19,43 @@ from dataclasses import dataclass
 import numpy as np
 
 from tamedpuma.methods._kernels import STEP
-from tamedpuma.robot.ground import GroundRows, LinkHulls
+from tamedpuma.robot.ground import GroundRows, LinkHulls, per_hull
 
 
 @dataclass(frozen=True)
 class HullTable:
     """The hulls of :class:`~tamedpuma.robot.ground.LinkHulls` as the kernels take them: every
-    vertex (V, 3) [m], hull l's from ``starts[l]`` to ``starts[l + 1]``, and the radii (L,)."""
+    vertex (V, 3) [m], hull l's from ``starts[l]`` to ``starts[l + 1]``, the radii (L,) [m] and
+    the vertical speed bounds (L,) [m/s]."""
 
     hulls: LinkHulls
     vertices: np.ndarray
     starts: np.ndarray
     radii: np.ndarray
+    speeds: np.ndarray
 
     @staticmethod
     def of(hulls: LinkHulls) -> HullTable:
         sizes = [len(v) for v in hulls.vertices]
         return HullTable(hulls, np.ascontiguousarray(np.concatenate(hulls.vertices), float),
                          np.concatenate(([0], np.cumsum(sizes))).astype(np.int64),
-                         np.array(hulls.radii, dtype=float))
+                         np.array(hulls.radii, dtype=float),
+                         np.array(hulls.speed_bounds, dtype=float))
 
 
 def hull_ground_rows(kinematics, table: HullTable, qd: np.ndarray,
-                     below: float = np.inf) -> GroundRows:
+                     below: float | np.ndarray = np.inf) -> GroundRows:
     """:func:`tamedpuma.robot.ground.hull_ground_rows` of ``table.hulls`` (the same numbers):
-    the lowest point of each hull lower than ``below`` [m] at the kinematics' last
-    ``evaluate(q, q̇)``, its height, row and curvature term; qd: that q̇ [rad/s]."""
+    the lowest point of each hull lower than ``below`` [m] (one height, or one per hull) at the
+    kinematics' last ``evaluate(q, q̇)``, its height, row and curvature term; qd: that q̇
+    [rad/s]."""
     model, ids = kinematics.model, table.hulls.frame_ids
     qd = np.asarray(qd, dtype=float)
+    below = per_hull(below, table.hulls)
     chain = kinematics.chain_state(ids) if STEP["hull_ground"].fast is not None else None
     if chain is not None:  # one compiled call: the placements and the rows (the same numbers)
         return GroundRows(*STEP["hull_ground"](*chain, table.vertices, table.starts, table.radii,
-                                               float(below), qd))
+                                               below, qd))
     R, origins = kinematics.frame_placements(ids)
     Rt, tz = np.ascontiguousarray(R.transpose(0, 2, 1)), np.ascontiguousarray(origins[:, 2])
     found, heights, points = STEP["lowest_points"](table.vertices, table.starts, Rt, tz,

@@ -177,20 +177,21 @@ def lowest_points(verts, starts, Rt, tz, radii, below):
     vertices ``verts[starts[l]:starts[l + 1]]`` (link frame), rotation R_l (given transposed,
     ``Rt[l] = R_lᵀ``: R_l in pinocchio's column-major order, so that the products take the
     same BLAS route as on pinocchio's own array), origin height tz[l] and bounding radius
-    radii[l] [m]; its lowest vertex v (``min (v·R_l[2])``) counts when ``tz − radius < below``
-    and its height ``tz + v·R_l[2] < below``. Returns (found (L,) bool, heights (L,), the vertex
-    relative to the origin in world axes R_l v (L, 3))."""
+    radii[l] [m]; its lowest vertex v (``min (v·R_l[2])``) counts when
+    ``tz − radius < below[l]`` and its height ``tz + v·R_l[2] < below[l]`` (below (L,) [m]).
+    Returns (found (L,) bool, heights (L,), the vertex relative to the origin in world axes
+    R_l v (L, 3))."""
     L = tz.shape[0]
     found, heights, points = np.zeros(L, np.bool_), np.empty(L), np.empty((L, 3))
     for i in range(L):
-        if tz[i] - radii[i] >= below:
+        if tz[i] - radii[i] >= below[i]:
             continue
         R = Rt[i].T
         v = verts[starts[i]:starts[i + 1]]
         z = v @ R[2]
         j = z.argmin()
         height = tz[i] + z[j]
-        if height < below:
+        if height < below[i]:
             found[i], heights[i] = True, height
             points[i] = R @ v[j]
     return found, heights, points
@@ -216,7 +217,7 @@ def hull_ground(S, qd_chain, parents, Rf, pf, support, verts, starts, radii, bel
     hull frames' placements, Jacobians and J̇q̇ from the chain's joint state S at q̇_chain
     (:func:`~tamedpuma.robot.point_motion.frame_motion`, its frame table parents, R_f, p_f,
     support), each hull's lowest point (:func:`lowest_points`; hull l's vertices
-    ``verts[starts[l]:starts[l + 1]]``, radii, below) and, for the hulls found, the rows and
+    ``verts[starts[l]:starts[l + 1]]``, radii, below (L,)) and, for the hulls found, the rows and
     curvature terms (:func:`ground_rows` at qd): the same arithmetic, array for array, as
     those calls one by one. Returns (heights (k,), rows (k, n), J̇q̇ (k,))."""
     R, p, J, acc = frame_motion(S, qd_chain, parents, Rf, pf, support, 6)
@@ -368,13 +369,15 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
         kernels["pulled_forcing"](M, v, r, mt, J, 100.0, t, 0.05, v, True, 1e-4, True, True)
     k3 = rng.standard_normal((4, 3))
     three = np.eye(3).reshape(1, 3, 3).repeat(2, 0)
-    kernels["lowest_points"](k3, np.array([0, 2, 4]), three, np.ones(2), np.ones(2), 2.0)
+    kernels["lowest_points"](k3, np.array([0, 2, 4]), three, np.ones(2), np.ones(2),
+                             np.full(2, 2.0))
     kernels["ground_rows"](rng.standard_normal((2, 6, n)), k3[:2].repeat(2, 1), k3[:2], v)
     kernels["rows_free"](v, rows, metric, metric, metric, v, True, none, np.empty(0),
                          np.empty(0), 0.01, 0.02, 0.5, 1e-3)
     S = rng.standard_normal((n, 7, 3))
     table = (np.arange(2, dtype=np.int64), three, k3[:2], np.ones((2, n), np.bool_))
-    kernels["hull_ground"](S, v, *table, k3, np.array([0, 2, 4]), np.ones(2), 2.0, v)
+    kernels["hull_ground"](S, v, *table, k3, np.array([0, 2, 4]), np.ones(2), np.full(2, 2.0),
+                           v)
     kernels["null_pull"](S, v, *(a[:1] for a in table), t[:3], 1.0, 2.0, v)
     kernels["limit_speed"](v, np.ones(n))
     for semi in (True, False):

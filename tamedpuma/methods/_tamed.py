@@ -228,9 +228,9 @@ class TamedController:
         evaluation, at velocity qd (the rows read its pass)."""
         if self.hulls is None:
             return None
-        below = self.hulls.speed_bound * self.dt / BARRIER_KAPPA  # higher: no row needed
-        return hull_ground_rows(self.kinematics, self.hull_table, qd,
-                                below if math.isfinite(below) else np.inf)
+        dt, table = self.dt, self.hull_table  # a hull higher than below needs no row
+        below = table.speeds * (dt / BARRIER_KAPPA) if math.isfinite(dt) else np.inf
+        return hull_ground_rows(self.kinematics, table, qd, below)
 
     def stall_scalars(self) -> dict[str, float]:
         """``stall_pull``: 1 while the stall pull is armed, else 0; with the configuration pull

@@ -55,7 +55,9 @@ class LinkHulls:
     links: tuple[str, ...]
     frame_ids: tuple[int, ...]
     vertices: tuple[np.ndarray, ...]
-    speed_bound: float  # [m/s] no hull point moves faster within the joint speed limits
+    #: [m/s] per hull: no point of it moves up or down faster within the joint speed limits
+    #: (:func:`vertical_speed_bounds`)
+    speed_bounds: tuple[float, ...]
     radii: tuple[float, ...] = ()  # [m] each hull's farthest vertex from its link origin
 
     def __post_init__(self):
@@ -64,23 +66,41 @@ class LinkHulls:
                 float(np.max(np.linalg.norm(v, axis=1))) for v in self.vertices))
 
 
-def point_speed_bound(kinematics, frame_ids, vertices) -> float:
-    """An upper bound [m/s] on the speed of any hull point within the joint speed limits:
-    ``Σ_i q̇_max,i ρ_i``, ρ_i the largest distance of a hull point from joint i (the joint
-    origins' distances further down the chain plus the farthest hull point from its own joint:
-    the triangle inequality, whatever the configuration). The barrier step acts on a row only
-    when one period Δt would take more than κ of its height, so a link higher than
-    ``bound Δt / κ`` needs no row."""
+def vertical_speed_bounds(kinematics, frame_ids, vertices) -> tuple[float, ...]:
+    """Per hull, an upper bound [m/s] on the vertical speed of any of its points within the
+    joint speed limits: ``Σ_i q̇_max,i ρ_i`` over the joints i that move its link, ρ_i the
+    largest distance of a hull point from joint i (the joint origins' distances down the chain
+    to the link's own joint plus the hull's farthest point from that joint: the triangle
+    inequality, whatever the configuration). A revolute joint on the fixed base turning about
+    the world's vertical moves no point up or down (ż of ω × r is 0 for ω along z) and is left
+    out. The barrier step acts on a row only when one period Δt would take more than κ of its
+    height, so a link higher than ``bound Δt / κ`` needs no row."""
     model = kinematics.model
-    tip = 0.0
-    for fid, v in zip(frame_ids, vertices):
-        placement = model.frames[fid].placement  # the link frame in its joint's frame
-        tip = max(tip, float(np.max(np.linalg.norm(v @ placement.rotation.T
-                                                   + placement.translation, axis=1))))
-    lengths = [float(np.linalg.norm(model.jointPlacements[j].translation))
-               for j in range(1, model.njoints)]
     qd_max = np.asarray(kinematics.spec.qd_max, dtype=float)
-    return float(sum(qd_max[i] * (sum(lengths[i + 1:]) + tip) for i in range(len(qd_max))))
+    lengths = [float(np.linalg.norm(p.translation)) for p in model.jointPlacements]
+    bounds = []
+    for fid, v in zip(frame_ids, vertices):
+        frame = model.frames[fid]
+        placement = frame.placement  # the link frame in its joint's frame
+        reach = float(np.max(np.linalg.norm(v @ placement.rotation.T + placement.translation,
+                                            axis=1)))
+        bound, joint = 0.0, frame.parentJoint
+        while joint > 0:  # from the link's joint towards the base: ρ grows by each placement
+            if not _turns_about_vertical(model, joint):
+                idx = model.joints[joint].idx_v
+                bound += float(qd_max[idx]) * reach
+            reach += lengths[joint]
+            joint = model.parents[joint]
+        bounds.append(bound)
+    return tuple(bounds)
+
+
+def _turns_about_vertical(model, joint: int) -> bool:
+    """Whether ``joint`` is a revolute joint about its own z axis, on the fixed base (its
+    parent the universe), with that axis along the world's vertical."""
+    axis_z = model.jointPlacements[joint].rotation[:, 2]
+    return (model.parents[joint] == 0 and model.joints[joint].shortname() == "JointModelRZ"
+            and abs(abs(float(axis_z[2])) - 1.0) < 1e-12)
 
 
 #: link hulls a process keeps (every controller of a sweep worker's runs builds them), by the
@@ -135,7 +155,7 @@ def _build_link_hulls(kinematics) -> LinkHulls:
         raise ConfigError("method.control_rate.barrier_step (its ground rows): no moving link has "
                           f"collision geometry in {kinematics.spec.urdf_path}")
     return LinkHulls(tuple(links), tuple(ids), tuple(verts),
-                     point_speed_bound(kinematics, ids, verts))
+                     vertical_speed_bounds(kinematics, ids, verts))
 
 
 def sphere_ground_rows(state) -> GroundRows:
@@ -144,9 +164,15 @@ def sphere_ground_rows(state) -> GroundRows:
                       state.sphere_jacobians[:, 2, :], state.sphere_jdqd[:, 2])
 
 
+def per_hull(below, hulls: LinkHulls) -> np.ndarray:
+    """``below`` [m], one number or one per hull, as a fresh array with one per hull (L,)."""
+    return np.array(np.broadcast_to(np.asarray(below, dtype=float), (len(hulls.frame_ids),)))
+
+
 def hull_ground_rows(kinematics, hulls: LinkHulls, qd: np.ndarray,
-                     below: float = np.inf) -> GroundRows:
-    """The lowest point of each hull lower than ``below`` [m] at the kinematics' last
+                     below: float | np.ndarray = np.inf) -> GroundRows:
+    """The lowest point of each hull lower than ``below`` [m] (one height, or one per hull) at
+    the kinematics' last
     ``evaluate(q, q̇)`` (its placements, and the link origins' Jacobians and J̇q̇ by
     :meth:`~tamedpuma.robot.kinematics.Kinematics.frame_motion`: no forward pass of its own);
     qd: that q̇ [rad/s]. Its height, the z row of its point Jacobian
@@ -158,7 +184,8 @@ def hull_ground_rows(kinematics, hulls: LinkHulls, qd: np.ndarray,
     order, as the link-by-link formula (the 3-vector dot products as ``(a₀b₀ + a₁b₁) + a₂b₂``,
     which is what a length-3 ``np.dot`` computes): the same numbers, bit for bit."""
     model = kinematics.model
-    found = _lowest_points(kinematics.frame_placements(hulls.frame_ids), hulls, below)
+    found = _lowest_points(kinematics.frame_placements(hulls.frame_ids), hulls,
+                           per_hull(below, hulls))
     k = len(found)
     heights, rows, jdqd = np.empty(k), np.empty((k, model.nv)), np.empty(k)
     if not k:
@@ -180,21 +207,21 @@ def hull_ground_rows(kinematics, hulls: LinkHulls, qd: np.ndarray,
     return GroundRows(heights, rows, jdqd)
 
 
-def _lowest_points(placements, hulls: LinkHulls, below: float) -> list:
+def _lowest_points(placements, hulls: LinkHulls, below: np.ndarray) -> list:
     """(link index, height [m], lowest vertex relative to the link origin in world axes (3,))
-    of each hull whose lowest point is below ``below``, at the hulls' ``placements`` (world
-    rotations (L, 3, 3), origins (L, 3))."""
+    of each hull l whose lowest point is below ``below[l]``, at the hulls' ``placements``
+    (world rotations (L, 3, 3), origins (L, 3))."""
     lowest = []
     rotations, origins = placements
     for i, (v, radius) in enumerate(zip(hulls.vertices, hulls.radii)):
         tz = origins[i, 2]
-        if tz - radius >= below:  # no vertex of this hull is lower
+        if tz - radius >= below[i]:  # no vertex of this hull is lower
             continue
         R = rotations[i]
         z = v @ R[2]
         j = z.argmin()
         height = float(tz + z[j])
-        if height < below:
+        if height < below[i]:
             lowest.append((i, height, R @ v[j]))
     return lowest
 
