@@ -30,7 +30,8 @@ Kernels (n joints, m task rows, R barrier rows):
   and the geometry ``h = −(M + [task] w JᵀJ)⁻¹ f`` [rad/s²].
 - :func:`pulled_forcing`: :func:`metric_forcing` with its q̈_P (:func:`damped_pull`) in one call.
 - :func:`lowest_points`, :func:`ground_rows`: the links' lowest hull points and their ground
-  rows (:func:`~tamedpuma.robot.ground.hull_ground_rows`).
+  rows (:func:`~tamedpuma.robot.ground.hull_ground_rows`); :func:`ground_reach`: how far the
+  joints may move before any hull needs a row.
 - :func:`rows_free`: whether v meets every barrier row ``a·v ≥ b`` (and ``a·v + drift ≥ b``),
   ``b = −κ(x − x_s)/Δt − ½Δt min(J̇q̇, 0)`` (``min(b, 0)`` on rows at or past x_s).
 - :func:`null_pull`: the elbow objective ``q̈_null = k J_linkᵀ (p* − p_link) − d q̇`` [rad/s²]
@@ -179,22 +180,39 @@ def lowest_points(verts, starts, Rt, tz, radii, below):
     same BLAS route as on pinocchio's own array), origin height tz[l] and bounding radius
     radii[l] [m]; its lowest vertex v (``min (v·R_l[2])``) counts when
     ``tz − radius < below[l]`` and its height ``tz + v·R_l[2] < below[l]`` (below (L,) [m]).
-    Returns (found (L,) bool, heights (L,), the vertex relative to the origin in world axes
-    R_l v (L, 3))."""
+    Returns (found (L,) bool, heights (L,): the lowest point's height where computed, else
+    ``tz − radius`` (a lower bound), the vertex relative to the origin in world axes R_l v
+    (L, 3))."""
     L = tz.shape[0]
     found, heights, points = np.zeros(L, np.bool_), np.empty(L), np.empty((L, 3))
     for i in range(L):
-        if tz[i] - radii[i] >= below[i]:
+        heights[i] = tz[i] - radii[i]
+        if heights[i] >= below[i]:
             continue
         R = Rt[i].T
         v = verts[starts[i]:starts[i + 1]]
         z = v @ R[2]
         j = z.argmin()
         height = tz[i] + z[j]
+        heights[i] = height
         if height < below[i]:
-            found[i], heights[i] = True, height
+            found[i] = True
             points[i] = R @ v[j]
     return found, heights, points
+
+
+def ground_reach(found, heights, below, lipschitz):
+    """How far [rad] any joint may move with every hull still higher than its row height, from
+    :func:`lowest_points`' results: ``min_l (x_l − below_l)/L_l`` over the hulls with
+    Lipschitz constant L_l > 0 [m/rad] (x_l: the lowest point or a lower bound of it; a hull
+    with L_l = 0 never moves up or down); 0 where a row was found, inf where no hull moves."""
+    reach = np.inf
+    for i in range(heights.shape[0]):
+        if found[i]:
+            return 0.0
+        if lipschitz[i] > 0.0:
+            reach = min(reach, (heights[i] - below[i]) / lipschitz[i])
+    return reach
 
 
 def ground_rows(J, acc, r, qd):
@@ -212,14 +230,16 @@ def ground_rows(J, acc, r, qd):
     return rows, acc[:, 2] + acc[:, 3] * ry - acc[:, 4] * rx + wz * w_r - rz * w_w
 
 
-def hull_ground(S, qd_chain, parents, Rf, pf, support, verts, starts, radii, below, qd):
+def hull_ground(S, qd_chain, parents, Rf, pf, support, verts, starts, radii, below, lipschitz,
+                qd):
     """The ground rows of the hulls in one call (:mod:`~tamedpuma.methods._ground_rows`): the
     hull frames' placements, Jacobians and J̇q̇ from the chain's joint state S at q̇_chain
     (:func:`~tamedpuma.robot.point_motion.frame_motion`, its frame table parents, R_f, p_f,
     support), each hull's lowest point (:func:`lowest_points`; hull l's vertices
     ``verts[starts[l]:starts[l + 1]]``, radii, below (L,)) and, for the hulls found, the rows and
     curvature terms (:func:`ground_rows` at qd): the same arithmetic, array for array, as
-    those calls one by one. Returns (heights (k,), rows (k, n), J̇q̇ (k,))."""
+    those calls one by one. Returns (heights (k,), rows (k, n), J̇q̇ (k,), the reach of
+    :func:`ground_reach` (lipschitz (L,) [m/rad]))."""
     R, p, J, acc = frame_motion(S, qd_chain, parents, Rf, pf, support, 6)
     L = parents.shape[0]
     Rt, tz = np.empty((L, 3, 3)), np.empty(L)
@@ -235,7 +255,7 @@ def hull_ground(S, qd_chain, parents, Rf, pf, support, verts, starts, radii, bel
         j = links[i]
         Jk[i], acck[i], rk[i], hk[i] = J[j], acc[j], points[j], heights[j]
     rows, jdqd = ground_rows(Jk, acck, rk, qd)
-    return hk, rows, jdqd
+    return hk, rows, jdqd, ground_reach(found, heights, below, lipschitz)
 
 
 def null_pull(S, qd_chain, parents, Rf, pf, support, target, stiffness, damping, qd):
@@ -293,9 +313,9 @@ def cpm_velocity(M, f_energy, qd, h, qdd_c, dpsi, eps, regulator_scale, beta_min
 
 
 KERNELS = (damped_pull, metric_forcing, pulled_forcing, rows_free, lowest_points, ground_rows,
-           hull_ground, null_pull, fpm_velocity, cpm_velocity, limit_speed)
-HELPERS = (_weighted_solve, _restore, _meets, _bounds, lowest_points, ground_rows, frame_motion,
-           damped_pull, metric_forcing, energized_alpha, energized_velocity_step)
+           ground_reach, hull_ground, null_pull, fpm_velocity, cpm_velocity, limit_speed)
+HELPERS = (_weighted_solve, _restore, _meets, _bounds, lowest_points, ground_rows, ground_reach,
+           frame_motion, damped_pull, metric_forcing, energized_alpha, energized_velocity_step)
 
 
 class Kernel:
@@ -377,7 +397,8 @@ def _first_calls(kernels: dict, n: int = 7, m: int = 6) -> None:
     S = rng.standard_normal((n, 7, 3))
     table = (np.arange(2, dtype=np.int64), three, k3[:2], np.ones((2, n), np.bool_))
     kernels["hull_ground"](S, v, *table, k3, np.array([0, 2, 4]), np.ones(2), np.full(2, 2.0),
-                           v)
+                           np.ones(2), v)
+    kernels["ground_reach"](np.zeros(2, np.bool_), np.ones(2), np.ones(2), np.ones(2))
     kernels["null_pull"](S, v, *(a[:1] for a in table), t[:3], 1.0, 2.0, v)
     kernels["limit_speed"](v, np.ones(n))
     for semi in (True, False):

@@ -155,13 +155,17 @@ class TamedEpisode:
     """What FPM's and CPM's step writes (see the module docstring), None where off: the
     avoidance fabric's work buffers (:class:`~tamedpuma.fabrics.FabricBuffers`), the stall monitor
     (:mod:`tamedpuma.methods._stall`), the configuration pull's monitor
-    (:mod:`tamedpuma.methods._configuration_pull`) and the control step Δt [s] (the scenario's;
-    NaN before the first ``reset``)."""
+    (:mod:`tamedpuma.methods._configuration_pull`), the control step Δt [s] (the scenario's;
+    NaN before the first ``reset``) and where the ground rows were last computed empty: the
+    configuration ``ground_at`` and how far [rad] any joint may move from it before a hull can
+    need a row (``ground_reach``; :meth:`TamedController.ground_rows`)."""
 
     fabric: FabricBuffers
     stall: StallMonitor | None
     configuration: ConfigurationMonitor | None
     dt: float = float("nan")
+    ground_at: np.ndarray | None = None
+    ground_reach: float = 0.0
 
 
 class TamedController:
@@ -182,6 +186,8 @@ class TamedController:
         self.qd_max = np.asarray(self.kinematics.spec.qd_max, dtype=float)
         self.hulls = link_hulls(self.kinematics) if self.rate.barrier_step else None
         self.hull_table = HullTable.of(self.hulls) if self.hulls is not None else None
+        n = len(self.qd_max)  # the rows where no hull is low (shared: never written)
+        self.no_ground_rows = GroundRows(np.empty(0), np.empty((0, n)), np.empty(0))
         self.episode = self.new_episode()
         warm_up()  # the step's kernels compiled now, never inside a step (methods/_kernels.py)
 
@@ -217,20 +223,34 @@ class TamedController:
         """The fabric and PUMA's forcing at the observation (:class:`Forced`)."""
         ep = self.episode
         state, av = avoidance_at(self.kinematics, self.fabric, obs, ep.fabric)
-        ground = self.ground_rows(state, obs.qd)  # from the pass that evaluated ``state``
+        ground = self.ground_rows(state, obs.q, obs.qd)  # from the pass that evaluated state
         h, qdd_c, xdd = self.puma.with_avoidance(state, obs, av, self.forcing, ep.stall,
                                                  ep.configuration)
         return Forced(state, av, h, qdd_c, xdd, ground)
 
-    def ground_rows(self, state, qd: np.ndarray) -> GroundRows | None:
+    def ground_rows(self, state, q: np.ndarray, qd: np.ndarray) -> GroundRows | None:
         """The heights above the ground the barrier step keeps (each moving link's lowest hull
         point), or None without the barrier step; ``state`` must be the kinematics' last
-        evaluation, at velocity qd (the rows read its pass)."""
+        evaluation, at (q, qd) (the rows read its pass).
+
+        A hull needs a row only below ``bound Δt / κ`` (its vertical speed bound), and between
+        two configurations its lowest point moves up or down by at most its Lipschitz constant
+        times the largest joint displacement (:func:`~tamedpuma.robot.ground.vertical_bounds`).
+        So where the rows came out empty, they stay empty while no joint has moved
+        ``ground_reach`` from there: those steps skip the computation and get the same (empty)
+        rows."""
         if self.hulls is None:
             return None
-        dt, table = self.dt, self.hull_table  # a hull higher than below needs no row
+        ep, table = self.episode, self.hull_table
+        if ep.ground_at is not None and float(_max(np.abs(q - ep.ground_at))) < ep.ground_reach:
+            return self.no_ground_rows
+        dt = ep.dt  # a hull higher than below needs no row
         below = table.speeds * (dt / BARRIER_KAPPA) if math.isfinite(dt) else np.inf
-        return hull_ground_rows(self.kinematics, table, qd, below)
+        rows = hull_ground_rows(self.kinematics, table, qd, below)
+        clear = rows.reach > 0.0 and math.isfinite(dt)
+        ep.ground_at, ep.ground_reach = (np.array(q, dtype=float), rows.reach) if clear else (
+            None, 0.0)
+        return rows
 
     def stall_scalars(self) -> dict[str, float]:
         """``stall_pull``: 1 while the stall pull is armed, else 0; with the configuration pull
@@ -246,6 +266,7 @@ class TamedController:
         return out
 
 
+_max = np.maximum.reduce  # np.max without its Python wrapper
 #: no barrier rows (the kernels' empty arguments)
 _NO_ROWS = np.empty((0, 0))
 _NO_METRIC = np.empty(0)

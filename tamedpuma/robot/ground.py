@@ -40,11 +40,14 @@ _min = np.minimum.reduce  # np.min without its Python wrapper
 
 @dataclass(frozen=True)
 class GroundRows:
-    """Heights x (k,) [m], rows a (k, n) [m/rad] and curvature terms ȧq̇ (k,) [m/s²]."""
+    """Heights x (k,) [m], rows a (k, n) [m/rad] and curvature terms ȧq̇ (k,) [m/s²]; reach
+    [rad]: where no rows were found, how far any joint may move from this configuration with
+    every hull still higher than its row height (the rows stay empty: 0 where not known)."""
 
     heights: np.ndarray
     rows: np.ndarray
     jdqd: np.ndarray
+    reach: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -56,8 +59,11 @@ class LinkHulls:
     frame_ids: tuple[int, ...]
     vertices: tuple[np.ndarray, ...]
     #: [m/s] per hull: no point of it moves up or down faster within the joint speed limits
-    #: (:func:`vertical_speed_bounds`)
+    #: (:func:`vertical_bounds` at q̇_max)
     speed_bounds: tuple[float, ...]
+    #: [m/rad] per hull: no point of it moves up or down by more than this times the largest
+    #: joint displacement (:func:`vertical_bounds` at 1 rad/s per joint)
+    lipschitz: tuple[float, ...]
     radii: tuple[float, ...] = ()  # [m] each hull's farthest vertex from its link origin
 
     def __post_init__(self):
@@ -66,17 +72,22 @@ class LinkHulls:
                 float(np.max(np.linalg.norm(v, axis=1))) for v in self.vertices))
 
 
-def vertical_speed_bounds(kinematics, frame_ids, vertices) -> tuple[float, ...]:
-    """Per hull, an upper bound [m/s] on the vertical speed of any of its points within the
-    joint speed limits: ``Σ_i q̇_max,i ρ_i`` over the joints i that move its link, ρ_i the
-    largest distance of a hull point from joint i (the joint origins' distances down the chain
-    to the link's own joint plus the hull's farthest point from that joint: the triangle
-    inequality, whatever the configuration). A revolute joint on the fixed base turning about
-    the world's vertical moves no point up or down (ż of ω × r is 0 for ω along z) and is left
-    out. The barrier step acts on a row only when one period Δt would take more than κ of its
-    height, so a link higher than ``bound Δt / κ`` needs no row."""
+def vertical_bounds(kinematics, frame_ids, vertices, rates) -> tuple[float, ...]:
+    """Per hull, an upper bound on the vertical speed [m/s] of any of its points while each
+    joint i turns no faster than ``rates[i]`` [rad/s]: ``Σ_i rates_i ρ_i`` over the joints i
+    that move its link, ρ_i the largest distance of a hull point from joint i (the joint
+    origins' distances down the chain to the link's own joint plus the hull's farthest point
+    from that joint: the triangle inequality, whatever the configuration). A revolute joint on
+    the fixed base turning about the world's vertical moves no point up or down (ż of ω × r is
+    0 for ω along z) and is left out.
+
+    At ``rates = q̇_max`` it decides which hulls need a row: the barrier step acts on a row only
+    when one period Δt would take more than κ of its height, so a link higher than
+    ``bound Δt / κ`` needs none. At rates 1 it is a Lipschitz constant [m/rad]: between two
+    configurations a hull's lowest point moves up or down by at most that times the largest
+    joint displacement."""
     model = kinematics.model
-    qd_max = np.asarray(kinematics.spec.qd_max, dtype=float)
+    qd_max = np.asarray(rates, dtype=float)
     lengths = [float(np.linalg.norm(p.translation)) for p in model.jointPlacements]
     bounds = []
     for fid, v in zip(frame_ids, vertices):
@@ -154,8 +165,10 @@ def _build_link_hulls(kinematics) -> LinkHulls:
     if not links:
         raise ConfigError("method.control_rate.barrier_step (its ground rows): no moving link has "
                           f"collision geometry in {kinematics.spec.urdf_path}")
+    qd_max = np.asarray(kinematics.spec.qd_max, dtype=float)
     return LinkHulls(tuple(links), tuple(ids), tuple(verts),
-                     vertical_speed_bounds(kinematics, ids, verts))
+                     vertical_bounds(kinematics, ids, verts, qd_max),
+                     vertical_bounds(kinematics, ids, verts, np.ones_like(qd_max)))
 
 
 def sphere_ground_rows(state) -> GroundRows:
