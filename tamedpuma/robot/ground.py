@@ -87,7 +87,7 @@ def vertical_bounds(kinematics, frame_ids, vertices, rates) -> tuple[float, ...]
     configurations a hull's lowest point moves up or down by at most that times the largest
     joint displacement."""
     model = kinematics.model
-    qd_max = np.asarray(rates, dtype=float)
+    rates = np.asarray(rates, dtype=float)
     lengths = [float(np.linalg.norm(p.translation)) for p in model.jointPlacements]
     bounds = []
     for fid, v in zip(frame_ids, vertices):
@@ -99,7 +99,7 @@ def vertical_bounds(kinematics, frame_ids, vertices, rates) -> tuple[float, ...]
         while joint > 0:  # from the link's joint towards the base: ρ grows by each placement
             if not _turns_about_vertical(model, joint):
                 idx = model.joints[joint].idx_v
-                bound += float(qd_max[idx]) * reach
+                bound += float(rates[idx]) * reach
             reach += lengths[joint]
             joint = model.parents[joint]
         bounds.append(bound)
