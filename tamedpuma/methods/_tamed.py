@@ -246,9 +246,8 @@ class TamedController:
             return self.no_ground_rows
         dt = ep.dt  # a hull higher than below needs no row
         below = table.speeds * (dt / BARRIER_KAPPA) if math.isfinite(dt) else np.inf
-        rows = hull_ground_rows(self.kinematics, table, qd, below)
-        clear = rows.reach > 0.0 and math.isfinite(dt)
-        ep.ground_at, ep.ground_reach = (np.array(q, dtype=float), rows.reach) if clear else (
+        rows = hull_ground_rows(self.kinematics, table, qd, below)  # (reach 0 where found)
+        ep.ground_at, ep.ground_reach = (np.array(q, dtype=float), rows.reach) if rows.reach else (
             None, 0.0)
         return rows
 

@@ -93,14 +93,14 @@ def vertical_bounds(kinematics, frame_ids, vertices, rates) -> tuple[float, ...]
     for fid, v in zip(frame_ids, vertices):
         frame = model.frames[fid]
         placement = frame.placement  # the link frame in its joint's frame
-        reach = float(np.max(np.linalg.norm(v @ placement.rotation.T + placement.translation,
-                                            axis=1)))
+        rho = float(np.max(np.linalg.norm(v @ placement.rotation.T + placement.translation,
+                                          axis=1)))
         bound, joint = 0.0, frame.parentJoint
         while joint > 0:  # from the link's joint towards the base: ρ grows by each placement
             if not _turns_about_vertical(model, joint):
                 idx = model.joints[joint].idx_v
-                bound += float(rates[idx]) * reach
-            reach += lengths[joint]
+                bound += float(rates[idx]) * rho
+            rho += lengths[joint]
             joint = model.parents[joint]
         bounds.append(bound)
     return tuple(bounds)
@@ -178,16 +178,21 @@ def sphere_ground_rows(state) -> GroundRows:
 
 
 def per_hull(below, hulls: LinkHulls) -> np.ndarray:
-    """``below`` [m], one number or one per hull, as a fresh array with one per hull (L,)."""
-    return np.array(np.broadcast_to(np.asarray(below, dtype=float), (len(hulls.frame_ids),)))
+    """``below`` [m], one number or one per hull, as a writable C float array with one per hull
+    (L,) (the kernels' argument type): ``below`` itself where it is one already, else a copy."""
+    L = len(hulls.frame_ids)
+    if (type(below) is np.ndarray and below.shape == (L,) and below.dtype == np.float64
+            and below.flags.c_contiguous and below.flags.writeable):
+        return below
+    return np.array(np.broadcast_to(np.asarray(below, dtype=float), (L,)))
 
 
 def hull_ground_rows(kinematics, hulls: LinkHulls, qd: np.ndarray,
                      below: float | np.ndarray = np.inf) -> GroundRows:
     """The lowest point of each hull lower than ``below`` [m] (one height, or one per hull) at
-    the kinematics' last
-    ``evaluate(q, q̇)`` (its placements, and the link origins' Jacobians and J̇q̇ by
-    :meth:`~tamedpuma.robot.kinematics.Kinematics.frame_motion`: no forward pass of its own);
+    the kinematics' last ``evaluate(q, q̇)`` (its placements, and the link origins' Jacobians
+    and J̇q̇ by :meth:`~tamedpuma.robot.kinematics.Kinematics.frame_motion`: no forward pass of
+    its own);
     qd: that q̇ [rad/s]. Its height, the z row of its point Jacobian
     and its ȧq̇ (see the module).
 
